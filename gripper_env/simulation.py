@@ -1,0 +1,735 @@
+"""The one simulation core: a batch of closed- or open-loop gripper runs at the 1 ms physics step.
+
+Every user of the plant model goes through here: the Gymnasium environments step it a control
+period at a time, the tuners run whole episodes for hundreds of gain sets at once, the virtual
+serial device runs it in real time. One compiled kernel (numba) advances ``B`` independent runs
+by ``n`` physics steps; a single run is a batch of one.
+
+One physics step ``k`` (time ``t_k = k * dt``) of run ``b``:
+
+1. the plant's true jaw angle ``y_true[k]`` (the first state of its observable form);
+2. the sensor: delay, additive Gaussian noise, ADC quantisation -> measured angle ``y[k]``;
+3. the controller: closed loop ``u[k] = PID(r[k], y[k])`` (:mod:`gripper_env.pid`), or open loop
+   ``u[k] = r[k]`` (the desired angle goes straight to the servo, as in the paper's
+   identification tests);
+4. the command path: on a servo refresh tick, clamp to the command range, quantise, rate-limit,
+   and hold until the next tick;
+5. friction (stiction, backlash) on the held command (:mod:`gripper_env.friction`);
+6. the plant's zero-order-hold update, then the mechanical stops (and an object in the jaws)
+   clamp the jaw angle.
+
+A run whose states leave ``+/- 1e9`` or stop being finite is *diverged*: it stops there, the rest
+of its trajectory is NaN, and it is flagged in :attr:`Trajectory.stable` so that no NaN reaches the
+metrics (which report such runs as unstable). No floating-point warnings are raised.
+
+Examples
+--------
+>>> from gripper_env.simulation import simulate
+>>> traj = simulate("test2", "step", gains=[[1.0, 9.0, -0.001]], disturbance="ideal")
+>>> traj.y.shape
+(1, 20000)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit, prange
+
+from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.friction import F_DIR, F_OUT, F_SIZE, F_STUCK, F_XPREV, F_XSS, FRICTION_MODELS
+from gripper_env.friction import backlash_step, stiction_step
+from gripper_env.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions, pid_update
+from gripper_env.plants import Plant, load_plant
+from gripper_env.references import Reference, load_reference
+
+__all__ = [
+    "BatchSimulator",
+    "Trajectory",
+    "build_params",
+    "simulate",
+]
+
+# ----------------------------------------------------------------------------------------------
+# Parameter vector (one row per run): controller, then the actual-gripper blocks.
+P_P, P_I, P_D, P_N, P_ULO, P_UHI, P_KB, P_SIGN, P_AW, P_DMEAS = range(10)
+P_CMD_LO, P_CMD_HI, P_QUANTUM, P_REFRESH, P_RATE = range(10, 15)
+P_FRIC, P_S, P_J, P_BACKLASH = range(15, 19)
+P_MECH_LO, P_MECH_HI = range(19, 21)
+P_ADC_LSB, P_ADC_LO, P_ADC_MAX, P_NOISE, P_DELAY = range(21, 26)
+N_PARAMS = 26
+
+# State vector (one row per run): controller, command path, friction, sensor, then the plant.
+S_XI, S_XF = 0, 1
+S_CMD, S_COUNTDOWN = 2, 3
+S_FRIC = 4  # F_SIZE entries
+S_BACKLASH = S_FRIC + F_SIZE
+S_DIDX = S_BACKLASH + 1
+S_VPREV = S_DIDX + 1
+S_YMEAS = S_VPREV + 1
+S_U = S_YMEAS + 1
+S_SPARE = S_U + 1  # cached second Box-Muller normal
+S_HAS_SPARE = S_SPARE + 1
+S_DIVERGED = S_HAS_SPARE + 1
+S_SATURATED = S_DIVERGED + 1  # count of steps with the command clipped
+S_CMDCLIP = S_SATURATED + 1  # 1 while the held servo command is clipped to its range
+S_STEPS = S_CMDCLIP + 1  # physics steps advanced so far
+S_X = S_STEPS + 1  # plant state, then as many entries of scratch space
+
+DIVERGENCE_BOUND = 1e9
+INITIAL_STATES = ("rest", "equilibrium", "zero")
+
+_U64_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_U64_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_U64_M2 = np.uint64(0x94D049BB133111EB)
+_U64_30 = np.uint64(30)
+_U64_27 = np.uint64(27)
+_U64_31 = np.uint64(31)
+_U64_11 = np.uint64(11)
+_TWO_M53 = 2.0**-53
+
+
+@njit(cache=True, inline="always")
+def _splitmix64(rng: np.ndarray, b: int) -> np.uint64:
+    z = rng[b] + _U64_GOLDEN
+    rng[b] = z
+    z = (z ^ (z >> _U64_30)) * _U64_M1
+    z = (z ^ (z >> _U64_27)) * _U64_M2
+    return z ^ (z >> _U64_31)
+
+
+@njit(cache=True, inline="always")
+def _normal(rng: np.ndarray, b: int, st: np.ndarray) -> float:
+    """Standard normal draw (Box-Muller, the second value cached in the state)."""
+    if st[S_HAS_SPARE] != 0.0:
+        st[S_HAS_SPARE] = 0.0
+        return st[S_SPARE]
+    u1 = (float(_splitmix64(rng, b) >> _U64_11) + 1.0) * _TWO_M53
+    u2 = float(_splitmix64(rng, b) >> _U64_11) * _TWO_M53
+    radius = math.sqrt(-2.0 * math.log(u1))
+    angle = 2.0 * math.pi * u2
+    st[S_SPARE] = radius * math.sin(angle)
+    st[S_HAS_SPARE] = 1.0
+    return radius * math.cos(angle)
+
+
+def _advance_impl(
+    n_steps: int,
+    closed_loop: bool,
+    dt: float,
+    ref: np.ndarray,
+    ref_offset: int,
+    params: np.ndarray,
+    plant_a: np.ndarray,
+    plant_b: np.ndarray,
+    plant_d: np.ndarray,
+    state: np.ndarray,
+    rng: np.ndarray,
+    delay_buf: np.ndarray,
+    out_r: np.ndarray,
+    out_u: np.ndarray,
+    out_y: np.ndarray,
+    out_yt: np.ndarray,
+) -> None:
+    """Advance every run by ``n_steps`` physics steps (see the module docstring).
+
+    ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
+    ``out_*`` are (B, n_steps) or (B, 0) to record nothing.
+    """
+    n_runs = params.shape[0]
+    n_x = plant_b.shape[1]
+    record = out_r.shape[1] > 0
+    buf_len = delay_buf.shape[1]
+    for b in prange(n_runs):
+        prm = params[b]
+        st = state[b]
+        rb = b if ref.shape[0] > 1 else 0
+        pb = b if plant_a.shape[0] > 1 else 0
+        a = plant_a[pb]
+        bv = plant_b[pb]
+        dff = plant_d[pb]
+        if st[S_DIVERGED] != 0.0:
+            if record:
+                for k in range(n_steps):
+                    out_r[b, k] = ref[rb, ref_offset + k]
+                    out_u[b, k] = np.nan
+                    out_y[b, k] = np.nan
+                    out_yt[b, k] = np.nan
+            continue
+        fst = st[S_FRIC : S_FRIC + F_SIZE]
+        x = st[S_X : S_X + n_x]
+        x_next = st[S_X + n_x : S_X + 2 * n_x]
+        p_gain, i_gain, d_gain, n_filt = prm[P_P], prm[P_I], prm[P_D], prm[P_N]
+        u_lo, u_hi, kb, sgn = prm[P_ULO], prm[P_UHI], prm[P_KB], prm[P_SIGN]
+        aw, dmeas = int(prm[P_AW]), int(prm[P_DMEAS])
+        cmd_lo, cmd_hi, quantum = prm[P_CMD_LO], prm[P_CMD_HI], prm[P_QUANTUM]
+        refresh = prm[P_REFRESH]
+        rate = prm[P_RATE]
+        fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
+        mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
+        lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
+        delay = int(prm[P_DELAY])
+        pid_state = st[S_XI : S_XF + 1]
+        diverged_at = -1
+        for k in range(n_steps):
+            # 1. true jaw angle before this step's input reaches the plant
+            y_now = x[0] + dff * st[S_VPREV]
+            # 2. sensor: delay line, noise, ADC
+            idx = int(st[S_DIDX])
+            delay_buf[b, idx] = y_now
+            y_meas = delay_buf[b, (idx - delay) % buf_len]
+            st[S_DIDX] = (idx + 1) % buf_len
+            if noise > 0.0:
+                y_meas += noise * _normal(rng, b, st)
+            if lsb > 0.0:
+                code = math.floor((y_meas - adc_lo) / lsb + 0.5)
+                if code < 0.0:
+                    code = 0.0
+                elif code > adc_max:
+                    code = adc_max
+                y_meas = adc_lo + code * lsb
+            st[S_YMEAS] = y_meas
+            # 3. controller
+            r = ref[rb, ref_offset + k]
+            if closed_loop:
+                u, v = pid_update(
+                    r, y_meas, p_gain, i_gain, d_gain, n_filt, dt,
+                    u_lo, u_hi, aw, kb, sgn, dmeas, pid_state,
+                )  # fmt: skip
+                clipped = u != v
+            else:
+                u = r
+                clipped = False
+            st[S_U] = u
+            # 4. servo command path: latch on refresh ticks
+            if st[S_COUNTDOWN] <= 0.0:
+                c = u
+                st[S_CMDCLIP] = 0.0
+                if c > cmd_hi:
+                    c = cmd_hi
+                    st[S_CMDCLIP] = 1.0
+                elif c < cmd_lo:
+                    c = cmd_lo
+                    st[S_CMDCLIP] = 1.0
+                if quantum > 0.0:
+                    c = quantum * math.floor(c / quantum + 0.5)
+                if rate > 0.0:
+                    step_max = rate * refresh * dt
+                    if c > st[S_CMD] + step_max:
+                        c = st[S_CMD] + step_max
+                    elif c < st[S_CMD] - step_max:
+                        c = st[S_CMD] - step_max
+                st[S_CMD] = c
+                st[S_COUNTDOWN] = refresh
+            st[S_COUNTDOWN] -= 1.0
+            if clipped or st[S_CMDCLIP] != 0.0:
+                st[S_SATURATED] += 1.0
+            # 5. friction and backlash
+            v_in = stiction_step(fric, st[S_CMD], s_deg, j_deg, fst)
+            if play > 0.0:
+                v_in = backlash_step(v_in, play, st[S_BACKLASH])
+                st[S_BACKLASH] = v_in
+            # 6. plant: output at t_k, zero-order-hold update, mechanical stops
+            y_true = x[0] + dff * v_in
+            for i in range(n_x):
+                acc = bv[i] * v_in
+                for j in range(n_x):
+                    acc += a[i, j] * x[j]
+                x_next[i] = acc
+            for i in range(n_x):
+                x[i] = x_next[i]
+            if x[0] < mech_lo:
+                x[0] = mech_lo
+            elif x[0] > mech_hi:
+                x[0] = mech_hi
+            st[S_VPREV] = v_in
+            if record:
+                out_r[b, k] = r
+                out_u[b, k] = u
+                out_y[b, k] = y_meas
+                out_yt[b, k] = y_true
+            if not (abs(x[0]) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
+                diverged_at = k
+                break
+        st[S_STEPS] += n_steps if diverged_at < 0 else diverged_at + 1
+        if diverged_at >= 0:
+            st[S_DIVERGED] = 1.0
+            if record:
+                for k in range(diverged_at, n_steps):
+                    out_r[b, k] = ref[rb, ref_offset + k]
+                    out_u[b, k] = np.nan
+                    out_y[b, k] = np.nan
+                    out_yt[b, k] = np.nan
+
+
+_advance_serial = njit(cache=True, nogil=True)(_advance_impl)
+_advance_parallel = njit(cache=True, nogil=True, parallel=True)(_advance_impl)
+
+#: Batches at least this large run on all cores.
+PARALLEL_MIN_BATCH = 16
+
+
+def _advance(n_runs: int):  # noqa: ANN202 - returns a numba dispatcher
+    return _advance_parallel if n_runs >= PARALLEL_MIN_BATCH else _advance_serial
+
+
+# ----------------------------------------------------------------------------------------------
+# Python side: parameter vectors, initial states, the batch simulator and whole-run simulation.
+
+
+def _as_gain_rows(gains: Any) -> np.ndarray:
+    """Gains as a (B, 4) float array ``[P, I, D, N]`` (N defaults to 100)."""
+    if isinstance(gains, PIDGains):
+        return gains.as_array()[None, :]
+    if isinstance(gains, Sequence) and gains and isinstance(gains[0], PIDGains):
+        return np.stack([g.as_array() for g in gains])
+    arr = np.asarray(gains, dtype=np.float64)
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] not in (3, 4):
+        raise ValueError(
+            f"gains must be (P, I, D[, N]) or an array of shape (B, 3) or (B, 4), got shape "
+            f"{arr.shape}"
+        )
+    if arr.shape[1] == 3:
+        arr = np.concatenate([arr, np.full((arr.shape[0], 1), 100.0)], axis=1)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"gains must be finite numbers; gain set {i} is {arr[i].tolist()}")
+    if np.any(arr[:, 3] <= 0):
+        raise ValueError("the derivative filter coefficient N must be positive")
+    return arr
+
+
+def build_params(
+    gains: np.ndarray | None,
+    disturbances: Sequence[Disturbance],
+    dt_s: float,
+    pid_options: PIDOptions | None = None,
+) -> np.ndarray:
+    """Parameter matrix (B, N_PARAMS) of the kernel from gains and actual-gripper blocks.
+
+    Parameters
+    ----------
+    gains : ndarray, shape (B, 4), or None
+        ``[P, I, D, N]`` per run; ``None`` for open loop (the PID columns stay zero).
+    disturbances : sequence of Disturbance
+        One per run, or one shared by all.
+    dt_s : float
+        Physics step (s).
+    pid_options : PIDOptions, optional
+        Output limits, anti-windup, derivative input and sign convention.
+    """
+    opts = pid_options or PIDOptions()
+    n = max(len(disturbances), 0 if gains is None else gains.shape[0])
+    params = np.zeros((n, N_PARAMS))
+    if gains is not None:
+        params[:, P_P : P_N + 1] = gains
+        if np.any(gains[:, 3] * dt_s >= 2.0):
+            raise ValueError(
+                f"derivative filter coefficient N must satisfy N*dt < 2 (dt = {dt_s} s) for a "
+                "stable Forward Euler filter"
+            )
+    params[:, P_ULO], params[:, P_UHI] = opts.output_limits
+    params[:, P_KB] = opts.kb
+    params[:, P_SIGN] = opts.sign
+    params[:, P_AW] = ANTI_WINDUP_MODES[opts.anti_windup]
+    params[:, P_DMEAS] = DERIVATIVE_ON[opts.derivative_on]
+    rows = [_disturbance_row(d, dt_s) for d in disturbances]
+    params[:, P_CMD_LO:] = rows[0] if len(rows) == 1 else np.stack(rows)
+    return params
+
+
+def _disturbance_row(d: Disturbance, dt_s: float) -> np.ndarray:
+    c, f, m, s = d.command, d.friction, d.mechanics, d.sensor
+    mech_lo, mech_hi = m.limits_deg if m.limits_deg is not None else (-math.inf, math.inf)
+    if m.object_contact_deg is not None:
+        mech_lo = max(mech_lo, m.object_contact_deg)
+    row = np.zeros(N_PARAMS - P_CMD_LO)
+    values = {
+        P_CMD_LO: c.range_deg[0],
+        P_CMD_HI: c.range_deg[1],
+        P_QUANTUM: c.quantum_deg,
+        P_REFRESH: max(1, round(c.refresh_period_s / dt_s)),
+        P_RATE: c.rate_limit_deg_s,
+        P_FRIC: FRICTION_MODELS[f.model],
+        P_S: f.S_deg,
+        P_J: f.J_deg,
+        P_BACKLASH: f.backlash_deg,
+        P_MECH_LO: mech_lo,
+        P_MECH_HI: mech_hi,
+        P_ADC_LSB: s.lsb_deg,
+        P_ADC_LO: s.adc_range_deg[0],
+        P_ADC_MAX: 2**s.adc_bits - 1 if s.adc_bits else 0,
+        P_NOISE: s.noise_std_deg,
+        P_DELAY: round(s.delay_s / dt_s),
+    }
+    for key, value in values.items():
+        row[key - P_CMD_LO] = value
+    return row
+
+
+def _seed_state(seed: int) -> tuple[np.uint64, np.random.Generator]:
+    """Noise-generator state and a parameter-sampling generator, both from one episode seed."""
+    noise_ss, sample_ss = np.random.SeedSequence(int(seed)).spawn(2)
+    return noise_ss.generate_state(1, np.uint64)[0], np.random.default_rng(sample_ss)
+
+
+class BatchSimulator:
+    """``B`` independent gripper runs that advance together, a control period or a whole run.
+
+    Parameters
+    ----------
+    plants : Plant or sequence of Plant
+        One plant shared by all runs, or one per run (orders may differ; they are zero-padded).
+    dt_s : float, optional
+        Physics step (s); default: the (first) plant's.
+    delay_capacity : int
+        Largest sensor delay (physics steps) the delay line can hold.
+    """
+
+    def __init__(
+        self, plants: Plant | Sequence[Plant], dt_s: float | None = None, delay_capacity: int = 64
+    ) -> None:
+        plant_list = [plants] if isinstance(plants, Plant) else list(plants)
+        if not plant_list:
+            raise ValueError("at least one plant is needed")
+        self.plants = plant_list
+        self.dt_s = float(dt_s if dt_s is not None else plant_list[0].dt_s)
+        n_x = max(p.order for p in plant_list)
+        self.n_x = n_x
+        self.plant_a = np.zeros((len(plant_list), n_x, n_x))
+        self.plant_b = np.zeros((len(plant_list), n_x))
+        self.plant_d = np.zeros(len(plant_list))
+        for i, p in enumerate(plant_list):
+            a, b, d = p.zoh_matrices(self.dt_s)
+            self.plant_a[i, : p.order, : p.order] = a
+            self.plant_b[i, : p.order] = b
+            self.plant_d[i] = d
+        self.delay_capacity = delay_capacity
+        self.params = np.zeros((0, N_PARAMS))
+        self.state = np.zeros((0, S_X + 2 * n_x))
+        self.rng = np.zeros(0, dtype=np.uint64)
+        self.delay_buf = np.zeros((0, delay_capacity + 1))
+        self.closed_loop = True
+
+    @property
+    def n_runs(self) -> int:
+        return self.params.shape[0]
+
+    def configure(
+        self,
+        gains: Any,
+        disturbances: Disturbance | Sequence[Disturbance],
+        pid_options: PIDOptions | None = None,
+    ) -> None:
+        """Set gains (``None``: open loop) and actual-gripper blocks; keeps the current state."""
+        dist = [disturbances] if isinstance(disturbances, Disturbance) else list(disturbances)
+        rows = None if gains is None else _as_gain_rows(gains)
+        params = build_params(rows, dist, self.dt_s, pid_options)
+        if np.any(params[:, P_DELAY] > self.delay_capacity):
+            raise ValueError(
+                f"sensor delay exceeds this simulator's capacity of {self.delay_capacity} steps"
+            )
+        n = params.shape[0]
+        if len(self.plants) not in (1, n):
+            raise ValueError(f"{len(self.plants)} plants for {n} runs: give one or one per run")
+        self.params = params
+        self.closed_loop = gains is not None
+        self.pid_options = pid_options or PIDOptions()
+
+    def set_gains(self, gains: Any, rows: np.ndarray | slice | None = None) -> None:
+        """Change ``[P, I, D(, N)]`` of some runs between steps (bumpless in I and D)."""
+        arr = _as_gain_rows(gains)
+        sel = slice(None) if rows is None else rows
+        self.params[sel, P_P : P_P + 4] = arr
+        if np.any(self.params[:, P_N] * self.dt_s >= 2.0):
+            raise ValueError("derivative filter coefficient N must satisfy N*dt < 2")
+
+    def reset(
+        self,
+        y0_deg: float | np.ndarray,
+        seeds: int | Sequence[int] | np.ndarray = 0,
+        initial: str = "rest",
+        rows: np.ndarray | None = None,
+    ) -> None:
+        """Put runs at rest at ``y0_deg`` (or in the zero state) and seed their noise.
+
+        Parameters
+        ----------
+        y0_deg : float or ndarray
+            Initial jaw angle per run (deg).
+        seeds : int or array of int
+            Noise seed per run (one is broadcast).
+        initial : {"rest", "equilibrium", "zero"}
+            ``rest``: the servo rests where it is commanded, ``u0 = y0`` (quasi-rest, see
+            :meth:`Plant.rest_state`); ``equilibrium``: the exact equilibrium under
+            ``u0 = y0 / G(0)``. Either way the integrator outputs ``u0`` (no bump at start).
+            ``zero``: every state zero, like MATLAB's ``lsim`` and Simulink's default.
+        rows : array of int, optional
+            Reset only these runs (the vector environment's autoreset).
+        """
+        n = self.n_runs
+        if self.state.shape[0] != n:
+            self.state = np.zeros((n, S_X + 2 * self.n_x))
+            self.rng = np.zeros(n, dtype=np.uint64)
+            self.delay_buf = np.zeros((n, self.delay_capacity + 1))
+        idx = np.arange(n) if rows is None else np.asarray(rows)
+        y0 = np.broadcast_to(np.asarray(y0_deg, dtype=float), (n,))
+        seed_arr = np.broadcast_to(np.asarray(seeds), (n,))
+        if initial not in INITIAL_STATES:
+            raise ValueError(f"initial must be one of {INITIAL_STATES}, got {initial!r}")
+        sign = self.pid_options.sign if self.closed_loop else 1
+        d_meas = self.closed_loop and self.pid_options.derivative_on == "measurement"
+        for b in idx:
+            plant = self.plants[b if len(self.plants) > 1 else 0]
+            st = np.zeros(S_X + 2 * self.n_x)
+            if initial != "zero":
+                x0, u0 = plant.rest_state(float(y0[b]), exact=initial == "equilibrium")
+                st[S_X : S_X + plant.order] = x0
+                y_start = float(y0[b])
+            else:
+                u0, y_start = 0.0, 0.0
+            st[S_XI] = u0 if self.closed_loop else 0.0
+            st[S_XF] = -sign * y_start if d_meas else 0.0
+            st[S_CMD] = u0
+            st[S_FRIC + F_OUT] = u0
+            st[S_FRIC + F_XPREV] = u0
+            st[S_FRIC + F_XSS] = u0
+            st[S_FRIC + F_DIR] = 0.0
+            st[S_FRIC + F_STUCK] = 1.0
+            st[S_BACKLASH] = u0
+            st[S_VPREV] = u0
+            st[S_YMEAS] = y_start
+            st[S_U] = u0
+            self.state[b] = st
+            self.delay_buf[b] = y_start
+            self.rng[b] = _seed_state(int(seed_arr[b]))[0]
+
+    def advance(
+        self,
+        n_steps: int,
+        reference: np.ndarray,
+        offset: int = 0,
+        out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance every run ``n_steps`` physics steps.
+
+        Parameters
+        ----------
+        n_steps : int
+            Physics steps.
+        reference : ndarray, shape (T,) or (B, T)
+            Reference (closed loop) or servo command (open loop) in deg, read from column
+            ``offset``; must hold at least ``offset + n_steps`` columns.
+        out : tuple of 4 ndarrays (B, n_steps), optional
+            Buffers for ``(r, u, y, y_true)``; allocated if not given.
+
+        Returns
+        -------
+        tuple of ndarray
+            ``(r, u, y, y_true)``, each (B, n_steps), in deg.
+        """
+        ref = reference if reference.ndim == 2 else reference[None, :]
+        if ref.shape[1] < offset + n_steps:
+            raise ValueError(f"reference has {ref.shape[1]} samples, {offset + n_steps} are needed")
+        if ref.shape[0] not in (1, self.n_runs):
+            raise ValueError(f"reference has {ref.shape[0]} rows for {self.n_runs} runs")
+        if out is None:
+            out = tuple(np.empty((self.n_runs, n_steps)) for _ in range(4))
+        _advance(self.n_runs)(
+            n_steps,
+            self.closed_loop,
+            self.dt_s,
+            np.ascontiguousarray(ref, dtype=np.float64),
+            offset,
+            self.params,
+            self.plant_a,
+            self.plant_b,
+            self.plant_d,
+            self.state,
+            self.rng,
+            self.delay_buf,
+            *out,
+        )
+        return out
+
+    @property
+    def diverged(self) -> np.ndarray:
+        """Runs whose states left the divergence bound (bool, shape (B,))."""
+        return self.state[:, S_DIVERGED] != 0.0
+
+    @property
+    def position_deg(self) -> np.ndarray:
+        """True jaw angle of each run now (deg)."""
+        return self.state[:, S_X] + self.plant_d * self.state[:, S_VPREV]
+
+    @property
+    def measured_deg(self) -> np.ndarray:
+        """Last measured jaw angle of each run (deg)."""
+        return self.state[:, S_YMEAS]
+
+    @property
+    def saturated_steps(self) -> np.ndarray:
+        """Physics steps each run spent with its command clipped (PID limits or servo range)."""
+        return self.state[:, S_SATURATED]
+
+
+@dataclass
+class Trajectory:
+    """Result of :func:`simulate`: a batch of runs over one reference.
+
+    Attributes
+    ----------
+    t : ndarray, shape (T,)
+        Time (s).
+    r, u, y, y_true : ndarray, shape (B, T)
+        Reference, controller output (servo command before the servo's own path), measured
+        and true jaw angle, in deg. NaN after a run diverged.
+    stable : ndarray of bool, shape (B,)
+        False for runs that diverged.
+    saturated_s : ndarray, shape (B,)
+        Time each run spent with its command clipped (s).
+    reference : Reference
+        The reference profile (its grip/un-grip segments feed the metrics).
+    closed_loop : bool
+        Whether a PID closed the loop.
+    """
+
+    t: np.ndarray
+    r: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    y_true: np.ndarray
+    stable: np.ndarray
+    saturated_s: np.ndarray
+    reference: Reference
+    closed_loop: bool
+
+    @property
+    def dt_s(self) -> float:
+        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else self.reference.dt_s
+
+    def __len__(self) -> int:
+        return self.r.shape[0]
+
+    def to_csv(self, path: str | os.PathLike[str], run: int = 0) -> None:
+        """Write one run as CSV: ``t_s, reference_deg, command_deg, position_deg`` (measured)."""
+        data = np.column_stack([self.t, self.r[run], self.u[run], self.y[run]])
+        np.savetxt(
+            path,
+            data,
+            delimiter=",",
+            header="t_s,reference_deg,command_deg,position_deg",
+            comments="",
+            fmt="%.6f",
+        )
+
+
+def simulate(
+    plant: str | os.PathLike[str] | Plant | Sequence[Plant],
+    reference: str | os.PathLike[str] | Reference | np.ndarray,
+    gains: Any = None,
+    disturbance: str
+    | os.PathLike[str]
+    | Mapping[str, Any]
+    | Disturbance
+    | Sequence[Any] = "actual",
+    *,
+    seeds: int | Sequence[int] | np.ndarray = 0,
+    randomize: bool = False,
+    pid_options: PIDOptions | None = None,
+    initial: str = "rest",
+    y0_deg: float | np.ndarray | None = None,
+) -> Trajectory:
+    """Simulate a batch of gripper runs over one reference, in one compiled call.
+
+    Parameters
+    ----------
+    plant : str, path, Plant or sequence of Plant
+        Plant name (``"test2"``), YAML path, or plant(s); one per run or one for all.
+    reference : str, path, Reference or ndarray
+        Profile name (``"step"``), CSV path, :class:`~gripper_env.references.Reference` or an
+        array of desired angles (deg) at the physics step.
+    gains : array-like (B, 3|4), PIDGains, list of PIDGains, or None
+        ``[P, I, D(, N)]`` per run; ``None`` runs open loop (reference straight to the servo).
+    disturbance : preset name, path, dict, Disturbance, or a sequence of them (one per run)
+        The actual-gripper blocks; ``"ideal"`` is the transfer function alone.
+    seeds : int or array of int
+        Seed per run (noise, and the parameter draw when ``randomize``); one is broadcast.
+    randomize : bool
+        Draw each run's disturbance parameters from the preset's ``randomize`` ranges.
+    pid_options : PIDOptions, optional
+        Output limits, anti-windup, derivative input, sign convention.
+    initial : {"rest", "equilibrium", "zero"}
+        Initial state (see :meth:`BatchSimulator.reset`).
+    y0_deg : float or ndarray, optional
+        Initial jaw angle (deg); default the reference's first value.
+
+    Returns
+    -------
+    Trajectory
+        Arrays of shape (B, T).
+    """
+    plants = list(plant) if isinstance(plant, Sequence) and not isinstance(plant, str) else [plant]
+    plants = [load_plant(p) for p in plants]
+    dt = plants[0].dt_s
+    if isinstance(reference, np.ndarray):
+        ref = Reference("array", dt, np.asarray(reference, dtype=float))
+    else:
+        ref = load_reference(reference, dt)
+    if not np.all(np.isfinite(ref.values_deg)):
+        raise ValueError("reference holds non-finite values")
+    dist_in = (
+        list(disturbance)
+        if isinstance(disturbance, Sequence) and not isinstance(disturbance, str)
+        else [disturbance]
+    )
+    dists = [load_disturbance(d) for d in dist_in]
+    gain_rows = None if gains is None else _as_gain_rows(gains)
+    seed_arr = np.atleast_1d(np.asarray(seeds, dtype=np.int64))
+    sizes = {len(plants), len(dists), len(seed_arr), 1 if gain_rows is None else len(gain_rows)}
+    n = max(sizes)
+    if sizes - {1, n}:
+        raise ValueError(
+            f"batch sizes disagree: {len(plants)} plants, {len(dists)} disturbances, "
+            f"{len(seed_arr)} seeds, {1 if gain_rows is None else len(gain_rows)} gain sets"
+        )
+    seed_arr = np.broadcast_to(seed_arr, (n,))
+    if randomize:
+        dists = [
+            (dists[i] if len(dists) > 1 else dists[0]).sample(_seed_state(int(seed_arr[i]))[1])
+            for i in range(n)
+        ]
+    if gain_rows is not None and len(gain_rows) == 1 and n > 1:
+        gain_rows = np.repeat(gain_rows, n, axis=0)
+    if len(dists) == 1 and n > 1:
+        dists = dists * 1  # shared row, broadcast by build_params
+    sim = BatchSimulator(plants, dt, delay_capacity=_delay_capacity(dists, dt))
+    sim.configure(gain_rows, dists, pid_options)
+    if sim.n_runs != n:
+        sim.params = np.repeat(sim.params, n, axis=0) if sim.n_runs == 1 else sim.params
+    y0 = ref.values_deg[0] if y0_deg is None else y0_deg
+    sim.reset(y0, seed_arr, initial=initial)
+    out = sim.advance(len(ref), ref.values_deg)
+    return Trajectory(
+        t=ref.t_s,
+        r=out[0],
+        u=out[1],
+        y=out[2],
+        y_true=out[3],
+        stable=~sim.diverged,
+        saturated_s=sim.saturated_steps * dt,
+        reference=ref,
+        closed_loop=gain_rows is not None,
+    )
+
+
+def _delay_capacity(dists: Sequence[Disturbance], dt: float) -> int:
+    return max(1, max(round(d.sensor.delay_s / dt) for d in dists))

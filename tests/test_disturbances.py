@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+
+from gripper_env.config import ConfigError
+from gripper_env.disturbances import (
+    Disturbance,
+    available_disturbances,
+    describe,
+    load_disturbance,
+)
+
+
+def test_presets_exist_and_are_what_they_say():
+    assert {"ideal", "actual", "worn"} <= set(available_disturbances())
+    ideal = load_disturbance("ideal")
+    assert ideal.friction.model == "none" and ideal.sensor.adc_bits == 0
+    assert ideal.mechanics.limits_deg is None and ideal.command.refresh_period_s == 0
+    actual = load_disturbance("actual")
+    assert actual.command.refresh_period_s == pytest.approx(0.020)
+    assert actual.command.quantum_deg == 1.0
+    assert actual.friction.model == "choudhury"
+    assert actual.mechanics.limits_deg == (21.0, 92.0)
+    assert actual.sensor.adc_bits == 10
+    assert 0.2 <= actual.sensor.lsb_deg <= 0.3  # DESIGN.md: 0.2-0.3 deg per count
+    worn = load_disturbance("worn")  # extends actual
+    assert worn.friction.S_deg > actual.friction.S_deg
+    assert worn.sensor.adc_bits == 10
+    assert "choudhury" in describe(worn)
+
+
+def test_microsecond_quantum():
+    d = load_disturbance({"extends": "actual", "command": {"quantization": "microseconds"}})
+    assert d.command.quantum_deg == pytest.approx(180 / 1856)
+
+
+def test_randomisation_is_seeded_and_within_range():
+    actual = load_disturbance("actual")
+    a = actual.sample(np.random.default_rng(7))
+    b = actual.sample(np.random.default_rng(7))
+    c = actual.sample(np.random.default_rng(8))
+    assert a == b and a != c
+    lo, hi = actual.randomize["friction.S_deg"]
+    draws = [actual.sample(np.random.default_rng(s)).friction.S_deg for s in range(50)]
+    assert lo <= min(draws) and max(draws) <= hi
+    assert a.randomize == {}
+
+
+def test_unknown_preset_lists_available():
+    with pytest.raises(ConfigError, match="unknown disturbance 'rusty'; available: actual"):
+        load_disturbance("rusty")
+
+
+def test_bad_values_name_the_key(tmp_path):
+    path = tmp_path / "d.yaml"
+    path.write_text("friction:\n  model: choudhury\n  S_deg: -1\n")
+    with pytest.raises(ConfigError, match=r"d\.yaml: key 'friction\.S_deg'"):
+        load_disturbance(path)
+    path.write_text("friction:\n  modle: kano\n")
+    with pytest.raises(ConfigError, match="friction.modle"):
+        load_disturbance(path)
+    with pytest.raises(ConfigError, match="randomize: unknown parameter 'friction.Q'"):
+        load_disturbance({"randomize": {"friction.Q": [0, 1]}})
+    with pytest.raises(ConfigError, match="friction.model"):
+        load_disturbance({"friction": {"model": "lugre-ish"}})
+
+
+def test_overrides_compose():
+    d = load_disturbance("actual").with_overrides({"mechanics": {"object_contact_deg": 40.0}})
+    assert d.mechanics.object_contact_deg == 40.0
+    assert d.friction == load_disturbance("actual").friction
+    assert isinstance(d, Disturbance)
