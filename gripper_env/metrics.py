@@ -15,7 +15,8 @@ Definitions (DESIGN.md section 2):
 * **IAE, ISE, ITAE** of the tracking error ``r - y`` (deg s, deg^2 s, deg s^2), **control effort**
   = total variation of the controller output ``sum |u[k] - u[k-1]|`` (deg), **saturation time**
   (s) with the command clipped.
-* **Fit %** between two responses (MATLAB ``compare``): ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``.
+* **Fit %** between two responses (MATLAB ``compare``):
+  ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``.
 
 A run flagged unstable (diverged) gets ``inf`` for every error-like metric and ``stable = False``.
 """

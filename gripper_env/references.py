@@ -30,8 +30,8 @@ __all__ = [
     "Reference",
     "Segment",
     "load_reference",
-    "random_profile",
     "ramp_profile",
+    "random_profile",
     "step_profile",
 ]
 

@@ -42,8 +42,17 @@ import numpy as np
 from numba import njit, prange
 
 from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.friction import F_DIR, F_OUT, F_SIZE, F_STUCK, F_XPREV, F_XSS, FRICTION_MODELS
-from gripper_env.friction import backlash_step, stiction_step
+from gripper_env.friction import (
+    F_DIR,
+    F_OUT,
+    F_SIZE,
+    F_STUCK,
+    F_XPREV,
+    F_XSS,
+    FRICTION_MODELS,
+    backlash_step,
+    stiction_step,
+)
 from gripper_env.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions, pid_update
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
@@ -274,7 +283,7 @@ _advance_parallel = njit(cache=True, nogil=True, parallel=True)(_advance_impl)
 PARALLEL_MIN_BATCH = 16
 
 
-def _advance(n_runs: int):  # noqa: ANN202 - returns a numba dispatcher
+def _advance(n_runs: int):
     return _advance_parallel if n_runs >= PARALLEL_MIN_BATCH else _advance_serial
 
 

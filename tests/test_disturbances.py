@@ -56,11 +56,11 @@ def test_bad_values_name_the_key(tmp_path):
     with pytest.raises(ConfigError, match=r"d\.yaml: key 'friction\.S_deg'"):
         load_disturbance(path)
     path.write_text("friction:\n  modle: kano\n")
-    with pytest.raises(ConfigError, match="friction.modle"):
+    with pytest.raises(ConfigError, match=r"friction\.modle"):
         load_disturbance(path)
-    with pytest.raises(ConfigError, match="randomize: unknown parameter 'friction.Q'"):
+    with pytest.raises(ConfigError, match=r"randomize: unknown parameter 'friction\.Q'"):
         load_disturbance({"randomize": {"friction.Q": [0, 1]}})
-    with pytest.raises(ConfigError, match="friction.model"):
+    with pytest.raises(ConfigError, match=r"friction\.model"):
         load_disturbance({"friction": {"model": "lugre-ish"}})
 
 

@@ -1,3 +1,5 @@
+import itertools
+
 import numpy as np
 import pytest
 
@@ -67,4 +69,4 @@ def test_random_profiles_are_seeded_and_in_range():
     assert len(a) == 20000
     assert a.values_deg.min() >= 21.0 and a.values_deg.max() <= 92.0
     kinds = [s.kind for s in a.segments]
-    assert kinds[0] == "grip" and all(k1 != k2 for k1, k2 in zip(kinds, kinds[1:], strict=False))
+    assert kinds[0] == "grip" and all(k1 != k2 for k1, k2 in itertools.pairwise(kinds))

@@ -1,0 +1,213 @@
+import warnings
+
+import control
+import numpy as np
+import pytest
+from conftest import PAPER_GAINS
+
+from gripper_env.disturbances import load_disturbance
+from gripper_env.pid import PIDOptions
+from gripper_env.plants import load_plant
+from gripper_env.references import load_reference
+from gripper_env.simulation import BatchSimulator, simulate
+
+TS = 1e-3
+
+
+def discrete_pid(p, i, d, n=100.0, ts=TS):
+    """Simulink's Forward Euler PID as a python-control state-space system."""
+    z = control.tf([1, 0], [1], ts)
+    return control.ss(p + i * ts / (z - 1) + d * n / (1 + n * ts / (z - 1)))
+
+
+def discrete_plant(plant):
+    """Exact ZOH of the plant, built in state space (a TF with poles at z ~ 1 loses digits)."""
+    return control.c2d(control.ss(plant.tf), plant.dt_s, method="zoh")
+
+
+@pytest.mark.parametrize(
+    "gains", [PAPER_GAINS["untuned_tf"], PAPER_GAINS["tuned_tf"], (0.5, 2.0, 0.0)]
+)
+def test_ideal_closed_loop_matches_python_control(paper_plant_name, gains):
+    """The acceptance test of the core: 1e-9 relative to forced_response of the same loop."""
+    plant = load_plant(paper_plant_name)
+    loop = control.feedback(discrete_plant(plant) * discrete_pid(*gains), 1)
+    ref = load_reference("step")
+    with np.errstate(all="ignore"):  # the reference solution overflows where the loop diverges
+        _, y_ref = control.forced_response(loop, T=ref.t_s, U=ref.values_deg)
+    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="zero")
+    if not np.all(np.abs(y_ref) < 1e9):
+        # e.g. the paper's untuned gains on test4: the loop diverges, and is flagged so
+        assert not traj.stable[0]
+        assert np.max(np.abs(loop.poles())) > 1.0
+        return
+    # (test1 with integral action is slowly unstable, |z| = 1.0001, yet finite over 20 s)
+    assert traj.stable[0]
+    scale = np.max(np.abs(y_ref))
+    np.testing.assert_allclose(traj.y_true[0], y_ref, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(traj.y[0], traj.y_true[0], rtol=0, atol=1e-9 * scale)
+
+
+def test_ideal_from_rest_is_superposition(paper_plant_name):
+    """Starting at the exact equilibrium at 92 deg, y - 92 is the zero-state response to r - 92."""
+    plant = load_plant(paper_plant_name)
+    gains = PAPER_GAINS["tuned_tf"]
+    loop = control.feedback(discrete_plant(plant) * discrete_pid(*gains), 1)
+    ref = load_reference("step")
+    _, y_ref = control.forced_response(loop, T=ref.t_s, U=ref.values_deg - 92.0)
+    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="equilibrium")
+    np.testing.assert_allclose(traj.y_true[0] - 92.0, y_ref, rtol=0, atol=1e-9 * 92)
+
+
+def test_ideal_open_loop_matches_python_control(paper_plant_name):
+    plant = load_plant(paper_plant_name)
+    ref = load_reference("slope20")
+    _, y_ref = control.forced_response(discrete_plant(plant), T=ref.t_s, U=ref.values_deg)
+    traj = simulate(plant, ref, gains=None, disturbance="ideal", initial="zero")
+    np.testing.assert_allclose(traj.y_true[0], y_ref, rtol=0, atol=1e-9 * 92)
+    np.testing.assert_array_equal(traj.u[0], ref.values_deg)
+
+
+def test_batch_equals_single_runs():
+    gains = np.array([PAPER_GAINS["tuned_tf"], PAPER_GAINS["untuned_tf"], (0.3, 4.0, 0.0)] * 7)
+    seeds = np.arange(len(gains))
+    batch = simulate("test2", "step", gains=gains, disturbance="actual", seeds=seeds)
+    for i in (0, 1, 2, 20):
+        one = simulate("test2", "step", gains=[gains[i]], disturbance="actual", seeds=seeds[i])
+        np.testing.assert_array_equal(batch.y[i], one.y[0])
+        np.testing.assert_array_equal(batch.u[i], one.u[0])
+
+
+def test_same_seed_same_run_other_seed_other_noise():
+    a = simulate("test2", "step", gains=[PAPER_GAINS["tuned_tf"]], seeds=5)
+    b = simulate("test2", "step", gains=[PAPER_GAINS["tuned_tf"]], seeds=5)
+    c = simulate("test2", "step", gains=[PAPER_GAINS["tuned_tf"]], seeds=6)
+    np.testing.assert_array_equal(a.y, b.y)
+    assert not np.array_equal(a.y, c.y)
+
+
+def test_randomised_parameters_follow_the_seed():
+    a = simulate("test2", "slope20", disturbance="worn", seeds=[1, 2], randomize=True)
+    b = simulate("test2", "slope20", disturbance="worn", seeds=[1, 2], randomize=True)
+    np.testing.assert_array_equal(a.y_true, b.y_true)
+    assert not np.array_equal(a.y_true[0], a.y_true[1])
+
+
+def test_unstable_gains_are_flagged_without_warnings():
+    gains = [PAPER_GAINS["untuned_hw"], PAPER_GAINS["tuned_hw"], PAPER_GAINS["tuned_tf"]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        traj = simulate("test2", "step", gains=gains, disturbance="ideal")
+    assert traj.stable.tolist() == [False, False, True]
+    assert np.isnan(traj.y[0, -1]) and np.all(np.isfinite(traj.y[2]))
+    # the paper's hardware gains are stable with the opposite error sign (e = y - r)
+    flipped = simulate(
+        "test2", "step", gains=gains[:2], disturbance="ideal", pid_options=PIDOptions(sign=-1)
+    )
+    assert flipped.stable.all()
+
+
+def test_actual_chain_quantises_holds_and_limits():
+    d = load_disturbance("actual")
+    traj = simulate("test2", "step", gains=[PAPER_GAINS["untuned_tf"]], disturbance=d, seeds=3)
+    yt = traj.y_true[0]
+    assert yt.min() >= 21.0 and yt.max() <= 92.0  # mechanical stops
+    lsb = d.sensor.lsb_deg
+    codes = traj.y[0] / lsb
+    np.testing.assert_allclose(codes, np.round(codes), atol=1e-6)  # 10-bit ADC grid
+    # the ideal loop overshoots 40 %, far past the stops; the real jaw cannot
+    ideal = simulate("test2", "step", gains=[PAPER_GAINS["untuned_tf"]], disturbance="ideal")
+    assert ideal.y_true[0].min() < 21.0 - 20
+
+
+def test_servo_sees_whole_degrees_every_20_ms():
+    # open loop with a smooth reference: the plant input is piecewise constant over 20 samples
+    plant = load_plant("test4")
+    sim = BatchSimulator(plant)
+    d = load_disturbance({"extends": "actual", "friction": {"model": "none"}})
+    sim.configure(None, d)
+    sim.reset(50.0, seeds=0)
+    r = 50.0 + 10.0 * np.sin(np.arange(2000) * 2e-3)
+    held = []
+    for k in range(0, 2000):
+        sim.advance(1, r, offset=k)
+        held.append(sim.state[0, 2])  # S_CMD
+    held = np.array(held)
+    changes = np.flatnonzero(np.diff(held)) + 1
+    assert len(changes) > 5
+    assert np.all(changes % 20 == 0)
+    np.testing.assert_array_equal(held, np.round(held))
+
+
+def test_stick_slip_on_the_slow_slope():
+    """With the actual preset the 60 s slope moves in jumps; with ideal it glides."""
+    actual = simulate("test2", "slope60", disturbance="actual", seeds=0)
+    ideal = simulate("test2", "slope60", disturbance="ideal")
+    window = slice(10_000, 50_000)  # during the grip ramp
+    v_act = np.abs(np.diff(actual.y_true[0, window])) / TS
+    v_ideal = np.abs(np.diff(ideal.y_true[0, window])) / TS
+    # ideal: a steady 71/60 deg/s; actual: mostly stuck, with short fast slips
+    assert np.median(v_ideal) == pytest.approx(71 / 60, rel=0.01)
+    assert np.mean(v_act < 0.05) > 0.5
+    assert v_act.max() > 5 * 71 / 60
+    # it still gets there on average
+    assert abs(actual.y_true[0, 50_000] - ideal.y_true[0, 50_000]) < 3.0
+
+
+def test_object_in_the_jaws_stops_closing_and_winds_up_without_anti_windup():
+    d = load_disturbance("actual").with_overrides({"mechanics": {"object_contact_deg": 45.0}})
+    clamp = simulate(
+        "test2",
+        "step",
+        gains=[(0.2, 5.0, 0.0)],
+        disturbance=d,
+        pid_options=PIDOptions(output_limits=(0, 180), anti_windup="clamping"),
+    )
+    free = simulate(
+        "test2",
+        "step",
+        gains=[(0.2, 5.0, 0.0)],
+        disturbance=d,
+        pid_options=PIDOptions(anti_windup="none"),
+    )
+    grip = slice(1000, 10_000)
+    assert clamp.y_true[0, grip].min() == pytest.approx(45.0)
+    # the command keeps pushing below the contact angle; without anti-windup it runs away
+    assert free.u[0, 9_999] < -50 and clamp.u[0, 9_999] >= 0.0
+    # ...and then it takes longer to reopen
+    t_open_free = np.argmax(free.y_true[0, 10_000:] > 80)
+    t_open_clamp = np.argmax(clamp.y_true[0, 10_000:] > 80)
+    assert t_open_free > t_open_clamp
+
+
+def test_sensor_delay_shifts_the_measurement():
+    d = load_disturbance("ideal").with_overrides({"sensor": {"delay_s": 0.005}})
+    traj = simulate("test4", "slope20", disturbance=d)
+    np.testing.assert_allclose(traj.y[0, 5:], traj.y_true[0, :-5], atol=1e-9)
+
+
+def test_gains_can_change_between_steps():
+    plant = load_plant("test2")
+    sim = BatchSimulator(plant)
+    sim.configure([PAPER_GAINS["tuned_tf"]], load_disturbance("ideal"))
+    sim.reset(92.0)
+    ref = load_reference("step").values_deg
+    sim.advance(5000, ref)
+    u_before = sim.state[0, 0]
+    sim.set_gains([(1.0, 30.0, -0.001)])
+    _r, u, y, _yt = sim.advance(1, ref, offset=5000)
+    # bumpless in I: the output continues from the same integrator value
+    assert u[0, 0] == pytest.approx(u_before + 1.0 * (ref[5000] - y[0, 0]) + 0.0, abs=0.5)
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="gains must be finite"):
+        simulate("test2", "step", gains=[(np.nan, 1.0, 0.0)])
+    with pytest.raises(ValueError, match=r"shape \(B, 3\)"):
+        simulate("test2", "step", gains=[(1.0, 2.0)])
+    with pytest.raises(ValueError, match="batch sizes disagree"):
+        simulate("test2", "step", gains=np.ones((3, 3)), seeds=[1, 2])
+    with pytest.raises(ValueError, match="N\\*dt < 2"):
+        simulate("test2", "step", gains=[(1.0, 1.0, 0.0, 5000.0)])
+    with pytest.raises(ValueError, match="initial must be"):
+        simulate("test2", "step", gains=[(1.0, 1.0, 0.0)], initial="warm")
