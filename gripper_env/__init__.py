@@ -1,0 +1,42 @@
+"""gripper-env: a Gymnasium environment and PID-tuning benchmark for a low-cost robot gripper.
+
+The library: the paper's identified plants (:mod:`gripper_env.plants`), the actual-gripper
+model (:mod:`gripper_env.disturbances`, :mod:`gripper_env.friction`), a Simulink-style PID
+(:mod:`gripper_env.pid`), reference profiles (:mod:`gripper_env.references`), one batched
+simulation core (:mod:`gripper_env.simulation`), MATLAB-compatible metrics
+(:mod:`gripper_env.metrics`) and the shared tuning objective (:mod:`gripper_env.objective`).
+"""
+
+from gripper_env.config import ConfigError
+from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.metrics import Metrics, compute_metrics, fit_percent
+from gripper_env.objective import Objective, load_objective
+from gripper_env.pid import PID, PIDGains, PIDOptions
+from gripper_env.plants import Plant, load_plant
+from gripper_env.references import Reference, load_reference, random_profile
+from gripper_env.simulation import BatchSimulator, Trajectory, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "PID",
+    "BatchSimulator",
+    "ConfigError",
+    "Disturbance",
+    "Metrics",
+    "Objective",
+    "PIDGains",
+    "PIDOptions",
+    "Plant",
+    "Reference",
+    "Trajectory",
+    "__version__",
+    "compute_metrics",
+    "fit_percent",
+    "load_disturbance",
+    "load_objective",
+    "load_plant",
+    "load_reference",
+    "random_profile",
+    "simulate",
+]
