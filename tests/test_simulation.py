@@ -211,3 +211,24 @@ def test_bad_inputs():
         simulate("test2", "step", gains=[(1.0, 1.0, 0.0, 5000.0)])
     with pytest.raises(ValueError, match="initial must be"):
         simulate("test2", "step", gains=[(1.0, 1.0, 0.0)], initial="warm")
+
+
+def test_noise_generator_is_standard_normal():
+    from scipy import stats
+
+    from gripper_env.simulation import normal_draws
+
+    x = normal_draws(11, 200_000)
+    assert abs(x.mean()) < 0.01 and abs(x.std() - 1) < 0.01
+    assert stats.kstest(x, "norm").pvalue > 1e-3
+    # the ziggurat's tail beyond r = 3.4426 has the normal's mass
+    assert np.mean(np.abs(x) > 3.442619855899) == pytest.approx(2 * stats.norm.sf(3.4426), rel=0.2)
+    np.testing.assert_array_equal(x[:10], normal_draws(11, 10))
+    assert not np.array_equal(x[:10], normal_draws(12, 10))
+
+
+def test_measurement_noise_has_the_configured_spread():
+    d = load_disturbance("ideal").with_overrides({"sensor": {"noise_std_deg": 0.4}})
+    traj = simulate("test4", "step", gains=None, disturbance=d, seeds=3)
+    resid = traj.y[0] - traj.y_true[0]
+    assert np.std(resid) == pytest.approx(0.4, rel=0.03)
