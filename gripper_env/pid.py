@@ -254,6 +254,8 @@ class PID:
     dt_s: float = 1e-3
     options: PIDOptions = field(default_factory=PIDOptions)
     state: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    #: Unsaturated output of the last step (deg).
+    last_unsaturated: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.dt_s > 0 and math.isfinite(self.dt_s)):
