@@ -67,8 +67,9 @@ messages = st.one_of(
         proto.ProfileChunk,
         st.integers(0, 0xFFFF),
         st.integers(0, 0xFFFF),
-        st.lists(st.integers(-0x8000, 0x7FFF), min_size=1, max_size=proto.PROFILE_CHUNK_MAX_SAMPLES)
-        .map(tuple),
+        st.lists(
+            st.integers(-0x8000, 0x7FFF), min_size=1, max_size=proto.PROFILE_CHUNK_MAX_SAMPLES
+        ).map(tuple),
     ),
     st.builds(
         proto.Telemetry,
