@@ -277,6 +277,7 @@ std::string pid_run(std::istringstream& in) {
 
 Device device;
 uint32_t now_us = 0;
+double sim_y = JAW_OPEN_DEG; // angle of the simulated servo (deg), reset by dev_begin
 
 std::string drain_tx() {
     Bytes b;
@@ -375,6 +376,7 @@ std::string handle(const std::string& line) {
         in >> a >> b;
         now_us = (uint32_t)std::strtoul(b.c_str(), nullptr, 10);
         device.begin((uint32_t)std::strtoul(a.c_str(), nullptr, 10), now_us);
+        sim_y = JAW_OPEN_DEG;
         return "OK";
     }
     if (cmd == "dev_rx") {
@@ -398,7 +400,7 @@ std::string handle(const std::string& line) {
         double tau_ms = 0;
         in >> n >> tau_ms >> lo >> hi;
         AdcCalibration cal = {(uint16_t)lo, (uint16_t)hi};
-        static double y = JAW_OPEN_DEG;
+        double& y = sim_y;
         TickSummary s;
         for (long k = 0; k < n; ++k) {
             device.tick(now_us, deg_to_adc<double>(y, cal), false);
