@@ -3,9 +3,9 @@ import warnings
 import control
 import numpy as np
 import pytest
-from conftest import PAPER_GAINS
 
 from gripper_env.disturbances import load_disturbance
+from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference

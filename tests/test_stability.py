@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-from conftest import PAPER_GAINS
 
+from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.simulation import simulate
 from gripper_env.stability import closed_loop, stability_report

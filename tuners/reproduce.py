@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env import __version__
+from gripper_env import __version__, paper
 from gripper_env.disturbances import describe, load_disturbance
 from gripper_env.metrics import compute_metrics, fit_percent, sample_sd
 from gripper_env.pid import PIDGains, PIDOptions
@@ -35,22 +35,15 @@ from gripper_env.simulation import simulate
 from gripper_env.stability import stability_report
 
 PLANTS = ("test1", "test2", "test3", "test4")
-PAPER_FIT = {"test1": 96.42, "test2": 95.33, "test3": 95.90, "test4": 95.88}
-PAPER_TABLE2 = {
-    "actual": 34.611,
-    "test1": 26.891,
-    "test2": 34.167,
-    "test3": 34.000,
-    "test4": 33.934,
-}
+PAPER_FIT = {name: fit for name, (_num, _den, fit) in paper.PLANTS.items()}
+PAPER_TABLE2 = paper.TABLE2_SD
 PAPER_GAINS = {
-    "untuned (TF test2)": (-0.4, 7.0, -0.045),
-    "tuned (TF test2)": (1.0, 9.0, -0.001),
-    "untuned (hardware)": (-0.3, -5.0, -0.0005),
-    "tuned (hardware)": (-0.5, -3.6, 0.000186),
+    "untuned (TF test2)": paper.PID_GAINS["untuned_tf"],
+    "tuned (TF test2)": paper.PID_GAINS["tuned_tf"],
+    "untuned (hardware)": paper.PID_GAINS["untuned_hw"],
+    "tuned (hardware)": paper.PID_GAINS["tuned_hw"],
 }
-# Table 4: SD of the closed-loop response on TF test2 and on the actual gripper.
-PAPER_TABLE4 = {"untuned": (36.031, 36.760), "tuned": (33.339, 34.628)}
+PAPER_TABLE4 = paper.TABLE4_SD
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 
 
