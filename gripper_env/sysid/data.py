@@ -184,9 +184,7 @@ def prepare_data(
     u_arr = as_signal(u, "u")
     y_arr = as_signal(y, "y")
     if u_arr.size != y_arr.size:
-        raise ValueError(
-            f"u and y have different lengths ({u_arr.size} and {y_arr.size} samples)"
-        )
+        raise ValueError(f"u and y have different lengths ({u_arr.size} and {y_arr.size} samples)")
     if np.ndim(time_s) == 0:
         try:
             dt = float(time_s)  # type: ignore[arg-type]
@@ -216,9 +214,7 @@ def prepare_data(
             f"u is constant ({u_arr[0]} for all samples): it does not excite the system"
         )
     if np.ptp(y_arr) == 0:
-        raise ValueError(
-            f"y is constant ({y_arr[0]} for all samples): there is no response to fit"
-        )
+        raise ValueError(f"y is constant ({y_arr[0]} for all samples): there is no response to fit")
     if offset == "initial":
         moved = np.flatnonzero(u_arr != u_arr[0])
         k = int(moved[0]) if moved.size else u_arr.size

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from gripper_env.sysid.data import IOData
 from gripper_env.sysid.sensitivity import model_sensitivities
 from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
@@ -35,8 +36,8 @@ __all__ = [
     "SrivcResult",
     "initial_estimate",
     "split_params",
-    "stabilise",
     "srivc",
+    "stabilise",
     "svf_least_squares",
 ]
 

@@ -221,9 +221,7 @@ def _json_float(x: float) -> float | None:
 
 
 def _param_names(n: int, m: int) -> tuple[str, ...]:
-    return tuple(f"a{j}" for j in range(n - 1, -1, -1)) + tuple(
-        f"b{k}" for k in range(m, -1, -1)
-    )
+    return tuple(f"a{j}" for j in range(n - 1, -1, -1)) + tuple(f"b{k}" for k in range(m, -1, -1))
 
 
 def tfest(
