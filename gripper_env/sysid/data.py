@@ -3,7 +3,8 @@
 Every estimator in :mod:`gripper_env.sysid` calls :func:`prepare_data` first, so all of them refuse
 the same bad inputs with the same messages and remove the operating point the same way.
 
-Operating point (``offset``), removed before fitting and restored by the estimates' ``simulate``:
+Operating point (``offset``), removed before fitting and restored by the estimates' ``simulate``
+(:func:`gripper_env.sysid.tfest` then refines ``y_op`` jointly with the model by default):
 
 - ``"initial"`` (default): ``u_op = u[0]``; ``y_op`` = mean of ``y`` over the leading samples during
   which ``u`` still equals ``u[0]`` (the rest period before the first move; just ``y[0]`` if the

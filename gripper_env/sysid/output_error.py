@@ -1,9 +1,12 @@
 """Output-error refinement of a continuous-time transfer function (the step after SRIVC).
 
 Minimises the simulation error ``sum_k (y_k - yhat_k)^2`` over the coefficients of
-``B(s)/A(s)`` and the initial state, where ``yhat`` is the exact ZOH-sampled response of
-``B/A`` to the held input plus the free response of the observer-form initial state ``x0``
-(:func:`gripper_env.sysid.zoh.zoh_response`). The search is
+``B(s)/A(s)``, the initial state and (optionally) a correction of the output operating point,
+where ``yhat`` is the exact ZOH-sampled response of ``B/A`` to the held input plus the free
+response of the observer-form initial state ``x0`` (:func:`gripper_env.sysid.zoh.zoh_response`)
+plus the offset correction. Estimating the offset matters: an operating point taken from a short
+rest period is off by ``noise / sqrt(samples)``, and that bias alone can exceed the standard
+errors of the coefficients. The search is
 :func:`scipy.optimize.least_squares` (trust-region reflective) with the exact Jacobian of
 :mod:`gripper_env.sysid.sensitivity`.
 
@@ -27,49 +30,59 @@ __all__ = ["OutputErrorResult", "fit_initial_state", "refine_output_error"]
 
 
 def fit_initial_state(
-    data: IOData, num: np.ndarray, den: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares initial state for a fixed model.
+    data: IOData, num: np.ndarray, den: np.ndarray, *, with_offset: bool = False
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least-squares initial state (and output-offset correction) for a fixed model.
 
     Returns
     -------
     x0 : ndarray
         Observer-form initial state (deviation units).
+    offset : float
+        Output-offset correction (deg; 0 unless ``with_offset``).
     y_hat : ndarray
-        Simulated output with that state (deviations, deg).
+        Simulated output with them (deviations, deg).
     """
     with np.errstate(all="ignore"):
         sens = model_sensitivities(num, den, data.u, data.dt_s, with_initial_state=True)
     basis = sens.d_x0
     assert basis is not None
     if not (np.all(np.isfinite(sens.y_hat)) and np.all(np.isfinite(basis))):
-        return np.zeros(den.size - 1), sens.y_hat
-    x0 = np.linalg.lstsq(basis, data.y - sens.y_hat, rcond=None)[0]
-    return x0, sens.y_hat + basis @ x0
+        return np.zeros(den.size - 1), 0.0, sens.y_hat
+    if with_offset:
+        basis = np.column_stack([basis, np.ones(data.n_samples)])
+    coef = np.linalg.lstsq(basis, data.y - sens.y_hat, rcond=None)[0]
+    offset = float(coef[-1]) if with_offset else 0.0
+    return coef[: den.size - 1], offset, sens.y_hat + basis @ coef
 
 
 class _Problem:
     """Residuals and Jacobian of the output-error fit."""
 
-    def __init__(self, data: IOData, n_poles: int, n_zeros: int, estimate_x0: bool) -> None:
+    def __init__(
+        self, data: IOData, n_poles: int, n_zeros: int, estimate_x0: bool, estimate_offset: bool
+    ) -> None:
         self.data = data
         self.n = n_poles
         self.m = n_zeros
         self.estimate_x0 = estimate_x0
+        self.estimate_offset = estimate_offset
 
-    def _unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def _unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:
         n_theta = self.n + self.m + 1
         num, den = split_params(p[:n_theta], self.n)
-        x0 = p[n_theta:] if self.estimate_x0 else None
-        return num, den, x0
+        x0 = p[n_theta : n_theta + self.n] if self.estimate_x0 else None
+        offset = float(p[-1]) if self.estimate_offset else 0.0
+        return num, den, x0, offset
 
     def residuals(self, p: np.ndarray) -> np.ndarray:
-        num, den, x0 = self._unpack(p)
+        num, den, x0, offset = self._unpack(p)
         with np.errstate(all="ignore"):
-            return zoh_response(num, den, self.data.u, self.data.dt_s, x0) - self.data.y
+            y_hat = zoh_response(num, den, self.data.u, self.data.dt_s, x0)
+            return y_hat + offset - self.data.y
 
     def jacobian(self, p: np.ndarray) -> np.ndarray:
-        num, den, x0 = self._unpack(p)
+        num, den, x0, _ = self._unpack(p)
         with np.errstate(all="ignore"):
             sens = model_sensitivities(
                 num, den, self.data.u, self.data.dt_s, x0, with_initial_state=self.estimate_x0
@@ -77,6 +90,8 @@ class _Problem:
         cols = [sens.d_a, sens.d_b]
         if sens.d_x0 is not None:
             cols.append(sens.d_x0)
+        if self.estimate_offset:
+            cols.append(np.ones((self.data.n_samples, 1)))
         return np.column_stack(cols)
 
 
@@ -90,10 +105,12 @@ class OutputErrorResult:
         ``[a_{n-1}..a_0, b_m..b_0]``.
     x0 : ndarray
         Observer-form initial state (zeros if it was not estimated).
+    offset : float
+        Correction of the output operating point (deg; 0 if it was not estimated).
     residuals : ndarray
         ``y - yhat`` (deviations, deg).
     cov : ndarray
-        Covariance of ``[theta, x0]`` (or of ``theta`` alone), ``sigma^2 (J^T J)^-1``.
+        Covariance of ``[theta, x0, offset]`` (the estimated ones), ``sigma^2 (J^T J)^-1``.
     n_iter : int
         Jacobian evaluations (trust-region iterations).
     converged : bool
@@ -104,6 +121,7 @@ class OutputErrorResult:
 
     theta: np.ndarray
     x0: np.ndarray
+    offset: float
     residuals: np.ndarray
     cov: np.ndarray
     n_iter: int
@@ -132,9 +150,10 @@ def refine_output_error(
     theta0: np.ndarray,
     *,
     estimate_x0: bool = True,
+    estimate_offset: bool = True,
     enforce_stability: bool = True,
     max_nfev: int = 200,
-    tol: float = 1e-10,
+    tol: float = 1e-8,
 ) -> OutputErrorResult:
     """Minimise the simulation error starting from ``theta0``.
 
@@ -148,6 +167,8 @@ def refine_output_error(
         Start ``[a_{n-1}..a_0, b_m..b_0]`` (stable).
     estimate_x0 : bool
         Estimate the initial state (else it is zero).
+    estimate_offset : bool
+        Estimate a constant correction of the output operating point.
     enforce_stability : bool
         Keep the denominator coefficients >= 0.
     max_nfev : int
@@ -160,14 +181,11 @@ def refine_output_error(
     OutputErrorResult
     """
     n, m = n_poles, n_zeros
-    problem = _Problem(data, n, m, estimate_x0)
+    problem = _Problem(data, n, m, estimate_x0, estimate_offset)
     theta0 = np.asarray(theta0, dtype=float).copy()
-    if estimate_x0:
-        num, den = split_params(theta0, n)
-        x0, _ = fit_initial_state(data, num, den)
-        p0 = np.concatenate([theta0, x0])
-    else:
-        p0 = theta0
+    num, den = split_params(theta0, n)
+    x0, offset, _ = fit_initial_state(data, num, den, with_offset=estimate_offset)
+    p0 = np.concatenate([theta0, x0 if estimate_x0 else [], [offset] if estimate_offset else []])
     lower = np.full(p0.size, -np.inf)
     if enforce_stability:
         lower[:n] = 0.0
@@ -185,12 +203,12 @@ def refine_output_error(
         max_nfev=max_nfev,
     )
     p = res.x
-    theta = p[: n + m + 1]
-    x0 = p[n + m + 1 :] if estimate_x0 else np.zeros(n)
+    num, den, x0_fit, offset = problem._unpack(p)
     residuals = -res.fun
     return OutputErrorResult(
-        theta=theta,
-        x0=np.array(x0),
+        theta=p[: n + m + 1].copy(),
+        x0=np.zeros(n) if x0_fit is None else np.array(x0_fit),
+        offset=offset,
         residuals=residuals,
         cov=_covariance(res.jac, residuals),
         n_iter=int(res.njev or 0),

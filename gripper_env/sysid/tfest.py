@@ -98,7 +98,10 @@ class TFEstimate:
     dt_s : float
         Sample interval of the data (s).
     u_op, y_op : float
-        Operating point removed before fitting (deg).
+        Operating point (deg): ``u_op`` as chosen by ``offset``; ``y_op`` likewise, then refined
+        jointly with the model when ``estimate_output_offset`` (the default).
+    y_op_std : float
+        Standard error of ``y_op`` (deg; 0 when it was not estimated).
     offset : str
         How the operating point was chosen (``"initial"``, ``"mean"`` or ``"none"``).
     n_iter_srivc : int
@@ -128,6 +131,7 @@ class TFEstimate:
     dt_s: float
     u_op: float
     y_op: float
+    y_op_std: float
     offset: str
     n_iter_srivc: int
     n_iter_oe: int
@@ -206,6 +210,7 @@ class TFEstimate:
             "n_samples": int(self.residuals.size),
             "u_op": float(self.u_op),
             "y_op": float(self.y_op),
+            "y_op_std": float(self.y_op_std),
             "offset": self.offset,
             "residual_rms": float(np.sqrt(np.mean(self.residuals**2))),
             "n_iter_srivc": int(self.n_iter_srivc),
@@ -233,12 +238,13 @@ def tfest(
     *,
     offset: Offset = "initial",
     estimate_initial_state: bool = True,
+    estimate_output_offset: bool = True,
     enforce_stability: bool = True,
     svf_lambda_rad_s: float | None = None,
     max_iter_srivc: int = 30,
     srivc_tol: float = 1e-7,
     max_nfev: int = 200,
-    tol: float = 1e-10,
+    tol: float = 1e-8,
     max_jitter: float = 0.05,
 ) -> TFEstimate:
     """Estimate a continuous-time transfer function from sampled input/output data.
@@ -267,6 +273,11 @@ def tfest(
     estimate_initial_state : bool
         Estimate the state at the first sample (MATLAB ``InitialCondition = 'estimate'``);
         otherwise the system starts at rest at the operating point.
+    estimate_output_offset : bool
+        Refine the output operating point ``y_op`` jointly with the model (one constant). An
+        operating point averaged over a short rest period is off by ``noise/sqrt(samples)``,
+        which biases the coefficients by more than their standard errors; MATLAB keeps
+        ``OutputOffset`` fixed, which is ``False`` here.
     enforce_stability : bool
         Keep the estimate stable (unstable starts are reflected; the denominator coefficients
         are kept >= 0 during the search, which guarantees stability for ``n <= 2``).
@@ -337,6 +348,7 @@ def tfest(
         m,
         theta,
         estimate_x0=estimate_initial_state,
+        estimate_offset=estimate_output_offset,
         enforce_stability=enforce_stability,
         max_nfev=max_nfev,
         tol=tol,
@@ -353,6 +365,7 @@ def tfest(
             m,
             np.concatenate([den_s[1:], num]),
             estimate_x0=estimate_initial_state,
+            estimate_offset=estimate_output_offset,
             enforce_stability=True,
             max_nfev=max_nfev,
             tol=tol,
@@ -361,9 +374,10 @@ def tfest(
         num, den = split_params(oe.theta, n)
     std = np.sqrt(np.clip(np.diag(oe.cov), 0.0, None))
     n_theta = n + m + 1
+    y_op = data.y_op + oe.offset
     y_abs = data.y_abs
     y_hat = y_abs - oe.residuals
-    y_hat0 = data.y_op + zoh_response(num, den, data.u, data.dt_s)
+    y_hat0 = y_op + zoh_response(num, den, data.u, data.dt_s)
     return TFEstimate(
         model=control.tf(num, den),
         fit_pct=fit_percent(y_abs, y_hat),
@@ -373,11 +387,12 @@ def tfest(
         params_std=std[:n_theta],
         param_names=_param_names(n, m),
         initial_state=oe.x0,
-        initial_state_std=std[n_theta:] if estimate_initial_state else np.zeros(n),
+        initial_state_std=std[n_theta : n_theta + n] if estimate_initial_state else np.zeros(n),
         stable=bool(np.all(np.roots(den).real < 0)),
         dt_s=data.dt_s,
         u_op=data.u_op,
-        y_op=data.y_op,
+        y_op=y_op,
+        y_op_std=float(std[-1]) if estimate_output_offset else 0.0,
         offset=data.offset,
         n_iter_srivc=iv.n_iter,
         n_iter_oe=n_iter_oe,
