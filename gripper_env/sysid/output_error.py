@@ -153,7 +153,9 @@ def refine_output_error(
     estimate_offset: bool = True,
     enforce_stability: bool = True,
     max_nfev: int = 200,
-    tol: float = 1e-8,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
+    gtol: float = 1e-8,
 ) -> OutputErrorResult:
     """Minimise the simulation error starting from ``theta0``.
 
@@ -173,8 +175,8 @@ def refine_output_error(
         Keep the denominator coefficients >= 0.
     max_nfev : int
         Most residual evaluations.
-    tol : float
-        ``ftol``, ``xtol`` and ``gtol`` of :func:`scipy.optimize.least_squares`.
+    ftol, xtol, gtol : float
+        Tolerances of :func:`scipy.optimize.least_squares`.
 
     Returns
     -------
@@ -197,9 +199,9 @@ def refine_output_error(
         bounds=(lower, np.full(p0.size, np.inf)),
         method="trf",
         x_scale="jac",
-        ftol=tol,
-        xtol=tol,
-        gtol=tol,
+        ftol=ftol,
+        xtol=xtol,
+        gtol=gtol,
         max_nfev=max_nfev,
     )
     p = res.x

@@ -244,7 +244,7 @@ def tfest(
     max_iter_srivc: int = 30,
     srivc_tol: float = 1e-7,
     max_nfev: int = 200,
-    tol: float = 1e-8,
+    tol: float | None = None,
     max_jitter: float = 0.05,
 ) -> TFEstimate:
     """Estimate a continuous-time transfer function from sampled input/output data.
@@ -291,8 +291,11 @@ def tfest(
         SRIVC stops when the relative parameter change is below this.
     max_nfev : int
         Most residual evaluations of the output-error search.
-    tol : float
-        ``ftol``/``xtol``/``gtol`` of the output-error search.
+    tol : float, optional
+        ``ftol`` of the output-error search (relative change of the cost). Default
+        ``0.02 / N``: stop once an iteration lowers the cost by less than 1 % of one noise
+        variance, far below statistical significance, instead of crawling along the flat valley
+        of an almost-cancelling pole/zero pair. ``xtol`` and ``gtol`` are 1e-8.
     max_jitter : float
         Largest relative sample-interval deviation that is resampled rather than refused.
 
@@ -335,6 +338,7 @@ def tfest(
         max_jitter=max_jitter,
         model=f"n_poles={n}, n_zeros={m}",
     )
+    ftol = 0.02 / data.n_samples if tol is None else float(tol)
     theta0, lam = initial_estimate(data, n, m, svf_lambda_rad_s)
     iv = srivc(data, n, m, theta0, max_iter=max_iter_srivc, tol=srivc_tol)
     theta = iv.theta
@@ -351,7 +355,7 @@ def tfest(
         estimate_offset=estimate_output_offset,
         enforce_stability=enforce_stability,
         max_nfev=max_nfev,
-        tol=tol,
+        ftol=ftol,
     )
     n_iter_oe = oe.n_iter
     num, den = split_params(oe.theta, n)
@@ -368,7 +372,7 @@ def tfest(
             estimate_offset=estimate_output_offset,
             enforce_stability=True,
             max_nfev=max_nfev,
-            tol=tol,
+            ftol=ftol,
         )
         n_iter_oe += oe.n_iter
         num, den = split_params(oe.theta, n)
