@@ -5,8 +5,8 @@ fit, a CSV log reader and a plant-file writer.
 Command line: ``python -m gripper_env.sysid LOG.csv [--poles 2 --zeros 1] [--json] [--plot OUT]``.
 """
 
+from gripper_env.metrics import fit_percent
 from gripper_env.sysid.data import NonUniformSamplingWarning, prepare_data
-from gripper_env.sysid.fit import fit_percent
 from gripper_env.sysid.tfest import TFEstimate, tfest
 
 __all__ = [

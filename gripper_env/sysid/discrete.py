@@ -27,9 +27,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
+from threadpoolctl import threadpool_limits
 
+from gripper_env.metrics import fit_percent
 from gripper_env.sysid.data import IOData, Offset, prepare_data
-from gripper_env.sysid.fit import fit_percent
 
 __all__ = ["DiscreteEstimate", "arx", "oe"]
 
@@ -225,8 +226,8 @@ def _estimate(
         model=_to_tf(num, den, data.dt_s),
         method=method,
         orders=orders,
-        fit_pct=fit_percent(y_abs, y_hat + data.y_op),
-        fit_pct_zero_ic=fit_percent(y_abs, y_hat0 + data.y_op),
+        fit_pct=float(fit_percent(y_abs, y_hat + data.y_op)),
+        fit_pct_zero_ic=float(fit_percent(y_abs, y_hat0 + data.y_op)),
         residuals=data.y - y_hat,
         params=params,
         params_std=std,
@@ -255,6 +256,7 @@ def _arx_ls(data: IOData, na: int, nb: int, nk: int) -> tuple[np.ndarray, np.nda
     return theta, _std_from(phi, resid)
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost
 def arx(
     time_s: float | ArrayLike,
     u: ArrayLike,
@@ -305,6 +307,7 @@ def arx(
     )
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost
 def oe(
     time_s: float | ArrayLike,
     u: ArrayLike,

@@ -10,7 +10,7 @@ Pipeline (see :mod:`gripper_env.sysid.srivc` and :mod:`gripper_env.sysid.output_
 
 The returned model maps **deviations**: ``y - y_op = G(s) (u - u_op)`` with the operating point of
 ``offset`` (like MATLAB on detrended data). :meth:`TFEstimate.simulate` adds the operating point
-back. Fit figures follow MATLAB's ``compare`` (:func:`gripper_env.sysid.fit.fit_percent`).
+back. Fit figures follow MATLAB's ``compare`` (:func:`gripper_env.metrics.fit_percent`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,10 @@ from typing import Any
 import control
 import numpy as np
 from numpy.typing import ArrayLike
+from threadpoolctl import threadpool_limits
 
+from gripper_env.metrics import fit_percent
 from gripper_env.sysid.data import Offset, prepare_data
-from gripper_env.sysid.fit import fit_percent
 from gripper_env.sysid.output_error import refine_output_error
 from gripper_env.sysid.srivc import initial_estimate, split_params, srivc, stabilise
 from gripper_env.sysid.zoh import zoh_response
@@ -229,6 +230,7 @@ def _param_names(n: int, m: int) -> tuple[str, ...]:
     return tuple(f"a{j}" for j in range(n - 1, -1, -1)) + tuple(f"b{k}" for k in range(m, -1, -1))
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost
 def tfest(
     time_s: float | ArrayLike,
     u: ArrayLike,
@@ -384,8 +386,8 @@ def tfest(
     y_hat0 = y_op + zoh_response(num, den, data.u, data.dt_s)
     return TFEstimate(
         model=control.tf(num, den),
-        fit_pct=fit_percent(y_abs, y_hat),
-        fit_pct_zero_ic=fit_percent(y_abs, y_hat0),
+        fit_pct=float(fit_percent(y_abs, y_hat)),
+        fit_pct_zero_ic=float(fit_percent(y_abs, y_hat0)),
         residuals=oe.residuals,
         params=oe.theta.copy(),
         params_std=std[:n_theta],

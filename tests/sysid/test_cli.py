@@ -152,3 +152,18 @@ def test_save_plant_yaml_round_trip(tmp_path):
     doc = yaml.safe_load(path.read_text())
     assert doc["name"] == "mine"
     np.testing.assert_allclose(doc["den"], DEN, rtol=1e-4)
+
+
+def test_saved_plant_loads_with_the_core_loader(tmp_path):
+    """An identified model becomes a plant every other command accepts."""
+    from gripper_env.plants import load_plant
+
+    u = rich_input(20.0, np.random.default_rng(3))
+    y = lsim_zoh([20.0, 200.0], [1.0, 22.0, 200.0], u)
+    est = tfest(DT_S, u, y)
+    path = tmp_path / "mine.yaml"
+    save_plant_yaml(est, path, name="mine")
+    plant = load_plant(path)
+    assert plant.name == "mine" and plant.order == 2
+    assert plant.dc_gain == pytest.approx(1.0, rel=0.02)
+    assert plant.fit_pct == pytest.approx(est.fit_pct)
