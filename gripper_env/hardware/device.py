@@ -465,7 +465,7 @@ class GripperDevice:
                     return TelemetryBlock.concatenate(blocks)
             elif time.monotonic() - last > wait:
                 raise DeviceTimeout(
-                    f"no telemetry from {self.port} for {wait:g} s" + self._link_summary()
+                    f"no telemetry from {self.port} for {wait:g} s" + self.link_summary()
                 )
 
     @property
@@ -598,7 +598,8 @@ class GripperDevice:
         pos = self.calibration.to_deg(adc) if self.calibration else np.full(n, np.nan)
         self._blocks.append(TelemetryBlock(t, ref, cmd, adc, pos, arr["flags"].copy()))
 
-    def _link_summary(self) -> str:
+    def link_summary(self) -> str:
+        """What the link looked like lately, for error messages ("; 3 corrupted frames...")."""
         s = self.decoder.stats
         idle = time.monotonic() - self._last_rx_wall
         if s.rejected:
@@ -637,7 +638,7 @@ class GripperDevice:
             raise LinkError(
                 f"{what}: {corrupted} corrupted frames received (last: {self.decoder.last_error})"
             )
-        raise DeviceTimeout(what + self._link_summary())
+        raise DeviceTimeout(what + self.link_summary())
 
     def _refused(self, msg: proto.Message, err: proto.ErrorReport) -> None:
         name = type(msg).__name__.upper()
