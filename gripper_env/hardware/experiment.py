@@ -134,7 +134,7 @@ class Recording:
         t_rel = (s.t_us - self.t0_us) / 1e6
         keep = t_rel >= -1e-9
         t_rel = t_rel[keep]
-        n = int(round(t_rel[-1] / dt)) + 1 if len(t_rel) else 0
+        n = round(t_rel[-1] / dt) + 1 if len(t_rel) else 0
         grid = np.arange(n) * dt
         idx = np.round(t_rel / dt).astype(np.int64)
 
@@ -180,7 +180,7 @@ def s_decimation(block: TelemetryBlock) -> int:
     """Ticks between samples of a block (1 if unknown)."""
     if len(block) < 2:
         return 1
-    return max(1, int(round(float(np.median(np.diff(block.t_us))) / 1000)))
+    return max(1, round(float(np.median(np.diff(block.t_us))) / 1000))
 
 
 def _reference_lag(planned: np.ndarray, recorded: np.ndarray) -> int:
@@ -253,8 +253,8 @@ def run_profile(
     """
     values = reference.values_deg
     dt = reference.dt_s
-    duration_us = int(round(len(values) * dt * 1e6))
-    period_us = int(round(host_period_s * 1e6))
+    duration_us = round(len(values) * dt * 1e6)
+    period_us = round(host_period_s * 1e6)
     device.poll(0.0)
     device.read_telemetry()
     if log is not None:
