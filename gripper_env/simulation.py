@@ -441,6 +441,7 @@ def build_params(
     disturbances: Sequence[Disturbance],
     dt_s: float,
     pid_options: PIDOptions | None = None,
+    n_runs: int | None = None,
 ) -> np.ndarray:
     """Parameter matrix (B, N_PARAMS) of the kernel from gains and actual-gripper blocks.
 
@@ -454,9 +455,11 @@ def build_params(
         Physics step (s).
     pid_options : PIDOptions, optional
         Output limits, anti-windup, derivative input and sign convention.
+    n_runs : int, optional
+        Batch size, when one gain set and one disturbance are shared by more runs.
     """
     opts = pid_options or PIDOptions()
-    n = max(len(disturbances), 0 if gains is None else gains.shape[0])
+    n = max(len(disturbances), 0 if gains is None else gains.shape[0], n_runs or 0)
     params = np.zeros((n, N_PARAMS))
     if gains is not None:
         params[:, P_P : P_N + 1] = gains
@@ -557,11 +560,16 @@ class BatchSimulator:
         gains: Any,
         disturbances: Disturbance | Sequence[Disturbance],
         pid_options: PIDOptions | None = None,
+        n_runs: int | None = None,
     ) -> None:
-        """Set gains (``None``: open loop) and actual-gripper blocks; keeps the current state."""
+        """Set gains (``None``: open loop) and actual-gripper blocks; keeps the current state.
+
+        One gain set or one disturbance is shared by all runs; ``n_runs`` sets the batch size
+        when both are single.
+        """
         dist = [disturbances] if isinstance(disturbances, Disturbance) else list(disturbances)
         rows = None if gains is None else _as_gain_rows(gains)
-        params = build_params(rows, dist, self.dt_s, pid_options)
+        params = build_params(rows, dist, self.dt_s, pid_options, n_runs)
         if np.any(params[:, P_DELAY] > self.delay_capacity):
             raise ValueError(
                 f"sensor delay exceeds this simulator's capacity of {self.delay_capacity} steps"
@@ -836,14 +844,8 @@ def simulate(
             (dists[i] if len(dists) > 1 else dists[0]).sample(_seed_state(int(seed_arr[i]))[1])
             for i in range(n)
         ]
-    if gain_rows is not None and len(gain_rows) == 1 and n > 1:
-        gain_rows = np.repeat(gain_rows, n, axis=0)
-    if len(dists) == 1 and n > 1:
-        dists = dists * 1  # shared row, broadcast by build_params
     sim = BatchSimulator(plants, dt, delay_capacity=_delay_capacity(dists, dt))
-    sim.configure(gain_rows, dists, pid_options)
-    if sim.n_runs != n:
-        sim.params = np.repeat(sim.params, n, axis=0) if sim.n_runs == 1 else sim.params
+    sim.configure(gain_rows, dists, pid_options, n_runs=n)
     y0 = ref.values_deg[0] if y0_deg is None else y0_deg
     sim.reset(y0, seed_arr, initial=initial)
     out = sim.advance(len(ref), ref.values_deg)
