@@ -172,9 +172,17 @@ class TelemetryBlock:
 
     @classmethod
     def concatenate(cls, blocks: list[TelemetryBlock]) -> TelemetryBlock:
+        blocks = [b for b in blocks if len(b)]
         if not blocks:
-            return cls(*(np.zeros(0) for _ in range(6)))
+            return cls.empty()
+        if len(blocks) == 1:
+            return blocks[0]
         return cls(*(np.concatenate([getattr(b, f) for b in blocks]) for f in _BLOCK_FIELDS))
+
+    @classmethod
+    def empty(cls) -> TelemetryBlock:
+        f, i = np.zeros(0), np.zeros(0, dtype=np.int64)
+        return cls(i, f, f.copy(), i.copy(), f.copy(), np.zeros(0, dtype=np.uint8))
 
 
 _BLOCK_FIELDS = ("t_us", "reference_deg", "command_deg", "adc", "position_deg", "flags")
@@ -440,20 +448,36 @@ class GripperDevice:
         blocks, self._blocks = self._blocks, []
         return TelemetryBlock.concatenate(blocks)
 
-    def wait_telemetry(self, duration_s: float, timeout_s: float | None = None) -> TelemetryBlock:
-        """Collect ``duration_s`` of device time of telemetry (the buffer is emptied first).
+    def wait_telemetry(
+        self, duration_s: float, timeout_s: float | None = None, heartbeat_s: float = 0.1
+    ) -> TelemetryBlock:
+        """Collect ``duration_s`` of device time of telemetry, feeding the watchdog meanwhile.
+
+        Parameters
+        ----------
+        duration_s : float
+            Device time to collect (s).
+        timeout_s : float, optional
+            Wall time without telemetry before giving up (default :attr:`timeout_s`).
+        heartbeat_s : float
+            HEARTBEAT period in device time (s) while waiting; 0 sends none (the board's
+            watchdog then fires after 500 ms in an active mode).
 
         Raises
         ------
         DeviceTimeout
-            If no telemetry arrives for ``timeout_s`` (default: :attr:`timeout_s`) of wall time.
+            If no telemetry arrives for ``timeout_s`` of wall time.
         """
         self.poll(0.0)
-        start = self._latest_t_us
         blocks = [self.read_telemetry()]
+        start = self._latest_t_us
+        next_beat = start
         wait = self.timeout_s if timeout_s is None else timeout_s
         last = time.monotonic()
         while True:
+            if heartbeat_s > 0 and (next_beat is None or (self._latest_t_us or 0) >= next_beat):
+                self.send_heartbeat()
+                next_beat = (self._latest_t_us or 0) + int(heartbeat_s * 1e6)
             self.poll(0.01)
             block = self.read_telemetry()
             if len(block):
