@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -547,42 +547,50 @@ class GripperDevice:
             raise  # unreachable: _vanished raises
 
     def _pump(self, timeout_s: float, strict: bool = True) -> list[proto.Message]:
+        """Read and decode; store telemetry; raise (after storing everything) on a fault or a
+        reset when ``strict``."""
         data = self._read(timeout_s)
         if not data:
             return []
         self._last_rx_wall = time.monotonic()
         out: list[proto.Message] = []
+        problem: DeviceError | None = None
         for frame in self.decoder.feed(data):
             msg = frame.message
             if isinstance(msg, proto.Telemetry):
                 self._store(msg)
-                if strict and self._mode != Mode.IDLE and msg.samples[-1].flags & SampleFlag.FAULT:
-                    self._raise_fault(self.faults)
+                if self._mode != Mode.IDLE and msg.samples[-1].flags & SampleFlag.FAULT:
+                    problem = problem or self._fault(self.faults)
                 continue
             if isinstance(msg, proto.Status):
                 self.last_status = msg
                 if msg.faults:
                     self.faults = msg.faults
-                if strict and self._session and not msg.flags & proto.StatusFlag.SESSION:
-                    self._session = False
-                    raise DeviceReset(f"device on {self.port} reset: it reports no session")
-                if strict and msg.faults and self._mode != Mode.IDLE:
-                    self._raise_fault(msg.faults)
-            elif isinstance(msg, proto.Info) and self._session and strict:
-                self._session = False
-                raise DeviceReset(f"device on {self.port} reset: it sent INFO unasked")
+                if self._session and not msg.flags & proto.StatusFlag.SESSION:
+                    problem = problem or DeviceReset(
+                        f"device on {self.port} reset: it reports no session"
+                    )
+                elif msg.faults and self._mode != Mode.IDLE:
+                    problem = problem or self._fault(msg.faults)
+            elif isinstance(msg, proto.Info) and self._session:
+                problem = problem or DeviceReset(
+                    f"device on {self.port} reset: it sent INFO unasked"
+                )
             elif isinstance(msg, proto.ErrorReport):
-                if msg.code == ErrorCode.NO_SESSION and self._session and strict:
-                    self._session = False
-                    raise DeviceReset(
+                if msg.code == ErrorCode.NO_SESSION and self._session:
+                    problem = problem or DeviceReset(
                         f"device on {self.port} reset: it lost the session (answered NO_SESSION); "
                         "mode and configuration are gone and the jaw is limp"
                     )
             out.append(msg)
+        if problem is not None and strict:
+            self._mode = Mode.IDLE
+            if isinstance(problem, DeviceReset):
+                self._session = False
+            raise problem
         return out
 
-    def _raise_fault(self, faults: int) -> None:
-        self._mode = Mode.IDLE
+    def _fault(self, faults: int) -> DeviceFault:
         names = fault_names(faults)
         why = {
             "WATCHDOG": "no host frame for 500 ms",
@@ -591,7 +599,7 @@ class GripperDevice:
             "NUMERIC": "non-finite PID value",
         }
         reasons = ", ".join(why[n] for n in names.split("+") if n in why) or "fault"
-        raise DeviceFault(
+        return DeviceFault(
             f"device on {self.port} made a safe stop (idle, jaw open): fault {names} ({reasons})",
             faults,
         )
@@ -679,7 +687,7 @@ class GripperDevice:
             raise DeviceReset(f"device on {self.port} reset: it answered {name} with NO_SESSION")
         detail = ""
         if err.code == ErrorCode.BAD_VALUE and isinstance(msg, proto.Configure):
-            field_name = list(msg.__dataclass_fields__)[err.detail]
+            field_name = [f.name for f in fields(msg)][err.detail]
             detail = f": field {field_name}={getattr(msg, field_name)!r} refused"
         elif err.code == ErrorCode.FAULT_LATCHED:
             detail = f": fault {fault_names(err.detail)} latched (set IDLE to acknowledge)"
