@@ -270,16 +270,22 @@ def run_profile(
         timeout = device.timeout_s if telemetry_timeout_s is None else telemetry_timeout_s
         next_host_us = next_beat_us = 0
         last_wall = time.monotonic()
+        last_probe = 0.0
         while True:
             device.poll(0.005)
             block = device.read_telemetry()
             if not len(block):
-                if time.monotonic() - last_wall > timeout:
+                quiet = time.monotonic() - last_wall
+                if quiet - last_probe > timeout / 4:
+                    device.send_heartbeat()  # a board that reset answers NO_SESSION
+                    last_probe = quiet
+                if quiet > timeout:
                     raise DeviceTimeout(
                         f"no telemetry from {device.port} for {timeout:g} s" + device.link_summary()
                     )
                 continue
             last_wall = time.monotonic()
+            last_probe = 0.0
             if t0_us is None:
                 active = np.flatnonzero(block.mode == mode)
                 if not len(active):
