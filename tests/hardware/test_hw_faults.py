@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from virtual_support import SPEED, open_device
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.device import (
@@ -20,7 +21,6 @@ from gripper_env.hardware.experiment import CsvLog, run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.references import step_profile
-from virtual_support import SPEED, open_device
 
 
 @pytest.fixture
@@ -78,7 +78,7 @@ def test_one_corrupted_crc_recovers_and_persistent_corruption_is_a_link_error(vi
         assert dev.decoder.stats.bad_crc == 1
         dev.configure(decimation=0)  # no telemetry: only replies are corrupted now
         virtual.corrupt_frames(1000)
-        with pytest.raises(LinkError, match="corrupted frames.*CRC mismatch"):
+        with pytest.raises(LinkError, match=r"corrupted frames.*CRC mismatch"):
             dev.heartbeat()
         virtual.corrupt_frames(-virtual._corrupt)  # disarm for the safe exit
 
@@ -86,7 +86,7 @@ def test_one_corrupted_crc_recovers_and_persistent_corruption_is_a_link_error(vi
 def test_a_silent_device_times_out(virtual) -> None:
     with open_device(virtual, retries=1, timeout_s=0.2) as dev:
         virtual.go_silent()
-        with pytest.raises(DeviceTimeout, match="HEARTBEAT.*silent"):
+        with pytest.raises(DeviceTimeout, match=r"HEARTBEAT.*silent"):
             dev.heartbeat()
         virtual.go_silent(False)
 

@@ -7,6 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from virtual_support import SPEED, open_device, short_step
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.device import DeviceFault, DeviceRefused, VersionMismatch
@@ -16,7 +17,6 @@ from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.simulation import simulate
-from virtual_support import SPEED, open_device, short_step
 
 GAINS = PIDGains(1.0, 9.0, -0.001)  # the paper's tuned gains on test2
 OPTIONS = PIDOptions(output_limits=(21.0, 92.0))
@@ -107,7 +107,7 @@ def test_estop_latches_until_idle(virtual) -> None:
         dev.set_mode(Mode.OPEN_LOOP)
         dev.estop()
         dev.wait_telemetry(0.05, heartbeat_s=0)
-        with pytest.raises(DeviceRefused, match="FAULT_LATCHED.*ESTOP"):
+        with pytest.raises(DeviceRefused, match=r"FAULT_LATCHED.*ESTOP"):
             dev.set_mode(Mode.OPEN_LOOP)
         dev.set_mode(Mode.IDLE)
         dev.set_mode(Mode.OPEN_LOOP)
