@@ -15,8 +15,10 @@ Inside, three parts mirror the real rig:
 * the serial line: the firmware's 512-byte transmit queue drained at 1 Mbaud (100 bytes per
   tick) into the pty, the host's bytes fed to the firmware as they arrive.
 
-Device time runs at ``speed`` times wall-clock time (``0`` or ``max``: as fast as the CPU goes;
-the watchdog then counts device time too, so the host must keep up). Ticks that start more than
+Device time runs at ``speed`` times wall-clock time. At ``0`` (``max``) it runs as fast as the
+CPU goes, paced by an active host: in an active mode it runs at most 200 ms of device time past
+the host's last frame, then waits up to 1 s of wall time for the next one, so a busy host does
+not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
 The one difference from the board's timing: the firmware reads the measurement taken at the
@@ -68,6 +70,7 @@ VIRTUAL_DEVICE_ID = 0x56495254  # "VIRT"
 _DEFAULT_ADC_RANGE_DEG = (0.0, 270.0)  # a 270-degree pot on the 10-bit ADC
 _OUT_HIGH_WATER = 4096  # bytes waiting for the pty before the UART stops draining the queue
 _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20 ticks
+_MAX_AHEAD_US = 200_000  # at speed 0, device time runs at most this far past the last host frame
 
 
 class VirtualRig:
@@ -181,6 +184,7 @@ class VirtualDevice:
         self._frame = bytearray()  # a device frame being assembled while faults are armed
         self._drop = self._corrupt = self._truncate = 0
         self._silent = False
+        self._paced_since = 0.0
         self._garbage = bytearray()
         self.error: BaseException | None = None
         self.bytes_sent = self.bytes_received = 0
@@ -307,6 +311,16 @@ class VirtualDevice:
             else:
                 behind = 0.0
                 n = _MAX_TICKS_PER_PASS
+                # As fast as possible, but paced by an active host: at most 200 ms of device
+                # time past its last frame, waiting up to 1 s of wall time for the next one
+                # (a host silent for longer still meets the watchdog).
+                ahead_us = (self._now_us() - fw.last_rx_us) & 0xFFFFFFFF
+                if fw.mode != 0 and ahead_us > _MAX_AHEAD_US:
+                    if time.perf_counter() - self._paced_since < 1.0:
+                        self._read_input(master, 0.002)
+                        continue
+                else:
+                    self._paced_since = time.perf_counter()
             self._read_input(master, 0.0)
             with self.lock:
                 for k in range(n):
@@ -439,7 +453,7 @@ def _parser() -> argparse.ArgumentParser:
         type=parse_speed,
         default=1.0,
         help="device time per wall-clock time: 1 = real time, 2 = twice as fast, "
-        "0 or 'max' = as fast as possible (default: 1)",
+        "0 or 'max' = as fast as possible, paced by an active host (default: 1)",
     )
     parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default: 0)")
     parser.add_argument(
