@@ -26,6 +26,7 @@ import numpy as np
 from gripper_env.hardware.device import DeviceTimeout, GripperDevice, TelemetryBlock
 from gripper_env.hardware.protocol import Mode, SampleFlag
 from gripper_env.references import Reference, Segment
+from gripper_env.simulation import Trajectory
 
 __all__ = ["CsvLog", "Recording", "partial_path", "run_profile"]
 
@@ -195,18 +196,10 @@ def _reference_lag(planned: np.ndarray, recorded: np.ndarray) -> int:
 
 
 @dataclass
-class RecordedTrajectory:
-    """A recorded run in the shape of :class:`gripper_env.simulation.Trajectory` (one run)."""
+class RecordedTrajectory(Trajectory):
+    """A recorded run as a :class:`gripper_env.simulation.Trajectory` of one run, plus the
+    number of telemetry samples that never arrived (filled by interpolation)."""
 
-    t: np.ndarray
-    r: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    y_true: np.ndarray
-    stable: np.ndarray
-    saturated_s: np.ndarray
-    reference: Reference
-    closed_loop: bool
     missing_samples: int = 0
 
 
