@@ -3,13 +3,13 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import PAPER_GAINS
 from helpers import PID_TUNE, signed_log_gains
 
 import gripper_env  # noqa: F401
 from gripper_env.envs.spaces import action_to_gains, gains_to_action
 from gripper_env.metrics import compute_metrics
 from gripper_env.objective import load_objective
+from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.simulation import simulate
 
 
