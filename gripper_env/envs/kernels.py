@@ -132,24 +132,28 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
     u_prev = env[b, E_UPREV]
     track = 0.0
     over = 0.0
-    variation = 0.0
+    r_prev = ref[rb, min(max(t - 1, 0), last)]
     for k in range(n_sub):
-        idx = min(t + k, last)
-        r = ref[rb, idx]
-        if idx > 0:
-            dr = r - ref[rb, idx - 1]
-            if dr > 0.0:
-                direction = 1.0
-            elif dr < 0.0:
-                direction = -1.0
-        y = out_y[b, k]
-        u = out_u[b, k]
-        track += abs(r - y)
-        ov = direction * (y - r)
+        r = ref[rb, min(t + k, last)]
+        if r > r_prev:
+            direction = 1.0
+        elif r < r_prev:
+            direction = -1.0
+        r_prev = r
+        e = r - out_y[b, k]
+        track += abs(e)
+        ov = -direction * e  # past the reference in the direction it moved
         if ov > 0.0:
             over += ov
-        variation += abs(u - u_prev)
-        u_prev = u
+    variation = 0.0
+    if cfg[C_MODE] == MODE_SERVO:  # open loop: the command is held over the period
+        variation = abs(out_u[b, 0] - u_prev)
+        u_prev = out_u[b, n_sub - 1]
+    else:
+        for k in range(n_sub):
+            u = out_u[b, k]
+            variation += abs(u - u_prev)
+            u_prev = u
     track /= n_sub * jh
     over /= n_sub * jh
     variation = min(variation / ch, cfg[C_UCAP])
@@ -188,7 +192,7 @@ def step_serial(
     for b in range(n_rows):
         _pre(b, actions, cfg, ref, env, params, drive)
     _advance_serial(
-        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, 0,
+        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
         params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
     )  # fmt: skip
     for b in range(n_rows):
@@ -212,7 +216,7 @@ def step_parallel(
     for b in range(n_rows):
         _pre(b, actions, cfg, ref, env, params, drive)
     _advance_parallel(
-        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, 0,
+        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
         params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
     )  # fmt: skip
     for b in range(n_rows):

@@ -64,7 +64,8 @@ class GripperServoEnv(ControlEnv):
 
     i.e. tracking error, plus overshoot past the reference in the direction it moved, plus command
     chatter (here ``|a_t - a_{t-1}|``). Defaults ``overshoot_weight = 1``,
-    ``chatter_weight = 0.1``. A step is in [-12, 0] (-100 if an unstable plant diverged).
+    ``chatter_weight = 0.1``; a step then lies in about [-4.2, 0] (-100 if an unstable plant
+    diverged).
 
     ## Starting State
 
