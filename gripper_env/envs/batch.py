@@ -168,60 +168,59 @@ class ControlBatch:
         """Start new episodes in some rows (their observations are then in :attr:`obs`)."""
         s = self.settings
         sim = self.sim
-        n = self.n_rows
-        y0 = np.zeros(n)
-        seeds = np.zeros(n, dtype=np.int64)
-        rows = list(rows)
-        for b, ep in zip(rows, episodes, strict=True):
+        idx = np.asarray(list(rows), dtype=np.int64)
+        episodes = list(episodes)
+        params = build_params(
+            self.gains0, [ep.disturbance for ep in episodes], s.dt_s, s.pid_options, len(idx)
+        )
+        if np.any(params[:, P_DELAY] > sim.delay_capacity):
+            raise ValueError(
+                f"sensor delay of {params[:, P_DELAY].max():g} steps exceeds the capacity "
+                f"{sim.delay_capacity}"
+            )
+        sim.params[idx] = params
+        y0 = np.zeros(self.n_rows)
+        seeds = np.zeros(self.n_rows, dtype=np.int64)
+        for b, ep in zip(idx, episodes, strict=True):
             self.episodes[b] = ep
             self.plant_slots.install(b, ep.plant_index)
-            row = build_params(self.gains0, [ep.disturbance], s.dt_s, s.pid_options)[0]
-            if row[P_DELAY] > sim.delay_capacity:
-                raise ValueError(
-                    f"sensor delay of {row[P_DELAY]:g} steps exceeds the capacity "
-                    f"{sim.delay_capacity}"
-                )
-            sim.params[b] = row
             values = ep.reference.values_deg
             if s.reference is None:  # a random profile per episode, one row per environment
                 self.ref[b, : len(values)] = values
                 self.ref[b, len(values) :] = values[-1]
             y0[b] = values[0]
             seeds[b] = ep.noise_seed
-        sim.reset(y0, seeds, initial="rest", rows=np.asarray(rows, dtype=np.int64))
-        self._init_rows(rows)
+        sim.reset(y0, seeds, initial="rest", rows=idx)
+        self._init_rows(idx, episodes)
         self._bind()
 
-    def _init_rows(self, rows: list[int]) -> None:
-        s, cfg, env, obs = self.settings, self.cfg, self.env, self.obs
-        bound = OBS_BOUND
-        for b in rows:
-            ep = self.episodes[b]
-            assert ep is not None
-            ref_len = len(ep.reference)
-            y = float(self.sim.measured_deg[b])
-            r0 = float(ep.reference.values_deg[0])
-            u0 = y  # the core starts at rest: the servo is commanded where it is
-            e = (r0 - y) / cfg[K.C_JH]
-            env[b] = 0.0
-            env[b, K.E_LEN] = (ref_len // s.n_sub) * s.n_sub
-            env[b, K.E_REFLEN] = ref_len
-            env[b, K.E_EPREV] = e
-            env[b, K.E_UPREV] = u0
-            if self.mode == K.MODE_SERVO:
-                a0 = np.clip((u0 - cfg[K.C_CC]) / cfg[K.C_CH], -1.0, 1.0)
-                env[b, K.E_A0] = a0
-            row = np.zeros(self.n_obs)
-            row[0] = (y - cfg[K.C_JC]) / cfg[K.C_JH]
-            row[1] = (r0 - cfg[K.C_JC]) / cfg[K.C_JH]
-            row[2] = e
-            if self.mode == K.MODE_GAINS:
-                row[5] = (u0 - cfg[K.C_CC]) / cfg[K.C_CH]
-            oa0 = int(cfg[K.C_OA0])
-            row[oa0 : oa0 + self.n_actions] = env[b, K.E_A0 : K.E_A0 + self.n_actions]
-            if self.observe_context:
-                row[oa0 + self.n_actions :] = self.context(b)
-            obs[b] = np.clip(row, -bound, bound)
+    def _init_rows(self, idx: np.ndarray, episodes: list[Episode]) -> None:
+        """Environment state and first observation of freshly reset rows."""
+        s, cfg, env = self.settings, self.cfg, self.env
+        ref_len = np.array([len(ep.reference) for ep in episodes], dtype=np.float64)
+        r0 = np.array([ep.reference.values_deg[0] for ep in episodes])
+        y = self.sim.measured_deg[idx]
+        u0 = y  # the core starts at rest: the servo is commanded where it is
+        e = (r0 - y) / cfg[K.C_JH]
+        env[idx] = 0.0
+        env[idx, K.E_LEN] = (ref_len // s.n_sub) * s.n_sub
+        env[idx, K.E_REFLEN] = ref_len
+        env[idx, K.E_EPREV] = e
+        env[idx, K.E_UPREV] = u0
+        if self.mode == K.MODE_SERVO:
+            env[idx, K.E_A0] = np.clip((u0 - cfg[K.C_CC]) / cfg[K.C_CH], -1.0, 1.0)
+        rows = np.zeros((len(idx), self.n_obs))
+        rows[:, 0] = (y - cfg[K.C_JC]) / cfg[K.C_JH]
+        rows[:, 1] = (r0 - cfg[K.C_JC]) / cfg[K.C_JH]
+        rows[:, 2] = e
+        if self.mode == K.MODE_GAINS:
+            rows[:, 5] = (u0 - cfg[K.C_CC]) / cfg[K.C_CH]
+        oa0 = int(cfg[K.C_OA0])
+        rows[:, oa0 : oa0 + self.n_actions] = env[idx, K.E_A0 : K.E_A0 + self.n_actions]
+        if self.observe_context:
+            for i, b in enumerate(idx):
+                rows[i, oa0 + self.n_actions :] = self.context(int(b))
+        self.obs[idx] = np.clip(rows, -OBS_BOUND, OBS_BOUND)
 
     def context(self, b: int) -> np.ndarray:
         """Context features of row ``b``'s current episode."""
