@@ -187,8 +187,7 @@ def _run(
         )  # fmt: skip
 
 
-@njit(cache=True, parallel=True)
-def _metrics_kernel(
+def _metrics_impl(
     t: np.ndarray,
     r: np.ndarray,
     y: np.ndarray,
@@ -207,6 +206,17 @@ def _metrics_kernel(
     for b in prange(n_runs):
         r_row = r[0] if shared else r[b]
         _run(t, r_row, y[b], u[b], seg_bounds, seg_values, run_out[b], seg_out[b])
+
+
+_metrics_serial = njit(cache=True)(_metrics_impl)
+_metrics_parallel = njit(cache=True, parallel=True)(_metrics_impl)
+#: Batches at least this large are scored on all cores (threads cost more for a few runs).
+PARALLEL_MIN_BATCH = 16
+
+
+def _metrics_kernel(*args: np.ndarray) -> None:
+    kernel = _metrics_parallel if args[2].shape[0] >= PARALLEL_MIN_BATCH else _metrics_serial
+    kernel(*args)
 
 
 def step_metrics(

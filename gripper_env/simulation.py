@@ -41,6 +41,9 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
+from gripper_env import friction
+from gripper_env import pid as _pid_module
+from gripper_env._numba_cache import stamp_caches
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.friction import (
     F_DIR,
@@ -186,7 +189,7 @@ def _normal(z: np.uint64) -> tuple[np.uint64, float]:
 
 def normal_draws(seed: int, n: int) -> np.ndarray:
     """``n`` draws of the core's noise generator for ``seed`` (for tests and inspection)."""
-    return _normal_draws(_seed_state(seed)[0], n)
+    return _normal_draws(noise_states(seed)[()], n)
 
 
 @njit(cache=True)
@@ -229,8 +232,8 @@ def _advance_impl(
     for b in prange(n_runs):
         prm = params[b]
         st = state[b]
-        rb = b if ref.shape[0] > 1 else 0
-        pb = b if plant_a.shape[0] > 1 else 0
+        rb = min(b, ref.shape[0] - 1)  # (an int whatever the caller's types)
+        pb = min(b, plant_a.shape[0] - 1)
         if st[S_DIVERGED] != 0.0:
             if record:
                 for k in range(n_steps):
@@ -398,6 +401,10 @@ def _advance_impl(
 
 _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
 _advance_parallel = njit(cache=True, nogil=True, parallel=True)(_advance_impl)
+# the kernels inline the PID and friction steps: their caches depend on those files too
+stamp_caches(
+    (_advance_serial, _advance_parallel), (__file__, _pid_module.__file__, friction.__file__)
+)
 
 #: Batches at least this large run on all cores.
 PARALLEL_MIN_BATCH = 16
@@ -507,10 +514,21 @@ def _disturbance_row(d: Disturbance, dt_s: float) -> np.ndarray:
     return row
 
 
-def _seed_state(seed: int) -> tuple[np.uint64, np.random.Generator]:
-    """Noise-generator state and a parameter-sampling generator, both from one episode seed."""
-    noise_ss, sample_ss = np.random.SeedSequence(int(seed)).spawn(2)
-    return noise_ss.generate_state(1, np.uint64)[0], np.random.default_rng(sample_ss)
+def noise_states(seeds: np.ndarray | int) -> np.ndarray:
+    """Noise-generator states (uint64) from episode seeds: a SplitMix64 hash, vectorised.
+
+    Distinct seeds give distinct, decorrelated streams; the mapping is fixed, so a seed means the
+    same noise in a single run, a batch and a vector environment.
+    """
+    z = np.asarray(seeds).astype(np.uint64) * _U64_GOLDEN + np.uint64(0x2545F4914F6CDD1D)
+    z = (z ^ (z >> _U64_30)) * _U64_M1
+    z = (z ^ (z >> _U64_27)) * _U64_M2
+    return z ^ (z >> _U64_31)
+
+
+def sampling_rng(seed: int) -> np.random.Generator:
+    """The generator that draws an episode's randomised disturbance parameters from its seed."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), 0x5EED]))
 
 
 class BatchSimulator:
@@ -534,16 +552,14 @@ class BatchSimulator:
             raise ValueError("at least one plant is needed")
         self.plants = plant_list
         self.dt_s = float(dt_s if dt_s is not None else plant_list[0].dt_s)
+        self._matrices: dict[int, tuple[Plant, np.ndarray, np.ndarray, float]] = {}
         n_x = max(p.order for p in plant_list)
         self.n_x = n_x
         self.plant_a = np.zeros((len(plant_list), n_x, n_x))
         self.plant_b = np.zeros((len(plant_list), n_x))
         self.plant_d = np.zeros(len(plant_list))
         for i, p in enumerate(plant_list):
-            a, b, d = p.zoh_matrices(self.dt_s)
-            self.plant_a[i, : p.order, : p.order] = a
-            self.plant_b[i, : p.order] = b
-            self.plant_d[i] = d
+            self._write_plant(i, p)
         self.delay_capacity = delay_capacity
         self.params = np.zeros((0, N_PARAMS))
         self.state = np.zeros((0, S_X + 2 * n_x))
@@ -554,6 +570,54 @@ class BatchSimulator:
     @property
     def n_runs(self) -> int:
         return self.params.shape[0]
+
+    def _zoh(self, plant: Plant) -> tuple[np.ndarray, np.ndarray, float]:
+        """The plant's ZOH matrices at this simulator's step, computed once per plant."""
+        hit = self._matrices.get(id(plant))
+        if hit is None or hit[0] is not plant:
+            a, b, d = plant.zoh_matrices(self.dt_s)
+            hit = (plant, a, b, d)
+            self._matrices[id(plant)] = hit
+        return hit[1], hit[2], hit[3]
+
+    def _write_plant(self, row: int, plant: Plant) -> None:
+        a, b, d = self._zoh(plant)
+        self.plant_a[row] = 0.0
+        self.plant_b[row] = 0.0
+        self.plant_a[row, : plant.order, : plant.order] = a
+        self.plant_b[row, : plant.order] = b
+        self.plant_d[row] = d
+
+    def set_plant(self, rows: int | Sequence[int] | np.ndarray, plant: Plant) -> None:
+        """Give some runs another plant, between episodes (reset those runs afterwards).
+
+        A simulator built with one shared plant becomes one with a plant per run; a plant of
+        higher order than any so far widens the state (existing runs keep theirs, zero-padded).
+        """
+        n = self.n_runs
+        if len(self.plants) == 1 and n > 1:
+            self.plants = self.plants * n
+            self.plant_a = np.repeat(self.plant_a, n, axis=0)
+            self.plant_b = np.repeat(self.plant_b, n, axis=0)
+            self.plant_d = np.repeat(self.plant_d, n, axis=0)
+        if plant.order > self.n_x:
+            self._widen(plant.order)
+        for row in np.atleast_1d(rows):
+            self.plants[int(row)] = plant
+            self._write_plant(int(row), plant)
+
+    def _widen(self, n_x: int) -> None:
+        old = self.n_x
+        m = len(self.plants)
+        a = np.zeros((m, n_x, n_x))
+        a[:, :old, :old] = self.plant_a
+        b = np.zeros((m, n_x))
+        b[:, :old] = self.plant_b
+        self.plant_a, self.plant_b = a, b
+        state = np.zeros((self.state.shape[0], S_X + 2 * n_x))
+        state[:, : S_X + old] = self.state[:, : S_X + old]
+        self.state = state
+        self.n_x = n_x
 
     def configure(
         self,
@@ -624,30 +688,31 @@ class BatchSimulator:
             raise ValueError(f"initial must be one of {INITIAL_STATES}, got {initial!r}")
         sign = self.pid_options.sign if self.closed_loop else 1
         d_meas = self.closed_loop and self.pid_options.derivative_on == "measurement"
-        for b in idx:
-            plant = self.plants[b if len(self.plants) > 1 else 0]
-            st = np.zeros(S_X + 2 * self.n_x)
-            if initial != "zero":
-                x0, u0 = plant.rest_state(float(y0[b]), exact=initial == "equilibrium")
-                st[S_X : S_X + plant.order] = x0
-                y_start = float(y0[b])
-            else:
-                u0, y_start = 0.0, 0.0
-            st[S_XI] = u0 if self.closed_loop else 0.0
-            st[S_XF] = -sign * y_start if d_meas else 0.0
-            st[S_CMD] = u0
-            st[S_FRIC + F_OUT] = u0
-            st[S_FRIC + F_XPREV] = u0
-            st[S_FRIC + F_XSS] = u0
-            st[S_FRIC + F_DIR] = 0.0
-            st[S_FRIC + F_STUCK] = 1.0
-            st[S_BACKLASH] = u0
-            st[S_VPREV] = u0
-            st[S_YMEAS] = y_start
-            st[S_U] = u0
-            self.state[b] = st
-            self.delay_buf[b] = y_start
-            self.rng[b] = _seed_state(int(seed_arr[b]))[0]
+        y_rows = y0[idx]
+        st = np.zeros((len(idx), self.state.shape[1]))
+        u0 = np.zeros(len(idx))
+        if initial != "zero":
+            # the rest state is linear in y0: one unit solution per plant
+            plant_of_row = np.zeros(len(idx), dtype=np.int64) if len(self.plants) == 1 else idx
+            for k in np.unique(plant_of_row):
+                plant = self.plants[k]
+                x_unit, u_unit = plant.rest_state(1.0, exact=initial == "equilibrium")
+                sel = plant_of_row == k
+                st[sel, S_X : S_X + plant.order] = y_rows[sel, None] * x_unit
+                u0[sel] = y_rows[sel] * u_unit
+            y_start = y_rows
+        else:
+            y_start = np.zeros(len(idx))
+        st[:, S_XI] = u0 if self.closed_loop else 0.0
+        st[:, S_XF] = -sign * y_start if d_meas else 0.0
+        for col in (S_CMD, S_FRIC + F_OUT, S_FRIC + F_XPREV, S_FRIC + F_XSS, S_BACKLASH,
+                    S_VPREV, S_U):  # fmt: skip
+            st[:, col] = u0
+        st[:, S_FRIC + F_STUCK] = 1.0
+        st[:, S_YMEAS] = y_start
+        self.state[idx] = st
+        self.delay_buf[idx] = y_start[:, None]
+        self.rng[idx] = noise_states(seed_arr[idx])
 
     def advance(
         self,
@@ -841,7 +906,7 @@ def simulate(
     seed_arr = np.broadcast_to(seed_arr, (n,))
     if randomize:
         dists = [
-            (dists[i] if len(dists) > 1 else dists[0]).sample(_seed_state(int(seed_arr[i]))[1])
+            (dists[i] if len(dists) > 1 else dists[0]).sample(sampling_rng(int(seed_arr[i])))
             for i in range(n)
         ]
     sim = BatchSimulator(plants, dt, delay_capacity=_delay_capacity(dists, dt))

@@ -45,29 +45,20 @@ class PlantSlots:
     def __init__(self, settings: Settings, n_rows: int) -> None:
         s = settings
         self.plants = s.plants
-        candidates = BatchSimulator(list(s.plants), s.dt_s)
-        self._a, self._b, self._d = candidates.plant_a, candidates.plant_b, candidates.plant_d
         self.features = [plant_features(p) for p in s.plants]
         self.shared = len(s.plants) == 1
-        self.sim = BatchSimulator(s.plants[0], s.dt_s, delay_capacity=delay_capacity(s))
+        # one row per environment; with several candidates the core keeps a plant per row
+        plants = s.plants[0] if self.shared else [s.plants[0]] * n_rows
+        self.sim = BatchSimulator(plants, s.dt_s, delay_capacity=delay_capacity(s))
         if not self.shared:
-            # The core has no per-row plant setter; its plant arrays and list are attributes.
-            sim = self.sim
-            sim.n_x = candidates.n_x
-            sim.plants = [s.plants[0]] * n_rows
-            sim.plant_a = np.repeat(self._a[:1], n_rows, axis=0)
-            sim.plant_b = np.repeat(self._b[:1], n_rows, axis=0)
-            sim.plant_d = np.repeat(self._d[:1], n_rows, axis=0)
+            widest = max(s.plants, key=lambda p: p.order)
+            self.sim.set_plant(0, widest)  # size the state for the largest candidate
+            self.sim.set_plant(0, s.plants[0])
 
     def install(self, row: int, index: int) -> None:
         """Give ``row`` the candidate plant ``index`` (before resetting that row)."""
-        if self.shared:
-            return
-        sim = self.sim
-        sim.plants[row] = self.plants[index]
-        sim.plant_a[row] = self._a[index]
-        sim.plant_b[row] = self._b[index]
-        sim.plant_d[row] = self._d[index]
+        if not self.shared:
+            self.sim.set_plant(row, self.plants[index])
 
 
 class ControlBatch:

@@ -16,14 +16,13 @@ Layouts (columns):
 
 from __future__ import annotations
 
-import hashlib
 import math
-from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from gripper_env import friction, pid, simulation
+from gripper_env._numba_cache import stamp_caches
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
@@ -233,26 +232,8 @@ def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:
     return np.zeros((n_rows, E_A0 + n_actions))
 
 
-def _stamp_caches() -> None:
-    """Tie the on-disk numba cache of this module's kernels to the core's sources too.
-
-    Numba checks a cached function only against the file it is defined in, but these kernels
-    compile the core's kernel (and the PID and friction steps it calls, and the core's state
-    layout constants) into themselves: after a change of the core a stale cache would run the old
-    core on the new state layout. The stamp is therefore the hash of this file and of the core's
-    files; if numba's cache internals ever change, caching is simply switched off.
-    """
-    digest = hashlib.sha256()
-    for path in (__file__, simulation.__file__, pid.__file__, friction.__file__):
-        digest.update(Path(path).read_bytes())
-    stamp = digest.digest()
-    for dispatcher in (_clip, _pre, _post, step_serial, step_parallel):
-        cache = getattr(dispatcher, "_cache", None)
-        cache_file = getattr(cache, "_cache_file", None)
-        if cache_file is not None and hasattr(cache_file, "_source_stamp"):
-            cache_file._source_stamp = stamp
-        elif cache is not None and hasattr(cache, "disable"):  # pragma: no cover
-            cache.disable()
-
-
-_stamp_caches()
+# these kernels compile the core's kernel (and its PID and friction steps) into themselves
+stamp_caches(
+    (_clip, _pre, _post, step_serial, step_parallel),
+    (__file__, simulation.__file__, pid.__file__, friction.__file__),
+)
