@@ -44,6 +44,7 @@ from gripper_env.sysid.experiments import (
     atomic_write_text,
     run_identification,
     save_plants,
+    step_t63,
     validation_reference,
     write_reference_csv,
 )
@@ -197,38 +198,57 @@ def _save_figure(fig: Any, path: Path) -> Path:
     return path
 
 
-def _moves(desired: np.ndarray) -> tuple[int, int]:
-    """Sample indices where the grip move and the un-grip move start."""
+def _moves(desired: np.ndarray, gap: int = 1000) -> list[tuple[int, int]]:
+    """``(start, end)`` sample indices of each move of the desired angle (changes less than
+    ``gap`` samples apart belong to one move, so a staircase ramp is one move)."""
     steps = np.flatnonzero(np.diff(desired) != 0) + 1
-    grip = int(steps[0]) if steps.size else 0
-    up = steps[(steps > grip) & (np.diff(desired)[steps - 1] > 0)]
-    return grip, int(up[0]) if up.size else len(desired) // 2
+    if steps.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(steps) >= gap)
+    starts = np.concatenate([[steps[0]], steps[breaks + 1]])
+    ends = np.concatenate([steps[breaks], [steps[-1]]])
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+def _window(move: tuple[int, int], dt: float, n: int) -> slice:
+    """Samples to show around a move: a step from just before it, a ramp around its arrival."""
+    start, end = move
+    if (end - start) * dt < 0.1:
+        return slice(max(0, start - round(0.5 / dt)), min(n, start + round(3.5 / dt)))
+    return slice(max(0, end - round(3.0 / dt)), min(n, end + round(2.0 / dt)))
 
 
 def experiment_figure(item: IdentifiedExperiment, path: Path) -> Path:
-    """Measured vs model response of one experiment: grip half, un-grip half, residuals."""
+    """Measured vs model response of one experiment: the grip and the un-grip move (a step
+    from just before it, a ramp around its arrival), and the residuals of the whole record."""
     import matplotlib.pyplot as plt
 
     est = item.estimate
     t, u, y = item.t_s, item.desired_deg, item.actual_deg
+    dt = float(t[1] - t[0])
     y_hat = est.simulate(u)
-    _, split = _moves(u)
+    moves = _moves(u)[:2]
     fig = plt.figure(figsize=(10, 6))
     grid = fig.add_gridspec(2, 2, height_ratios=[3, 1.3])
-    halves = (slice(0, split), slice(split, None))
-    for col, (part, title) in enumerate(zip(halves, ("grip", "un-grip"), strict=True)):
+    for col, move in enumerate(moves):
+        w = _window(move, dt, len(t))
+        kind = "grip" if u[move[1]] < u[move[0] - 1] else "un-grip"
+        ramp = (move[1] - move[0]) * dt >= 0.1
         ax = fig.add_subplot(grid[0, col])
-        ax.plot(t[part], u[part], color="0.5", ls="--", lw=1, label="desired")
-        ax.plot(t[part], y[part], color="C0", lw=0.8, label="measured (actual)")
-        ax.plot(t[part], y_hat[part], color="C1", lw=1.2, label="model")
-        ax.set(title=f"({'ab'[col]}) {title}", xlabel="time (s)")
+        ax.plot(t[w], u[w], color="0.5", ls="--", lw=1, label="desired")
+        ax.plot(t[w], y[w], color="C0", lw=0.8, label="measured (actual)")
+        ax.plot(t[w], y_hat[w], color="C1", lw=1.3, label="model")
+        ax.set(
+            title=f"({'ab'[col]}) {kind}{': end of the ramp' if ramp else ' step'}",
+            xlabel="time (s)",
+        )
         ax.grid(alpha=0.3)
         if col == 0:
             ax.set_ylabel("jaw angle (deg)")
             ax.legend(fontsize=8)
     ax = fig.add_subplot(grid[1, :])
     ax.plot(t, y - y_hat, color="C3", lw=0.6)
-    ax.set(xlabel="time (s)", ylabel="measured - model (deg)")
+    ax.set(xlabel="time (s)", ylabel="measured - model (deg)", title="whole record")
     ax.grid(alpha=0.3)
     exp = item.experiment
     fig.suptitle(
@@ -246,7 +266,7 @@ def validation_figure(run: IdentificationRun, path: Path) -> Path:
     val = run.validation
     t, u = val.t_s, val.desired_deg
     dt = float(t[1] - t[0])
-    grip, ungrip = _moves(u)
+    (grip, _), (ungrip, _) = _moves(u)[:2]
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
     for ax, start, title in ((axes[0], grip, "(a) grip"), (axes[1], ungrip, "(b) un-grip")):
         w = slice(max(0, start - round(0.5 / dt)), start + round(5.0 / dt))
@@ -331,10 +351,12 @@ def render_report(
         "1 s at 92, ramp to 21 over N s, 5 s hold, ramp back over N s, 5 s hold. Identification:",
         "`tfest` with 2 poles and 1 zero (the paper's structure), the model mapping deviations",
         "from the initial rest point, fit % like MATLAB's `compare` with the initial state",
-        "estimated (the paper's *best fit*) and with a zero initial state.",
+        "estimated (the paper's *best fit*) and with a zero initial state. t63: time for the",
+        "model's step response to cover 63.2 % of the commanded move (a speed summary that does",
+        "not depend on the pole/zero structure).",
         "",
-        "| test | input (desired) | samples | identified TF (ours) | fit % | fit % (zero IC) | poles (rad/s) | DC gain | paper TF | paper fit % |",  # noqa: E501
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| test | input (desired) | samples | identified TF (ours) | fit % | fit % (zero IC) | poles (rad/s) | DC gain | t63 (s) | paper TF | paper fit % |",  # noqa: E501
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for item in run.experiments:
         est, exp = item.estimate, item.experiment
@@ -342,28 +364,24 @@ def render_report(
         lines.append(
             f"| {exp.name} | {exp.description} | {item.t_s.size} | {est.paper_form()}{flag} | "
             f"{est.fit_pct:.2f} | {est.fit_pct_zero_ic:.2f} | {_poles(est.poles)} | "
-            f"{item.dc_gain:.3f} | {_paper_tf(exp.name)} | {paper.PLANTS[exp.name][2]} |"
+            f"{item.dc_gain:.3f} | {item.t63_s:.3f} | {_paper_tf(exp.name)} | "
+            f"{paper.PLANTS[exp.name][2]} |"
         )
     lines.append("")
     if true_plant is not None:
-        fast = float(np.min(true_plant.poles.real))
-        errs = ", ".join(
-            f"{i.experiment.name} {100 * (i.fast_pole - fast) / abs(fast):+.0f} %"
-            for i in run.experiments
-        )
+        t63 = step_t63(true_plant.num, true_plant.den, true_plant.dt_s)
         lines += [
             f"The simulated gripper's own transfer function ({true_plant.name}) is "
-            f"{format_polynomial(true_plant.num)} / ({format_polynomial(true_plant.den)}), "
-            f"poles {_poles(true_plant.poles)} rad/s. Error of each model's fastest pole against "
-            f"its fastest ({fast:.4g} rad/s): {errs}.",
+            f"({format_polynomial(true_plant.num)}) / ({format_polynomial(true_plant.den)}): "
+            f"poles {_poles(true_plant.poles)} rad/s, t63 = {t63:.3f} s.",
         ]
         slopes = [i for i in run.experiments if i.experiment.profile.startswith("slope")]
-        if slopes and all(i.fast_pole > 0.5 * fast for i in slopes):
+        if slopes and all(i.t63_s > 2 * t63 for i in slopes):
             lines += [
                 "Every slope model is more than twice as slow as the true plant: friction and",
                 "whole-degree servo commands make the jaw lag a slow ramp, and a linear model",
                 "absorbs that lag into its dynamics (on `--disturbance ideal` the same experiments",
-                "recover the fast pole; `tests/sysid/test_identify.py`).",
+                "recover the plant's poles; `tests/sysid/test_identify.py`).",
             ]
         lines.append("")
     lines += [
