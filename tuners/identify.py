@@ -18,7 +18,9 @@ recorder (simulated or device), and writes the report.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
+import io
 import json
 import os
 import sys
@@ -92,6 +94,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="record on the board at this serial port, through 'python -m tuners.record' "
         "(its defaults for calibration, boot wait and timeout)",
     )
+    dev = p.add_argument_group("device options (with --port; passed to tuners.record)")
+    dev.add_argument(
+        "--calibration",
+        default=None,
+        metavar="FILE",
+        help="calibration file from 'python -m tuners.calibrate' (default: tuners.record's)",
+    )
+    dev.add_argument(
+        "--boot-wait",
+        default=None,
+        metavar="S",
+        help="seconds to let the board boot after opening the port (default: tuners.record's)",
+    )
+    dev.add_argument(
+        "--timeout",
+        default=None,
+        metavar="S",
+        help="seconds to wait for each answer from the board (default: tuners.record's)",
+    )
     p.add_argument(
         "--plant",
         default=None,
@@ -143,11 +164,20 @@ def build_parser() -> argparse.ArgumentParser:
 # The device recorder: the colleague's tuners.record, imported lazily.
 
 
-def device_recorder(port: str) -> Recorder:
+def device_recorder(port: str, device_args: Sequence[str] = (), quiet: bool = False) -> Recorder:
     """A :data:`~gripper_env.sysid.experiments.Recorder` on the board at ``port``.
 
     Each run calls ``python -m tuners.record --port PORT --profile P --output LOG.csv`` (in
     process); a profile that is not a named one is handed over as a CSV file.
+
+    Parameters
+    ----------
+    port : str
+        Serial port (or the virtual board's pty).
+    device_args : sequence of str
+        More arguments for ``tuners.record`` (``--calibration F``, ``--boot-wait S``, ...).
+    quiet : bool
+        Send the recorder's messages to stderr instead of stdout.
 
     Raises
     ------
@@ -171,9 +201,19 @@ def device_recorder(port: str) -> Recorder:
             profile = str(
                 write_reference_csv(reference, path.with_name(f"{path.stem}_profile.csv"))
             )
-        status = record.main(["--port", port, "--profile", profile, "--output", str(path)])
+        argv = ["--port", port, *device_args, "--profile", profile, "--output", str(path)]
+        errors = io.StringIO()
+        with (
+            contextlib.redirect_stdout(sys.stderr if quiet else sys.stdout),
+            contextlib.redirect_stderr(errors),
+        ):
+            try:
+                status = record.main(argv)
+            except SystemExit as exc:  # its argument parser refused something
+                status = exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
         if status != 0:
-            raise RecordingError(f"recording {reference.name} on {port} failed (exit {status})")
+            why = " ".join(errors.getvalue().split()) or f"exit status {status}"
+            raise RecordingError(f"recording {reference.name} on {port} failed: {why}")
         return path
 
     return _record
@@ -468,7 +508,17 @@ def _command(args: argparse.Namespace) -> str:
 def _run(args: argparse.Namespace, started: float) -> dict[str, Any]:
     true_plant = None
     if args.port:
-        recorder = device_recorder(args.port)
+        device_args = [
+            arg
+            for flag, value in (
+                ("--calibration", args.calibration),
+                ("--boot-wait", args.boot_wait),
+                ("--timeout", args.timeout),
+            )
+            if value is not None
+            for arg in (flag, value)
+        ]
+        recorder = device_recorder(args.port, device_args, quiet=args.json)
         source = f"the board at {args.port} (python -m tuners.record)"
     else:
         true_plant = load_plant(args.plant)
@@ -533,6 +583,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--{', --'.join(given)} go with --simulate, not --port")
         if not args.port.strip():
             parser.error("--port needs a serial port name")
+    else:
+        given = [f for f in ("calibration", "boot_wait", "timeout") if getattr(args, f)]
+        if given:
+            flags = ", --".join(f.replace("_", "-") for f in given)
+            parser.error(f"--{flags} go with --port, not --simulate")
     args.plant = "test2" if args.plant is None else args.plant
     args.disturbance = "actual" if args.disturbance is None else args.disturbance
     args.seed = 0 if args.seed is None else args.seed
