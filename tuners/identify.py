@@ -453,14 +453,17 @@ def render_report(
         lines.append(
             f"| Test {row.name.removeprefix('test')} | {row.sd_deg:.3f} | {row.sd_gap_deg:.3f} | "
             f"{row.abs_sd_gap_deg:.3f} | {row.fit_pct:.2f} | {row.fit_pct_plant:.2f} | "
-            f"{paper_sd} | {paper.TABLE2_SD['actual'] - paper_sd:.3f} |"
+            f"{paper_sd:.3f} | {paper.TABLE2_SD['actual'] - paper_sd:.3f} |"
         )
     agree = "agree" if val.criteria_agree else "**disagree**"
+    by_gap = " < ".join(r.name for r in sorted(val.rows, key=lambda r: r.abs_sd_gap_deg))
+    by_fit = " > ".join(r.name for r in sorted(val.rows, key=lambda r: -r.fit_pct))
     lines += [
         "",
         f"Best model by the paper's criterion (smallest |SD gap|): **{val.best_by_sd_gap}**; by "
-        f"fit %: **{val.best_by_fit}**. The two criteria {agree}. (The paper chose test2 by SD "
-        "gap.) An SD compares only the spread of two responses, not their shape in time: it",
+        f"fit %: **{val.best_by_fit}**. The two criteria {agree} on the best model (the paper "
+        f"chose test2 by SD gap). Full rankings: |SD gap| {by_gap}; fit % {by_fit}.",
+        "An SD compares only the spread of two responses, not their shape in time: it",
         "cannot see a lag or an offset that leaves the spread unchanged, and a gap of a few",
         "hundredths of a degree is within run-to-run noise; fit % compares the responses sample",
         "by sample.",
