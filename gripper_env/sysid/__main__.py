@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import warnings
 from typing import NoReturn
@@ -147,10 +148,12 @@ def main(argv: list[str] | None = None) -> int:
         msg = " ".join(str(exc).split())
         print(f"error: {msg}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if args.json:
-        print(json.dumps(est.to_dict(), indent=2))
-    else:
-        print(_text_report(est))
+    try:
+        print(json.dumps(est.to_dict(), indent=2) if args.json else _text_report(est))
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the reader (`| head`) went away: not an error of ours; silence the flush at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
