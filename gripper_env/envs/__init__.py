@@ -8,6 +8,10 @@ id                                     the agent ...
 ``gripper_env/GripperGainSchedule-v0`` schedules the PID's gains every 20 ms
 =====================================  =====================================================
 
+``gripper_env/GripperServoHardware-v0`` is ``GripperServo-v0`` on the real board (or the virtual
+one), host in the loop at 50 Hz; it needs ``port=...`` at ``gym.make`` and is not in
+:data:`ENV_IDS` (the simulated ones). Registering it touches no device.
+
 ``gym.make("gripper_env:gripper_env/GripperServo-v0")`` works without importing the package
 first; ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` gives the
 native vector environment (:mod:`gripper_env.envs.vector`). The classes are imported lazily, so
@@ -20,11 +24,13 @@ from typing import Any
 
 __all__ = [
     "ENV_IDS",
+    "HARDWARE_ENV_ID",
     "GripperGainScheduleEnv",
     "GripperGainScheduleVectorEnv",
     "GripperPIDTuneEnv",
     "GripperPIDTuneVectorEnv",
     "GripperServoEnv",
+    "GripperServoHardwareEnv",
     "GripperServoVectorEnv",
     "register_envs",
 ]
@@ -49,8 +55,14 @@ _SPECS: dict[str, tuple[str, str, int]] = {
 }
 ENV_IDS = tuple(_SPECS)
 
+#: The real gripper: one board, one environment (no vector entry point); 20 s at 20 ms.
+HARDWARE_ENV_ID = "gripper_env/GripperServoHardware-v0"
+_HARDWARE_ENTRY = "gripper_env.envs.servo_hardware:GripperServoHardwareEnv"
+_HARDWARE_STEPS = 1000
+
 _LAZY = {
     "GripperServoEnv": "gripper_env.envs.servo",
+    "GripperServoHardwareEnv": "gripper_env.envs.servo_hardware",
     "GripperPIDTuneEnv": "gripper_env.envs.pid_tune",
     "GripperGainScheduleEnv": "gripper_env.envs.gain_schedule",
     "GripperServoVectorEnv": "gripper_env.envs.vector",
@@ -71,6 +83,13 @@ def register_envs() -> None:
             entry_point=entry,
             vector_entry_point=vector_entry,
             max_episode_steps=max_steps,
+        )
+    if HARDWARE_ENV_ID not in gymnasium.registry:
+        gymnasium.register(
+            id=HARDWARE_ENV_ID,
+            entry_point=_HARDWARE_ENTRY,
+            max_episode_steps=_HARDWARE_STEPS,
+            nondeterministic=True,  # real measurements: the checkers skip their determinism tests
         )
 
 

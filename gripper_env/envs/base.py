@@ -19,7 +19,7 @@ from gripper_env.envs.common import RENDER_MODES, draw_episode, parse_settings
 from gripper_env.envs.rendering import EpisodeViewer, render_rgb
 from gripper_env.envs.spaces import OBS_BOUND
 
-__all__ = ["ControlEnv", "check_actions"]
+__all__ = ["ControlEnv", "check_actions", "check_reward_weights"]
 
 
 def check_actions(actions: Any, shape: tuple[int, ...], what: str = "action") -> np.ndarray:
@@ -38,6 +38,16 @@ def check_actions(actions: Any, shape: tuple[int, ...], what: str = "action") ->
     return arr
 
 
+def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:
+    """Raise a :class:`~gripper_env.config.ConfigError` naming a reward weight that is not >= 0."""
+    weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
+    for arg, value in weights.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            raise ConfigError(
+                f"{env_name}: argument {arg!r}: expected a number >= 0, got {value!r}"
+            )
+
+
 class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
     """Base of :class:`GripperServoEnv` and :class:`GripperGainScheduleEnv` (not registered)."""
 
@@ -54,12 +64,7 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
         **kwargs: Any,
     ) -> None:
         self.settings = parse_settings(self._name, **kwargs)
-        weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
-        for arg, value in weights.items():
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ConfigError(
-                    f"{self._name}: argument {arg!r}: expected a number >= 0, got {value!r}"
-                )
+        check_reward_weights(self._name, overshoot_weight, chatter_weight)
         if not isinstance(observe_context, bool | np.bool_):
             raise ConfigError(
                 f"{self._name}: argument 'observe_context': expected a bool, "

@@ -111,6 +111,106 @@ def _pre(b, actions, cfg, ref, env, params, drive):
 
 
 @njit(cache=True)
+def period_reward(ref_row, t, last, y, direction, variation, jh, ch, w_over, w_var, var_cap):
+    """Reward of one control period from its physics steps (the formula of the docstrings).
+
+    Pure and compiled: the kernels call it per row, :class:`GripperServoHardwareEnv` calls it
+    with the period's telemetry samples, so the simulated and the real gripper share one formula.
+
+    Parameters
+    ----------
+    ref_row : ndarray of float64, shape (L,)
+        The episode's reference (deg, one sample per physics step).
+    t : int
+        Index into ``ref_row`` of the period's first physics step.
+    last : int
+        Index of the reference's last valid sample (``t + k`` is held there).
+    y : ndarray of float64, shape (n,)
+        Measured jaw angle (deg) at each of the period's ``n`` physics steps.
+    direction : float
+        +1/-1 for the direction of the latest reference move before the period, 0 before any.
+    variation : float
+        Command variation over the period (deg): ``sum_k |u_k - u_{k-1}|``.
+    jh, ch : float
+        Half-widths of the jaw range and of the command range (deg).
+    w_over, w_var, var_cap : float
+        Overshoot weight, command-variation (chatter) weight and cap of ``variation / ch``.
+
+    Returns
+    -------
+    reward : float
+        ``-(mean_k |r_k - y_k| / jh + w_over * mean_k max(0, d_k (y_k - r_k)) / jh
+        + w_var * min(var_cap, variation / ch))``.
+    direction : float
+        Direction of the latest reference move at the period's end.
+    """
+    n = y.shape[0]
+    track = 0.0
+    over = 0.0
+    r_prev = ref_row[min(max(t - 1, 0), last)]
+    for k in range(n):
+        r = ref_row[min(t + k, last)]
+        if r > r_prev:
+            direction = 1.0
+        elif r < r_prev:
+            direction = -1.0
+        r_prev = r
+        e = r - y[k]
+        track += abs(e)
+        ov = -direction * e  # past the reference in the direction it moved
+        if ov > 0.0:
+            over += ov
+    track /= n * jh
+    over /= n * jh
+    variation = min(variation / ch, var_cap)
+    return -(track + w_over * over + w_var * variation), direction
+
+
+@njit(cache=True)
+def tracking_observation(y, r_next, e_prev, integral, n_steps, dt, jc, jh, rate, bound, obs_row):
+    """Write the tracking part of an observation (:data:`~gripper_env.envs.spaces.TRACKING_NAMES`).
+
+    Pure and compiled, shared by the kernels and :class:`GripperServoHardwareEnv`.
+
+    Parameters
+    ----------
+    y : float
+        Measured jaw angle at the end of the period (deg).
+    r_next : float
+        Reference for the next period (deg).
+    e_prev : float
+        Normalised error of the previous observation.
+    integral : float
+        Integral of the normalised error so far (s).
+    n_steps : int
+        Physics steps since the previous observation (0 at reset: no integral yet).
+    dt : float
+        Physics step (s).
+    jc, jh : float
+        Centre and half-width of the jaw range (deg).
+    rate : float
+        ``RATE_TIME_S / control period`` (0 at reset: no error rate yet).
+    bound : float
+        Clip of every entry.
+    obs_row : ndarray of float32
+        Observation; entries 0..4 are written.
+
+    Returns
+    -------
+    e, integral : float
+        The new normalised error and error integral (the state of the next call).
+    """
+    e = (r_next - y) / jh
+    integral = _clip(integral + e * n_steps * dt, bound)
+    obs_row[0] = _clip((y - jc) / jh, bound)
+    obs_row[1] = _clip((r_next - jc) / jh, bound)
+    obs_row[2] = _clip(e, bound)
+    obs_row[3] = _clip((e - e_prev) * rate, bound)
+    obs_row[4] = integral
+    return e, integral
+
+
+@njit(cache=True)
 def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
     """Reward and observation of row ``b`` from the period's recorded physics steps."""
     n_sub = int(cfg[C_NSUB])
@@ -125,25 +225,8 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
         env[b, E_TERM] = 1.0
         return
     env[b, E_TERM] = 0.0
-    jc, jh, ch, bound = cfg[C_JC], cfg[C_JH], cfg[C_CH], cfg[C_BOUND]
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
-    direction = env[b, E_DIR]
     u_prev = env[b, E_UPREV]
-    track = 0.0
-    over = 0.0
-    r_prev = ref[rb, min(max(t - 1, 0), last)]
-    for k in range(n_sub):
-        r = ref[rb, min(t + k, last)]
-        if r > r_prev:
-            direction = 1.0
-        elif r < r_prev:
-            direction = -1.0
-        r_prev = r
-        e = r - out_y[b, k]
-        track += abs(e)
-        ov = -direction * e  # past the reference in the direction it moved
-        if ov > 0.0:
-            over += ov
     variation = 0.0
     if cfg[C_MODE] == MODE_SERVO:  # open loop: the command is held over the period
         variation = abs(out_u[b, 0] - u_prev)
@@ -153,27 +236,22 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
             u = out_u[b, k]
             variation += abs(u - u_prev)
             u_prev = u
-    track /= n_sub * jh
-    over /= n_sub * jh
-    variation = min(variation / ch, cfg[C_UCAP])
-    env[b, E_REW] = -(track + cfg[C_WOS] * over + cfg[C_WU] * variation)
+    reward, direction = period_reward(
+        ref[rb], t, last, out_y[b], env[b, E_DIR], variation,
+        cfg[C_JH], cfg[C_CH], cfg[C_WOS], cfg[C_WU], cfg[C_UCAP],
+    )  # fmt: skip
+    env[b, E_REW] = reward
     env[b, E_DIR] = direction
     env[b, E_UPREV] = u_prev
     # observation at the start of the next period
-    y = out_y[b, n_sub - 1]
-    r_next = ref[rb, min(t_new, last)]
-    e = (r_next - y) / jh
-    rate = (e - env[b, E_EPREV]) * cfg[C_RATE]
-    integral = _clip(env[b, E_INT] + e * n_sub * cfg[C_DT], bound)
+    e, integral = tracking_observation(
+        out_y[b, n_sub - 1], ref[rb, min(t_new, last)], env[b, E_EPREV], env[b, E_INT],
+        n_sub, cfg[C_DT], cfg[C_JC], cfg[C_JH], cfg[C_RATE], cfg[C_BOUND], obs[b],
+    )  # fmt: skip
     env[b, E_EPREV] = e
     env[b, E_INT] = integral
-    obs[b, 0] = _clip((y - jc) / jh, bound)
-    obs[b, 1] = _clip((r_next - jc) / jh, bound)
-    obs[b, 2] = _clip(e, bound)
-    obs[b, 3] = _clip(rate, bound)
-    obs[b, 4] = integral
     if cfg[C_MODE] == MODE_GAINS:
-        obs[b, 5] = _clip((u_prev - cfg[C_CC]) / ch, bound)
+        obs[b, 5] = _clip((u_prev - cfg[C_CC]) / cfg[C_CH], cfg[C_BOUND])
     oa0 = int(cfg[C_OA0])
     for j in range(int(cfg[C_NA])):
         a = _clip(actions[b, j], 1.0)
@@ -234,6 +312,6 @@ def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:
 
 # these kernels compile the core's kernel (and its PID and friction steps) into themselves
 stamp_caches(
-    (_clip, _pre, _post, step_serial, step_parallel),
+    (_clip, _pre, period_reward, tracking_observation, _post, step_serial, step_parallel),
     (__file__, simulation.__file__, pid.__file__, friction.__file__),
 )
