@@ -84,7 +84,8 @@ def pid_state_space(gains: PIDGains, dt_s: float, sign: int = 1) -> control.Stat
     """The discrete PID from error ``r - y`` to output ``u`` as a state-space system.
 
     States: the integral term ``xi`` and the filtered derivative input ``xf``, exactly as in
-    :func:`gripper_env.pid.pid_update` (derivative on the error, no saturation).
+    :func:`gripper_env.pid.pid_update` (derivative on the error, no saturation); a state whose
+    gain (``I`` or ``D``) is zero is left out.
 
     Parameters
     ----------
@@ -96,10 +97,15 @@ def pid_state_space(gains: PIDGains, dt_s: float, sign: int = 1) -> control.Stat
         Error sign convention.
     """
     p, i, d, n = gains.P, gains.I, gains.D, gains.N
-    a = np.array([[1.0, 0.0], [0.0, 1.0 - n * dt_s]])
-    b = sign * np.array([[dt_s * i], [dt_s * n]])
-    c = np.array([[1.0, -d * n]])
+    # a state whose gain is zero is decoupled (a pole at z = 1 or 1 - N*Ts that no signal
+    # reaches): leave it out, so that a P or PI controller has no spurious marginal pole
+    keep = [i != 0.0, d != 0.0]
+    a = np.diag([1.0, 1.0 - n * dt_s])[np.ix_(keep, keep)]
+    b = (sign * np.array([[dt_s * i], [dt_s * n]]))[keep]
+    c = np.array([[1.0, -d * n]])[:, keep]
     dd = sign * np.array([[p + d * n]])
+    if not any(keep):
+        return control.ss([], [], [], dd, dt_s)
     return control.ss(a, b, c, dd, dt_s)
 
 
