@@ -40,6 +40,7 @@ __all__ = [
     "FRICTION_MODELS",
     "backlash_step",
     "friction_state",
+    "stiction_scalar",
     "stiction_step",
 ]
 
@@ -75,6 +76,52 @@ def _sign(v: float) -> float:
     return 0.0
 
 
+@njit(cache=True, inline="always")
+def stiction_scalar(
+    model: int,
+    x: float,
+    s_deg: float,
+    j_deg: float,
+    out: float,
+    x_prev: float,
+    x_ss: float,
+    direction: float,
+    stuck: float,
+) -> tuple[float, float, float, float]:
+    """One stiction sample on scalar state; returns ``(out, x_ss, direction, stuck)``.
+
+    The new previous input is ``x``. See :func:`stiction_step` for the arguments.
+    """
+    if model == 0:
+        return x, x_ss, direction, stuck
+    v = _sign(x - x_prev)
+    offset = 0.5 * (s_deg - j_deg)
+    if stuck == 0.0:
+        if v == direction:
+            out = x - direction * offset
+        else:
+            # the input stopped or reversed: the jaw sticks where the input was
+            stuck = 1.0
+            x_ss = x_prev
+    if stuck == 1.0:
+        if model == 1:
+            travel = x - x_ss
+            tdir = _sign(travel)
+            if tdir != 0.0:
+                limit = j_deg if tdir == direction else s_deg
+                if abs(travel) > limit:
+                    stuck = 0.0
+                    direction = tdir
+                    out = x - tdir * offset
+        else:
+            force = x - out
+            if abs(force) > 0.5 * (s_deg + j_deg):
+                direction = _sign(force)
+                stuck = 0.0
+                out = x - direction * offset
+    return out, x_ss, direction, stuck
+
+
 @njit(cache=True)
 def stiction_step(model: int, x: float, s_deg: float, j_deg: float, st: np.ndarray) -> float:
     """Advance a stiction model by one sample.
@@ -95,46 +142,15 @@ def stiction_step(model: int, x: float, s_deg: float, j_deg: float, st: np.ndarr
     float
         Position passed on to the servo dynamics (deg).
     """
-    if model == 0:
-        st[F_XPREV] = x
-        st[F_OUT] = x
-        return x
-    dx = x - st[F_XPREV]
-    v = _sign(dx)
-    direction = st[F_DIR]
-    offset = 0.5 * (s_deg - j_deg)
-    if model == 1:
-        if st[F_STUCK] == 0.0:
-            if v == direction:
-                st[F_OUT] = x - direction * offset
-            else:
-                # The input stopped or reversed: the jaw sticks where the input was.
-                st[F_STUCK] = 1.0
-                st[F_XSS] = st[F_XPREV]
-        if st[F_STUCK] == 1.0:
-            travel = x - st[F_XSS]
-            tdir = _sign(travel)
-            if tdir != 0.0:
-                limit = j_deg if tdir == direction else s_deg
-                if abs(travel) > limit:
-                    st[F_STUCK] = 0.0
-                    st[F_DIR] = tdir
-                    st[F_OUT] = x - tdir * offset
-    else:
-        if st[F_STUCK] == 0.0:
-            if v == direction:
-                st[F_OUT] = x - direction * offset
-            else:
-                st[F_STUCK] = 1.0
-        if st[F_STUCK] == 1.0:
-            force = x - st[F_OUT]
-            if abs(force) > 0.5 * (s_deg + j_deg):
-                fdir = _sign(force)
-                st[F_STUCK] = 0.0
-                st[F_DIR] = fdir
-                st[F_OUT] = x - fdir * offset
+    out, x_ss, direction, stuck = stiction_scalar(
+        model, x, s_deg, j_deg, st[F_OUT], st[F_XPREV], st[F_XSS], st[F_DIR], st[F_STUCK]
+    )
+    st[F_OUT] = out
     st[F_XPREV] = x
-    return st[F_OUT]
+    st[F_XSS] = x_ss
+    st[F_DIR] = direction
+    st[F_STUCK] = stuck
+    return out
 
 
 @njit(cache=True, inline="always")

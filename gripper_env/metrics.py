@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit, prange
 
 from gripper_env.references import Segment
 
@@ -77,6 +78,137 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.where(den > 0, fit, np.where(num == 0, 100.0, -np.inf))
 
 
+# Columns of the per-segment result of the compiled kernel.
+_SEG_COLUMNS = (
+    "overshoot_pct",
+    "undershoot_pct",
+    "rise_time_s",
+    "settling_time_s",
+    "peak_deg",
+    "peak_time_s",
+    "steady_state_error_deg",
+)
+
+
+@njit(cache=True)
+def _segment(
+    t: np.ndarray, y: np.ndarray, start: int, stop: int, y_init: float, y_final: float,
+    out: np.ndarray,
+) -> None:  # fmt: skip
+    """Step metrics of ``y[start:stop]`` (one run), written into ``out`` (see _SEG_COLUMNS)."""
+    delta = y_final - y_init
+    band = 0.02 * abs(delta)
+    t0 = t[start]
+    lo_idx = -1
+    hi_idx = -1
+    yn_max = -np.inf
+    yn_min = np.inf
+    peak = start
+    for k in range(start, stop):
+        yn = (y[k] - y_init) / delta
+        if lo_idx < 0 and yn >= 0.1:
+            lo_idx = k
+        if hi_idx < 0 and yn >= 0.9:
+            hi_idx = k
+        if yn > yn_max:
+            yn_max = yn
+            peak = k
+        if yn < yn_min:
+            yn_min = yn
+    settled = start
+    for k in range(stop - 1, start - 1, -1):
+        if abs(y[k] - y_final) > band:
+            settled = k + 1
+            break
+    n = stop - start
+    tail = max(1, n // 10)
+    acc = 0.0
+    for k in range(stop - tail, stop):
+        acc += y[k]
+    out[0] = max(0.0, 100.0 * (yn_max - 1.0))
+    out[1] = max(0.0, -100.0 * yn_min)
+    out[2] = t[hi_idx] - t[lo_idx] if (lo_idx >= 0 and hi_idx >= 0) else np.inf
+    out[3] = t[settled] - t0 if settled < stop else np.inf
+    out[4] = y[peak]
+    out[5] = t[peak] - t0
+    out[6] = abs(acc / tail - y_final)
+
+
+@njit(cache=True)
+def _run(
+    t: np.ndarray,
+    r: np.ndarray,
+    y: np.ndarray,
+    u: np.ndarray,
+    seg_bounds: np.ndarray,
+    seg_values: np.ndarray,
+    run_out: np.ndarray,
+    seg_out: np.ndarray,
+) -> None:
+    """Metrics of one run (1-D ``r``, ``y``, ``u``) into ``run_out`` and ``seg_out``."""
+    n = y.shape[0]
+    dt = t[1] - t[0] if n > 1 else 0.0
+    iae = 0.0
+    ise = 0.0
+    itae = 0.0
+    effort = 0.0
+    sum_y = 0.0
+    sum_r = 0.0
+    for k in range(n):
+        e = r[k] - y[k]
+        ae = abs(e)
+        iae += ae
+        ise += e * e
+        itae += (t[k] - t[0]) * ae
+        sum_y += y[k]
+        sum_r += r[k]
+        if k > 0:
+            effort += abs(u[k] - u[k - 1])
+    mean_y = sum_y / n
+    mean_r = sum_r / n
+    var_y = 0.0
+    var_r = 0.0
+    for k in range(n):
+        dy = y[k] - mean_y
+        dr = r[k] - mean_r
+        var_y += dy * dy
+        var_r += dr * dr
+    run_out[0] = iae * dt
+    run_out[1] = ise * dt
+    run_out[2] = itae * dt
+    run_out[3] = effort
+    run_out[4] = mean_y
+    run_out[5] = math.sqrt(var_y / (n - 1)) if n > 1 else 0.0
+    run_out[6] = math.sqrt(var_r / (n - 1)) if n > 1 else 0.0
+    for s in range(seg_bounds.shape[0]):
+        _segment(
+            t, y, seg_bounds[s, 0], seg_bounds[s, 1], seg_values[s, 0], seg_values[s, 1],
+            seg_out[s],
+        )  # fmt: skip
+
+
+@njit(cache=True, parallel=True)
+def _metrics_kernel(
+    t: np.ndarray,
+    r: np.ndarray,
+    y: np.ndarray,
+    u: np.ndarray,
+    seg_bounds: np.ndarray,
+    seg_values: np.ndarray,
+    run_out: np.ndarray,
+    seg_out: np.ndarray,
+) -> None:
+    """One pass per run (parallel over runs); ``r`` is (1 or B, T).
+
+    Run columns: IAE, ISE, ITAE, control effort, mean of y, SD of y, SD of r.
+    """
+    n_runs = y.shape[0]
+    shared = r.shape[0] == 1
+    for b in prange(n_runs):
+        r_row = r[0] if shared else r[b]
+        _run(t, r_row, y[b], u[b], seg_bounds, seg_values, run_out[b], seg_out[b])
+
+
 def step_metrics(
     t_s: np.ndarray, y: np.ndarray, y_init: float, y_final: float
 ) -> dict[str, np.ndarray]:
@@ -97,42 +229,18 @@ def step_metrics(
         ``overshoot_pct``, ``undershoot_pct``, ``rise_time_s``, ``settling_time_s``, ``peak_deg``,
         ``peak_time_s``, ``steady_state_error_deg``.
     """
-    y2 = np.atleast_2d(np.asarray(y, dtype=float))
-    n = y2.shape[1]
-    delta = y_final - y_init
-    if delta == 0:
+    if y_final == y_init:
         raise ValueError("a step needs y_final != y_init")
-    yn = (y2 - y_init) / delta
-    rows = np.arange(y2.shape[0])
-
-    def first_index(mask: np.ndarray) -> np.ndarray:
-        hit = mask.any(axis=1)
-        return np.where(hit, mask.argmax(axis=1), -1)
-
-    lo = first_index(yn >= 0.1)
-    hi = first_index(yn >= 0.9)
-    rise = np.where((lo >= 0) & (hi >= 0), t_s[np.maximum(hi, 0)] - t_s[np.maximum(lo, 0)], np.inf)
-
-    outside = np.abs(y2 - y_final) > 0.02 * abs(delta)
-    any_out = outside.any(axis=1)
-    last_out = n - 1 - outside[:, ::-1].argmax(axis=1)
-    settled_idx = np.where(any_out, last_out + 1, 0)
-    settling = np.where(settled_idx < n, t_s[np.minimum(settled_idx, n - 1)], np.inf)
-
-    peak_idx = yn.argmax(axis=1)
-    overshoot = np.maximum(0.0, 100.0 * (yn.max(axis=1) - 1.0))
-    undershoot = np.maximum(0.0, -100.0 * yn.min(axis=1))
-    tail = max(1, n // 10)
-    sse = np.abs(y2[:, -tail:].mean(axis=1) - y_final)
-    return {
-        "overshoot_pct": overshoot,
-        "undershoot_pct": undershoot,
-        "rise_time_s": rise,
-        "settling_time_s": settling,
-        "peak_deg": y2[rows, peak_idx],
-        "peak_time_s": t_s[peak_idx],
-        "steady_state_error_deg": sse,
-    }
+    y2 = np.ascontiguousarray(np.atleast_2d(np.asarray(y, dtype=float)))
+    t = np.ascontiguousarray(t_s, dtype=float)
+    n_runs, n = y2.shape
+    run_out = np.empty((n_runs, 7))
+    seg_out = np.empty((n_runs, 1, len(_SEG_COLUMNS)))
+    _metrics_kernel(
+        t, y2, y2, y2, np.array([[0, n]]), np.array([[y_init, y_final]], dtype=float),
+        run_out, seg_out,
+    )  # fmt: skip
+    return {name: seg_out[:, 0, i] for i, name in enumerate(_SEG_COLUMNS)}
 
 
 @dataclass
@@ -163,7 +271,7 @@ class Metrics:
         """Run ``i`` as plain Python numbers with the project's JSON keys (``inf`` kept)."""
 
         def part(d: dict[str, np.ndarray]) -> dict[str, float]:
-            return {k: float(v[i]) for k, v in d.items() if k != "peak_time_s"}
+            return {k: float(v[i]) for k, v in d.items()}
 
         out: dict[str, Any] = {"grip": part(self.grip), "ungrip": part(self.ungrip)}
         out.update({k: float(v[i]) for k, v in self.run.items()})
@@ -172,9 +280,9 @@ class Metrics:
 
 
 def _aggregate(parts: list[dict[str, np.ndarray]], n_runs: int) -> dict[str, np.ndarray]:
-    keys = (*STEP_KEYS, "peak_time_s")
+    keys = _SEG_COLUMNS
     if not parts:
-        return {k: np.full(n_runs, np.inf if k != "peak_deg" else np.nan) for k in keys}
+        return {k: np.full(n_runs, np.inf) for k in keys}
     out = {}
     for k in keys:
         stack = np.stack([p[k] for p in parts])
@@ -207,44 +315,49 @@ def compute_metrics(
     if signal not in ("measured", "true"):
         raise ValueError(f"signal must be 'measured' or 'true', got {signal!r}")
     y = np.atleast_2d(traj.y if signal == "measured" else traj.y_true)
-    r = np.atleast_2d(traj.r)
+    r = np.ascontiguousarray(np.atleast_2d(traj.r), dtype=float)
     u = np.atleast_2d(traj.u)
-    t = np.asarray(traj.t)
+    t = np.ascontiguousarray(traj.t, dtype=float)
     n_runs = y.shape[0]
-    dt = float(t[1] - t[0]) if len(t) > 1 else 1e-3
     stable = np.asarray(traj.stable, dtype=bool) & np.isfinite(y).all(axis=1)
     # diverged runs: compute on zeros, then overwrite with inf (no NaN, no warnings)
-    ys = np.where(stable[:, None], y, 0.0)
-    us = np.where(stable[:, None], u, 0.0)
-    segs = traj.reference.segments if segments is None else segments
-    grip_parts, ungrip_parts = [], []
-    for seg in segs:
-        if seg.stop - seg.start < 2 or seg.initial_deg == seg.final_deg:
-            continue
-        window = slice(seg.start, seg.stop)
-        m = step_metrics(t[window] - t[seg.start], ys[:, window], seg.initial_deg, seg.final_deg)
-        (grip_parts if seg.kind == "grip" else ungrip_parts).append(m)
-    grip = _aggregate(grip_parts, n_runs)
-    ungrip = _aggregate(ungrip_parts, n_runs)
-
-    err = r - ys
-    abs_err = np.abs(err)
-    sd_y = sample_sd(ys, axis=1)
-    sd_r = sample_sd(r, axis=1)
+    if stable.all():
+        ys, us = np.ascontiguousarray(y, dtype=float), np.ascontiguousarray(u, dtype=float)
+    else:
+        ys = np.ascontiguousarray(np.where(stable[:, None], y, 0.0))
+        us = np.ascontiguousarray(np.where(stable[:, None], u, 0.0))
+    if np.all(r == r[:1]):
+        r = r[:1]
+    segs = [
+        s
+        for s in (traj.reference.segments if segments is None else segments)
+        if s.stop - s.start >= 2 and s.initial_deg != s.final_deg
+    ]
+    bounds = np.array([[s.start, s.stop] for s in segs], dtype=np.int64).reshape(-1, 2)
+    values = np.array([[s.initial_deg, s.final_deg] for s in segs], dtype=float).reshape(-1, 2)
+    run_out = np.empty((n_runs, 7))
+    seg_out = np.empty((n_runs, len(segs), len(_SEG_COLUMNS)))
+    _metrics_kernel(t, r, ys, us, bounds, values, run_out, seg_out)
+    parts = {"grip": [], "ungrip": []}
+    for i, s in enumerate(segs):
+        parts[s.kind].append({name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)})
+    grip = _aggregate(parts["grip"], n_runs)
+    ungrip = _aggregate(parts["ungrip"], n_runs)
+    sd_y, sd_r = run_out[:, 5], run_out[:, 6]
     run = {
         "sd_deg": sd_y,
         "sd_reference_deg": sd_r,
         "sd_gap_deg": np.abs(sd_r - sd_y),
-        "iae": abs_err.sum(axis=1) * dt,
-        "ise": (err * err).sum(axis=1) * dt,
-        "itae": (abs_err * (t - t[0])).sum(axis=1) * dt,
-        "control_effort": np.abs(np.diff(us, axis=1)).sum(axis=1),
+        "iae": run_out[:, 0],
+        "ise": run_out[:, 1],
+        "itae": run_out[:, 2],
+        "control_effort": run_out[:, 3],
         "saturation_s": np.asarray(traj.saturated_s, dtype=float) * np.ones(n_runs),
     }
     bad = ~stable
     if bad.any():
         for d in (grip, ungrip, run):
             for k in d:
-                if k not in ("sd_reference_deg",):
+                if k != "sd_reference_deg":
                     d[k] = np.where(bad, math.inf, d[k])
     return Metrics(grip=grip, ungrip=ungrip, run=run, stable=stable)

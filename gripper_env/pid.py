@@ -39,6 +39,7 @@ __all__ = [
     "PID",
     "PIDGains",
     "PIDOptions",
+    "pid_step",
     "pid_update",
 ]
 
@@ -51,6 +52,47 @@ XF = 1
 
 
 @njit(cache=True, inline="always")
+def pid_step(
+    r: float,
+    y: float,
+    p: float,
+    i: float,
+    d: float,
+    n: float,
+    dt: float,
+    u_min: float,
+    u_max: float,
+    aw_mode: int,
+    kb: float,
+    sign: float,
+    d_on_meas: int,
+    xi: float,
+    xf: float,
+) -> tuple[float, float, float, float]:
+    """One PID sample on scalar state; returns ``(u, v, xi_next, xf_next)``.
+
+    The compiled simulation core calls this form so the state stays in registers; see
+    :func:`pid_update` for the meaning of the arguments.
+    """
+    e = sign * (r - y)
+    s = -sign * y if d_on_meas else e
+    deriv = d * n * (s - xf)
+    v = p * e + xi + deriv
+    u = v
+    if u > u_max:
+        u = u_max
+    elif u < u_min:
+        u = u_min
+    ui = i * e
+    if aw_mode == 1:
+        if u != v and ui * (v - u) > 0.0:
+            ui = 0.0
+    elif aw_mode == 2:
+        ui += kb * (u - v)
+    return u, v, xi + dt * ui, xf + dt * n * (s - xf)
+
+
+@njit(cache=True)
 def pid_update(
     r: float,
     y: float,
@@ -97,25 +139,11 @@ def pid_update(
     v : float
         Unsaturated controller output (deg).
     """
-    e = sign * (r - y)
-    s = -sign * y if d_on_meas else e
-    xi = state[0]
-    xf = state[1]
-    deriv = d * n * (s - xf)
-    v = p * e + xi + deriv
-    u = v
-    if u > u_max:
-        u = u_max
-    elif u < u_min:
-        u = u_min
-    ui = i * e
-    if aw_mode == 1:
-        if u != v and ui * (v - u) > 0.0:
-            ui = 0.0
-    elif aw_mode == 2:
-        ui += kb * (u - v)
-    state[0] = xi + dt * ui
-    state[1] = xf + dt * n * (s - xf)
+    u, v, xi, xf = pid_step(
+        r, y, p, i, d, n, dt, u_min, u_max, aw_mode, kb, sign, d_on_meas, state[0], state[1]
+    )
+    state[0] = xi
+    state[1] = xf
     return u, v
 
 
@@ -226,6 +254,8 @@ class PID:
     dt_s: float = 1e-3
     options: PIDOptions = field(default_factory=PIDOptions)
     state: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    #: Unsaturated output of the last step (deg).
+    last_unsaturated: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.dt_s > 0 and math.isfinite(self.dt_s)):

@@ -51,9 +51,9 @@ from gripper_env.friction import (
     F_XSS,
     FRICTION_MODELS,
     backlash_step,
-    stiction_step,
+    stiction_scalar,
 )
-from gripper_env.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions, pid_update
+from gripper_env.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions, pid_step
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
 
@@ -82,9 +82,7 @@ S_DIDX = S_BACKLASH + 1
 S_VPREV = S_DIDX + 1
 S_YMEAS = S_VPREV + 1
 S_U = S_YMEAS + 1
-S_SPARE = S_U + 1  # cached second Box-Muller normal
-S_HAS_SPARE = S_SPARE + 1
-S_DIVERGED = S_HAS_SPARE + 1
+S_DIVERGED = S_U + 1
 S_SATURATED = S_DIVERGED + 1  # count of steps with the command clipped
 S_CMDCLIP = S_SATURATED + 1  # 1 while the held servo command is clipped to its range
 S_STEPS = S_CMDCLIP + 1  # physics steps advanced so far
@@ -104,27 +102,99 @@ _TWO_M53 = 2.0**-53
 
 
 @njit(cache=True, inline="always")
-def _splitmix64(rng: np.ndarray, b: int) -> np.uint64:
-    z = rng[b] + _U64_GOLDEN
-    rng[b] = z
-    z = (z ^ (z >> _U64_30)) * _U64_M1
-    z = (z ^ (z >> _U64_27)) * _U64_M2
-    return z ^ (z >> _U64_31)
+def _splitmix64(z: np.uint64) -> tuple[np.uint64, np.uint64]:
+    """SplitMix64: returns ``(new_state, output)``."""
+    z = z + _U64_GOLDEN
+    out = (z ^ (z >> _U64_30)) * _U64_M1
+    out = (out ^ (out >> _U64_27)) * _U64_M2
+    return z, out ^ (out >> _U64_31)
+
+
+def _ziggurat_tables(n: int = 128) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Layer tables of Marsaglia & Tsang's (2000) ziggurat for the standard normal.
+
+    Returns ``k`` (acceptance bounds on a signed 32-bit draw), ``w`` (scale of a draw to x) and
+    ``f`` (the density at each layer's edge).
+    """
+    m1 = 2.0**31
+    dn = tn = 3.442619855899
+    vn = 9.91256303526217e-3
+    k, w, f = np.zeros(n), np.zeros(n), np.zeros(n)
+    q = vn / math.exp(-0.5 * dn * dn)
+    k[0] = (dn / q) * m1
+    k[1] = 0.0
+    w[0] = q / m1
+    w[n - 1] = dn / m1
+    f[0] = 1.0
+    f[n - 1] = math.exp(-0.5 * dn * dn)
+    for i in range(n - 2, 0, -1):
+        dn = math.sqrt(-2.0 * math.log(vn / dn + math.exp(-0.5 * dn * dn)))
+        k[i + 1] = (dn / tn) * m1
+        tn = dn
+        f[i] = math.exp(-0.5 * dn * dn)
+        w[i] = dn / m1
+    return k, w, f
+
+
+_ZIG_K, _ZIG_W, _ZIG_F = _ziggurat_tables()
+_ZIG_R = 3.442619855899
+_U64_32 = np.uint64(32)
+_U64_127 = np.uint64(127)
 
 
 @njit(cache=True, inline="always")
-def _normal(rng: np.ndarray, b: int, st: np.ndarray) -> float:
-    """Standard normal draw (Box-Muller, the second value cached in the state)."""
-    if st[S_HAS_SPARE] != 0.0:
-        st[S_HAS_SPARE] = 0.0
-        return st[S_SPARE]
-    u1 = (float(_splitmix64(rng, b) >> _U64_11) + 1.0) * _TWO_M53
-    u2 = float(_splitmix64(rng, b) >> _U64_11) * _TWO_M53
-    radius = math.sqrt(-2.0 * math.log(u1))
-    angle = 2.0 * math.pi * u2
-    st[S_SPARE] = radius * math.sin(angle)
-    st[S_HAS_SPARE] = 1.0
-    return radius * math.cos(angle)
+def _uniform(z: np.uint64) -> tuple[np.uint64, float]:
+    """A uniform draw in (0, 1]."""
+    z, a = _splitmix64(z)
+    return z, (float(a >> _U64_11) + 1.0) * _TWO_M53
+
+
+@njit(cache=True)
+def _normal_tail(z: np.uint64, hz: float, iz: int) -> tuple[np.uint64, float]:
+    """The ziggurat's slow path (about 1 draw in 100)."""
+    while True:
+        x = hz * _ZIG_W[iz]
+        if iz == 0:
+            while True:
+                z, u1 = _uniform(z)
+                z, u2 = _uniform(z)
+                x = -math.log(u1) / _ZIG_R
+                y = -math.log(u2)
+                if y + y >= x * x:
+                    break
+            return z, (_ZIG_R + x) if hz > 0 else -(_ZIG_R + x)
+        z, u = _uniform(z)
+        if _ZIG_F[iz] + u * (_ZIG_F[iz - 1] - _ZIG_F[iz]) < math.exp(-0.5 * x * x):
+            return z, x
+        z, bits = _splitmix64(z)
+        iz = int(bits & _U64_127)
+        hz = float(bits >> _U64_32) - 2147483648.0
+        if abs(hz) < _ZIG_K[iz]:
+            return z, hz * _ZIG_W[iz]
+
+
+@njit(cache=True, inline="always")
+def _normal(z: np.uint64) -> tuple[np.uint64, float]:
+    """A standard normal draw (ziggurat; layer and value from separate bits of one output)."""
+    z, bits = _splitmix64(z)
+    iz = int(bits & _U64_127)
+    hz = float(bits >> _U64_32) - 2147483648.0
+    if abs(hz) < _ZIG_K[iz]:
+        return z, hz * _ZIG_W[iz]
+    return _normal_tail(z, hz, iz)
+
+
+def normal_draws(seed: int, n: int) -> np.ndarray:
+    """``n`` draws of the core's noise generator for ``seed`` (for tests and inspection)."""
+    return _normal_draws(_seed_state(seed)[0], n)
+
+
+@njit(cache=True)
+def _normal_draws(z: np.uint64, n: int) -> np.ndarray:
+    out = np.empty(n)
+    for i in range(n):
+        z, out[i] = _normal(z)
+    return out
 
 
 def _advance_impl(
@@ -148,10 +218,12 @@ def _advance_impl(
     """Advance every run by ``n_steps`` physics steps (see the module docstring).
 
     ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
-    ``out_*`` are (B, n_steps) or (B, 0) to record nothing.
+    ``out_*`` are (B, n_steps) or (B, 0) to record nothing. The state of a run is loaded into
+    local scalars, stepped, and stored back, so the compiled loop works in registers.
     """
     n_runs = params.shape[0]
     n_x = plant_b.shape[1]
+    small = n_x <= 2
     record = out_r.shape[1] > 0
     buf_len = delay_buf.shape[1]
     for b in prange(n_runs):
@@ -159,9 +231,6 @@ def _advance_impl(
         st = state[b]
         rb = b if ref.shape[0] > 1 else 0
         pb = b if plant_a.shape[0] > 1 else 0
-        a = plant_a[pb]
-        bv = plant_b[pb]
-        dff = plant_d[pb]
         if st[S_DIVERGED] != 0.0:
             if record:
                 for k in range(n_steps):
@@ -170,31 +239,56 @@ def _advance_impl(
                     out_y[b, k] = np.nan
                     out_yt[b, k] = np.nan
             continue
-        fst = st[S_FRIC : S_FRIC + F_SIZE]
-        x = st[S_X : S_X + n_x]
-        x_next = st[S_X + n_x : S_X + 2 * n_x]
+        # parameters
         p_gain, i_gain, d_gain, n_filt = prm[P_P], prm[P_I], prm[P_D], prm[P_N]
         u_lo, u_hi, kb, sgn = prm[P_ULO], prm[P_UHI], prm[P_KB], prm[P_SIGN]
         aw, dmeas = int(prm[P_AW]), int(prm[P_DMEAS])
         cmd_lo, cmd_hi, quantum = prm[P_CMD_LO], prm[P_CMD_HI], prm[P_QUANTUM]
-        refresh = prm[P_REFRESH]
-        rate = prm[P_RATE]
+        refresh, rate = prm[P_REFRESH], prm[P_RATE]
         fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
         mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
         lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
         delay = int(prm[P_DELAY])
-        pid_state = st[S_XI : S_XF + 1]
-        diverged_at = -1
+        step_max = rate * refresh * dt
+        dff = plant_d[pb]
+        a = plant_a[pb]
+        bv = plant_b[pb]
+        a00 = a[0, 0]
+        b0 = bv[0]
+        a01 = a[0, 1] if n_x > 1 else 0.0
+        a10 = a[1, 0] if n_x > 1 else 0.0
+        a11 = a[1, 1] if n_x > 1 else 0.0
+        b1 = bv[1] if n_x > 1 else 0.0
+        # state
+        x = st[S_X : S_X + n_x]
+        x_next = st[S_X + n_x : S_X + 2 * n_x]
+        x0 = x[0]
+        x1 = x[1] if n_x > 1 else 0.0
+        xi, xf = st[S_XI], st[S_XF]
+        cmd, countdown, cmd_clip = st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP]
+        f_out, f_xprev, f_xss = st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS]
+        f_dir, f_stuck = st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK]
+        bl_out = st[S_BACKLASH]
+        didx = int(st[S_DIDX])
+        v_prev = st[S_VPREV]
+        saturated = st[S_SATURATED]
+        z = rng[b]
+        y_meas = st[S_YMEAS]
+        u = st[S_U]
+        done = n_steps
         for k in range(n_steps):
             # 1. true jaw angle before this step's input reaches the plant
-            y_now = x[0] + dff * st[S_VPREV]
+            y_now = x0 + dff * v_prev
             # 2. sensor: delay line, noise, ADC
-            idx = int(st[S_DIDX])
-            delay_buf[b, idx] = y_now
-            y_meas = delay_buf[b, (idx - delay) % buf_len]
-            st[S_DIDX] = (idx + 1) % buf_len
+            if delay > 0:
+                delay_buf[b, didx] = y_now
+                y_meas = delay_buf[b, (didx - delay) % buf_len]
+                didx = (didx + 1) % buf_len
+            else:
+                y_meas = y_now
             if noise > 0.0:
-                y_meas += noise * _normal(rng, b, st)
+                z, g = _normal(z)
+                y_meas += noise * g
             if lsb > 0.0:
                 code = math.floor((y_meas - adc_lo) / lsb + 0.5)
                 if code < 0.0:
@@ -202,74 +296,100 @@ def _advance_impl(
                 elif code > adc_max:
                     code = adc_max
                 y_meas = adc_lo + code * lsb
-            st[S_YMEAS] = y_meas
             # 3. controller
             r = ref[rb, ref_offset + k]
+            clipped = False
             if closed_loop:
-                u, v = pid_update(
+                u, v, xi, xf = pid_step(
                     r, y_meas, p_gain, i_gain, d_gain, n_filt, dt,
-                    u_lo, u_hi, aw, kb, sgn, dmeas, pid_state,
+                    u_lo, u_hi, aw, kb, sgn, dmeas, xi, xf,
                 )  # fmt: skip
                 clipped = u != v
             else:
                 u = r
-                clipped = False
-            st[S_U] = u
-            # 4. servo command path: latch on refresh ticks
-            if st[S_COUNTDOWN] <= 0.0:
+            # 4. servo command path: latch on refresh ticks, hold in between
+            if countdown <= 0.0:
                 c = u
-                st[S_CMDCLIP] = 0.0
+                cmd_clip = 0.0
                 if c > cmd_hi:
                     c = cmd_hi
-                    st[S_CMDCLIP] = 1.0
+                    cmd_clip = 1.0
                 elif c < cmd_lo:
                     c = cmd_lo
-                    st[S_CMDCLIP] = 1.0
+                    cmd_clip = 1.0
                 if quantum > 0.0:
                     c = quantum * math.floor(c / quantum + 0.5)
-                if rate > 0.0:
-                    step_max = rate * refresh * dt
-                    if c > st[S_CMD] + step_max:
-                        c = st[S_CMD] + step_max
-                    elif c < st[S_CMD] - step_max:
-                        c = st[S_CMD] - step_max
-                st[S_CMD] = c
-                st[S_COUNTDOWN] = refresh
-            st[S_COUNTDOWN] -= 1.0
-            if clipped or st[S_CMDCLIP] != 0.0:
-                st[S_SATURATED] += 1.0
+                if step_max > 0.0:
+                    if c > cmd + step_max:
+                        c = cmd + step_max
+                    elif c < cmd - step_max:
+                        c = cmd - step_max
+                cmd = c
+                countdown = refresh
+            countdown -= 1.0
+            if clipped or cmd_clip != 0.0:
+                saturated += 1.0
             # 5. friction and backlash
-            v_in = stiction_step(fric, st[S_CMD], s_deg, j_deg, fst)
+            v_in = cmd
+            if fric != 0:
+                f_out, f_xss, f_dir, f_stuck = stiction_scalar(
+                    fric, cmd, s_deg, j_deg, f_out, f_xprev, f_xss, f_dir, f_stuck
+                )
+                f_xprev = cmd
+                v_in = f_out
             if play > 0.0:
-                v_in = backlash_step(v_in, play, st[S_BACKLASH])
-                st[S_BACKLASH] = v_in
+                bl_out = backlash_step(v_in, play, bl_out)
+                v_in = bl_out
             # 6. plant: output at t_k, zero-order-hold update, mechanical stops
-            y_true = x[0] + dff * v_in
-            for i in range(n_x):
-                acc = bv[i] * v_in
-                for j in range(n_x):
-                    acc += a[i, j] * x[j]
-                x_next[i] = acc
-            for i in range(n_x):
-                x[i] = x_next[i]
-            if x[0] < mech_lo:
-                x[0] = mech_lo
-            elif x[0] > mech_hi:
-                x[0] = mech_hi
-            st[S_VPREV] = v_in
+            y_true = x0 + dff * v_in
+            if small:
+                x0_new = a00 * x0 + a01 * x1 + b0 * v_in
+                x1 = a10 * x0 + a11 * x1 + b1 * v_in
+                x0 = x0_new
+            else:
+                x[0] = x0
+                for i in range(n_x):
+                    acc = bv[i] * v_in
+                    for j in range(n_x):
+                        acc += a[i, j] * x[j]
+                    x_next[i] = acc
+                for i in range(n_x):
+                    x[i] = x_next[i]
+                x0 = x[0]
+                x1 = x[1]
+            if x0 < mech_lo:
+                x0 = mech_lo
+            elif x0 > mech_hi:
+                x0 = mech_hi
+            v_prev = v_in
             if record:
                 out_r[b, k] = r
                 out_u[b, k] = u
                 out_y[b, k] = y_meas
                 out_yt[b, k] = y_true
-            if not (abs(x[0]) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
-                diverged_at = k
+            if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
+                done = k + 1
                 break
-        st[S_STEPS] += n_steps if diverged_at < 0 else diverged_at + 1
-        if diverged_at >= 0:
+        # store the state back
+        x[0] = x0
+        if n_x > 1:
+            x[1] = x1
+        st[S_XI], st[S_XF] = xi, xf
+        st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP] = cmd, countdown, cmd_clip
+        st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS] = f_out, f_xprev, f_xss
+        st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK] = f_dir, f_stuck
+        st[S_BACKLASH] = bl_out
+        st[S_DIDX] = didx
+        st[S_VPREV] = v_prev
+        st[S_SATURATED] = saturated
+        st[S_YMEAS] = y_meas
+        st[S_U] = u
+        st[S_STEPS] += done
+        rng[b] = z
+        if done < n_steps or not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
             st[S_DIVERGED] = 1.0
             if record:
-                for k in range(diverged_at, n_steps):
+                for k in range(done - 1, n_steps):
                     out_r[b, k] = ref[rb, ref_offset + k]
                     out_u[b, k] = np.nan
                     out_y[b, k] = np.nan
@@ -321,6 +441,7 @@ def build_params(
     disturbances: Sequence[Disturbance],
     dt_s: float,
     pid_options: PIDOptions | None = None,
+    n_runs: int | None = None,
 ) -> np.ndarray:
     """Parameter matrix (B, N_PARAMS) of the kernel from gains and actual-gripper blocks.
 
@@ -334,9 +455,11 @@ def build_params(
         Physics step (s).
     pid_options : PIDOptions, optional
         Output limits, anti-windup, derivative input and sign convention.
+    n_runs : int, optional
+        Batch size, when one gain set and one disturbance are shared by more runs.
     """
     opts = pid_options or PIDOptions()
-    n = max(len(disturbances), 0 if gains is None else gains.shape[0])
+    n = max(len(disturbances), 0 if gains is None else gains.shape[0], n_runs or 0)
     params = np.zeros((n, N_PARAMS))
     if gains is not None:
         params[:, P_P : P_N + 1] = gains
@@ -437,11 +560,16 @@ class BatchSimulator:
         gains: Any,
         disturbances: Disturbance | Sequence[Disturbance],
         pid_options: PIDOptions | None = None,
+        n_runs: int | None = None,
     ) -> None:
-        """Set gains (``None``: open loop) and actual-gripper blocks; keeps the current state."""
+        """Set gains (``None``: open loop) and actual-gripper blocks; keeps the current state.
+
+        One gain set or one disturbance is shared by all runs; ``n_runs`` sets the batch size
+        when both are single.
+        """
         dist = [disturbances] if isinstance(disturbances, Disturbance) else list(disturbances)
         rows = None if gains is None else _as_gain_rows(gains)
-        params = build_params(rows, dist, self.dt_s, pid_options)
+        params = build_params(rows, dist, self.dt_s, pid_options, n_runs)
         if np.any(params[:, P_DELAY] > self.delay_capacity):
             raise ValueError(
                 f"sensor delay exceeds this simulator's capacity of {self.delay_capacity} steps"
@@ -716,14 +844,8 @@ def simulate(
             (dists[i] if len(dists) > 1 else dists[0]).sample(_seed_state(int(seed_arr[i]))[1])
             for i in range(n)
         ]
-    if gain_rows is not None and len(gain_rows) == 1 and n > 1:
-        gain_rows = np.repeat(gain_rows, n, axis=0)
-    if len(dists) == 1 and n > 1:
-        dists = dists * 1  # shared row, broadcast by build_params
     sim = BatchSimulator(plants, dt, delay_capacity=_delay_capacity(dists, dt))
-    sim.configure(gain_rows, dists, pid_options)
-    if sim.n_runs != n:
-        sim.params = np.repeat(sim.params, n, axis=0) if sim.n_runs == 1 else sim.params
+    sim.configure(gain_rows, dists, pid_options, n_runs=n)
     y0 = ref.values_deg[0] if y0_deg is None else y0_deg
     sim.reset(y0, seed_arr, initial=initial)
     out = sim.advance(len(ref), ref.values_deg)

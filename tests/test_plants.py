@@ -2,9 +2,9 @@ import control
 import numpy as np
 import pytest
 import yaml
-from conftest import PAPER_PLANTS
 
 from gripper_env.config import ConfigError
+from gripper_env.paper import PLANTS as PAPER_PLANTS
 from gripper_env.plants import Plant, available_plants, load_plant
 
 

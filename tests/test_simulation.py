@@ -3,9 +3,9 @@ import warnings
 import control
 import numpy as np
 import pytest
-from conftest import PAPER_GAINS
 
 from gripper_env.disturbances import load_disturbance
+from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference
@@ -211,3 +211,49 @@ def test_bad_inputs():
         simulate("test2", "step", gains=[(1.0, 1.0, 0.0, 5000.0)])
     with pytest.raises(ValueError, match="initial must be"):
         simulate("test2", "step", gains=[(1.0, 1.0, 0.0)], initial="warm")
+
+
+def test_noise_generator_is_standard_normal():
+    from scipy import stats
+
+    from gripper_env.simulation import normal_draws
+
+    x = normal_draws(11, 200_000)
+    assert abs(x.mean()) < 0.01 and abs(x.std() - 1) < 0.01
+    assert stats.kstest(x, "norm").pvalue > 1e-3
+    # the ziggurat's tail beyond r = 3.4426 has the normal's mass
+    assert np.mean(np.abs(x) > 3.442619855899) == pytest.approx(2 * stats.norm.sf(3.4426), rel=0.2)
+    np.testing.assert_array_equal(x[:10], normal_draws(11, 10))
+    assert not np.array_equal(x[:10], normal_draws(12, 10))
+
+
+def test_measurement_noise_has_the_configured_spread():
+    d = load_disturbance("ideal").with_overrides({"sensor": {"noise_std_deg": 0.4}})
+    traj = simulate("test4", "step", gains=None, disturbance=d, seeds=3)
+    resid = traj.y[0] - traj.y_true[0]
+    assert np.std(resid) == pytest.approx(0.4, rel=0.03)
+
+
+def test_rate_limit_bounds_the_servo_command():
+    d = load_disturbance("ideal").with_overrides(
+        {"command": {"rate_limit_deg_s": 100.0, "refresh_period_s": 0.02}}
+    )
+    traj = simulate("test4", "step", gains=None, disturbance=d)
+    # 71 deg at 100 deg/s: the plant input needs 0.71 s, so the output cannot arrive sooner
+    assert traj.y_true[0, 1000 + 600] > 21.0 + 5.0
+    assert traj.y_true[0, 1000 + 1500] == pytest.approx(21.0, abs=1.0)
+    # averaged over 0.1 s the jaw cannot move faster than the command (2 deg per 20 ms frame)
+    slope = np.diff(traj.y_true[0, 1000:1800:100]) / 0.1
+    assert np.min(slope) > -100.0 * 1.1
+
+
+def test_backlash_loses_motion_on_reversal():
+    play = 2.0
+    d = load_disturbance("ideal").with_overrides({"friction": {"backlash_deg": play}})
+    r = np.concatenate([np.full(500, 50.0), np.linspace(50, 60, 2000), np.linspace(60, 50, 2000)])
+    traj = simulate("test4", r, gains=None, disturbance=d)
+    ideal = simulate("test4", r, gains=None, disturbance="ideal")
+    # going up the output lags the input by half the play; right after the turn it stays put
+    assert traj.y_true[0, 2400] == pytest.approx(ideal.y_true[0, 2400] - play / 2, abs=0.05)
+    turn = 2500
+    assert np.ptp(traj.y_true[0, turn + 50 : turn + 350]) < 0.1

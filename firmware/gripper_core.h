@@ -1,0 +1,1 @@
+gripper/gripper_core.h
