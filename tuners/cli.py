@@ -3,7 +3,8 @@
 Every entry point (``python -m tuners.<name>``) builds its parser on :func:`base_parser`, checks
 its inputs with :func:`resolve` before touching ``results/``, gets gains from its library code,
 and hands them to :func:`publish`, which evaluates them (:mod:`tuners.evaluation`), checks the
-nominal closed loop (:mod:`tuners.stability`), writes ``<out>/<plant>/<tuner>.json`` and ``.png``
+nominal closed loop (:mod:`gripper_env.stability`), writes ``<out>/<plant>/<tuner>.json`` and
+``.png``
 atomically, and prints a metrics table (or the JSON with ``--json``). :func:`run` turns bad input
 into a one-line ``error: ...`` on stderr and exit status 2.
 """
@@ -27,6 +28,7 @@ from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
+from gripper_env.stability import stability_report
 from tuners.evaluation import Evaluation, evaluate, metric_rows
 from tuners.gains_file import (
     GainsFileError,
@@ -37,7 +39,6 @@ from tuners.gains_file import (
 )
 from tuners.plotting import response_plot
 from tuners.settings import EvaluationSettings, load_settings
-from tuners.stability import closed_loop_stability
 
 __all__ = ["Inputs", "base_parser", "format_table", "publish", "resolve", "run"]
 
@@ -172,7 +173,7 @@ def publish(
     """
     ideal_opts, actual_opts = inputs.settings.options(sign)
     ev = evaluate_inputs(inputs, gains, actual_opts, ideal_opts)
-    stab = closed_loop_stability(inputs.plant, gains, actual_opts).as_dict()
+    stab = stability_report(inputs.plant, gains, sign).as_dict()
     content = build_gains_file(
         plant=inputs.plant.name,
         tuner=tuner,
@@ -244,11 +245,12 @@ def format_table(content: dict[str, Any], ev: Evaluation) -> str:
     lines.append(
         f"actual: {n} held-out seeds, stable in {ev.actual['stable_fraction'] * 100:.0f} %"
     )
-    gm = stab["gain_margin"]
+    gm, pm = stab["gain_margin_db"], stab["phase_margin_deg"]
     lines.append(
         f"nominal closed loop: {'stable' if stab['stable'] else 'UNSTABLE'}, max |z| = "
-        f"{stab['max_pole_magnitude']:.7f}, gain margin {_fmt(gm)}, phase margin "
-        f"{_fmt(stab['phase_margin_deg'])} deg"
+        f"{stab['max_pole_magnitude']:.7f}, gain margin "
+        f"{'none' if gm is None else f'{gm:.3g} dB'}, phase margin "
+        f"{'none' if pm is None else f'{pm:.3g} deg'}"
     )
     return "\n".join(lines)
 

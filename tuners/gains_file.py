@@ -17,7 +17,7 @@
                                 ungrip {overshoot_pct, rise_time_s, settling_time_s,
                                 steady_state_error_deg, ...}, sd_deg, sd_gap_deg, iae, ise, itae,
                                 control_effort, stable, cost)
-    stability                   closed loop on the nominal plant (tuners.stability)
+    stability                   closed loop on the nominal plant (gripper_env.stability)
     tuning                      what the tuner wants to record (trials, best cost, study, ...)
     provenance                  command, config, seed, version, git_commit, date, wall_time_s
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.stability import stability_report
 from tuners.evaluation import evaluate, summarize_runs
 from tuners.gains_file import (
     FORMAT_VERSION,
@@ -14,7 +15,6 @@ from tuners.gains_file import (
     load_gains_file,
     write_json,
 )
-from tuners.stability import closed_loop_stability
 
 
 def test_json_ready_turns_inf_and_nan_into_null():
@@ -44,7 +44,7 @@ def _content(plant="test2", gains=None, sign=1):
         gains=gains,
         options=opts,
         evaluation=ev,
-        stability=closed_loop_stability(plant, gains, opts).as_dict(),
+        stability=stability_report(plant, gains, sign).as_dict(),
         evaluation_settings={"profile": "step"},
     )
 
