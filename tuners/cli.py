@@ -4,8 +4,8 @@ Every entry point (``python -m tuners.<name>``) builds its parser on :func:`base
 its inputs with :func:`resolve` before touching ``results/``, gets gains from its library code,
 and hands them to :func:`publish`, which evaluates them (:mod:`tuners.evaluation`), checks the
 nominal closed loop (:mod:`gripper_env.stability`), writes ``<out>/<plant>/<tuner>.json`` and
-``.png``
-atomically, and prints a metrics table (or the JSON with ``--json``). :func:`run` turns bad input
+``.png`` atomically, and prints a metrics table (or the JSON with ``--json``). :func:`run` turns
+bad input
 into a one-line ``error: ...`` on stderr and exit status 2.
 """
 

@@ -201,7 +201,7 @@ class ClassicalSettings(BaseModel):
 
     model_config = _STRICT
 
-    rule: Literal["simc", "simc-pid"] = "simc"
+    rule: Literal["simc", "lambda"] = "simc"
     window_s: float = Field(9.0, gt=0)
     extra_dead_time_s: float = Field(0.0, ge=0)
     tau_c_factor: float = Field(1.0, gt=0)
