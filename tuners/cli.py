@@ -5,8 +5,7 @@ its inputs with :func:`resolve` before touching ``results/``, gets gains from it
 and hands them to :func:`publish`, which evaluates them (:mod:`tuners.evaluation`), checks the
 nominal closed loop (:mod:`gripper_env.stability`), writes ``<out>/<plant>/<tuner>.json`` and
 ``.png`` atomically, and prints a metrics table (or the JSON with ``--json``). :func:`run` turns
-bad input
-into a one-line ``error: ...`` on stderr and exit status 2.
+bad input into a one-line ``error: ...`` on stderr and exit status 2.
 """
 
 from __future__ import annotations
@@ -149,8 +148,7 @@ def evaluate_inputs(
     )
 
 
-def publish(
-    args: argparse.Namespace,
+def make_result(
     inputs: Inputs,
     *,
     tuner: str,
@@ -159,10 +157,10 @@ def publish(
     tuning: dict[str, Any] | None = None,
     config: dict[str, Any] | None = None,
     label: str = "",
+    seed: int | None = None,
     wall_time_s: float | None = None,
-    notes: list[str] | None = None,
 ) -> tuple[dict[str, Any], Evaluation]:
-    """Evaluate, check stability, write ``<out>/<plant>/<tuner>.json`` and ``.png``, print.
+    """Evaluate gains on both models, check the nominal loop, and build the gains file.
 
     Returns
     -------
@@ -185,20 +183,39 @@ def publish(
         tuning=tuning,
         prov=provenance(
             config={"evaluation": inputs.settings.model_dump(), **(config or {})},
-            seed=args.seed,
+            seed=seed,
             wall_time_s=wall_time_s,
         ),
         label=label,
         sample_time_s=inputs.plant.dt_s,
     )
-    folder = Path(args.out) / inputs.plant.name
+    return content, ev
+
+
+def write_result(out: str | Path, inputs: Inputs, content: dict[str, Any], ev: Evaluation) -> Path:
+    """Write ``<out>/<plant>/<tuner>.png`` and ``.json`` (atomically); return the JSON path."""
+    folder = Path(out) / inputs.plant.name
+    tuner, label = content["tuner"], content.get("label", "")
     title = (
-        f"{inputs.plant.name}, {tuner}{f' ({label})' if label else ''}: P={gains.P:.4g} "
-        f"I={gains.I:.4g} D={gains.D:.4g} N={gains.N:.4g}, "
-        f"e = {'r - y' if sign == 1 else 'y - r'}, profile {inputs.profile_name}"
+        f"{inputs.plant.name}, {tuner}{f' ({label})' if label and label != tuner else ''}: "
+        f"P={content['P']:.4g} I={content['I']:.4g} D={content['D']:.4g} N={content['N']:.4g}, "
+        f"{content['sign_convention']}, profile {inputs.profile_name}"
     )
     response_plot(ev, title, folder / f"{tuner}.png")
-    path = write_json(folder / f"{tuner}.json", content)
+    return write_json(folder / f"{tuner}.json", content)
+
+
+def publish(
+    args: argparse.Namespace,
+    inputs: Inputs,
+    *,
+    notes: list[str] | None = None,
+    **kwargs: Any,
+) -> tuple[dict[str, Any], Evaluation]:
+    """:func:`make_result`, :func:`write_result` into ``args.out``, then print the table (or
+    the JSON with ``--json``). Keyword arguments go to :func:`make_result`."""
+    content, ev = make_result(inputs, seed=args.seed, **kwargs)
+    path = write_result(args.out, inputs, content, ev)
     if args.json:
         print(json.dumps(content, indent=2))
     else:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import optuna
 from optuna.distributions import BaseDistribution, FloatDistribution
+from optuna.storages._heartbeat import is_heartbeat_enabled
 from optuna.trial import TrialState
 from tqdm import tqdm
 
@@ -392,14 +393,16 @@ def run_study(
     )
     pending: list[tuple[optuna.Trial | None, optuna.Trial]] = []
     storage = study._storage  # heartbeats: there is no public API for ask-and-tell
+    heartbeat = is_heartbeat_enabled(storage)
     try:
         while done < n_trials:
             k = min(settings.batch_size, n_trials - done)
             waiting = sum(t.state == TrialState.WAITING for t in trials)
             pending = [mirror.ask_waiting(dists) for _ in range(min(waiting, k))]
             pending += [mirror.ask(dists) for _ in range(k - len(pending))]
-            for _, t in pending:
-                storage.record_heartbeat(t._trial_id)
+            if heartbeat:
+                for _, t in pending:
+                    storage.record_heartbeat(t._trial_id)
             gains = np.stack([_decode(t, settings, default_n).as_array() for _, t in pending])
             cost, terms = scorer(gains)
             for i, (mine, stored) in enumerate(pending):
