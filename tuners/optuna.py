@@ -479,6 +479,38 @@ def _result(study, settings, default_n, run_here, interrupted, seeds_per_trial) 
     )
 
 
+def search(
+    inputs: cli.Inputs,
+    settings: OptunaSettings,
+    *,
+    n_trials: int,
+    sampler_name: str = "tpe",
+    seed: int = 0,
+    progress: bool = False,
+) -> tuple[StudyResult, BatchScorer]:
+    """One single-objective search in memory (no storage): the benchmark's entry point."""
+    _, actual_opts = inputs.settings.options(1)
+    scorer = BatchScorer(
+        plant=inputs.plant,
+        reference=inputs.reference,
+        disturbance=inputs.disturbance,
+        seeds=settings.tuning_seeds.seeds(),
+        options=actual_opts,
+        objective=load_objective(),
+        signal=inputs.settings.signal,
+        randomize=inputs.settings.randomize,
+    )
+    study = optuna.create_study(
+        study_name=f"{inputs.plant.name}-{sampler_name}",
+        sampler=optuna.samplers.RandomSampler(seed=seed),
+    )
+    sampler = make_sampler(sampler_name, seed, settings, multi=False)
+    result = run_study(
+        study, scorer, settings, n_trials, inputs.settings.pid.N, sampler=sampler, progress=progress
+    )
+    return result, scorer
+
+
 # ----------------------------------------------------------------------------------------------
 # Command line
 
