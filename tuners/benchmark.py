@@ -115,6 +115,7 @@ def run_benchmark(
     out: Path,
     quick: bool = False,
     log=print,
+    command: str | None = None,
 ) -> dict[str, Any]:
     """Run every tuner on every plant; write gains files and return the benchmark's data."""
     trials = bench.quick.optuna_trials if quick else bench.optuna.trials
@@ -148,6 +149,7 @@ def run_benchmark(
                 seed=bench.seed,
                 tuning=extra,
                 wall_time_s=wall,
+                command=command,
             )
             cli.write_result(out, inputs, content, evaluation)
             rows[tuner] = _summary(content, wall, {"tuning": extra or {}})
@@ -419,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = cli.parse(build_parser(), argv)
     start = time.perf_counter()
     bench = validate(BenchmarkSettings, load_yaml(args.config), str(args.config))
     ev = load_settings(EvaluationSettings, args.eval_config)
@@ -438,12 +440,15 @@ def main(argv: list[str] | None = None) -> int:
     for sampler in bench.optuna.samplers:
         optuna_tuner.make_sampler(sampler, 0, opt, False)
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
-    data = run_benchmark(bench, ev, opt, cls, args.out, quick=args.quick, log=log)
+    data = run_benchmark(
+        bench, ev, opt, cls, args.out, quick=args.quick, log=log, command=args.command
+    )
     wall = time.perf_counter() - start
     meta = provenance(
         config={"benchmark": bench.model_dump(), "quick": args.quick},
         seed=bench.seed,
         wall_time_s=wall,
+        command=args.command,
     )
     meta.update(
         profile=bench.profile,

@@ -116,7 +116,7 @@ def build_parser():
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = cli.parse(build_parser(), argv)
     start = time.perf_counter()
     inputs = cli.resolve(args)
     settings = load_settings(ClassicalSettings, args.config)

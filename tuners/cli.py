@@ -14,6 +14,7 @@ import argparse
 import io
 import json
 import math
+import shlex
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -95,6 +96,14 @@ def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
     return parser
 
 
+def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse ``argv`` (default ``sys.argv[1:]``) and remember the command line for provenance."""
+    args_list = sys.argv[1:] if argv is None else list(argv)
+    args = parser.parse_args(args_list)
+    args.command = " ".join(["python", "-m", parser.prog.split()[-1], *map(shlex.quote, args_list)])
+    return args
+
+
 @dataclass
 class Inputs:
     """The validated common inputs."""
@@ -159,6 +168,7 @@ def make_result(
     label: str = "",
     seed: int | None = None,
     wall_time_s: float | None = None,
+    command: str | None = None,
 ) -> tuple[dict[str, Any], Evaluation]:
     """Evaluate gains on both models, check the nominal loop, and build the gains file.
 
@@ -185,6 +195,7 @@ def make_result(
             config={"evaluation": inputs.settings.model_dump(), **(config or {})},
             seed=seed,
             wall_time_s=wall_time_s,
+            command=command,
         ),
         label=label,
         sample_time_s=inputs.plant.dt_s,
@@ -214,7 +225,9 @@ def publish(
 ) -> tuple[dict[str, Any], Evaluation]:
     """:func:`make_result`, :func:`write_result` into ``args.out``, then print the table (or
     the JSON with ``--json``). Keyword arguments go to :func:`make_result`."""
-    content, ev = make_result(inputs, seed=args.seed, **kwargs)
+    content, ev = make_result(
+        inputs, seed=args.seed, command=getattr(args, "command", None), **kwargs
+    )
     path = write_result(args.out, inputs, content, ev)
     if args.json:
         print(json.dumps(content, indent=2))

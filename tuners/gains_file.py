@@ -124,15 +124,11 @@ def provenance(
     config: dict[str, Any] | None = None,
     seed: int | None = None,
     wall_time_s: float | None = None,
-    argv: list[str] | None = None,
+    command: str | None = None,
 ) -> dict[str, Any]:
     """Who made a result: command line, configuration, seed, versions, date (UTC)."""
-    args = sys.argv if argv is None else argv
-    module = Path(args[0]).stem if args else ""
-    command = " ".join(
-        (["python", "-m", f"tuners.{module}"] if module and module != "-c" else ["python"])
-        + list(args[1:])
-    )
+    if command is None:
+        command = " ".join(["python", *sys.argv])
     return {
         "command": command,
         "config": config or {},

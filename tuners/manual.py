@@ -108,7 +108,7 @@ def build_parser():
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = cli.parse(build_parser(), argv)
     # check every input before anything is written
     chosen = parse_gains(args.gains)
     if args.save_trajectory is not None and args.save_trajectory.suffix != ".csv":

@@ -176,6 +176,7 @@ class OptunaSettings(BaseModel):
     sampler: Literal["tpe", "cmaes", "random"] = "tpe"
     n_startup_trials: int = Field(16, ge=0)
     tune_N: bool = False
+    ideal_weight: float = Field(0.0, ge=0)
     search: SearchSpace
     multi_objective: MultiObjective = MultiObjective()
     heartbeat_interval_s: int = Field(5, ge=1)

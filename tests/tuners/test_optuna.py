@@ -250,3 +250,29 @@ def test_two_workers_share_one_postgres_study(tmp_path, small_optuna_config, sma
     ran = [c["tuning"]["trials_this_run"] for c in contents]
     assert sum(ran) == len(complete) >= target
     assert all(c["tuning"]["storage"].count("***") == 1 for c in contents)  # password hidden
+
+
+def test_ideal_weight_adds_the_ideal_models_cost():
+    from gripper_env.disturbances import load_disturbance
+    from gripper_env.objective import load_objective
+    from gripper_env.pid import PIDOptions
+    from gripper_env.plants import load_plant
+    from gripper_env.references import load_reference
+
+    plant = load_plant("test2")
+    kwargs = dict(
+        plant=plant,
+        reference=load_reference("step"),
+        disturbance=load_disturbance("actual"),
+        seeds=np.arange(2),
+        options=PIDOptions(output_limits=(0.0, 180.0)),
+        objective=load_objective(),
+    )
+    gains = np.array([[-0.4, 7.0, -0.045, 100.0], [1.0, 9.0, -0.001, 100.0]])
+    plain = optuna_tuner.BatchScorer(**kwargs)
+    both = optuna_tuner.BatchScorer(**kwargs, ideal_weight=1.0, ideal_options=PIDOptions())
+    c0, _ = plain(gains)
+    c1, _ = both(gains)
+    assert plain.episodes == 4 and both.episodes == 6
+    # the untuned gains overshoot ~40 % on the ideal model: a large extra cost; the tuned do not
+    assert c1[0] - c0[0] > 3 * (c1[1] - c0[1]) > 0
