@@ -101,10 +101,12 @@ def make_vec_env(env: str, kwargs: dict[str, Any], n_envs: int, seed: int):
 
     if env != "pid-tune":
         return sb3_make_vec_env(ENV_IDS[env], n_envs=n_envs, seed=seed, env_kwargs=kwargs)
+    from stable_baselines3.common.vec_env import VecMonitor
+
     vec = gym.make_vec(
         ENV_IDS[env], num_envs=n_envs, vectorization_mode="vector_entry_point", **kwargs
     )
-    return _BanditVecEnv(vec, seed)
+    return VecMonitor(_BanditVecEnv(vec, seed))  # episode returns for logs and evaluation
 
 
 def _bandit_vec_env_class():
