@@ -4,11 +4,13 @@ The library: the paper's identified plants (:mod:`gripper_env.plants`), the actu
 model (:mod:`gripper_env.disturbances`, :mod:`gripper_env.friction`), a Simulink-style PID
 (:mod:`gripper_env.pid`), reference profiles (:mod:`gripper_env.references`), one batched
 simulation core (:mod:`gripper_env.simulation`), MATLAB-compatible metrics
-(:mod:`gripper_env.metrics`) and the shared tuning objective (:mod:`gripper_env.objective`).
+(:mod:`gripper_env.metrics`), the shared tuning objective (:mod:`gripper_env.objective`) and
+the Gymnasium environments (:mod:`gripper_env.envs`), registered on import.
 """
 
 from gripper_env.config import ConfigError
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.envs import ENV_IDS, register_envs
 from gripper_env.metrics import Metrics, compute_metrics, fit_percent
 from gripper_env.objective import Objective, load_objective
 from gripper_env.pid import PID, PIDGains, PIDOptions
@@ -16,9 +18,12 @@ from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference, random_profile
 from gripper_env.simulation import BatchSimulator, Trajectory, simulate
 
+register_envs()
+
 __version__ = "0.1.0"
 
 __all__ = [
+    "ENV_IDS",
     "PID",
     "BatchSimulator",
     "ConfigError",

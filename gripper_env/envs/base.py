@@ -1,0 +1,175 @@
+"""What the two step-by-step environments (servo control, gain scheduling) share.
+
+Each is a :class:`~gripper_env.envs.batch.ControlBatch` of one; this class adds the Gymnasium
+interface: seeding, action checks, episode bookkeeping and rendering.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+from gripper_env.config import ConfigError
+from gripper_env.envs import kernels as K
+from gripper_env.envs.batch import ControlBatch
+from gripper_env.envs.common import RENDER_MODES, draw_episode, parse_settings
+from gripper_env.envs.rendering import EpisodeViewer, render_rgb
+from gripper_env.envs.spaces import OBS_BOUND
+
+__all__ = ["ControlEnv", "check_actions"]
+
+
+def check_actions(actions: Any, shape: tuple[int, ...], what: str = "action") -> np.ndarray:
+    """``actions`` as float64 of ``shape``; a clear ``ValueError`` if malformed or not finite."""
+    try:
+        arr = np.asarray(actions, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what} must be numbers of shape {shape}, got {actions!r}") from exc
+    if arr.shape != shape:
+        if arr.size == math.prod(shape):
+            arr = arr.reshape(shape)
+        else:
+            raise ValueError(f"{what} must have shape {shape}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be finite, got {actions!r} (NaN or infinite)")
+    return arr
+
+
+class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Base of :class:`GripperServoEnv` and :class:`GripperGainScheduleEnv` (not registered)."""
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 10}
+    _mode = K.MODE_SERVO
+    _name = "ControlEnv"
+
+    def __init__(
+        self,
+        *,
+        observe_context: bool = False,
+        overshoot_weight: float = 1.0,
+        chatter_weight: float = 0.1,
+        **kwargs: Any,
+    ) -> None:
+        self.settings = parse_settings(self._name, **kwargs)
+        weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
+        for arg, value in weights.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ConfigError(
+                    f"{self._name}: argument {arg!r}: expected a number >= 0, got {value!r}"
+                )
+        if not isinstance(observe_context, bool | np.bool_):
+            raise ConfigError(
+                f"{self._name}: argument 'observe_context': expected a bool, "
+                f"got {observe_context!r}"
+            )
+        self.render_mode = self.settings.render_mode
+        self._batch = ControlBatch(
+            self.settings, 1, self._mode, bool(observe_context), overshoot_weight, chatter_weight
+        )
+        n_act = self._batch.n_actions
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)
+        self.observation_space = gym.spaces.Box(
+            -OBS_BOUND, OBS_BOUND, (self._batch.n_obs,), np.float32
+        )
+        self._act = self._batch.actions
+        self._obs_row = self._batch.obs[0]
+        self._kernel = self._batch._kernel
+        self._args = self._batch._args
+        self._done = True
+        self._history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._viewer: EpisodeViewer | None = None
+
+    # ------------------------------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        episode = draw_episode(self.settings, self.np_random)
+        self._batch.reset_rows([0], [episode])
+        self._args = self._batch._args
+        self._done = False
+        self._history = []
+        if self.render_mode == "human":
+            self._show()
+        return self._obs_row.copy(), self._episode_info()
+
+    def _episode_info(self) -> dict[str, Any]:
+        ep = self._batch.episodes[0]
+        assert ep is not None
+        return {
+            "plant": self.settings.plants[ep.plant_index].name,
+            "reference": ep.reference.name,
+            "noise_seed": ep.noise_seed,
+        }
+
+    def _set_action(self, action: Any) -> None:
+        self._act[0] = check_actions(action, (self._batch.n_actions,))
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._done:
+            raise RuntimeError(f"{self._name}: call reset() before step() (the episode has ended)")
+        # fast path for what agents pass: a float array of the action's shape
+        if type(action) is np.ndarray and action.shape == (1,) and self._batch.n_actions == 1:
+            a = float(action[0])
+            if not math.isfinite(a):
+                raise ValueError(f"action must be finite, got {action!r} (NaN or infinite)")
+            self._act[0, 0] = a
+        else:
+            self._set_action(action)
+        reward, terminated, truncated = self._kernel(*self._args)
+        if terminated or truncated:
+            self._done = True
+        if self.render_mode is not None:
+            self._record()
+        return self._obs_row.copy(), reward, terminated, truncated, {}
+
+    # ------------------------------------------------------------------------------------------
+    def _record(self) -> None:
+        b = self._batch
+        t = int(b.env[0, K.E_T]) - self.settings.n_sub
+        ref = b.ref[0][t : t + self.settings.n_sub]
+        self._history.append((ref.copy(), b.out[2][0].copy(), b.out[1][0].copy()))
+        if self.render_mode == "human":
+            frame_s = 1.0 / self.metadata["render_fps"]
+            every = max(1, round(frame_s / self.settings.control_period_s))
+            if self._done or len(self._history) % every == 0:
+                self._show()
+
+    def _series(self) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
+        ep = self._batch.episodes[0]
+        dt = self.settings.dt_s
+        if self._history:
+            ref, pos, cmd = (np.concatenate(x) for x in zip(*self._history, strict=True))
+        else:
+            ref = np.array([] if ep is None else [ep.reference.values_deg[0]])
+            pos = np.array([float(self._batch.sim.measured_deg[0])]) if ep else np.array([])
+            cmd = pos.copy()
+        t = np.arange(len(ref)) * dt
+        title = (
+            f"{self._name}: {self.settings.plants[ep.plant_index].name}, "
+            f"{ep.disturbance.name}, {ep.reference.name}"
+            if ep is not None
+            else self._name
+        )
+        return t, {"reference": ref, "position": pos, "command": cmd}, title
+
+    def _show(self) -> None:
+        if self._viewer is None:
+            self._viewer = EpisodeViewer()
+        self._viewer.show(*self._series())
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: the episode so far as an (H, W, 3) uint8 plot; ``human``: draw it."""
+        if self.render_mode == "rgb_array":
+            return render_rgb(*self._series())
+        if self.render_mode == "human":
+            self._show()
+        return None
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None

@@ -1,0 +1,257 @@
+"""A batch of step-by-step environments (servo control or gain scheduling) on one core simulator.
+
+:class:`ControlBatch` owns one :class:`~gripper_env.simulation.BatchSimulator`, the references,
+the per-environment state of the observation and reward, and preallocated buffers, and steps them
+all with one compiled call (:mod:`gripper_env.envs.kernels`). :class:`GripperServoEnv` and
+:class:`GripperGainScheduleEnv` are a batch of one; their native vector environments are a batch
+of ``num_envs``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from gripper_env.envs import kernels as K
+from gripper_env.envs.common import Episode, Settings
+from gripper_env.envs.spaces import (
+    GAIN_DECADES,
+    OBS_BOUND,
+    RATE_TIME_S,
+    context_features,
+    disturbance_features,
+    plant_features,
+    reference_features,
+)
+from gripper_env.references import Reference, step_profile
+from gripper_env.simulation import P_DELAY, PARALLEL_MIN_BATCH, BatchSimulator, build_params
+
+__all__ = ["DIVERGED_PENALTY", "ControlBatch", "PlantSlots"]
+
+#: Reward of a step on which the closed loop diverged (the episode then terminates), negated.
+DIVERGED_PENALTY = 100.0
+#: Cap of the command-variation term of one step.
+VARIATION_CAP = 10.0
+
+
+class PlantSlots:
+    """A core simulator of ``n_rows`` runs whose plant each episode may choose among several.
+
+    With one plant all rows share it; with several, every row has its own plant matrices, sized
+    for the largest candidate, and :meth:`install` swaps a candidate's in.
+    """
+
+    def __init__(self, settings: Settings, n_rows: int) -> None:
+        s = settings
+        self.plants = s.plants
+        candidates = BatchSimulator(list(s.plants), s.dt_s)
+        self._a, self._b, self._d = candidates.plant_a, candidates.plant_b, candidates.plant_d
+        self.features = [plant_features(p) for p in s.plants]
+        self.shared = len(s.plants) == 1
+        self.sim = BatchSimulator(s.plants[0], s.dt_s, delay_capacity=delay_capacity(s))
+        if not self.shared:
+            # The core has no per-row plant setter; its plant arrays and list are attributes.
+            sim = self.sim
+            sim.n_x = candidates.n_x
+            sim.plants = [s.plants[0]] * n_rows
+            sim.plant_a = np.repeat(self._a[:1], n_rows, axis=0)
+            sim.plant_b = np.repeat(self._b[:1], n_rows, axis=0)
+            sim.plant_d = np.repeat(self._d[:1], n_rows, axis=0)
+
+    def install(self, row: int, index: int) -> None:
+        """Give ``row`` the candidate plant ``index`` (before resetting that row)."""
+        if self.shared:
+            return
+        sim = self.sim
+        sim.plants[row] = self.plants[index]
+        sim.plant_a[row] = self._a[index]
+        sim.plant_b[row] = self._b[index]
+        sim.plant_d[row] = self._d[index]
+
+
+class ControlBatch:
+    """``n_rows`` environments of one kind that step together.
+
+    Parameters
+    ----------
+    settings : Settings
+        Validated keyword arguments.
+    n_rows : int
+        Number of environments.
+    mode : int
+        :data:`~gripper_env.envs.kernels.MODE_SERVO` (action = servo command) or
+        :data:`~gripper_env.envs.kernels.MODE_GAINS` (action = PID gains).
+    observe_context : bool
+        Append the context features to the observation.
+    overshoot_weight, chatter_weight : float
+        Reward weights (see the environments' docstrings).
+    """
+
+    def __init__(
+        self,
+        settings: Settings,
+        n_rows: int,
+        mode: int,
+        observe_context: bool,
+        overshoot_weight: float,
+        chatter_weight: float,
+    ) -> None:
+        self.settings = settings
+        self.n_rows = n_rows
+        self.mode = mode
+        self.n_actions = 1 if mode == K.MODE_SERVO else 3
+        self.observe_context = observe_context
+        s = settings
+        self.plant_slots = PlantSlots(s, n_rows)
+        self.sim = self.plant_slots.sim
+        self.gains0 = None
+        if mode == K.MODE_GAINS:
+            self.gains0 = np.zeros((1, 4))
+            self.gains0[0, 3] = s.derivative_filter
+        self.sim.configure(
+            None if self.gains0 is None else np.repeat(self.gains0, n_rows, axis=0),
+            [s.disturbance] * n_rows,
+            s.pid_options,
+        )
+        self.sim.reset(s.jaw_range_deg[1], 0)
+        # References: one shared row for a fixed profile, one per row for random ones.
+        n_ref_rows = 1 if s.reference is not None else n_rows
+        self.ref = np.zeros((n_ref_rows, s.reference_samples))
+        if s.reference is not None:
+            self.ref[0] = s.reference.values_deg
+            self._ref_features = reference_features(s.reference, s.jaw_range_deg)
+        # Configuration of the kernel.
+        jlo, jhi = s.jaw_range_deg
+        clo, chi = s.command_range_deg
+        cfg = np.zeros(K.N_CFG)
+        cfg[K.C_NSUB] = s.n_sub
+        cfg[K.C_DT] = s.dt_s
+        cfg[K.C_JC], cfg[K.C_JH] = 0.5 * (jlo + jhi), 0.5 * (jhi - jlo)
+        cfg[K.C_CC], cfg[K.C_CH] = 0.5 * (clo + chi), 0.5 * (chi - clo)
+        cfg[K.C_WOS] = overshoot_weight
+        cfg[K.C_WU] = chatter_weight
+        cfg[K.C_UCAP] = VARIATION_CAP
+        cfg[K.C_RATE] = RATE_TIME_S / s.control_period_s
+        cfg[K.C_BOUND] = OBS_BOUND
+        cfg[K.C_MODE] = mode
+        cfg[K.C_NA] = self.n_actions
+        cfg[K.C_OA0] = 5 if mode == K.MODE_SERVO else 6
+        cfg[K.C_GLOG] = 1.0 if s.gain_scaling == "log" else 0.0
+        cfg[K.C_GDEC] = GAIN_DECADES
+        cfg[K.C_PMAX], cfg[K.C_IMAX], cfg[K.C_DMAX] = s.gain_max
+        cfg[K.C_DIVPEN] = DIVERGED_PENALTY
+        self.cfg = cfg
+        self.n_context = len(context_features(s.plants[0], s.disturbance, _any_reference(s)))
+        self.n_obs = K.observation_size(mode, self.n_actions, self.n_context * observe_context)
+        # Preallocated buffers.
+        self.actions = np.zeros((n_rows, self.n_actions))
+        self.env = K.empty_env_state(n_rows, self.n_actions)
+        self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
+        self.drive = np.zeros((n_rows, s.n_sub))
+        self.out = tuple(np.zeros((n_rows, s.n_sub)) for _ in range(4))
+        self.episodes: list[Episode | None] = [None] * n_rows
+        self._kernel = K.step_parallel if n_rows >= PARALLEL_MIN_BATCH else K.step_serial
+        self._bind()
+
+    def _bind(self) -> None:
+        """Collect the kernel's arguments once (the simulator's arrays are updated in place)."""
+        sim, cfg = self.sim, self.cfg
+        self._args = (
+            self.actions, cfg, self.ref, self.env, self.obs, self.drive,
+            sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
+            *self.out,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------------------------------
+    def reset_rows(self, rows: Sequence[int], episodes: Sequence[Episode]) -> None:
+        """Start new episodes in some rows (their observations are then in :attr:`obs`)."""
+        s = self.settings
+        sim = self.sim
+        idx = np.asarray(list(rows), dtype=np.int64)
+        episodes = list(episodes)
+        params = build_params(
+            self.gains0, [ep.disturbance for ep in episodes], s.dt_s, s.pid_options, len(idx)
+        )
+        if np.any(params[:, P_DELAY] > sim.delay_capacity):
+            raise ValueError(
+                f"sensor delay of {params[:, P_DELAY].max():g} steps exceeds the capacity "
+                f"{sim.delay_capacity}"
+            )
+        sim.params[idx] = params
+        y0 = np.zeros(self.n_rows)
+        seeds = np.zeros(self.n_rows, dtype=np.int64)
+        for b, ep in zip(idx, episodes, strict=True):
+            self.episodes[b] = ep
+            self.plant_slots.install(b, ep.plant_index)
+            values = ep.reference.values_deg
+            if s.reference is None:  # a random profile per episode, one row per environment
+                self.ref[b, : len(values)] = values
+                self.ref[b, len(values) :] = values[-1]
+            y0[b] = values[0]
+            seeds[b] = ep.noise_seed
+        sim.reset(y0, seeds, initial="rest", rows=idx)
+        self._init_rows(idx, episodes)
+        self._bind()
+
+    def _init_rows(self, idx: np.ndarray, episodes: list[Episode]) -> None:
+        """Environment state and first observation of freshly reset rows."""
+        s, cfg, env = self.settings, self.cfg, self.env
+        ref_len = np.array([len(ep.reference) for ep in episodes], dtype=np.float64)
+        r0 = np.array([ep.reference.values_deg[0] for ep in episodes])
+        y = self.sim.measured_deg[idx]
+        u0 = y  # the core starts at rest: the servo is commanded where it is
+        e = (r0 - y) / cfg[K.C_JH]
+        env[idx] = 0.0
+        env[idx, K.E_LEN] = (ref_len // s.n_sub) * s.n_sub
+        env[idx, K.E_REFLEN] = ref_len
+        env[idx, K.E_EPREV] = e
+        env[idx, K.E_UPREV] = u0
+        if self.mode == K.MODE_SERVO:
+            env[idx, K.E_A0] = np.clip((u0 - cfg[K.C_CC]) / cfg[K.C_CH], -1.0, 1.0)
+        rows = np.zeros((len(idx), self.n_obs))
+        rows[:, 0] = (y - cfg[K.C_JC]) / cfg[K.C_JH]
+        rows[:, 1] = (r0 - cfg[K.C_JC]) / cfg[K.C_JH]
+        rows[:, 2] = e
+        if self.mode == K.MODE_GAINS:
+            rows[:, 5] = (u0 - cfg[K.C_CC]) / cfg[K.C_CH]
+        oa0 = int(cfg[K.C_OA0])
+        rows[:, oa0 : oa0 + self.n_actions] = env[idx, K.E_A0 : K.E_A0 + self.n_actions]
+        if self.observe_context:
+            for i, b in enumerate(idx):
+                rows[i, oa0 + self.n_actions :] = self.context(int(b))
+        self.obs[idx] = np.clip(rows, -OBS_BOUND, OBS_BOUND)
+
+    def context(self, b: int) -> np.ndarray:
+        """Context features of row ``b``'s current episode."""
+        ep = self.episodes[b]
+        assert ep is not None
+        ref_f = (
+            self._ref_features
+            if self.settings.reference is not None
+            else reference_features(ep.reference, self.settings.jaw_range_deg)
+        )
+        return np.concatenate(
+            [self.plant_slots.features[ep.plant_index], disturbance_features(ep.disturbance), ref_f]
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def step(self) -> tuple[float, bool, bool] | None:
+        """Advance every row one control period with the actions in :attr:`actions`.
+
+        Rewards and flags are in :attr:`env` (``E_REW``, ``E_TERM``, ``E_TRUNC``), observations
+        in :attr:`obs`; a batch of one also returns row 0's ``(reward, terminated, truncated)``.
+        """
+        return self._kernel(*self._args)
+
+
+def _any_reference(s: Settings) -> Reference:
+    return s.reference if s.reference is not None else step_profile(s.dt_s)
+
+
+def delay_capacity(s: Settings) -> int:
+    """Delay-line length that holds the preset's delay and any randomised one."""
+    delays = [s.disturbance.sensor.delay_s]
+    if s.randomize and "sensor.delay_s" in s.disturbance.randomize:
+        delays.append(s.disturbance.randomize["sensor.delay_s"][1])
+    return max(64, max(round(d / s.dt_s) for d in delays) + 1)

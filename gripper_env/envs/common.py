@@ -1,0 +1,290 @@
+"""Keyword arguments shared by the environments, validated once, and the per-episode draw.
+
+Every environment takes ``plant``, ``disturbance``, ``reference``, ``randomize`` and
+``render_mode``; :func:`parse_settings` checks them at construction and raises a
+:class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message names the argument.
+:func:`draw_episode` makes every random choice of an episode from the environment's seeded
+generator, always in the same order, so that a single environment and a vector environment with
+the same seeds play identical episodes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gripper_env.config import ConfigError, validate
+from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.envs.spaces import GAIN_MAX
+from gripper_env.pid import PIDOptions
+from gripper_env.plants import Plant, load_plant
+from gripper_env.references import Reference, load_reference, random_profile
+
+__all__ = [
+    "RANDOM_REFERENCE",
+    "RENDER_MODES",
+    "Episode",
+    "Settings",
+    "draw_episode",
+    "parse_settings",
+]
+
+#: Reference name that draws a new seeded random grip/un-grip profile every episode.
+RANDOM_REFERENCE = "random"
+RENDER_MODES = ("human", "rgb_array")
+_NOISE_SEED_BOUND = 2**63 - 1
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Validated keyword arguments of an environment (see :func:`parse_settings`)."""
+
+    plants: tuple[Plant, ...]
+    disturbance: Disturbance
+    randomize: bool
+    reference: Reference | None  # None: a random profile per episode
+    episode_s: float
+    dt_s: float
+    control_period_s: float
+    n_sub: int
+    command_range_deg: tuple[float, float]
+    jaw_range_deg: tuple[float, float]
+    pid_options: PIDOptions
+    gain_max: tuple[float, float, float]
+    gain_scaling: str
+    derivative_filter: float
+    render_mode: str | None
+
+    @property
+    def reference_samples(self) -> int:
+        """Length of the longest reference an episode can have (physics steps)."""
+        if self.reference is not None:
+            return len(self.reference)
+        return round(self.episode_s / self.dt_s)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """The random choices of one episode."""
+
+    plant_index: int
+    disturbance: Disturbance
+    reference: Reference
+    noise_seed: int
+
+
+def _fail(env_name: str, arg: str, message: str) -> ConfigError:
+    return ConfigError(f"{env_name}: argument {arg!r}: {message}")
+
+
+def _finite_pair(value: Any) -> tuple[float, float] | None:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        return None
+    return lo, hi
+
+
+def parse_settings(
+    env_name: str,
+    *,
+    plant: Any = "test2",
+    disturbance: Any = "actual",
+    reference: Any = "step",
+    randomize: bool | Mapping[str, Any] = False,
+    render_mode: str | None = None,
+    control_period_s: float = 0.020,
+    episode_s: float = 20.0,
+    command_range_deg: Any = None,
+    pid_options: PIDOptions | Mapping[str, Any] | None = None,
+    gain_max: Any = GAIN_MAX,
+    gain_scaling: str = "log",
+    derivative_filter: float = 100.0,
+) -> Settings:
+    """Validate the keyword arguments of an environment.
+
+    Parameters
+    ----------
+    env_name : str
+        Environment name, for messages.
+    plant : str, path, Plant, or a sequence of them
+        ``"test1"`` .. ``"test4"`` or a plant YAML file; with several, each episode draws one.
+    disturbance : str, path, dict or Disturbance
+        Actual-gripper preset (``"actual"``, ``"ideal"``, ``"worn"``), YAML file, or dict (which
+        may ``extends`` a preset).
+    reference : str, path or Reference
+        Profile name (``"step"``, ``"slope20"``, ...), a CSV file, or ``"random"`` for a new
+        seeded random grip/un-grip profile of ``episode_s`` every episode.
+    randomize : bool or dict
+        Domain randomisation of the actual-gripper blocks per episode: ``False`` (off), ``True``
+        (the preset's ``randomize`` ranges), or ``{"block.parameter": [low, high], ...}`` (these
+        ranges instead of the preset's).
+    render_mode : {None, "human", "rgb_array"}
+    control_period_s : float
+        Agent step (s); a whole number of physics steps.
+    episode_s : float
+        Length of a random reference profile (s).
+    command_range_deg : (float, float), optional
+        Servo command range that actions are normalised over (deg); default the preset's command
+        range if finite, else the plant's jaw range.
+    pid_options : PIDOptions or dict, optional
+        PID structure (output limits, anti-windup, derivative input, error sign).
+    gain_max : (float, float, float)
+        Largest ``|P|``, ``|I|``, ``|D|`` an action maps to.
+    gain_scaling : {"log", "linear"}
+        Gain map (see :func:`gripper_env.envs.spaces.action_to_gains`).
+    derivative_filter : float
+        PID derivative filter coefficient ``N`` (1/s).
+    """
+    # plant(s)
+    items = (
+        list(plant)
+        if isinstance(plant, Sequence) and not isinstance(plant, str | bytes)
+        else [plant]
+    )
+    if not items:
+        raise _fail(env_name, "plant", "give at least one plant")
+    try:
+        plants = tuple(load_plant(p) for p in items)
+    except (ValueError, TypeError) as exc:
+        raise _fail(env_name, "plant", str(exc)) from None
+    dt = plants[0].dt_s
+    if any(p.dt_s != dt for p in plants):
+        raise _fail(env_name, "plant", "all plants must have the same physics step dt_s")
+    # disturbance and randomisation
+    if not isinstance(disturbance, str | os.PathLike | Mapping | Disturbance):
+        raise _fail(env_name, "disturbance", f"expected a name, path or dict, got {disturbance!r}")
+    try:
+        dist = load_disturbance(disturbance)
+    except (ValueError, TypeError) as exc:
+        raise _fail(env_name, "disturbance", str(exc)) from None
+    if isinstance(randomize, Mapping):
+        data = dist.model_dump()
+        data["randomize"] = dict(randomize)
+        try:
+            dist = validate(Disturbance, data, "ranges")
+        except ValueError as exc:
+            raise _fail(env_name, "randomize", str(exc)) from None
+        do_randomize = True
+    elif isinstance(randomize, bool | np.bool_):
+        do_randomize = bool(randomize)
+    else:
+        raise _fail(
+            env_name, "randomize", f"expected a bool or a dict of ranges, got {randomize!r}"
+        )
+    # timing
+    if not isinstance(control_period_s, int | float) or not math.isfinite(control_period_s):
+        raise _fail(env_name, "control_period_s", f"expected seconds, got {control_period_s!r}")
+    n_sub = round(control_period_s / dt)
+    if n_sub < 1 or abs(n_sub * dt - control_period_s) > 1e-9:
+        raise _fail(
+            env_name,
+            "control_period_s",
+            f"must be a positive whole number of physics steps ({dt} s), got {control_period_s}",
+        )
+    if not (isinstance(episode_s, int | float) and math.isfinite(episode_s) and episode_s > 0):
+        raise _fail(env_name, "episode_s", f"expected a positive duration (s), got {episode_s!r}")
+    # reference
+    ref: Reference | None
+    if isinstance(reference, str) and reference == RANDOM_REFERENCE:
+        ref = None
+    else:
+        if not isinstance(reference, str | os.PathLike | Reference):
+            raise _fail(env_name, "reference", f"expected a profile name or CSV path, got "
+                        f"{reference!r}")  # fmt: skip
+        try:
+            ref = load_reference(reference, dt)
+        except (ValueError, TypeError) as exc:
+            raise _fail(env_name, "reference", str(exc)) from None
+        if not np.all(np.isfinite(ref.values_deg)):
+            raise _fail(env_name, "reference", "holds non-finite values")
+        if len(ref) < n_sub:
+            raise _fail(env_name, "reference", "is shorter than one control period")
+    # ranges
+    jaw = plants[0].jaw_range_deg
+    if command_range_deg is None:
+        cmd = _finite_pair(dist.command.range_deg) or tuple(jaw)
+    else:
+        cmd = _finite_pair(command_range_deg)
+        if cmd is None:
+            raise _fail(
+                env_name, "command_range_deg", f"expected (low, high) in deg, got "
+                f"{command_range_deg!r}"
+            )  # fmt: skip
+    # controller structure
+    if pid_options is None:
+        opts = PIDOptions()
+    elif isinstance(pid_options, PIDOptions):
+        opts = pid_options
+    elif isinstance(pid_options, Mapping):
+        try:
+            opts = PIDOptions(**pid_options)
+        except (TypeError, ValueError) as exc:
+            raise _fail(env_name, "pid_options", str(exc)) from None
+    else:
+        raise _fail(env_name, "pid_options", f"expected PIDOptions or a dict, got {pid_options!r}")
+    try:
+        gmax = tuple(float(g) for g in gain_max)
+    except (TypeError, ValueError):
+        gmax = ()
+    if len(gmax) != 3 or not all(math.isfinite(g) and g > 0 for g in gmax):
+        raise _fail(env_name, "gain_max", f"expected three positive numbers, got {gain_max!r}")
+    if gain_scaling not in ("log", "linear"):
+        raise _fail(env_name, "gain_scaling", f"expected 'log' or 'linear', got {gain_scaling!r}")
+    if not (
+        isinstance(derivative_filter, int | float)
+        and derivative_filter > 0
+        and derivative_filter * dt < 2.0
+    ):
+        raise _fail(
+            env_name,
+            "derivative_filter",
+            f"N must be positive with N*dt < 2 (dt = {dt} s), got {derivative_filter!r}",
+        )
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise _fail(env_name, "render_mode", f"expected None or one of {RENDER_MODES}, got "
+                    f"{render_mode!r}")  # fmt: skip
+    return Settings(
+        plants=plants,
+        disturbance=dist,
+        randomize=do_randomize,
+        reference=ref,
+        episode_s=float(episode_s),
+        dt_s=dt,
+        control_period_s=n_sub * dt,
+        n_sub=n_sub,
+        command_range_deg=(float(cmd[0]), float(cmd[1])),
+        jaw_range_deg=(float(jaw[0]), float(jaw[1])),
+        pid_options=opts,
+        gain_max=gmax,  # type: ignore[arg-type]
+        gain_scaling=gain_scaling,
+        derivative_filter=float(derivative_filter),
+        render_mode=render_mode,
+    )
+
+
+def draw_episode(settings: Settings, rng: np.random.Generator) -> Episode:
+    """Draw one episode's plant, disturbance parameters, reference and noise seed.
+
+    The draws happen in this order, each only when it is random: plant index (several plants),
+    disturbance parameters (``randomize``), reference (``"random"``); the noise seed of the
+    simulation core always comes last.
+    """
+    n_plants = len(settings.plants)
+    plant_index = int(rng.integers(n_plants)) if n_plants > 1 else 0
+    dist = settings.disturbance.sample(rng) if settings.randomize else settings.disturbance
+    if settings.reference is None:
+        ref = random_profile(
+            rng, settings.episode_s, settings.dt_s, settings.plants[plant_index].jaw_range_deg
+        )
+    else:
+        ref = settings.reference
+    noise_seed = int(rng.integers(_NOISE_SEED_BOUND))
+    return Episode(plant_index, dist, ref, noise_seed)

@@ -1,0 +1,258 @@
+"""Compiled step of a batch of step-by-step environments around the simulation core.
+
+One call maps every environment's action to its drive (a held servo command, or PID gains and the
+reference), advances the core's kernel (:mod:`gripper_env.simulation`) by one control period of
+physics steps for the whole batch, then computes each environment's reward and observation from
+the recorded physics steps. A single environment is a batch of one; the native vector
+environment calls the same functions, so both play identical trajectories.
+
+Layouts (columns):
+
+* ``cfg`` (float64, shape (N_CFG,)): the ``C_*`` constants of the batch.
+* ``env`` (float64, (B, E_A0 + n_actions)): the ``E_*`` per-environment state and outputs.
+* ``obs`` (float32, (B, n_obs)): tracking part, then previous actions from column ``C_OA0``, then
+  context features (written at reset, never touched here).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from gripper_env import friction, pid, simulation
+from gripper_env.simulation import (
+    P_P,
+    S_DIVERGED,
+    _advance_parallel,
+    _advance_serial,
+)
+
+# cfg entries
+(
+    C_NSUB,  # physics steps per control period
+    C_DT,  # physics step (s)
+    C_JC,  # jaw range centre (deg)
+    C_JH,  # jaw range half-width (deg)
+    C_CC,  # command range centre (deg)
+    C_CH,  # command range half-width (deg)
+    C_WOS,  # overshoot weight
+    C_WU,  # command-variation weight
+    C_UCAP,  # cap of the command-variation term
+    C_RATE,  # RATE_TIME_S / control period
+    C_BOUND,  # observation clip
+    C_MODE,  # MODE_SERVO or MODE_GAINS
+    C_NA,  # action dimensions
+    C_OA0,  # observation column of the first previous action
+    C_GLOG,  # 1: signed-log gain map, 0: linear
+    C_GDEC,  # decades of the log gain map
+    C_PMAX,  # |P| at action 1
+    C_IMAX,  # |I| at action 1
+    C_DMAX,  # |D| at action 1
+    C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
+) = range(20)
+N_CFG = 20
+
+MODE_SERVO = 0
+MODE_GAINS = 1
+
+# env entries
+(
+    E_T,  # physics steps since reset
+    E_LEN,  # physics steps of the episode (whole control periods of the reference)
+    E_REFLEN,  # samples of this environment's reference
+    E_INT,  # integral of the normalised error (s)
+    E_EPREV,  # normalised error at the previous observation
+    E_UPREV,  # controller output at the previous physics step (deg)
+    E_DIR,  # direction of the latest reference move: -1, 0, +1
+    E_REW,  # reward of the last step
+    E_TERM,  # 1 if the last step terminated the episode (the run diverged)
+    E_TRUNC,  # 1 if the last step reached the end of the reference
+    E_A0,  # previous (clipped) action, E_A0 + j
+) = range(11)
+
+
+@njit(cache=True, inline="always")
+def _clip(x: float, bound: float) -> float:
+    if x > bound:
+        return bound
+    if x < -bound:
+        return -bound
+    return x
+
+
+@njit(cache=True)
+def _pre(b, actions, cfg, ref, env, params, drive):
+    """Action of row ``b`` -> its drive for this period (servo command, or gains + reference)."""
+    n_sub = int(cfg[C_NSUB])
+    if cfg[C_MODE] == MODE_SERVO:
+        cmd = cfg[C_CC] + cfg[C_CH] * _clip(actions[b, 0], 1.0)
+        for k in range(n_sub):
+            drive[b, k] = cmd
+        return
+    for j in range(3):
+        a = _clip(actions[b, j], 1.0)
+        gmax = cfg[C_PMAX + j]
+        if cfg[C_GLOG] != 0.0:
+            dec = cfg[C_GDEC]
+            g = gmax * math.expm1(dec * math.log(10.0) * abs(a)) / (10.0**dec - 1.0)
+            if a < 0.0:
+                g = -g
+        else:
+            g = gmax * a
+        params[b, P_P + j] = g
+    t = int(env[b, E_T])
+    last = int(env[b, E_REFLEN]) - 1
+    rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)  # one shared row for a fixed reference
+    for k in range(n_sub):
+        drive[b, k] = ref[rb, min(t + k, last)]
+
+
+@njit(cache=True)
+def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
+    """Reward and observation of row ``b`` from the period's recorded physics steps."""
+    n_sub = int(cfg[C_NSUB])
+    t = int(env[b, E_T])
+    t_new = t + n_sub
+    last = int(env[b, E_REFLEN]) - 1
+    env[b, E_T] = t_new
+    env[b, E_TRUNC] = 1.0 if t_new >= env[b, E_LEN] else 0.0
+    if state[b, S_DIVERGED] != 0.0:
+        # the run left the divergence bound: end the episode, keep the last observation
+        env[b, E_REW] = -cfg[C_DIVPEN]
+        env[b, E_TERM] = 1.0
+        return
+    env[b, E_TERM] = 0.0
+    jc, jh, ch, bound = cfg[C_JC], cfg[C_JH], cfg[C_CH], cfg[C_BOUND]
+    rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
+    direction = env[b, E_DIR]
+    u_prev = env[b, E_UPREV]
+    track = 0.0
+    over = 0.0
+    r_prev = ref[rb, min(max(t - 1, 0), last)]
+    for k in range(n_sub):
+        r = ref[rb, min(t + k, last)]
+        if r > r_prev:
+            direction = 1.0
+        elif r < r_prev:
+            direction = -1.0
+        r_prev = r
+        e = r - out_y[b, k]
+        track += abs(e)
+        ov = -direction * e  # past the reference in the direction it moved
+        if ov > 0.0:
+            over += ov
+    variation = 0.0
+    if cfg[C_MODE] == MODE_SERVO:  # open loop: the command is held over the period
+        variation = abs(out_u[b, 0] - u_prev)
+        u_prev = out_u[b, n_sub - 1]
+    else:
+        for k in range(n_sub):
+            u = out_u[b, k]
+            variation += abs(u - u_prev)
+            u_prev = u
+    track /= n_sub * jh
+    over /= n_sub * jh
+    variation = min(variation / ch, cfg[C_UCAP])
+    env[b, E_REW] = -(track + cfg[C_WOS] * over + cfg[C_WU] * variation)
+    env[b, E_DIR] = direction
+    env[b, E_UPREV] = u_prev
+    # observation at the start of the next period
+    y = out_y[b, n_sub - 1]
+    r_next = ref[rb, min(t_new, last)]
+    e = (r_next - y) / jh
+    rate = (e - env[b, E_EPREV]) * cfg[C_RATE]
+    integral = _clip(env[b, E_INT] + e * n_sub * cfg[C_DT], bound)
+    env[b, E_EPREV] = e
+    env[b, E_INT] = integral
+    obs[b, 0] = _clip((y - jc) / jh, bound)
+    obs[b, 1] = _clip((r_next - jc) / jh, bound)
+    obs[b, 2] = _clip(e, bound)
+    obs[b, 3] = _clip(rate, bound)
+    obs[b, 4] = integral
+    if cfg[C_MODE] == MODE_GAINS:
+        obs[b, 5] = _clip((u_prev - cfg[C_CC]) / ch, bound)
+    oa0 = int(cfg[C_OA0])
+    for j in range(int(cfg[C_NA])):
+        a = _clip(actions[b, j], 1.0)
+        env[b, E_A0 + j] = a
+        obs[b, oa0 + j] = a
+
+
+@njit(cache=True)
+def step_serial(
+    actions, cfg, ref, env, obs, drive,
+    params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+):  # fmt: skip
+    """One control period of every row, on one core; returns row 0's (reward, term, trunc)."""
+    n_rows = env.shape[0]
+    for b in range(n_rows):
+        _pre(b, actions, cfg, ref, env, params, drive)
+    _advance_serial(
+        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
+        params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+    )  # fmt: skip
+    for b in range(n_rows):
+        _post(b, actions, cfg, ref, env, obs, state, out_u, out_y)
+    return env[0, E_REW], env[0, E_TERM] != 0.0, env[0, E_TRUNC] != 0.0
+
+
+@njit(cache=True)
+def step_parallel(
+    actions, cfg, ref, env, obs, drive,
+    params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+):  # fmt: skip
+    """One control period of every row, the physics on all cores (same results as
+    :func:`step_serial`).
+
+    Only the core's kernel runs in parallel: the per-row action and reward loops are cheap
+    (about 0.1 us per row) and, as parallel regions of their own, cost more in thread wake-ups
+    than they save (measured: milliseconds per call on the shared 2-core machine).
+    """
+    n_rows = env.shape[0]
+    for b in range(n_rows):
+        _pre(b, actions, cfg, ref, env, params, drive)
+    _advance_parallel(
+        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
+        params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+    )  # fmt: skip
+    for b in range(n_rows):
+        _post(b, actions, cfg, ref, env, obs, state, out_u, out_y)
+
+
+def observation_size(mode: int, n_actions: int, n_context: int) -> int:
+    """Length of the observation vector."""
+    return (5 if mode == MODE_SERVO else 6) + n_actions + n_context
+
+
+def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:
+    """A zeroed ``env`` array."""
+    return np.zeros((n_rows, E_A0 + n_actions))
+
+
+def _stamp_caches() -> None:
+    """Tie the on-disk numba cache of this module's kernels to the core's sources too.
+
+    Numba checks a cached function only against the file it is defined in, but these kernels
+    compile the core's kernel (and the PID and friction steps it calls, and the core's state
+    layout constants) into themselves: after a change of the core a stale cache would run the old
+    core on the new state layout. The stamp is therefore the hash of this file and of the core's
+    files; if numba's cache internals ever change, caching is simply switched off.
+    """
+    digest = hashlib.sha256()
+    for path in (__file__, simulation.__file__, pid.__file__, friction.__file__):
+        digest.update(Path(path).read_bytes())
+    stamp = digest.digest()
+    for dispatcher in (_clip, _pre, _post, step_serial, step_parallel):
+        cache = getattr(dispatcher, "_cache", None)
+        cache_file = getattr(cache, "_cache_file", None)
+        if cache_file is not None and hasattr(cache_file, "_source_stamp"):
+            cache_file._source_stamp = stamp
+        elif cache is not None and hasattr(cache, "disable"):  # pragma: no cover
+            cache.disable()
+
+
+_stamp_caches()

@@ -1,0 +1,384 @@
+"""``gripper_env/GripperPIDTune-v0``: the agent is the tuner; one step = one whole episode."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+from gripper_env.config import ConfigError
+from gripper_env.envs.base import check_actions
+from gripper_env.envs.batch import PlantSlots
+from gripper_env.envs.common import (
+    RENDER_MODES,
+    Episode,
+    Settings,
+    draw_episode,
+    parse_settings,
+)
+from gripper_env.envs.rendering import EpisodeViewer, render_rgb
+from gripper_env.envs.spaces import (
+    OBS_BOUND,
+    action_to_gains,
+    disturbance_features,
+    reference_features,
+)
+from gripper_env.metrics import Metrics, compute_metrics
+from gripper_env.objective import Objective, load_objective
+from gripper_env.simulation import Trajectory
+
+__all__ = ["EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
+
+#: Largest number of whole episodes the core advances in one call (memory: 4 x rows x samples).
+MAX_ROWS_PER_CALL = 128
+
+
+@dataclass
+class EpisodeResults:
+    """Outcome of :func:`run_episodes` (one entry per episode)."""
+
+    gains: np.ndarray  # (B, 4): P, I, D, N
+    costs: np.ndarray  # (B,)
+    infos: list[dict[str, Any]]
+    trajectories: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (r, y, u) per episode
+
+
+def run_episodes(
+    settings: Settings,
+    slots: dict[int, PlantSlots],
+    episodes: Sequence[Episode],
+    actions: np.ndarray,
+    objective: Objective,
+    keep_trajectories: bool = False,
+) -> EpisodeResults:
+    """Run whole grip/un-grip episodes under PID gains and score them with the shared objective.
+
+    The physics of up to :data:`MAX_ROWS_PER_CALL` episodes runs in one call of the simulation
+    core (:class:`~gripper_env.simulation.BatchSimulator`), exactly as
+    :func:`~gripper_env.simulation.simulate` runs it; the metrics are
+    :func:`~gripper_env.metrics.compute_metrics` and the cost is :meth:`Objective.cost` with the
+    reference's duration, as for every tuner.
+
+    Parameters
+    ----------
+    settings : Settings
+        The environment's validated arguments.
+    slots : dict of int to PlantSlots
+        Simulators by batch size, reused between calls (filled as needed).
+    episodes : sequence of Episode
+        Plant, disturbance, reference and noise seed of each episode.
+    actions : ndarray, shape (B, 3)
+        Actions in [-1, 1] (clipped), mapped to gains by
+        :func:`~gripper_env.envs.spaces.action_to_gains`.
+    objective : Objective
+        The shared tuning objective.
+    keep_trajectories : bool
+        Return ``(r, y, u)`` of each episode (for rendering).
+    """
+    n = len(episodes)
+    gains = np.empty((n, 4))
+    gains[:, :3] = action_to_gains(actions, settings.gain_max, settings.gain_scaling)
+    gains[:, 3] = settings.derivative_filter
+    costs = np.empty(n)
+    infos: list[dict[str, Any]] = []
+    trajectories = []
+    for start in range(0, n, MAX_ROWS_PER_CALL):
+        rows = range(start, min(n, start + MAX_ROWS_PER_CALL))
+        if len(rows) not in slots:
+            slots[len(rows)] = PlantSlots(settings, len(rows))
+        c, i, t = _run_chunk(
+            settings, slots[len(rows)], [episodes[r] for r in rows], gains[start : rows.stop],
+            objective, keep_trajectories,
+        )  # fmt: skip
+        costs[start : rows.stop] = c
+        infos.extend(i)
+        trajectories.extend(t)
+    return EpisodeResults(gains, costs, infos, trajectories)
+
+
+def _run_chunk(
+    settings: Settings,
+    slots: PlantSlots,
+    episodes: list[Episode],
+    gains: np.ndarray,
+    objective: Objective,
+    keep: bool,
+) -> tuple[np.ndarray, list[dict[str, Any]], list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    n = len(episodes)
+    sim = slots.sim
+    for b, ep in enumerate(episodes):
+        slots.install(b, ep.plant_index)
+    sim.configure(gains, [ep.disturbance for ep in episodes], settings.pid_options)
+    refs = [ep.reference for ep in episodes]
+    shared = all(r is refs[0] for r in refs)
+    n_t = max(len(r) for r in refs)
+    if shared:
+        ref = refs[0].values_deg
+    else:
+        ref = np.empty((n, n_t))
+        for b, r in enumerate(refs):
+            ref[b, : len(r)] = r.values_deg
+            ref[b, len(r) :] = r.values_deg[-1]
+    y0 = np.array([r.values_deg[0] for r in refs])
+    seeds = np.array([ep.noise_seed for ep in episodes], dtype=np.int64)
+    sim.reset(y0, seeds, initial="rest")
+    r_out, u_out, y_out, yt_out = sim.advance(n_t, ref)
+    stable = ~sim.diverged
+    saturated = sim.saturated_steps * settings.dt_s
+    if shared:
+        traj = Trajectory(
+            refs[0].t_s, r_out, u_out, y_out, yt_out, stable, saturated, refs[0], True
+        )
+        metrics = [compute_metrics(traj)]
+        costs = objective.cost(metrics[0], refs[0].duration_s)
+        rows = [(0, b) for b in range(n)]
+    else:
+        metrics, cost_list, rows = [], [], []
+        for b, r in enumerate(refs):
+            m = len(r)
+            traj = Trajectory(
+                r.t_s, r_out[b : b + 1, :m], u_out[b : b + 1, :m], y_out[b : b + 1, :m],
+                yt_out[b : b + 1, :m], stable[b : b + 1], saturated[b : b + 1], r, True,
+            )  # fmt: skip
+            metrics.append(compute_metrics(traj))
+            cost_list.append(objective.cost(metrics[-1], r.duration_s)[0])
+            rows.append((b, 0))
+        costs = np.asarray(cost_list)
+    infos = [
+        _info(metrics[mi], i, objective, gains[b], costs[b], refs[b].duration_s)
+        for b, (mi, i) in enumerate(rows)
+    ]
+    trajectories = []
+    if keep:
+        for b, r in enumerate(refs):
+            m = len(r)
+            trajectories.append((r_out[b, :m].copy(), y_out[b, :m].copy(), u_out[b, :m].copy()))
+    return costs, infos, trajectories
+
+
+def _info(
+    metrics: Metrics, i: int, objective: Objective, gains: np.ndarray, cost: float, dur: float
+) -> dict[str, Any]:
+    terms = objective.terms(metrics, dur)
+    info = _defined(metrics.as_dict(i))
+    info["cost"] = float(cost)
+    info["cost_terms"] = {k: float(v[i]) for k, v in terms.items()}
+    info["gains"] = {"P": float(gains[0]), "I": float(gains[1]), "D": float(gains[2]),
+                     "N": float(gains[3])}  # fmt: skip
+    return info
+
+
+def _defined(d: dict[str, Any]) -> dict[str, Any]:
+    """NaN (a metric without a segment to measure, e.g. no un-grip move) -> None."""
+    return {
+        k: _defined(v) if isinstance(v, dict) else (None if isinstance(v, float) and v != v else v)
+        for k, v in d.items()
+    }
+
+
+class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Choose the PID gains of the gripper for a whole grip/un-grip episode.
+
+    ## Description
+
+    A one-step (contextual bandit) environment: the observation describes the task (the plant,
+    the actual-gripper blocks, the reference profile), the action is a set of PID gains, and the
+    environment runs the whole episode (20 s of 1 ms physics for the default step profile)
+    through the simulation core with the Simulink-style PID of :mod:`gripper_env.pid`. The reward
+    is minus the cost of the shared tuning objective (``configs/objective.yaml``,
+    :meth:`gripper_env.objective.Objective.cost`), the same cost that the Optuna tuner minimises,
+    and ``info`` holds every metric. With several plants, ``randomize`` and
+    ``reference="random"`` one policy learns to tune many grippers.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``, the gains through the signed logarithmic map of
+    :func:`gripper_env.envs.spaces.action_to_gains`,
+    ``g = sign(a) * g_max * (10**(3 |a|) - 1) / 999`` (``gain_scaling="linear"``:
+    ``g = a * g_max``); the paper's tuned gains (1, 9, -0.001) are about (0.668, 0.752, -0.347).
+
+    | Num | Action | Min | Max | Gain at -1 / +1 (default ``gain_max``)          |
+    |-----|--------|-----|-----|-------------------------------------------------|
+    | 0   | P      | -1  | 1   | -10 / +10 deg of command per deg of error       |
+    | 1   | I      | -1  | 1   | -50 / +50 1/s                                   |
+    | 2   | D      | -1  | 1   | -0.1 / +0.1 s (derivative filter ``N = 100``/s) |
+
+    Negative gains are legal; the error sign convention is ``pid_options["sign"]`` (+1:
+    ``e = r - y``). Actions outside [-1, 1] are clipped; NaN or infinite actions raise
+    ``ValueError``.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (18,), float32)``, the context (:data:`gripper_env.envs.spaces.CONTEXT_NAMES`):
+
+    | Num   | Observation | Features                                                         |
+    |-------|-------------|------------------------------------------------------------------|
+    | 0-5   | plant       | log10 of fastest and slowest pole / 3, damping of the slowest,   |
+    |       |             | unit-step response at 0.1 s and 1 s, ``G(0) - 1``                |
+    | 6-13  | disturbance | stiction S and J / 5 deg, backlash / 2 deg, noise (deg), command |
+    |       |             | quantum (deg), servo refresh / 20 ms, delay / 20 ms, ADC LSB     |
+    | 14-17 | reference   | moves / 10, mean move / jaw range, mean move time / 10 s,        |
+    |       |             | duration / 100 s                                                 |
+
+    ## Rewards
+
+    ``reward = -objective.cost(compute_metrics(trajectory), duration_s)``: a weighted sum of
+    IAE, overshoot, SD gap, settling time and control effort, capped at ``max_cost`` (1000) for
+    stable runs, ``unstable_cost`` (10000) for a diverged run. ``info`` holds the metrics
+    (``grip``, ``ungrip``, ``iae``, ``sd_gap_deg``, ..., ``stable``), ``cost``, ``cost_terms``
+    and ``gains``.
+
+    ## Starting State
+
+    Each ``reset`` draws the episode from the seeded generator: the plant (if several), the
+    actual-gripper parameters (``randomize``), the reference (``"random"``) and the seed of the
+    sensor noise. Same seed, identical episode and reward.
+
+    ## Episode End
+
+    Every episode terminates after its one step (``terminated=True``); the registered
+    ``TimeLimit`` is 1 step.
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    env = gym.make(
+        "gripper_env:gripper_env/GripperPIDTune-v0",
+        plant=["test1", "test2", "test3", "test4"],  # one drawn per episode
+        disturbance="actual", reference="step", randomize=True,
+        gain_max=(10.0, 50.0, 0.1), gain_scaling="log", derivative_filter=100.0,
+        pid_options={"anti_windup": "clamping", "sign": 1},
+        objective=None,  # configs/objective.yaml, or another file or dict
+        render_mode=None,
+    )
+    ```
+
+    Also ``episode_s`` (length of random references, s).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 1}
+    _name = "GripperPIDTune-v0"
+
+    def __init__(
+        self,
+        *,
+        plant: Any = "test2",
+        disturbance: Any = "actual",
+        reference: Any = "step",
+        randomize: bool | Mapping[str, Any] = False,
+        render_mode: str | None = None,
+        episode_s: float = 20.0,
+        pid_options: Any = None,
+        gain_max: Any = (10.0, 50.0, 0.1),
+        gain_scaling: str = "log",
+        derivative_filter: float = 100.0,
+        objective: str | os.PathLike[str] | Mapping[str, Any] | Objective | None = None,
+    ) -> None:
+        self.settings = parse_settings(
+            self._name, plant=plant, disturbance=disturbance, reference=reference,
+            randomize=randomize, render_mode=render_mode, episode_s=episode_s,
+            pid_options=pid_options, gain_max=gain_max, gain_scaling=gain_scaling,
+            derivative_filter=derivative_filter,
+        )  # fmt: skip
+        try:
+            self.objective = load_objective(objective)
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"{self._name}: argument 'objective': {exc}") from None
+        self.render_mode = render_mode
+        self.slots = {1: PlantSlots(self.settings, 1)}
+        n_ctx = 6 + 8 + 4
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.observation_space = gym.spaces.Box(-OBS_BOUND, OBS_BOUND, (n_ctx,), np.float32)
+        self._ref_features = (
+            reference_features(self.settings.reference, self.settings.jaw_range_deg)
+            if self.settings.reference is not None
+            else None
+        )
+        self._episode: Episode | None = None
+        self._obs = np.zeros(n_ctx, dtype=np.float32)
+        self._done = True
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._last_title = self._name
+        self._viewer: EpisodeViewer | None = None
+
+    def context(self, episode: Episode) -> np.ndarray:
+        """The observation of an episode (float32)."""
+        ref_f = (
+            self._ref_features
+            if self._ref_features is not None
+            else reference_features(episode.reference, self.settings.jaw_range_deg)
+        )
+        ctx = np.concatenate(
+            [
+                self.slots[1].features[episode.plant_index],
+                disturbance_features(episode.disturbance),
+                ref_f,
+            ]
+        )
+        return np.clip(ctx, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self._episode = draw_episode(self.settings, self.np_random)
+        self._obs = self.context(self._episode)
+        self._done = False
+        self._last = None
+        ep = self._episode
+        return self._obs.copy(), {
+            "plant": self.settings.plants[ep.plant_index].name,
+            "reference": ep.reference.name,
+            "noise_seed": ep.noise_seed,
+        }
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._done or self._episode is None:
+            raise RuntimeError(f"{self._name}: call reset() before step() (the episode has ended)")
+        act = check_actions(action, (3,))[None, :]
+        keep = self.render_mode is not None
+        res = run_episodes(self.settings, self.slots, [self._episode], act, self.objective, keep)
+        self._done = True
+        info = res.infos[0]
+        if keep:
+            self._last = res.trajectories[0]
+            g = info["gains"]
+            self._last_title = (
+                f"{self.settings.plants[self._episode.plant_index].name}: P={g['P']:.3g} "
+                f"I={g['I']:.3g} D={g['D']:.3g}, cost {info['cost']:.4g}"
+            )
+            if self.render_mode == "human":
+                self.render()
+        return self._obs.copy(), -float(res.costs[0]), True, False, info
+
+    def render(self) -> np.ndarray | None:
+        """Plot the last episode's reference, position and command (``rgb_array``: an image)."""
+        if self._last is None:
+            ep = self._episode
+            r = np.array([]) if ep is None else ep.reference.values_deg
+            series = {"reference": r}
+        else:
+            r, y, u = self._last
+            series = {"reference": r, "position": y, "command": u}
+        t = np.arange(len(series["reference"])) * self.settings.dt_s
+        if self.render_mode == "rgb_array":
+            return render_rgb(t, series, self._last_title)
+        if self.render_mode == "human":
+            if self._viewer is None:
+                self._viewer = EpisodeViewer()
+            self._viewer.show(t, series, self._last_title)
+        return None
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None

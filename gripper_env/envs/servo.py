@@ -1,0 +1,111 @@
+"""``gripper_env/GripperServo-v0``: the agent is the controller and commands the servo directly."""
+
+from __future__ import annotations
+
+from gripper_env.envs import kernels as K
+from gripper_env.envs.base import ControlEnv
+
+__all__ = ["GripperServoEnv"]
+
+
+class GripperServoEnv(ControlEnv):
+    """Drive the gripper's hobby servo to follow a grip/un-grip reference.
+
+    ## Description
+
+    The gripper of Ahmad et al.'s low-cost robot arm: a hobby position servo (the identified
+    transfer function ``test1`` .. ``test4``, desired -> actual jaw angle) behind the actual
+    gripper's blocks (servo command range and 1-degree quantisation, 50 Hz servo refresh,
+    Choudhury stiction, mechanical stops at 21 and 92 deg, a 10-bit ADC with noise; see
+    :mod:`gripper_env.disturbances`). The agent replaces the controller: every control period
+    (20 ms by default, the servo's refresh) it sets the servo command, which the servo holds until
+    the next one, while the physics runs at 1 ms underneath (20 sub-steps of the simulation core,
+    :mod:`gripper_env.simulation`). The reference is the paper's grip/un-grip step by default
+    (open at 92 deg, grip to 21 deg at 1 s, un-grip at 10 s, 20 s in all).
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``:
+
+    | Num | Action        | Min | Max | Meaning                                               |
+    |-----|---------------|-----|-----|-------------------------------------------------------|
+    | 0   | servo command | -1  | 1   | ``command = c + h * a`` over the command range (deg)  |
+
+    ``c`` and ``h`` are the centre and half-width of the command range (``[0, 180]`` deg for the
+    ``actual`` preset, what ``Servo.write`` accepts; the jaw range if the preset has none).
+    Actions outside [-1, 1] are clipped to it; NaN or infinite actions raise ``ValueError``.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (6,), float32)`` (``(24,)`` with ``observe_context=True``); every entry is
+    clipped to [-10, 10]. With ``j`` and ``w`` the centre and half-width of the jaw range
+    (56.5 and 35.5 deg), ``y`` the measured jaw angle at the end of the period and ``r`` the
+    reference for the next period:
+
+    | Num  | Observation     | Formula                                                   |
+    |------|-----------------|-----------------------------------------------------------|
+    | 0    | position        | ``(y - j) / w``                                           |
+    | 1    | reference       | ``(r - j) / w``                                           |
+    | 2    | error           | ``e = (r - y) / w``                                       |
+    | 3    | error rate      | ``(e - e_prev) * 0.02 s / T_c`` (change per 20 ms frame)  |
+    | 4    | error integral  | ``sum(e * T_c)`` (s), held within [-10, 10]               |
+    | 5    | previous action | the last (clipped) action; at reset the resting command   |
+    | 6-23 | context         | plant, disturbance and reference features (optional;      |
+    |      |                 | :data:`gripper_env.envs.spaces.CONTEXT_NAMES`)            |
+
+    ## Rewards
+
+    Per step, over the period's physics steps ``k`` (reference ``r_k``, measured angle ``y_k``,
+    command ``u_k``, direction ``d_k`` = +1/-1 of the latest reference move, 0 before any):
+
+    ``reward = -( mean_k |r_k - y_k| / w
+    + overshoot_weight * mean_k max(0, d_k (y_k - r_k)) / w
+    + chatter_weight * min(10, sum_k |u_k - u_{k-1}| / h) )``
+
+    i.e. tracking error, plus overshoot past the reference in the direction it moved, plus command
+    chatter (here ``|a_t - a_{t-1}|``). Defaults ``overshoot_weight = 1``,
+    ``chatter_weight = 0.1``; a step then lies in about [-4.2, 0] (-100 if an unstable plant
+    diverged).
+
+    ## Starting State
+
+    The jaw rests at the reference's first value (92 deg, open) with the servo commanded there;
+    friction is stuck, the sensor reads that angle. With ``randomize`` the actual-gripper
+    parameters are drawn from their ranges, with several plants one is drawn, with
+    ``reference="random"`` a new random grip/un-grip profile is drawn: all from the seeded
+    generator of ``reset(seed=...)`` (same seed, identical trajectory).
+
+    ## Episode End
+
+    No termination (unless an unstable plant diverges). Truncation at the end of the reference
+    (1000 steps of 20 ms for the 20 s step), and by the ``TimeLimit`` of 1000 steps registered
+    with the id: pass ``max_episode_steps`` to ``gym.make`` for longer references or shorter
+    control periods.
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    env = gym.make(
+        "gripper_env:gripper_env/GripperServo-v0",
+        plant="test2",              # "test1".."test4", a plant YAML, or a list to draw from
+        disturbance="actual",       # preset name ("ideal", "actual", "worn"), YAML path or dict
+        reference="step",           # profile name, CSV path, or "random"
+        randomize=False,            # True: the preset's ranges; or {"friction.S_deg": [1, 4]}
+        control_period_s=0.020,     # agent step (s), a whole number of 1 ms physics steps
+        observe_context=False,      # append plant/disturbance/reference features
+        render_mode=None,           # "rgb_array" or "human"
+    )
+    ```
+
+    Also ``episode_s`` (length of random references, s), ``command_range_deg``,
+    ``overshoot_weight``, ``chatter_weight``. A bad argument fails at construction with a message
+    that names it.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    _mode = K.MODE_SERVO
+    _name = "GripperServo-v0"

@@ -1,0 +1,314 @@
+"""Native vector environments: ``num_envs`` environments stepped by one batched core call.
+
+``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` returns one of these.
+They follow Gymnasium 1.x's default autoreset semantics (``AutoresetMode.NEXT_STEP``): the step
+after an environment terminated or truncated resets it (its action is ignored, its reward is 0,
+its observation is the new episode's first) and the ``max_episode_steps`` of the registration is
+applied per environment, as ``TimeLimit`` does. Each sub-environment keeps its own seeded
+generator (``reset(seed=s)`` seeds environment ``i`` with ``s + i``, like ``SyncVectorEnv``), so
+the trajectories equal those of ``N`` single environments with the same seeds.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from gripper_env.envs import kernels as K
+from gripper_env.envs.base import check_actions
+from gripper_env.envs.batch import ControlBatch
+from gripper_env.envs.common import draw_episode
+from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
+from gripper_env.envs.pid_tune import GripperPIDTuneEnv, run_episodes
+from gripper_env.envs.servo import GripperServoEnv
+
+__all__ = [
+    "GripperGainScheduleVectorEnv",
+    "GripperPIDTuneVectorEnv",
+    "GripperServoVectorEnv",
+]
+
+
+class _SeededVectorEnv(VectorEnv):
+    """Per-environment generators, seeding like ``SyncVectorEnv``, and the time limit."""
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        "render_modes": [],
+    }
+    _name = "VectorEnv"
+
+    def _setup(self, num_envs: int, max_episode_steps: int | None, render_mode: Any) -> None:
+        if not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ValueError(f"{self._name}: argument 'num_envs': expected an int >= 1, got "
+                             f"{num_envs!r}")  # fmt: skip
+        if max_episode_steps is not None and (
+            not isinstance(max_episode_steps, int | np.integer) or max_episode_steps < 1
+        ):
+            raise ValueError(
+                f"{self._name}: argument 'max_episode_steps': expected an int >= 1 or None, got "
+                f"{max_episode_steps!r}"
+            )
+        if render_mode is not None:
+            raise ValueError(
+                f"{self._name}: argument 'render_mode': the vector environment does not render; "
+                "render a single environment instead"
+            )
+        self.num_envs = int(num_envs)
+        self.max_episode_steps = max_episode_steps
+        self.render_mode = None
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+
+    def _seed_rows(self, seed: int | list[int | None] | None, mask: np.ndarray) -> list[int]:
+        n = self.num_envs
+        if seed is None:
+            seeds: list[int | None] = [None] * n
+        elif isinstance(seed, int | np.integer):
+            seeds = [int(seed) + i for i in range(n)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != n:
+                raise ValueError(
+                    f"seed: a list of seeds must have num_envs={n} entries, got {len(seeds)}"
+                )
+        rows = [int(i) for i in np.flatnonzero(mask)]
+        for i in rows:
+            if seeds[i] is not None or self._rngs[i] is None:
+                self._rngs[i], _ = seeding.np_random(seeds[i])
+        if rows and seeds[rows[0]] is not None:
+            self._np_random, self._np_random_seed = seeding.np_random(seeds[rows[0]])
+        return rows
+
+    def _reset_mask(self, options: dict[str, Any] | None) -> np.ndarray:
+        if options is not None and "reset_mask" in options:
+            mask = options["reset_mask"]
+            if not (isinstance(mask, np.ndarray) and mask.shape == (self.num_envs,)
+                    and mask.dtype == np.bool_ and mask.any()):  # fmt: skip
+                raise ValueError(
+                    f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with "
+                    "at least one True"
+                )
+            return mask
+        return np.ones(self.num_envs, dtype=bool)
+
+    def _draw(self, rows: list[int]) -> list[Any]:
+        episodes = []
+        for i in rows:
+            rng = self._rngs[i]
+            if rng is None:
+                rng, _ = seeding.np_random(None)
+                self._rngs[i] = rng
+            episodes.append(draw_episode(self.settings, rng))
+        return episodes
+
+
+class _ControlVectorEnv(_SeededVectorEnv):
+    _mode = K.MODE_SERVO
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        max_episode_steps: int | None = None,
+        observe_context: bool = False,
+        overshoot_weight: float = 1.0,
+        chatter_weight: float = 0.1,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self._setup(num_envs, max_episode_steps, render_mode)
+        # the single environment validates the arguments the same way
+        single = _SINGLE[self._mode](
+            observe_context=observe_context, overshoot_weight=overshoot_weight,
+            chatter_weight=chatter_weight, **kwargs,
+        )  # fmt: skip
+        self.settings = single.settings
+        self.single_action_space = single.action_space
+        self.single_observation_space = single.observation_space
+        single.close()
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._batch = ControlBatch(
+            self.settings, self.num_envs, self._mode, bool(observe_context),
+            overshoot_weight, chatter_weight,
+        )  # fmt: skip
+        self._act_shape = (self.num_envs, self._batch.n_actions)
+        self._started = False
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        mask = self._reset_mask(options)
+        rows = self._seed_rows(seed, mask)
+        self._batch.reset_rows(rows, self._draw(rows))
+        self._elapsed[mask] = 0
+        self._autoreset[mask] = False
+        self._started = True
+        return self._batch.obs.copy(), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError(f"{self._name}: call reset() before step()")
+        self._batch.actions[:] = check_actions(actions, self._act_shape, "actions")
+        self._batch.step()
+        env = self._batch.env
+        rewards = env[:, K.E_REW].copy()
+        terminated = env[:, K.E_TERM] != 0.0
+        truncated = env[:, K.E_TRUNC] != 0.0
+        self._elapsed += 1
+        if self.max_episode_steps is not None:
+            truncated |= self._elapsed >= self.max_episode_steps
+        if self._autoreset.any():
+            rows = [int(i) for i in np.flatnonzero(self._autoreset)]
+            self._batch.reset_rows(rows, self._draw(rows))
+            rewards[rows] = 0.0
+            terminated[rows] = False
+            truncated[rows] = False
+            self._elapsed[rows] = 0
+        self._autoreset = terminated | truncated
+        return self._batch.obs.copy(), rewards, terminated, truncated, {}
+
+
+class GripperServoVectorEnv(_ControlVectorEnv):
+    """``num_envs`` :class:`~gripper_env.envs.servo.GripperServoEnv` stepped in one core call.
+
+    Takes the keyword arguments of the single environment, plus ``num_envs`` and
+    ``max_episode_steps`` (the registered time limit, applied per environment).
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> envs = gym.make_vec("gripper_env:gripper_env/GripperServo-v0", num_envs=8,
+    ...                     vectorization_mode="vector_entry_point")
+    >>> obs, info = envs.reset(seed=0)
+    >>> obs.shape
+    (8, 6)
+    """
+
+    _mode = K.MODE_SERVO
+    _name = "GripperServo-v0 (vector)"
+
+
+class GripperGainScheduleVectorEnv(_ControlVectorEnv):
+    """``num_envs`` :class:`~gripper_env.envs.gain_schedule.GripperGainScheduleEnv` in one call.
+
+    Takes the keyword arguments of the single environment, plus ``num_envs`` and
+    ``max_episode_steps``.
+    """
+
+    _mode = K.MODE_GAINS
+    _name = "GripperGainSchedule-v0 (vector)"
+
+
+class GripperPIDTuneVectorEnv(_SeededVectorEnv):
+    """``num_envs`` :class:`~gripper_env.envs.pid_tune.GripperPIDTuneEnv` whose episodes run
+    together in the simulation core (up to 128 whole episodes per core call).
+
+    Every step ends every episode that ran, so with ``NEXT_STEP`` autoreset the steps alternate
+    between running episodes and starting new ones (reward 0), as ``SyncVectorEnv`` does.
+    """
+
+    _name = "GripperPIDTune-v0 (vector)"
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self._setup(num_envs, max_episode_steps, render_mode)
+        self._single = GripperPIDTuneEnv(**kwargs)
+        self.settings = self._single.settings
+        self.objective = self._single.objective
+        self.single_action_space = self._single.action_space
+        self.single_observation_space = self._single.observation_space
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._slots: dict[int, Any] = self._single.slots
+        self._episodes: list[Any] = [None] * self.num_envs
+        self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
+        self._started = False
+
+    def _start(self, rows: list[int]) -> None:
+        for i, ep in zip(rows, self._draw(rows), strict=True):
+            self._episodes[i] = ep
+            self._obs[i] = self._single.context(ep)
+        self._elapsed[rows] = 0
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        mask = self._reset_mask(options)
+        rows = self._seed_rows(seed, mask)
+        self._start(rows)
+        self._autoreset[mask] = False
+        self._started = True
+        return self._obs.copy(), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._started:
+            raise RuntimeError(f"{self._name}: call reset() before step()")
+        acts = check_actions(actions, (self.num_envs, 3), "actions")
+        run = [int(i) for i in np.flatnonzero(~self._autoreset)]
+        restart = [int(i) for i in np.flatnonzero(self._autoreset)]
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        infos: dict[str, Any] = {}
+        if run:
+            res = run_episodes(
+                self.settings, self._slots, [self._episodes[i] for i in run], acts[run],
+                self.objective,
+            )  # fmt: skip
+            rewards[run] = -res.costs
+            terminated[run] = True
+            self._elapsed[run] += 1
+            infos = _batch_infos(res.infos, run, self.num_envs)
+        if restart:
+            self._start(restart)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        if self.max_episode_steps is not None:
+            truncated[run] = self._elapsed[run] >= self.max_episode_steps
+        self._autoreset = terminated | truncated
+        return self._obs.copy(), rewards, terminated, truncated, infos
+
+
+def _batch_infos(infos: list[dict[str, Any]], rows: list[int], n: int) -> dict[str, Any]:
+    """Per-environment info dicts as Gymnasium's vector infos: arrays plus ``_key`` masks."""
+    out: dict[str, Any] = {}
+    mask = np.zeros(n, dtype=bool)
+    mask[rows] = True
+    for key in infos[0]:
+        if isinstance(infos[0][key], dict):
+            out[key] = _batch_infos([d[key] for d in infos], rows, n)
+        else:
+            kind = bool if isinstance(infos[0][key], bool) else float
+            values = np.zeros(n, dtype=kind)
+            values[rows] = [np.nan if d[key] is None else d[key] for d in infos]
+            out[key] = values
+        out[f"_{key}"] = mask.copy()
+    return out
+
+
+_SINGLE: dict[int, type[gym.Env]] = {
+    K.MODE_SERVO: GripperServoEnv,
+    K.MODE_GAINS: GripperGainScheduleEnv,
+}

@@ -1,0 +1,622 @@
+"""The board's firmware logic in Python: the twin of ``Device`` in ``gripper_core.h``.
+
+:class:`Firmware` is the protocol session, mode state machine, PID, safety (jaw clamp, watchdog,
+ESTOP, sensor and numeric faults) and telemetry batching of the Arduino sketch, line for line,
+so that the virtual device (:mod:`gripper_env.hardware.virtual`) behaves like the board. It is
+hardware-free in the same way as the C++ class: feed it received bytes with :meth:`receive`,
+call :meth:`tick` once per 1 ms control period with the ADC reading, apply
+:attr:`servo_command_deg` while :attr:`servo_on`, and drain :attr:`tx` (bytes for the host).
+
+The PID is :func:`gripper_env.pid.pid_update`, the same equations as the firmware's
+``pid_update``; arithmetic is float64 here (like the host build of the C++ harness), float32 on
+the board. The specification of every message is ``firmware/PROTOCOL.md``.
+
+Examples
+--------
+>>> from gripper_env.hardware import protocol as proto
+>>> fw = Firmware(device_id=7)
+>>> fw.receive(proto.encode_frame(0, proto.Hello()), now_us=0)
+>>> proto.FrameDecoder().feed(fw.take_tx())[0].message.device_id
+7
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+
+from gripper_env.hardware import protocol as proto
+from gripper_env.pid import pid_update
+
+__all__ = [
+    "ADC_MAX_COUNT",
+    "CAL_ANGLE_HI_DEG",
+    "CAL_ANGLE_LO_DEG",
+    "TICK_PERIOD_US",
+    "TX_QUEUE_CAPACITY",
+    "WATCHDOG_TIMEOUT_US",
+    "Firmware",
+    "FirmwareConfig",
+    "adc_to_deg",
+    "clamp_jaw",
+    "deg_to_adc",
+]
+
+FIRMWARE_VERSION = (0, 1, 0)  # the C++ FIRMWARE_VERSION_MAJOR/MINOR/PATCH
+TICK_PERIOD_US = 1000  # control period (us)
+WATCHDOG_TIMEOUT_US = 500_000  # host silence that triggers the safe stop (us)
+JAW_CLOSED_DEG = 21.0
+JAW_OPEN_DEG = 92.0
+CAL_ANGLE_LO_DEG = 21.0  # the two calibration points (deg)
+CAL_ANGLE_HI_DEG = 92.0
+ADC_MAX_COUNT = 1023
+ADC_RAIL_MARGIN = 4
+ADC_MIN_CAL_SPAN = 20
+SENSOR_FAULT_TICKS = 20
+SERVO_PULSE_MIN_US = 400
+SERVO_PULSE_MAX_US = 2600
+SERVO_MIN_CAL_SPAN_US = 500
+MAX_DECIMATION = 1000
+TX_QUEUE_CAPACITY = 512  # bytes in the board's transmit queue
+UART_BYTES_PER_TICK = 100  # 1 Mbaud 8N1 drains 100 bytes per 1 ms tick
+_DT_S = TICK_PERIOD_US / 1e6
+_SAMPLE = struct.Struct("<hhHB")
+_TELEMETRY_HEADER = struct.Struct("<IHB")
+
+
+def clamp_jaw(x: float, lo: float, hi: float, safe: float) -> float:
+    """Clamp a servo command (deg) into ``[lo, hi]``; NaN goes to ``safe`` (C++ ``clamp_jaw``)."""
+    if x != x:
+        return safe
+    if x < lo:
+        return lo
+    if x > hi:
+        return hi
+    return x
+
+
+def adc_to_deg(adc: float, adc_at_lo: float, adc_at_hi: float) -> float:
+    """Jaw angle (deg) from ADC counts by the two-point line through 21 and 92 deg."""
+    slope = (CAL_ANGLE_HI_DEG - CAL_ANGLE_LO_DEG) / (adc_at_hi - adc_at_lo)
+    return CAL_ANGLE_LO_DEG + (adc - adc_at_lo) * slope
+
+
+def deg_to_adc(deg: float, adc_at_lo: float, adc_at_hi: float) -> int:
+    """ADC counts (rounded, saturated to 0..1023) that the calibration maps to ``deg``."""
+    if deg != deg:
+        return 0
+    counts = adc_at_lo + (deg - CAL_ANGLE_LO_DEG) * (adc_at_hi - adc_at_lo) / (
+        CAL_ANGLE_HI_DEG - CAL_ANGLE_LO_DEG
+    )
+    if not counts > 0:
+        return 0
+    if counts >= ADC_MAX_COUNT:
+        return ADC_MAX_COUNT
+    return int(counts + 0.5)
+
+
+def _adc_at_rail(adc: int) -> bool:
+    return adc < ADC_RAIL_MARGIN or adc > ADC_MAX_COUNT - ADC_RAIL_MARGIN
+
+
+def _to_cdeg(deg: float) -> int:
+    """Saturating conversion to centi-degrees (i16), NaN to CDEG_NONE (C++ ``to_cdeg``)."""
+    if deg != deg:
+        return proto.CDEG_NONE
+    c = deg * 100.0
+    if c >= 32767.0:
+        return 32767
+    if c <= -32767.0:
+        return -32767
+    return int(c - 0.5) if c < 0 else int(c + 0.5)
+
+
+def _finite(x: float) -> bool:
+    return math.isfinite(x)
+
+
+class FirmwareConfig:
+    """Everything CONFIGURE sets, validated (the C++ ``DeviceConfig``); defaults after HELLO."""
+
+    __slots__ = (
+        "adc_at_hi",
+        "adc_at_lo",
+        "anti_windup",
+        "batch",
+        "d",
+        "d_on_meas",
+        "decimation",
+        "i",
+        "jaw_max",
+        "jaw_min",
+        "kb",
+        "n",
+        "p",
+        "servo_us_at_0",
+        "servo_us_at_180",
+        "sign",
+        "u_max",
+        "u_min",
+    )
+
+    def __init__(self) -> None:
+        self.p = self.i = self.d = 0.0
+        self.n = 100.0
+        self.u_min, self.u_max = JAW_CLOSED_DEG, JAW_OPEN_DEG
+        self.anti_windup = proto.AntiWindup.CLAMPING
+        self.kb = 1.0
+        self.sign = 1.0
+        self.d_on_meas = 0
+        self.jaw_min, self.jaw_max = JAW_CLOSED_DEG, JAW_OPEN_DEG
+        self.adc_at_lo, self.adc_at_hi = 119, 523
+        self.servo_us_at_0, self.servo_us_at_180 = 544, 2400
+        self.decimation = 1
+        self.batch = 10
+
+
+def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
+    """Check a CONFIGURE like the firmware: ``(config, 0)`` or ``(None, first bad field index)``."""
+    n_dt = np.float32(m.n) * np.float32(TICK_PERIOD_US * 1e-6)  # float32, as on the board
+    checks = (
+        _finite(m.p),
+        _finite(m.i),
+        _finite(m.d),
+        _finite(m.n) and m.n > 0.0 and float(n_dt) < 2.0,
+        m.u_min == m.u_min and m.u_min != math.inf,
+        m.u_max == m.u_max and m.u_max != -math.inf and m.u_min < m.u_max,
+        _finite(m.kb),
+        _finite(m.jaw_min) and 0.0 <= m.jaw_min <= 180.0,
+        _finite(m.jaw_max) and 0.0 <= m.jaw_max <= 180.0 and m.jaw_min < m.jaw_max,
+    )
+    for index, ok in enumerate(checks):
+        if not ok:
+            return None, index
+    if not m.u_min < m.jaw_max:
+        return None, 4
+    if not m.u_max > m.jaw_min:
+        return None, 5
+    rest = (
+        not _adc_at_rail(m.adc_at_lo),
+        not _adc_at_rail(m.adc_at_hi) and abs(m.adc_at_lo - m.adc_at_hi) >= ADC_MIN_CAL_SPAN,
+        SERVO_PULSE_MIN_US <= m.servo_us_at_0 <= SERVO_PULSE_MAX_US,
+        SERVO_PULSE_MIN_US <= m.servo_us_at_180 <= SERVO_PULSE_MAX_US
+        and abs(m.servo_us_at_0 - m.servo_us_at_180) >= SERVO_MIN_CAL_SPAN_US,
+        m.decimation <= MAX_DECIMATION,
+        m.anti_windup <= proto.AntiWindup.BACK_CALCULATION,
+        m.sign in (1, -1),
+        m.d_on_meas <= 1,
+        1 <= m.telemetry_batch <= proto.TELEMETRY_MAX_SAMPLES,
+    )
+    for index, ok in enumerate(rest, start=9):
+        if not ok:
+            return None, index
+    c = FirmwareConfig()
+    c.p, c.i, c.d, c.n = m.p, m.i, m.d, m.n
+    c.u_min = max(m.u_min, m.jaw_min)
+    c.u_max = min(m.u_max, m.jaw_max)
+    c.anti_windup = m.anti_windup
+    c.kb = m.kb
+    c.sign = float(m.sign)
+    c.d_on_meas = 1 if m.d_on_meas else 0
+    c.jaw_min, c.jaw_max = m.jaw_min, m.jaw_max
+    c.adc_at_lo, c.adc_at_hi = m.adc_at_lo, m.adc_at_hi
+    c.servo_us_at_0, c.servo_us_at_180 = m.servo_us_at_0, m.servo_us_at_180
+    c.decimation = m.decimation
+    c.batch = m.telemetry_batch
+    return c, 0
+
+
+class _StreamDecoder:
+    """The firmware's byte-stream decoder (C++ ``StreamDecoder``), fed a chunk at a time."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.overflow = False
+        self.have_seq = False
+        self.last_seq = 0
+        self.last_gap = 0
+        self.frames_ok = self.bad_cobs = self.bad_crc = 0
+        self.truncated = self.oversized = self.lost = self.discarded_bytes = 0
+
+    def forgive_last_gap(self) -> None:
+        self.lost -= self.last_gap
+        self.last_gap = 0
+
+    def feed(self, data: bytes) -> list[tuple[int, int, bytes]]:
+        """Consume bytes; return the CRC-valid frames ``(seq, type, payload)`` they completed."""
+        out = []
+        start = 0
+        while True:
+            end = data.find(0, start)
+            chunk = data[start:] if end < 0 else data[start:end]
+            if not self.overflow:
+                room = proto.MAX_ENCODED_FRAME - len(self.buf)
+                self.buf += chunk[:room]
+                if len(chunk) > room:
+                    self.overflow = True
+                    self.discarded_bytes += len(chunk) - room
+            else:
+                self.discarded_bytes += len(chunk)
+            if end < 0:
+                return out
+            frame = self._finish()
+            if frame is not None:
+                out.append(frame)
+            start = end + 1
+
+    def _finish(self) -> tuple[int, int, bytes] | None:
+        encoded = bytes(self.buf)
+        overflow = self.overflow
+        self.buf.clear()
+        self.overflow = False
+        n = len(encoded)
+        if overflow:
+            self.oversized += 1
+            self.discarded_bytes += n
+            return None
+        if n == 0:
+            return None
+        try:
+            raw = proto.cobs_decode(encoded)
+        except proto.CobsError:
+            self.bad_cobs += 1
+            self.discarded_bytes += n
+            return None
+        if len(raw) < 4:
+            self.truncated += 1
+            self.discarded_bytes += n
+            return None
+        if len(raw) > proto.MAX_PAYLOAD + 4:
+            self.oversized += 1
+            self.discarded_bytes += n
+            return None
+        if proto.crc16_ccitt_false(raw[:-2]) != int.from_bytes(raw[-2:], "little"):
+            self.bad_crc += 1
+            self.discarded_bytes += n
+            return None
+        seq = raw[0]
+        self.last_gap = ((seq - self.last_seq - 1) & 0xFF) if self.have_seq else 0
+        self.lost += self.last_gap
+        self.have_seq = True
+        self.last_seq = seq
+        self.frames_ok += 1
+        return seq, raw[1], raw[2:-2]
+
+
+class Firmware:
+    """The device state machine of the gripper firmware (see the module docstring).
+
+    Parameters
+    ----------
+    device_id : int
+        Board id reported in INFO (u32; 0xFFFFFFFF if the EEPROM was never written).
+    now_us : int
+        Device time (us) at boot.
+
+    Attributes
+    ----------
+    tx : bytearray
+        The transmit queue (at most :data:`TX_QUEUE_CAPACITY` bytes, whole frames or nothing);
+        the caller drains it (:meth:`take_tx`, or :meth:`uart_drain` at the UART's rate).
+    """
+
+    def __init__(self, device_id: int = 0xFFFFFFFF, now_us: int = 0) -> None:
+        self.tx = bytearray()
+        self.begin(device_id, now_us)
+
+    # ---- lifecycle -----------------------------------------------------------------------------
+
+    def begin(self, device_id: int, now_us: int) -> None:
+        """Power-on state (also what a reset of the board does): no session, servo limp."""
+        self.device_id = device_id
+        self.rx = _StreamDecoder()
+        self.tx.clear()
+        self.tx_seq = 0
+        self.session = False
+        self.configured = False
+        self.cfg = FirmwareConfig()
+        self.mode = proto.Mode.IDLE
+        self.faults = 0
+        self.servo_on = False
+        self.entry_pending = False
+        self.have_setpoint = False
+        self.setpoint = JAW_OPEN_DEG
+        self.reference = JAW_OPEN_DEG
+        self.command = JAW_OPEN_DEG
+        self.pid_state = np.zeros(2)
+        self.last_rx_us = now_us & 0xFFFFFFFF
+        self.now_us = now_us & 0xFFFFFFFF
+        self.echo = 0
+        self.last_rx_seq = 0
+        self.refused = self.tx_dropped = self.overruns = 0
+        self.rail_ticks = 0
+        self._samples: list[bytes] = []
+        self._t0_us = 0
+        self._telemetry_decimation = 1
+        self._decimation_count = 0
+        self._rx_type = 0
+        self._rx_seq = 0
+
+    # ---- inputs --------------------------------------------------------------------------------
+
+    def receive(self, data: bytes, now_us: int) -> None:
+        """Feed bytes received from the host at device time ``now_us``."""
+        self.now_us = now_us & 0xFFFFFFFF
+        for seq, type_id, payload in self.rx.feed(data):
+            self._handle_frame(seq, type_id, payload)
+
+    def tick(self, now_us: int, adc: int, overrun: bool = False) -> None:
+        """One 1 ms control period at device time ``now_us`` with the ADC reading ``adc``."""
+        now_us &= 0xFFFFFFFF
+        self.now_us = now_us
+        flags = 0
+        if overrun:
+            self.overruns += 1
+            flags = proto.SampleFlag.OVERRUN
+        mode = self.mode
+        if mode != proto.Mode.IDLE and ((now_us - self.last_rx_us) & 0xFFFFFFFF) >= (
+            WATCHDOG_TIMEOUT_US
+        ):
+            self._safe_stop(proto.Fault.WATCHDOG)
+        cfg = self.cfg
+        y = adc_to_deg(adc, cfg.adc_at_lo, cfg.adc_at_hi)
+        if self.mode == proto.Mode.CLOSED_LOOP:
+            self.rail_ticks = self.rail_ticks + 1 if _adc_at_rail(adc) else 0
+            if self.rail_ticks >= SENSOR_FAULT_TICKS:
+                self._safe_stop(proto.Fault.SENSOR)
+        if self.entry_pending:
+            self._enter_mode(y)
+        mode = self.mode
+        safe = cfg.jaw_max
+        if mode != proto.Mode.IDLE:
+            reference = clamp_jaw(self.setpoint, cfg.jaw_min, cfg.jaw_max, safe)
+            if self.have_setpoint and reference != self.setpoint:
+                flags |= proto.SampleFlag.CLAMPED
+            self.reference = reference
+            if mode == proto.Mode.OPEN_LOOP:
+                self.command = reference
+            else:
+                u, v = pid_update(
+                    reference, y, cfg.p, cfg.i, cfg.d, cfg.n, _DT_S, cfg.u_min, cfg.u_max,
+                    cfg.anti_windup, cfg.kb, cfg.sign, cfg.d_on_meas, self.pid_state,
+                )  # fmt: skip
+                st = self.pid_state
+                if not (_finite(v) and _finite(st[0]) and _finite(st[1])):
+                    self._safe_stop(proto.Fault.NUMERIC)
+                else:
+                    if u != v:
+                        flags |= proto.SampleFlag.SATURATED
+                    self.command = clamp_jaw(u, cfg.jaw_min, cfg.jaw_max, safe)
+        if self.mode == proto.Mode.IDLE:
+            self.reference = safe
+            self.command = safe
+        self._record_sample(adc, flags)
+
+    # ---- outputs -------------------------------------------------------------------------------
+
+    @property
+    def servo_command_deg(self) -> float:
+        """The servo command (deg), always inside the jaw range; meaningful while servo_on."""
+        return self.command
+
+    def servo_pulse_us(self) -> float:
+        """Servo pulse width (us, 0.5 us resolution) for the current command, hard-clamped."""
+        cfg = self.cfg
+        deg = clamp_jaw(self.command, 0.0, 180.0, JAW_OPEN_DEG)
+        us = cfg.servo_us_at_0 + deg * (cfg.servo_us_at_180 - cfg.servo_us_at_0) / 180.0
+        ticks = min(max(int(us * 2.0 + 0.5), 2 * SERVO_PULSE_MIN_US), 2 * SERVO_PULSE_MAX_US)
+        return ticks / 2.0
+
+    def take_tx(self) -> bytes:
+        """All queued transmit bytes (the queue is emptied)."""
+        out = bytes(self.tx)
+        self.tx.clear()
+        return out
+
+    def uart_drain(self, max_bytes: int = UART_BYTES_PER_TICK) -> bytes:
+        """At most ``max_bytes`` queued bytes, as the UART sends them in one tick."""
+        out = bytes(self.tx[:max_bytes])
+        del self.tx[:max_bytes]
+        return out
+
+    def status(self) -> proto.Status:
+        """The STATUS the device would send now."""
+        rx = self.rx
+        flags = (
+            (proto.StatusFlag.SESSION if self.session else 0)
+            | (proto.StatusFlag.CONFIGURED if self.configured else 0)
+            | (proto.StatusFlag.SERVO_ON if self.servo_on else 0)
+        )
+        return proto.Status(
+            device_time_us=self.now_us,
+            echo=self.echo,
+            mode=self.mode,
+            faults=self.faults,
+            flags=flags,
+            last_rx_seq=self.last_rx_seq,
+            frames_ok=rx.frames_ok & 0xFFFFFFFF,
+            frames_lost=min(rx.lost, 0xFFFF),
+            bad_crc=min(rx.bad_crc, 0xFFFF),
+            bad_frame=min(rx.bad_cobs + rx.truncated + rx.oversized, 0xFFFF),
+            refused=min(self.refused, 0xFFFF),
+            tx_dropped=min(self.tx_dropped, 0xFFFF),
+            overruns=min(self.overruns, 0xFFFF),
+        )
+
+    # ---- internals (the C++ private methods, same names) ---------------------------------------
+
+    def _safe_stop(self, fault: int) -> None:
+        was_active = self.mode != proto.Mode.IDLE
+        self.mode = proto.Mode.IDLE
+        self.entry_pending = False
+        self.command = self.cfg.jaw_max
+        self.reference = self.cfg.jaw_max
+        self.rail_ticks = 0
+        if fault:
+            self.faults |= fault
+            if was_active or fault == proto.Fault.ESTOP:
+                self._send_status()
+
+    def _enter_mode(self, y: float) -> None:
+        self.entry_pending = False
+        cfg = self.cfg
+        if self.mode == proto.Mode.OPEN_LOOP:
+            if not self.have_setpoint:
+                self.setpoint = self.command if self.servo_on else cfg.jaw_max
+        elif self.mode == proto.Mode.CLOSED_LOOP:
+            if not self.have_setpoint:
+                self.setpoint = y
+            u0 = (
+                self.command
+                if self.servo_on
+                else clamp_jaw(y, cfg.jaw_min, cfg.jaw_max, cfg.jaw_max)
+            )
+            self.pid_state[0] = u0
+            self.pid_state[1] = -cfg.sign * y if cfg.d_on_meas else 0.0
+        self.have_setpoint = True
+        self.servo_on = True
+
+    def _handle_frame(self, seq: int, type_id: int, payload: bytes) -> None:
+        self.last_rx_seq = seq
+        self.last_rx_us = self.now_us
+        self._rx_type, self._rx_seq = type_id, seq
+        n = len(payload)
+        if type_id == proto.Estop.TYPE:
+            if n != 0:
+                return self._refuse(proto.ErrorCode.BAD_LENGTH, n)
+            self._safe_stop(proto.Fault.ESTOP)
+            return None
+        if type_id == proto.Hello.TYPE:
+            if n != 2:
+                return self._refuse(proto.ErrorCode.BAD_LENGTH, n)
+            self._safe_stop(0)
+            if proto.Hello.decode(payload).protocol_version != proto.PROTOCOL_VERSION:
+                self.session = False
+                return self._refuse(proto.ErrorCode.VERSION_MISMATCH, proto.PROTOCOL_VERSION)
+            self._start_session()
+            return None
+        if type_id >= 0x80 or type_id < proto.Hello.TYPE or type_id > proto.Estop.TYPE:
+            return self._refuse(proto.ErrorCode.UNKNOWN_TYPE, type_id)
+        if not self.session:
+            return self._refuse(proto.ErrorCode.NO_SESSION, 0)
+        cls = proto.MESSAGE_TYPES[type_id]
+        try:
+            msg = cls.decode(payload)
+        except proto.PayloadLengthError:
+            return self._refuse(proto.ErrorCode.BAD_LENGTH, n)
+        if type_id == proto.Configure.TYPE:
+            config, field_index = validate_configure(msg)
+            if config is None:
+                return self._refuse(proto.ErrorCode.BAD_VALUE, field_index)
+            self._apply_config(config)
+            self._send_status()
+        elif type_id == proto.SetMode.TYPE:
+            mode = msg.mode
+            if mode > proto.Mode.CLOSED_LOOP:
+                return self._refuse(proto.ErrorCode.BAD_VALUE, 0)
+            if mode == proto.Mode.IDLE:
+                self._safe_stop(0)
+                self.faults = 0  # SET_MODE(IDLE) acknowledges latched faults
+            else:
+                if self.faults:
+                    return self._refuse(proto.ErrorCode.FAULT_LATCHED, self.faults)
+                if mode == proto.Mode.CLOSED_LOOP and not self.configured:
+                    return self._refuse(proto.ErrorCode.NOT_CONFIGURED, 0)
+                if mode != self.mode:
+                    self.mode = mode
+                    self.entry_pending = True
+            self._send_status()
+        elif type_id == proto.Setpoint.TYPE:
+            if not _finite(msg.angle_deg):
+                return self._refuse(proto.ErrorCode.BAD_VALUE, 0)
+            self.setpoint = msg.angle_deg
+            self.have_setpoint = True
+        elif type_id == proto.ProfileChunk.TYPE:
+            return self._refuse(proto.ErrorCode.UNSUPPORTED, 0)
+        elif type_id == proto.Heartbeat.TYPE:
+            self.echo = msg.token
+            self._send_status()
+        return None
+
+    def _start_session(self) -> None:
+        self.session = True
+        self.faults = 0
+        self._apply_config(FirmwareConfig())
+        self.configured = False  # closed loop needs a CONFIGURE in this session
+        self.have_setpoint = False
+        self.rx.forgive_last_gap()  # a HELLO starts a new host sequence
+        major, minor, patch = FIRMWARE_VERSION
+        self._send(
+            proto.Info(
+                proto.PROTOCOL_VERSION,
+                major,
+                minor,
+                patch,
+                self.device_id,
+                TICK_PERIOD_US,
+                proto.TELEMETRY_MAX_SAMPLES,
+                proto.MAX_PAYLOAD,
+            )
+        )
+
+    def _apply_config(self, c: FirmwareConfig) -> None:
+        old = self.cfg
+        structure_changed = c.sign != old.sign or c.d_on_meas != old.d_on_meas
+        if c.decimation != old.decimation or c.batch != old.batch:
+            self._flush_telemetry()
+        self.cfg = c
+        self.configured = True
+        # A new sign or derivative input changes what xf means: re-enter bumplessly.
+        if structure_changed and self.mode == proto.Mode.CLOSED_LOOP:
+            self.entry_pending = True
+
+    def _refuse(self, code: int, detail: int) -> None:
+        self.refused += 1
+        self._send(proto.ErrorReport(code, self._rx_type, self._rx_seq, detail & 0xFFFF))
+
+    def _send_status(self) -> None:
+        self._send(self.status())
+
+    def _send(self, msg: proto.Message) -> None:
+        self._send_raw(msg.TYPE, msg.encode())
+
+    def _send_raw(self, type_id: int, payload: bytes) -> None:
+        frame = proto.encode_raw_frame(self.tx_seq, type_id, payload)
+        # The sequence number advances even for a dropped frame, so the host sees the gap.
+        self.tx_seq = (self.tx_seq + 1) & 0xFF
+        if len(frame) > TX_QUEUE_CAPACITY - len(self.tx):
+            self.tx_dropped += 1
+        else:
+            self.tx += frame
+
+    def _flush_telemetry(self) -> None:
+        if self._samples:
+            header = _TELEMETRY_HEADER.pack(
+                self._t0_us, self._telemetry_decimation, len(self._samples)
+            )
+            self._send_raw(proto.Telemetry.TYPE, header + b"".join(self._samples))
+        self._samples = []
+        self._decimation_count = 0
+
+    def _record_sample(self, adc: int, flags: int) -> None:
+        cfg = self.cfg
+        if not self.session or cfg.decimation == 0:
+            return
+        if self._decimation_count > 0:
+            self._decimation_count -= 1
+            return
+        self._decimation_count = cfg.decimation - 1
+        if not self._samples:
+            self._t0_us = self.now_us
+            self._telemetry_decimation = cfg.decimation
+        flags |= (
+            (self.mode & proto.SampleFlag.MODE_MASK)
+            | (proto.SampleFlag.FAULT if self.faults else 0)
+            | (proto.SampleFlag.SERVO_ON if self.servo_on else 0)
+        )
+        command = _to_cdeg(self.command) if self.servo_on else proto.CDEG_NONE
+        self._samples.append(_SAMPLE.pack(_to_cdeg(self.reference), command, adc, flags))
+        if len(self._samples) >= cfg.batch:
+            self._flush_telemetry()

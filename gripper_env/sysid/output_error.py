@@ -1,0 +1,219 @@
+"""Output-error refinement of a continuous-time transfer function (the step after SRIVC).
+
+Minimises the simulation error ``sum_k (y_k - yhat_k)^2`` over the coefficients of
+``B(s)/A(s)``, the initial state and (optionally) a correction of the output operating point,
+where ``yhat`` is the exact ZOH-sampled response of ``B/A`` to the held input plus the free
+response of the observer-form initial state ``x0`` (:func:`gripper_env.sysid.zoh.zoh_response`)
+plus the offset correction. Estimating the offset matters: an operating point taken from a short
+rest period is off by ``noise / sqrt(samples)``, and that bias alone can exceed the standard
+errors of the coefficients. The search is
+:func:`scipy.optimize.least_squares` (trust-region reflective) with the exact Jacobian of
+:mod:`gripper_env.sysid.sensitivity`.
+
+With ``enforce_stability`` the denominator coefficients are bounded below by 0 (necessary for a
+Hurwitz polynomial, and sufficient for n <= 2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from gripper_env.sysid.data import IOData
+from gripper_env.sysid.sensitivity import model_sensitivities
+from gripper_env.sysid.srivc import split_params
+from gripper_env.sysid.zoh import zoh_response
+
+__all__ = ["OutputErrorResult", "fit_initial_state", "refine_output_error"]
+
+
+def fit_initial_state(
+    data: IOData, num: np.ndarray, den: np.ndarray, *, with_offset: bool = False
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least-squares initial state (and output-offset correction) for a fixed model.
+
+    Returns
+    -------
+    x0 : ndarray
+        Observer-form initial state (deviation units).
+    offset : float
+        Output-offset correction (deg; 0 unless ``with_offset``).
+    y_hat : ndarray
+        Simulated output with them (deviations, deg).
+    """
+    with np.errstate(all="ignore"):
+        sens = model_sensitivities(num, den, data.u, data.dt_s, with_initial_state=True)
+    basis = sens.d_x0
+    assert basis is not None
+    if not (np.all(np.isfinite(sens.y_hat)) and np.all(np.isfinite(basis))):
+        return np.zeros(den.size - 1), 0.0, sens.y_hat
+    if with_offset:
+        basis = np.column_stack([basis, np.ones(data.n_samples)])
+    coef = np.linalg.lstsq(basis, data.y - sens.y_hat, rcond=None)[0]
+    offset = float(coef[-1]) if with_offset else 0.0
+    return coef[: den.size - 1], offset, sens.y_hat + basis @ coef
+
+
+class _Problem:
+    """Residuals and Jacobian of the output-error fit."""
+
+    def __init__(
+        self, data: IOData, n_poles: int, n_zeros: int, estimate_x0: bool, estimate_offset: bool
+    ) -> None:
+        self.data = data
+        self.n = n_poles
+        self.m = n_zeros
+        self.estimate_x0 = estimate_x0
+        self.estimate_offset = estimate_offset
+
+    def _unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:
+        n_theta = self.n + self.m + 1
+        num, den = split_params(p[:n_theta], self.n)
+        x0 = p[n_theta : n_theta + self.n] if self.estimate_x0 else None
+        offset = float(p[-1]) if self.estimate_offset else 0.0
+        return num, den, x0, offset
+
+    def residuals(self, p: np.ndarray) -> np.ndarray:
+        num, den, x0, offset = self._unpack(p)
+        with np.errstate(all="ignore"):
+            y_hat = zoh_response(num, den, self.data.u, self.data.dt_s, x0)
+            return y_hat + offset - self.data.y
+
+    def jacobian(self, p: np.ndarray) -> np.ndarray:
+        num, den, x0, _ = self._unpack(p)
+        with np.errstate(all="ignore"):
+            sens = model_sensitivities(
+                num, den, self.data.u, self.data.dt_s, x0, with_initial_state=self.estimate_x0
+            )
+        cols = [sens.d_a, sens.d_b]
+        if sens.d_x0 is not None:
+            cols.append(sens.d_x0)
+        if self.estimate_offset:
+            cols.append(np.ones((self.data.n_samples, 1)))
+        return np.column_stack(cols)
+
+
+@dataclass(frozen=True)
+class OutputErrorResult:
+    """Outcome of :func:`refine_output_error`.
+
+    Attributes
+    ----------
+    theta : ndarray
+        ``[a_{n-1}..a_0, b_m..b_0]``.
+    x0 : ndarray
+        Observer-form initial state (zeros if it was not estimated).
+    offset : float
+        Correction of the output operating point (deg; 0 if it was not estimated).
+    residuals : ndarray
+        ``y - yhat`` (deviations, deg).
+    cov : ndarray
+        Covariance of ``[theta, x0, offset]`` (the estimated ones), ``sigma^2 (J^T J)^-1``.
+    n_iter : int
+        Jacobian evaluations (trust-region iterations).
+    converged : bool
+        ``least_squares`` met a tolerance.
+    message : str
+        ``least_squares``'s message.
+    """
+
+    theta: np.ndarray
+    x0: np.ndarray
+    offset: float
+    residuals: np.ndarray
+    cov: np.ndarray
+    n_iter: int
+    converged: bool
+    message: str
+
+
+def _covariance(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    n_obs, n_par = jac.shape
+    dof = max(n_obs - n_par, 1)
+    sigma2 = float(residuals @ residuals) / dof
+    scale = np.sqrt(np.einsum("ij,ij->j", jac, jac))
+    scale[scale == 0] = 1.0
+    _, sv, vt = np.linalg.svd(jac / scale, full_matrices=False)
+    inv = np.where(sv > sv[0] * 1e-13, 1.0 / np.where(sv > 0, sv, 1.0) ** 2, np.inf)
+    with np.errstate(invalid="ignore"):
+        cov = (vt.T * inv) @ vt
+    cov = np.where(np.isfinite(cov), cov, np.inf)
+    return sigma2 * cov / np.outer(scale, scale)
+
+
+def refine_output_error(
+    data: IOData,
+    n_poles: int,
+    n_zeros: int,
+    theta0: np.ndarray,
+    *,
+    estimate_x0: bool = True,
+    estimate_offset: bool = True,
+    enforce_stability: bool = True,
+    max_nfev: int = 200,
+    ftol: float = 1e-8,
+    xtol: float = 1e-8,
+    gtol: float = 1e-8,
+) -> OutputErrorResult:
+    """Minimise the simulation error starting from ``theta0``.
+
+    Parameters
+    ----------
+    data : IOData
+        Prepared record (deviations).
+    n_poles, n_zeros : int
+        Model order.
+    theta0 : ndarray
+        Start ``[a_{n-1}..a_0, b_m..b_0]`` (stable).
+    estimate_x0 : bool
+        Estimate the initial state (else it is zero).
+    estimate_offset : bool
+        Estimate a constant correction of the output operating point.
+    enforce_stability : bool
+        Keep the denominator coefficients >= 0.
+    max_nfev : int
+        Most residual evaluations.
+    ftol, xtol, gtol : float
+        Tolerances of :func:`scipy.optimize.least_squares`.
+
+    Returns
+    -------
+    OutputErrorResult
+    """
+    n, m = n_poles, n_zeros
+    problem = _Problem(data, n, m, estimate_x0, estimate_offset)
+    theta0 = np.asarray(theta0, dtype=float).copy()
+    num, den = split_params(theta0, n)
+    x0, offset, _ = fit_initial_state(data, num, den, with_offset=estimate_offset)
+    p0 = np.concatenate([theta0, x0 if estimate_x0 else [], [offset] if estimate_offset else []])
+    lower = np.full(p0.size, -np.inf)
+    if enforce_stability:
+        lower[:n] = 0.0
+        p0[:n] = np.maximum(p0[:n], 1e-12 * max(1.0, float(np.max(np.abs(p0[:n])))))
+    res = least_squares(
+        problem.residuals,
+        p0,
+        jac=problem.jacobian,
+        bounds=(lower, np.full(p0.size, np.inf)),
+        method="trf",
+        x_scale="jac",
+        ftol=ftol,
+        xtol=xtol,
+        gtol=gtol,
+        max_nfev=max_nfev,
+    )
+    p = res.x
+    num, den, x0_fit, offset = problem._unpack(p)
+    residuals = -res.fun
+    return OutputErrorResult(
+        theta=p[: n + m + 1].copy(),
+        x0=np.zeros(n) if x0_fit is None else np.array(x0_fit),
+        offset=offset,
+        residuals=residuals,
+        cov=_covariance(res.jac, residuals),
+        n_iter=int(res.njev or 0),
+        converged=bool(res.status > 0),
+        message=str(res.message),
+    )

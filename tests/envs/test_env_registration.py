@@ -1,0 +1,77 @@
+"""Registration, time limits, spaces and the documentation of each environment."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from helpers import ENV_IDS, GAIN_SCHEDULE, PID_TUNE, SERVO
+
+import gripper_env
+
+WORKTREE = Path(__file__).resolve().parents[2]
+
+
+def test_ids_registered_with_time_limits():
+    assert set(gripper_env.ENV_IDS) == set(ENV_IDS)
+    limits = {SERVO: 1000, PID_TUNE: 1, GAIN_SCHEDULE: 1000}
+    for env_id, limit in limits.items():
+        spec = gym.spec(env_id)
+        assert spec.max_episode_steps == limit
+        assert spec.vector_entry_point is not None
+        env = gym.make(env_id)
+        assert isinstance(env, gym.wrappers.TimeLimit)
+        env.close()
+
+
+def test_make_without_prior_import_in_fresh_interpreter():
+    code = (
+        "import gymnasium as gym\n"
+        "for i in ('GripperServo-v0', 'GripperPIDTune-v0', 'GripperGainSchedule-v0'):\n"
+        "    env = gym.make(f'gripper_env:gripper_env/{i}')\n"
+        "    env.reset(seed=0)\n"
+        "    print(env.spec.id, env.spec.max_episode_steps)\n"
+        "v = gym.make_vec('gripper_env:gripper_env/GripperServo-v0', num_envs=2,\n"
+        "                 vectorization_mode='vector_entry_point')\n"
+        "print(type(v).__name__)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=WORKTREE, capture_output=True, text=True, check=True
+    )
+    assert "gripper_env/GripperServo-v0 1000" in out.stdout
+    assert "gripper_env/GripperPIDTune-v0 1" in out.stdout
+    assert "GripperServoVectorEnv" in out.stdout
+
+
+@pytest.mark.parametrize(
+    ("env_id", "n_act", "n_obs", "n_obs_ctx"),
+    [(SERVO, 1, 6, 24), (GAIN_SCHEDULE, 3, 9, 27), (PID_TUNE, 3, 18, 18)],
+)
+def test_spaces(env_id, n_act, n_obs, n_obs_ctx):
+    env = gym.make(env_id)
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)
+    assert env.observation_space.shape == (n_obs,)
+    assert env.observation_space.dtype == np.float32
+    assert np.all(np.isfinite(env.observation_space.low))
+    if env_id != PID_TUNE:
+        ctx = gym.make(env_id, observe_context=True)
+        assert ctx.observation_space.shape == (n_obs_ctx,)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_docstring_has_gymnasium_sections(env_id):
+    doc = type(gym.make(env_id).unwrapped).__doc__
+    for section in (
+        "## Description",
+        "## Action Space",
+        "## Observation Space",
+        "## Rewards",
+        "## Starting State",
+        "## Episode End",
+        "## Arguments",
+        "gym.make(",
+        "## Version History",
+    ):
+        assert section in doc, section

@@ -1,0 +1,96 @@
+"""The native vector environments equal N single environments with the same seeds."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO
+
+import gripper_env  # noqa: F401
+
+
+def compare(env_id, n_envs, n_steps, seed, **kwargs):
+    native = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
+                          **kwargs)  # fmt: skip
+    sync = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **kwargs)
+    assert isinstance(native, gym.vector.VectorEnv)
+    assert not isinstance(native, gym.vector.SyncVectorEnv)
+    assert native.observation_space == sync.observation_space
+    assert native.action_space == sync.action_space
+    obs_n, _ = native.reset(seed=seed)
+    obs_s, _ = sync.reset(seed=seed)
+    np.testing.assert_array_equal(obs_n, obs_s)
+    rng = np.random.default_rng(seed)
+    resets = 0
+    for _ in range(n_steps):
+        actions = rng.uniform(-1.1, 1.1, native.action_space.shape).astype(np.float32)
+        out_n = native.step(actions)
+        out_s = sync.step(actions)
+        for a, b in zip(out_n[:4], out_s[:4], strict=True):
+            np.testing.assert_array_equal(a, b)
+        resets += int(np.sum(out_n[2] | out_n[3]))
+    native.close()
+    sync.close()
+    return resets
+
+
+@pytest.mark.parametrize("env_id", [SERVO, GAIN_SCHEDULE])
+def test_vector_equals_single_envs_across_autoreset(env_id):
+    # a 30-step time limit forces every environment through an autoreset
+    resets = compare(env_id, 5, 75, seed=11, max_episode_steps=30)
+    assert resets >= 10
+
+
+@pytest.mark.parametrize("env_id", [SERVO, GAIN_SCHEDULE])
+def test_vector_equals_single_envs_randomized(env_id):
+    # 1 s random references: episodes of 50 steps end by themselves (truncation)
+    resets = compare(env_id, 4, 110, seed=3, observe_context=True, **RANDOMIZED)
+    assert resets >= 8
+
+
+def test_vector_pid_tune_equals_single_envs():
+    resets = compare(PID_TUNE, 3, 4, seed=5, **RANDOMIZED)
+    assert resets == 6
+
+
+def test_vector_parallel_batch_equals_serial():
+    """A batch large enough for the parallel kernel gives the same rows as single envs."""
+    n = 20
+    native = gym.make_vec(SERVO, num_envs=n, vectorization_mode="vector_entry_point",
+                          max_episode_steps=8)  # fmt: skip
+    obs, _ = native.reset(seed=100)
+    singles = [gym.make(SERVO, max_episode_steps=8) for _ in range(n)]
+    single_obs = [e.reset(seed=100 + i)[0] for i, e in enumerate(singles)]
+    np.testing.assert_array_equal(obs, np.stack(single_obs))
+    rng = np.random.default_rng(0)
+    pending = np.zeros(n, dtype=bool)
+    for _ in range(12):
+        actions = rng.uniform(-1, 1, (n, 1)).astype(np.float32)
+        obs, rew, term, trunc, _ = native.step(actions)
+        for i, env in enumerate(singles):
+            if pending[i]:
+                o, r, te, tr = env.reset()[0], 0.0, False, False
+            else:
+                o, r, te, tr, _ = env.step(actions[i])
+            np.testing.assert_array_equal(obs[i], o)
+            assert rew[i] == r and term[i] == te and trunc[i] == tr
+        pending = term | trunc
+
+
+def test_vector_reset_mask_and_seed_list():
+    envs = gym.make_vec(SERVO, num_envs=3, vectorization_mode="vector_entry_point",
+                        reference="random", episode_s=2.0)  # fmt: skip
+    obs_a, _ = envs.reset(seed=[1, 2, 3])
+    envs.step(np.zeros((3, 1), np.float32))
+    obs_b, _ = envs.reset(seed=[None, 2, None], options={"reset_mask": np.array([0, 1, 0], bool)})
+    np.testing.assert_array_equal(obs_a[1], obs_b[1])
+    with pytest.raises(ValueError, match="num_envs"):
+        envs.reset(seed=[1, 2])
+
+
+def test_vector_bad_actions():
+    envs = gym.make_vec(SERVO, num_envs=2, vectorization_mode="vector_entry_point")
+    envs.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        envs.step(np.array([[0.0], [np.nan]], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        envs.step(np.zeros((3, 1), np.float32))

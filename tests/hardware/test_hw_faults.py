@@ -1,0 +1,125 @@
+"""Link and device faults against the virtual board: each gives its error or a recovery, the log
+written so far is kept, and nothing hangs (every wait is bounded by the device's timeouts)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from virtual_support import SPEED, open_device
+
+from gripper_env.hardware import protocol as proto
+from gripper_env.hardware.device import (
+    DeviceReset,
+    DeviceTimeout,
+    LinkError,
+    PortVanished,
+)
+from gripper_env.hardware.experiment import CsvLog, run_profile
+from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.references import step_profile
+
+
+@pytest.fixture
+def virtual() -> Iterator[VirtualDevice]:
+    with VirtualDevice("test2", "actual", speed=SPEED, seed=1) as vd:
+        yield vd
+
+
+def _rows(block, t0_us):
+    return np.column_stack([(block.t_us - t0_us) / 1e6, block.reference_deg, block.position_deg])
+
+
+def _fault_during_run(dev, vd, tmp_path, fault, after_s: float = 0.6):
+    """Start a long open-loop run, trigger ``fault`` after ``after_s`` of device time."""
+    log = CsvLog(tmp_path / "run.csv", ("t_s", "desired_deg", "actual_deg"), _rows)
+    start = vd.ticks
+    stop = threading.Event()
+
+    def trigger() -> None:
+        while not stop.is_set() and vd.ticks - start < after_s * 1000:
+            stop.wait(0.005)
+        if not stop.is_set():
+            fault()
+
+    thread = threading.Thread(target=trigger, daemon=True)
+    thread.start()
+    try:
+        run_profile(dev, step_profile(), Mode.OPEN_LOOP, log=log)
+    finally:
+        stop.set()
+        thread.join(5.0)
+    return log
+
+
+def test_garbage_between_frames_is_skipped(virtual) -> None:
+    with open_device(virtual) as dev:
+        for k in range(10):
+            virtual.inject_garbage(bytes([0xFF, 0x13, 0x55, 7 + k]) * 5 + b"\x00")
+            status, _rtt = dev.heartbeat()
+            assert status.echo == dev._token
+        assert dev.decoder.stats.discarded_bytes > 0
+
+
+def test_a_truncated_reply_is_resent(virtual) -> None:
+    with open_device(virtual) as dev:
+        virtual.truncate_frames(1)
+        dev.heartbeat()  # the first STATUS is cut short: the host retries
+        assert dev.decoder.stats.truncated == 1
+
+
+def test_one_corrupted_crc_recovers_and_persistent_corruption_is_a_link_error(virtual) -> None:
+    with open_device(virtual, retries=1, timeout_s=0.2) as dev:
+        virtual.corrupt_frames(1)
+        dev.heartbeat()
+        assert dev.decoder.stats.bad_crc == 1
+        dev.configure(decimation=0)  # no telemetry: only replies are corrupted now
+        virtual.corrupt_frames(1000)
+        with pytest.raises(LinkError, match=r"corrupted frames.*CRC mismatch"):
+            dev.heartbeat()
+        virtual.corrupt_frames(-virtual._corrupt)  # disarm for the safe exit
+
+
+def test_a_silent_device_times_out(virtual) -> None:
+    with open_device(virtual, retries=1, timeout_s=0.2) as dev:
+        virtual.go_silent()
+        with pytest.raises(DeviceTimeout, match=r"HEARTBEAT.*silent"):
+            dev.heartbeat()
+        virtual.go_silent(False)
+
+
+def test_lost_telemetry_frames_are_counted(virtual) -> None:
+    with open_device(virtual) as dev:
+        dev.wait_telemetry(0.05)
+        virtual.drop_frames(3)
+        dev.wait_telemetry(0.2)
+        assert dev.decoder.stats.lost >= 3
+        assert dev.samples_missing >= 20
+
+
+def test_a_reset_mid_run_is_reported_and_the_partial_log_kept(virtual, tmp_path) -> None:
+    with open_device(virtual) as dev:
+        dev.configure()
+        with pytest.raises(DeviceReset, match="reset"):
+            _fault_during_run(dev, virtual, tmp_path, virtual.reset)
+        log = tmp_path / "run.partial.csv"
+        assert log.exists() and not (tmp_path / "run.csv").exists()
+        rows = log.read_text().splitlines()
+        assert rows[0] == "t_s,desired_deg,actual_deg" and len(rows) > 400
+    # the board came back with no session: the safe exit sent ESTOP, which it honours anyway
+    assert virtual.wait_ticks(5)
+    assert virtual.firmware.mode == Mode.IDLE
+    assert virtual.firmware.faults & proto.Fault.ESTOP
+
+
+def test_a_vanished_port_is_reported_and_the_partial_log_kept(virtual, tmp_path) -> None:
+    dev = open_device(virtual)
+    with pytest.raises(PortVanished, match="went away"), dev:
+        dev.configure()
+        _fault_during_run(dev, virtual, tmp_path, virtual.vanish)
+    assert not dev.is_open
+    rows = (tmp_path / "run.partial.csv").read_text().splitlines()
+    assert len(rows) > 400

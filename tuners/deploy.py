@@ -1,0 +1,257 @@
+"""Deploy tuned gains to the board's PID and compare the measured response with the prediction.
+
+``python -m tuners.deploy --gains results/test2/optuna.json --port P [--profile step]``
+
+Recipe:
+
+1. read the gains file (plant, P, I, D, N, sign, limits);
+2. **stability gate**: refuse (exit 2) gains whose closed loop is unstable on the gains file's
+   plant (:func:`gripper_env.stability.stability_report`), unless ``--allow-unstable``;
+3. configure the board (gains, limits, sign, anti-windup, calibration) and run the profile in
+   closed loop on the board's PID, the host streaming the reference at 50 Hz; the log
+   ``response.csv`` (``t_s, reference_deg, command_deg, position_deg``) is written as it goes
+   (``response.partial.csv`` until the run completes);
+4. simulate the same reference as the board applied it with the same controller on the
+   plant and disturbance preset (the prediction), compute the same metrics for both and the
+   fit % of the measured response to the prediction; write ``report.json`` and
+   ``response.png`` next to the log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env.hardware.calibration import load_calibration
+from gripper_env.hardware.device import GripperDevice, TelemetryBlock
+from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
+from gripper_env.hardware.protocol import Mode
+from gripper_env.metrics import compute_metrics, fit_percent
+from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.references import PROFILES, load_reference
+from gripper_env.simulation import simulate
+from gripper_env.stability import stability_report
+from tuners.hardware_common import add_device_arguments, run_cli
+
+__all__ = ["DEPLOY_COLUMNS", "load_gains", "main"]
+
+DEPLOY_COLUMNS = ("t_s", "reference_deg", "command_deg", "position_deg")
+
+
+def load_gains(path: str | os.PathLike[str]) -> tuple[str, str, PIDGains, PIDOptions]:
+    """``(plant, tuner, gains, options)`` from a gains file (format ``gripper-gains``).
+
+    Uses ``tuners.gains_file.load_gains_file`` when it is available; otherwise reads the same
+    keys (``plant``, ``tuner``, ``P``, ``I``, ``D``, ``N``, ``sign``, ``limits``).
+    """
+    try:
+        from tuners.gains_file import load_gains_file  # the tuners' own loader
+    except ImportError:
+        load_gains_file = None
+    if load_gains_file is not None:
+        g = load_gains_file(path)
+        return g.plant, g.tuner, g.gains, g.options
+    p = Path(path)
+    try:
+        content = json.loads(p.read_text())
+    except OSError as exc:
+        raise ValueError(f"cannot read gains file {p}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(content, dict) or content.get("format") != "gripper-gains":
+        raise ValueError(f'{p}: not a gains file (expected "format": "gripper-gains")')
+    try:
+        gains = PIDGains(*(float(content[k]) for k in ("P", "I", "D", "N")))
+        limits = content.get("limits") or {}
+        lo, hi = limits.get("output_deg") or [None, None]
+        options = PIDOptions(
+            output_limits=(-math.inf if lo is None else lo, math.inf if hi is None else hi),
+            anti_windup=limits.get("anti_windup", "clamping"),
+            kb=float(limits.get("kb", 1.0)),
+            derivative_on=limits.get("derivative_on", "error"),
+            sign=content.get("sign", 1),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{p}: bad gains ({exc})") from None
+    return str(content.get("plant", "")), str(content.get("tuner", "")), gains, options
+
+
+def deploy_rows(block: TelemetryBlock, t0_us: int) -> np.ndarray:
+    """CSV rows ``t_s, reference_deg, command_deg, position_deg`` of a telemetry block."""
+    return np.column_stack(
+        [(block.t_us - t0_us) / 1e6, block.reference_deg, block.command_deg, block.position_deg]
+    )
+
+
+def _json_ready(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_ready(v) for v in obj]
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer | np.bool_):
+        return obj.item()
+    return obj
+
+
+def _write_json(path: Path, content: dict[str, Any]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        json.dump(_json_ready(content), f, indent=2, allow_nan=False)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def _plot(path: Path, measured: RecordedTrajectory, predicted: Any, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.plot(measured.t, measured.r[0], "k--", lw=1, label="reference")
+    ax.plot(predicted.t, predicted.y[0], lw=1.2, label="predicted (simulation)")
+    ax.plot(measured.t, measured.y[0], lw=1.2, label="measured (board)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("jaw angle (deg)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
+    os.close(fd)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.deploy",
+        description="Run tuned gains on the board's PID behind a stability gate, log the "
+        "response, and compare it with the simulation's prediction.",
+    )
+    parser.add_argument("--gains", required=True, metavar="FILE", help="gains file (JSON)")
+    add_device_arguments(parser)
+    parser.add_argument(
+        "--profile",
+        default="step",
+        help=f"reference profile: {', '.join(PROFILES)}, or a CSV file (default: step)",
+    )
+    parser.add_argument(
+        "--disturbance",
+        default="actual",
+        help="actual-gripper preset of the prediction (default: actual)",
+    )
+    parser.add_argument(
+        "--allow-unstable",
+        action="store_true",
+        help="run even if the closed loop is unstable on the gains file's plant (the gate "
+        "refuses such gains by default); the board's watchdog and jaw clamp still apply",
+    )
+    parser.add_argument(
+        "--output-dir",
+        default=None,
+        metavar="DIR",
+        help="where response.csv, report.json and response.png go "
+        "(default: results/hardware/deploy_PLANT_TUNER_PROFILE)",
+    )
+    parser.add_argument("--no-plot", action="store_true", help="skip response.png")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    plant, tuner, gains, options = load_gains(args.gains)
+    if not plant:
+        raise ValueError(f"{args.gains}: the gains file names no plant (needed for the gate)")
+    report = stability_report(plant, gains, options.sign)
+    if not report.stable and not args.allow_unstable:
+        raise ValueError(
+            f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
+            f"(sign {options.sign:+d}) give an unstable closed loop on plant {plant} (largest "
+            f"|pole| {report.max_pole_magnitude:.4f} >= 1); pass --allow-unstable to run anyway"
+        )
+    if not report.stable:
+        print(f"warning: running gains that are unstable on plant {plant}", file=sys.stderr)
+    reference = load_reference(args.profile)
+    calibration = load_calibration(args.calibration)
+    out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log = CsvLog(out_dir / "response.csv", DEPLOY_COLUMNS, deploy_rows)
+    with GripperDevice(
+        args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
+    ) as device:
+        device.configure(gains, options)
+        try:
+            rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
+        except BaseException:
+            print(f"{log.rows} samples so far kept in {log.partial}", file=sys.stderr)
+            raise
+    measured = rec.trajectory()
+    predicted = simulate(
+        plant,
+        measured.r[0],
+        gains=[gains.as_array()],
+        disturbance=args.disturbance,
+        pid_options=options,
+        y0_deg=float(measured.y[0, 0]),
+    )
+    predicted.reference = measured.reference  # same segments for the metrics
+    fit = float(fit_percent(measured.y[0], predicted.y[0]))
+    content = {
+        "plant": plant,
+        "tuner": tuner,
+        "gains": {"P": gains.P, "I": gains.I, "D": gains.D, "N": gains.N},
+        "sign": options.sign,
+        "profile": reference.name,
+        "disturbance": args.disturbance,
+        "stability": report.as_dict(),
+        "fit_pct": fit,
+        "measured": compute_metrics(measured).as_dict(),
+        "predicted": compute_metrics(predicted).as_dict(),
+        "link": {
+            "samples": len(rec.samples),
+            "missing_samples": measured.missing_samples,
+            "frames_lost": rec.frames_lost,
+            "host_periods": rec.host_periods,
+            "missed_deadlines": rec.missed_deadlines,
+        },
+        "calibration": calibration.to_dict(),
+        "gains_file": str(args.gains),
+        "port": args.port,
+        "log": rec.extra.get("log"),
+    }
+    _write_json(out_dir / "report.json", content)
+    if not args.no_plot:
+        _plot(
+            out_dir / "response.png",
+            measured,
+            predicted,
+            f"{tuner or 'gains'} on {plant}, {reference.name}: fit {fit:.1f} % to the prediction",
+        )
+    m = content["measured"]
+    print(
+        f"deployed {tuner or args.gains} on {args.port}: fit {fit:.1f} % to the prediction, "
+        f"grip overshoot {m['grip']['overshoot_pct']:.1f} %, settling "
+        f"{m['grip']['settling_time_s']:.3g} s, {rec.frames_lost} frames lost -> {out_dir}"
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.deploy``."""
+    return run_cli(_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
