@@ -195,9 +195,9 @@ def run_benchmark(
                 inputs, timesteps=rl_steps, seed=bench.seed, algo=bench.rl.algo, out=out
             )
             wall = time.perf_counter() - t0
-            curves["rl"] = rl_result["history"]
+            curves["rl-budget"] = rl_result["history"]
             record(
-                "rl",
+                "rl-budget",
                 rl_result["gains"],
                 1,
                 wall,

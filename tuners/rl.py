@@ -453,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     cli.publish(
         args,
         inputs,
-        tuner="rl",
+        tuner="rl" if facts["plants"] == [args.plant] else "rl-conditioned",
         gains=gains,
         sign=1,
         label=run,

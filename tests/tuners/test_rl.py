@@ -54,6 +54,7 @@ def test_plant_conditioned_policy_exports_for_a_held_out_plant(tmp_path, capsys,
     assert code == 0
     content = json.loads(capsys.readouterr().out)
     assert content["plant"] == "test4" and content["tuning"]["held_out_plant"] is True
+    assert content["tuner"] == "rl-conditioned"
 
 
 def test_export_without_a_model_is_bad_input(tmp_path, capsys):
