@@ -55,9 +55,10 @@ GAIN_MAX = (10.0, 100.0, 0.1)
 
 def _require_envs():
     try:
-        import gripper_env.envs  # noqa: F401 - registers the environments
         import gymnasium as gym
         import stable_baselines3  # noqa: F401
+
+        import gripper_env.envs  # noqa: F401 - registers the environments
     except ImportError as exc:
         raise ConfigError(
             f"tuners.rl needs the Gymnasium environments and stable-baselines3 ({exc}); "
@@ -186,6 +187,51 @@ def policy_gains(model: Any, env_id: str, kwargs: dict[str, Any], plant: str) ->
     return PIDGains(
         float(g[0]), float(g[1]), float(g[2]), float(kwargs.get("derivative_filter", 100.0))
     )
+
+
+def evaluate_controller(
+    model: Any, env_id: str, kwargs: dict[str, Any], plant: str, seeds: list[int], profile: str
+) -> dict[str, Any]:
+    """Metrics of a ``gain-schedule`` or ``servo`` policy over held-out episodes.
+
+    Each seed runs one episode (deterministic policy) with ``render_mode="rgb_array"`` so the
+    environment keeps its reference, measured position and command; those become a trajectory
+    for :func:`gripper_env.metrics.compute_metrics` and the shared objective, summarised like a
+    gains file's ``actual`` block.
+    """
+    gym = _require_envs()
+    from gripper_env.metrics import compute_metrics
+    from gripper_env.references import load_reference
+    from gripper_env.simulation import Trajectory
+    from tuners.evaluation import _with_cost, summarize_runs
+
+    objective = load_objective()
+    rows = []
+    for seed in seeds:
+        env = gym.make(env_id, render_mode="rgb_array", **dict(kwargs, plant=plant))
+        obs, _ = env.reset(seed=int(seed))
+        done = False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, term, trunc, _ = env.step(action)
+            done = term or trunc
+        t, series, _ = env.unwrapped._series()  # the episode the env recorded for rendering
+        env.close()
+        ref = load_reference(profile, float(t[1] - t[0]))
+        n = min(len(t), len(ref))
+        traj = Trajectory(
+            t=t[:n],
+            r=series["reference"][None, :n],
+            u=series["command"][None, :n],
+            y=series["position"][None, :n],
+            y_true=series["position"][None, :n],
+            stable=np.array([np.isfinite(series["position"][:n]).all()]),
+            saturated_s=np.zeros(1),
+            reference=ref,
+            closed_loop=True,
+        )
+        rows += _with_cost(compute_metrics(traj), objective, ref.duration_s)
+    return summarize_runs(rows)
 
 
 def _algo(name: str):
@@ -329,7 +375,7 @@ def train(
 
 def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, out: Path):
     """Train ``pid-tune`` on one plant and return gains and the budget curve (benchmark)."""
-    run_dir = Path(out) / "rl" / f"pid-tune-{algo}-{inputs.plant.name}"
+    run_dir = Path(out) / "rl" / f"benchmark-pid-tune-{algo}-{inputs.plant.name}"
     facts = train(
         inputs,
         [inputs.plant.name],
@@ -439,14 +485,42 @@ def main(argv: list[str] | None = None) -> int:
             )
         return 0
     # export
-    if args.env != "pid-tune":
-        raise ValueError("export turns a pid-tune policy into gains; --env must be pid-tune")
     run = args.run or f"{args.env}-{args.algo}-{args.plant}"
     path = args.out / "rl" / run / "model.zip"
     if not path.is_file():
         raise ValueError(f"no trained model at {path}; run 'python -m tuners.rl train' first")
     facts = json.loads((args.out / "rl" / run / "history.json").read_text())
     model = _algo(facts["algo"]).load(path, device="cpu")
+    if facts["env"] != "pid-tune":  # a controller, not gains: report its metrics
+        kwargs = env_kwargs(inputs, facts["plants"], facts["env"])
+        seeds = [int(s) for s in inputs.settings.seeds.seeds()]
+        actual = evaluate_controller(
+            model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name
+        )
+        content = {
+            "format": "gripper-policy-metrics",
+            "plant": args.plant,
+            "tuner": f"rl-{facts['env']}",
+            "run": run,
+            "trained_on": facts["plants"],
+            "algo": facts["algo"],
+            "timesteps": facts["timesteps"],
+            "train_wall_time_s": facts["train_wall_time_s"],
+            "seeds": seeds,
+            "metrics": {"actual": actual},
+            "note": "metrics of the measured angle (the environment records what the agent sees)",
+        }
+        path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
+        if args.json:
+            print(json.dumps(json.loads(path.read_text()), indent=2))
+        else:
+            m = actual["mean"]
+            print(
+                f"{run} on {args.plant}: cost {m['cost']}, IAE {m['iae']}, SD gap "
+                f"{m['sd_gap_deg']}, effort {m['control_effort']} (mean of {len(seeds)} "
+                f"held-out seeds); wrote {path}"
+            )
+        return 0
     kwargs = env_kwargs(inputs, facts["plants"], "pid-tune")
     gains = policy_gains(model, ENV_IDS["pid-tune"], kwargs, args.plant)
     held_out = args.plant not in facts["plants"]
