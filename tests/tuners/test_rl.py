@@ -60,3 +60,38 @@ def test_plant_conditioned_policy_exports_for_a_held_out_plant(tmp_path, capsys,
 def test_export_without_a_model_is_bad_input(tmp_path, capsys):
     code = cli.run(rl.main, ["export", "--plant", "test2", "--out", str(tmp_path / "r")])
     assert code == 2 and "no trained model" in capsys.readouterr().err
+
+
+def test_gain_schedule_policy_reports_metrics(tmp_path, capsys, small_eval_config):
+    common = [
+        "--plant",
+        "test2",
+        "--out",
+        str(tmp_path),
+        "--eval-config",
+        str(small_eval_config),
+        "--env",
+        "gain-schedule",
+    ]
+    code = cli.run(
+        rl.main,
+        [
+            "train",
+            *common,
+            "--timesteps",
+            "64",
+            "--n-envs",
+            "1",
+            "--eval-every",
+            "100000",
+            "--json",
+        ],
+    )
+    assert code == 0, capsys.readouterr().err
+    capsys.readouterr()
+    code = cli.run(rl.main, ["export", *common, "--json"])
+    assert code == 0, capsys.readouterr().err
+    content = json.loads(capsys.readouterr().out)
+    assert content["tuner"] == "rl-gain-schedule"
+    assert content["metrics"]["actual"]["n_seeds"] == 3
+    assert "iae" in content["metrics"]["actual"]["mean"]
