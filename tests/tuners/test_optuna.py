@@ -39,6 +39,15 @@ def small(tmp_path, small_optuna_config, small_eval_config, *extra):
 
 
 def complete_trials(db):
+    """Finished trials (number -> value) read straight from the SQLite file; {} until the
+    worker has created the tables."""
+    try:
+        return _complete_trials(db)
+    except sqlite3.OperationalError:  # no tables yet, or a write in progress
+        return {}
+
+
+def _complete_trials(db):
     with sqlite3.connect(db) as con:
         rows = con.execute(
             "SELECT t.number, v.value FROM trials t JOIN trial_values v ON v.trial_id = t.trial_id"
@@ -183,13 +192,13 @@ def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, sm
     finally:
         if worker.poll() is None:
             worker.kill()
-    before = complete_trials(db)
+    before = _complete_trials(db)
     assert len(before) >= 12
     target = len(before) + 8
     proc = run_cli("tuners.optuna", *cmd[3:], target, "--json")
     assert proc.returncode == 0, proc.stderr
     content = json.loads(proc.stdout)
-    after = complete_trials(db)
+    after = _complete_trials(db)
     assert all(after[n] == v for n, v in before.items())  # every finished trial kept as it was
     assert content["tuning"]["trials_in_study"] == target
     assert content["tuning"]["trials_this_run"] == 8  # continued, did not start over
