@@ -1,0 +1,122 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.stability import stability_report
+from tuners.evaluation import evaluate, summarize_runs
+from tuners.gains_file import (
+    FORMAT_VERSION,
+    GainsFileError,
+    build_gains_file,
+    json_ready,
+    load_gains_file,
+    write_json,
+)
+
+
+def test_json_ready_turns_inf_and_nan_into_null():
+    out = json_ready({"a": math.inf, "b": [np.float64("nan"), np.int64(3)], "c": np.bool_(True)})
+    assert out == {"a": None, "b": [None, 3], "c": True}
+    json.dumps(out, allow_nan=False)
+
+
+def test_summary_mean_std_and_interval_by_hand():
+    rows = [{"iae": v, "stable": True, "grip": {"x": v}} for v in (1.0, 2.0, 3.0)]
+    s = summarize_runs(rows)
+    assert s["mean"]["iae"] == 2.0 and s["std"]["iae"] == 1.0
+    # t(0.975, 2) = 4.303: half-width 4.303 * 1 / sqrt(3)
+    assert s["ci95_high"]["iae"] - 2.0 == pytest.approx(4.302653 / math.sqrt(3), rel=1e-5)
+    assert s["mean"]["grip"]["x"] == 2.0 and s["stable_fraction"] == 1.0
+    rows[0]["iae"] = math.inf
+    assert summarize_runs(rows)["mean"]["iae"] == math.inf
+
+
+def _content(plant="test2", gains=None, sign=1):
+    gains = gains or PIDGains(1.0, 9.0, -0.001)
+    opts = PIDOptions(output_limits=(0.0, 180.0), sign=sign)
+    ev = evaluate(plant, gains, opts, seeds=[100000, 100001])
+    return build_gains_file(
+        plant=plant,
+        tuner="manual",
+        gains=gains,
+        options=opts,
+        evaluation=ev,
+        stability=stability_report(plant, gains, sign).as_dict(),
+        evaluation_settings={"profile": "step"},
+    )
+
+
+def test_round_trip(tmp_path):
+    content = _content(sign=-1, gains=PIDGains(-0.5, -3.6, 0.000186))
+    path = write_json(tmp_path / "g.json", content)
+    loaded = load_gains_file(path)
+    assert loaded.gains == PIDGains(-0.5, -3.6, 0.000186, 100.0)
+    assert loaded.options.sign == -1 and loaded.options.output_limits == (0.0, 180.0)
+    assert content["sign_convention"] == "e = y - r"
+    for model in ("ideal",):
+        m = content["metrics"][model]
+        assert set(m["grip"]) >= {
+            "overshoot_pct",
+            "rise_time_s",
+            "settling_time_s",
+            "steady_state_error_deg",
+        }
+        assert set(m) >= {
+            "sd_deg",
+            "sd_gap_deg",
+            "iae",
+            "ise",
+            "itae",
+            "control_effort",
+            "stable",
+            "cost",
+        }
+    assert set(content["metrics"]["actual"]) >= {"mean", "std", "ci95_low", "ci95_high"}
+    assert not list(tmp_path.glob(".*tmp"))  # no temporary file left behind
+
+
+def test_unreachable_values_are_written_as_null(tmp_path):
+    # test1 is slow (time constant ~20 s): a weak P never settles inside the 20 s step profile
+    content = _content("test1", PIDGains(0.2, 0.0, 0.0))
+    path = write_json(tmp_path / "g.json", content)
+    text = path.read_text()
+    assert "Infinity" not in text and "NaN" not in text
+    assert json.loads(text)["metrics"]["ideal"]["grip"]["settling_time_s"] is None
+
+
+@pytest.mark.parametrize(
+    "patch, message",
+    [
+        ({"format_version": FORMAT_VERSION + 1}, "format version"),
+        ({"format": "something-else"}, "not a gains file"),
+        ({"P": "one"}, "'P' must be a finite number"),
+        ({"P": None}, "'P' must be a finite number"),
+        ({"sign": 3}, "sign"),
+    ],
+)
+def test_bad_files_are_refused(tmp_path, patch, message):
+    content = {
+        "format": "gripper-gains",
+        "format_version": FORMAT_VERSION,
+        "P": 1.0,
+        "I": 9.0,
+        "D": -0.001,
+        "N": 100.0,
+        "sign": 1,
+    }
+    content.update(patch)
+    path = tmp_path / "g.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(GainsFileError, match=message):
+        load_gains_file(path)
+
+
+def test_not_json_and_missing(tmp_path):
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(GainsFileError, match="not valid JSON"):
+        load_gains_file(tmp_path / "bad.json")
+    with pytest.raises(GainsFileError, match="cannot read"):
+        load_gains_file(tmp_path / "missing.json")

@@ -1,0 +1,287 @@
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from tests.tuners.conftest import REPO, run_cli
+from tuners import cli
+from tuners import optuna as optuna_tuner
+from tuners.optuna import knee_point
+
+
+def run(argv, capsys):
+    code = cli.run(optuna_tuner.main, [str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def small(tmp_path, small_optuna_config, small_eval_config, *extra):
+    return [
+        "--plant",
+        "test2",
+        "--out",
+        tmp_path,
+        "--config",
+        small_optuna_config,
+        "--eval-config",
+        small_eval_config,
+        "--no-progress",
+        "--json",
+        *extra,
+    ]
+
+
+def complete_trials(db):
+    """Finished trials (number -> value) read straight from the SQLite file; {} until the
+    worker has created the tables."""
+    try:
+        return _complete_trials(db)
+    except sqlite3.OperationalError:  # no tables yet, or a write in progress
+        return {}
+
+
+def _complete_trials(db):
+    with sqlite3.connect(db) as con:
+        rows = con.execute(
+            "SELECT t.number, v.value FROM trials t JOIN trial_values v ON v.trial_id = t.trial_id"
+            " WHERE t.state = 'COMPLETE' ORDER BY t.number"
+        ).fetchall()
+    return dict(rows)
+
+
+def test_study_writes_gains_file_and_resumes(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 12, "--seed", 1], capsys)
+    assert code == 0
+    first = json.loads(out)
+    assert first["tuner"] == "optuna" and first["tuning"]["trials_in_study"] == 12
+    assert first["tuning"]["episodes_this_run"] == 12 * 2  # two tuning seeds per trial
+    best = [c for _, c in first["tuning"]["history"]]
+    assert best == sorted(best, reverse=True)  # best so far only improves
+    assert (tmp_path / "optuna.db").is_file() and (tmp_path / "test2" / "optuna.png").is_file()
+    # rerunning with a larger budget continues the same study
+    code, out, _ = run([*args, "--trials", 16, "--seed", 1], capsys)
+    second = json.loads(out)
+    assert second["tuning"]["trials_in_study"] == 16
+    assert second["tuning"]["trials_this_run"] == 4
+    assert second["tuning"]["best_value_tuning"] <= first["tuning"]["best_value_tuning"]
+
+
+def test_search_beats_the_paper_on_the_tuning_cost(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    _code, out, _ = run([*args, "--trials", 40, "--seed", 0], capsys)
+    found = json.loads(out)
+    from tuners import manual
+
+    cli.run(
+        manual.main,
+        [
+            "--plant",
+            "test2",
+            "--gains",
+            "paper-tuned",
+            "--json",
+            "--out",
+            str(tmp_path),
+            "--eval-config",
+            str(small_eval_config),
+        ],
+    )
+    paper = json.loads(capsys.readouterr().out)
+    assert found["metrics"]["actual"]["mean"]["cost"] < paper["metrics"]["actual"]["mean"]["cost"]
+
+
+def test_multi_objective_gives_a_front_and_its_knee(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 16, "--multi-objective"], capsys)
+    assert code == 0
+    content = json.loads(out)
+    front = content["tuning"]["pareto_front"]
+    assert front and content["tuning"]["best_trial"] in [p["trial"] for p in front]
+    assert set(front[0]["values"]) == {"overshoot_pct", "iae", "sd_gap_deg"}
+    assert (tmp_path / "test2" / "optuna-mo.json").is_file()
+
+
+def test_knee_point_by_hand():
+    front = np.array([[0.0, 10.0], [1.0, 1.0], [10.0, 0.0]])
+    assert knee_point(front) == 1
+
+
+def test_cmaes_sampler_runs(tmp_path, capsys, small_optuna_config, small_eval_config):
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 12, "--sampler", "cmaes"], capsys)
+    assert code == 0 and json.loads(out)["tuner"] == "optuna-cmaes"
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--storage", "postgresql://u:secret@127.0.0.1:1/none"], "cannot open storage"),
+        (["--storage", "nosuchdb://x"], "cannot open storage"),
+        (["--trials", "0"], "--trials"),
+        (["--plant", "test0"], "unknown plant"),
+    ],
+)
+def test_bad_input_exit_2_nothing_written(tmp_path, capsys, small_optuna_config, extra, message):
+    out_dir = tmp_path / "results"
+    code, _, err = run(
+        ["--plant", "test2", "--out", out_dir, "--config", small_optuna_config, *extra], capsys
+    )
+    assert code == 2 and message in err and err.count("\n") == 1
+    assert "secret" not in err
+    assert not out_dir.exists()
+
+
+def test_malformed_and_overlapping_configs(tmp_path, capsys, small_optuna_config):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(small_optuna_config.read_text().replace("scale: log", "scale: logarithmic"))
+    out_dir = tmp_path / "results"
+    code, _, err = run(["--plant", "test2", "--out", out_dir, "--config", bad], capsys)
+    assert code == 2 and "search.I.scale" in err
+    overlap = tmp_path / "overlap.yaml"
+    overlap.write_text(small_optuna_config.read_text().replace("start: 0", "start: 100001"))
+    code, _, err = run(["--plant", "test2", "--out", out_dir, "--config", overlap], capsys)
+    assert code == 2 and "overlap" in err
+    assert not out_dir.exists()
+
+
+def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, small_eval_config):
+    out = tmp_path / "results"
+    db = out / "optuna.db"
+    cmd = [
+        sys.executable,
+        "-m",
+        "tuners.optuna",
+        "--plant",
+        "test2",
+        "--out",
+        str(out),
+        "--config",
+        str(small_optuna_config),
+        "--eval-config",
+        str(small_eval_config),
+        "--no-progress",
+        "--study-name",
+        "killed",
+        "--trials",
+    ]
+    worker = subprocess.Popen(
+        [*cmd, "100000"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if db.is_file() and len(complete_trials(db)) >= 12:
+                break
+            time.sleep(0.2)
+        worker.send_signal(signal.SIGKILL)
+        worker.wait(timeout=30)
+    finally:
+        if worker.poll() is None:
+            worker.kill()
+    before = _complete_trials(db)
+    assert len(before) >= 12
+    target = len(before) + 8
+    proc = run_cli("tuners.optuna", *cmd[3:], target, "--json")
+    assert proc.returncode == 0, proc.stderr
+    content = json.loads(proc.stdout)
+    after = _complete_trials(db)
+    assert all(after[n] == v for n, v in before.items())  # every finished trial kept as it was
+    assert content["tuning"]["trials_in_study"] == target
+    assert content["tuning"]["trials_this_run"] == 8  # continued, did not start over
+
+
+@pytest.mark.postgres
+@pytest.mark.skipif(
+    not os.environ.get("GRIPPER_TEST_POSTGRES_URL"),
+    reason="set GRIPPER_TEST_POSTGRES_URL=postgresql://user:pw@127.0.0.1/db (see .ci/run)",
+)
+def test_two_workers_share_one_postgres_study(tmp_path, small_optuna_config, small_eval_config):
+    url = os.environ["GRIPPER_TEST_POSTGRES_URL"]
+    name = f"two-workers-{uuid.uuid4().hex[:8]}"
+    target = 32
+    procs = []
+    for seed in (1, 2):
+        procs.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "tuners.optuna",
+                    "--plant",
+                    "test2",
+                    "--storage",
+                    url,
+                    "--study-name",
+                    name,
+                    "--trials",
+                    str(target),
+                    "--seed",
+                    str(seed),
+                    "--out",
+                    str(tmp_path / f"w{seed}"),
+                    "--config",
+                    str(small_optuna_config),
+                    "--eval-config",
+                    str(small_eval_config),
+                    "--no-progress",
+                    "--json",
+                ],
+                cwd=REPO,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+        )
+    results = [p.communicate(timeout=300) for p in procs]
+    for p, (_out, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+    contents = [json.loads(out) for out, _ in results]
+    import optuna
+
+    study = optuna.load_study(study_name=name, storage=optuna_tuner._driver_url(url))
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    numbers = [t.number for t in study.trials]
+    assert len(numbers) == len(set(numbers))
+    ran = [c["tuning"]["trials_this_run"] for c in contents]
+    assert sum(ran) == len(complete) >= target
+    assert all(c["tuning"]["storage"].count("***") == 1 for c in contents)  # password hidden
+
+
+def test_ideal_weight_adds_the_ideal_models_cost():
+    from gripper_env.disturbances import load_disturbance
+    from gripper_env.objective import load_objective
+    from gripper_env.pid import PIDOptions
+    from gripper_env.plants import load_plant
+    from gripper_env.references import load_reference
+
+    plant = load_plant("test2")
+    kwargs = dict(
+        plant=plant,
+        reference=load_reference("step"),
+        disturbance=load_disturbance("actual"),
+        seeds=np.arange(2),
+        options=PIDOptions(output_limits=(0.0, 180.0)),
+        objective=load_objective(),
+    )
+    gains = np.array([[-0.4, 7.0, -0.045, 100.0], [1.0, 9.0, -0.001, 100.0]])
+    plain = optuna_tuner.BatchScorer(**kwargs)
+    both = optuna_tuner.BatchScorer(**kwargs, ideal_weight=1.0, ideal_options=PIDOptions())
+    c0, _ = plain(gains)
+    c1, _ = both(gains)
+    assert plain.episodes == 4 and both.episodes == 6
+    # the untuned gains overshoot ~40 % on the ideal model: a large extra cost; the tuned do not
+    assert c1[0] - c0[0] > 3 * (c1[1] - c0[1]) > 0

@@ -1,0 +1,265 @@
+"""The one gains file format (JSON), written by every tuner and read by ``manual`` and deploy.
+
+``results/<plant>/<tuner>.json``, format ``gripper-gains`` version :data:`FORMAT_VERSION`:
+
+.. code-block:: text
+
+    format, format_version      "gripper-gains", 1
+    plant, tuner, label         which plant, which tuner, a free label ("paper-tuned", ...)
+    P, I, D, N                  Simulink parallel-form gains: deg/deg, 1/s, s, 1/s
+    sign, sign_convention       +1 for e = r - y, -1 for e = y - r (the paper's hardware gains)
+    limits                      output_deg [min, max], anti_windup, kb, derivative_on
+    sample_time_s               PID sample time (s)
+    evaluation                  profile, disturbance preset, held-out seeds, randomize, signal,
+                                the output limits used on the ideal model
+    metrics                     ideal {...}; actual {mean, std, ci95_low, ci95_high, n_seeds,
+                                stable_fraction}; sim_to_real_gap {...}  (metric keys: grip and
+                                ungrip {overshoot_pct, rise_time_s, settling_time_s,
+                                steady_state_error_deg, ...}, sd_deg, sd_gap_deg, iae, ise, itae,
+                                control_effort, stable, cost)
+    stability                   closed loop on the nominal plant (gripper_env.stability)
+    tuning                      what the tuner wants to record (trials, best cost, study, ...)
+    provenance                  command, config, seed, version, git_commit, date, wall_time_s
+
+Infinite or undefined numbers (a run that never settles, an unstable run) are written as
+``null``. Files are written atomically (temporary file, then :func:`os.replace`), so a reader
+never sees half a file.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env import __version__
+from gripper_env.pid import PIDGains, PIDOptions
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "GainsFile",
+    "GainsFileError",
+    "build_gains_file",
+    "json_ready",
+    "load_gains_file",
+    "provenance",
+    "write_atomic",
+    "write_json",
+]
+
+FORMAT = "gripper-gains"
+FORMAT_VERSION = 1
+
+
+class GainsFileError(ValueError):
+    """A gains file is missing, malformed, or from an incompatible format version."""
+
+
+def json_ready(obj: Any) -> Any:
+    """Plain JSON values: numpy scalars and arrays to Python, non-finite floats to ``None``."""
+    if isinstance(obj, dict):
+        return {str(k): json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_ready(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_ready(obj.tolist())
+    if isinstance(obj, bool | np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    mode = "wb" if isinstance(data, bytes) else "w"
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, mode) as f:
+            f.write(data)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return p
+
+
+def write_json(path: str | os.PathLike[str], content: dict[str, Any]) -> Path:
+    """Write ``content`` (made :func:`json_ready`) as indented JSON, atomically."""
+    return write_atomic(path, json.dumps(json_ready(content), indent=2, allow_nan=False) + "\n")
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def provenance(
+    config: dict[str, Any] | None = None,
+    seed: int | None = None,
+    wall_time_s: float | None = None,
+    command: str | None = None,
+) -> dict[str, Any]:
+    """Who made a result: command line, configuration, seed, versions, date (UTC)."""
+    if command is None:
+        command = " ".join(["python", *sys.argv])
+    return {
+        "command": command,
+        "config": config or {},
+        "seed": seed,
+        "version": __version__,
+        "git_commit": _git_commit(),
+        "python": sys.version.split()[0],
+        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "wall_time_s": wall_time_s,
+    }
+
+
+def build_gains_file(
+    *,
+    plant: str,
+    tuner: str,
+    gains: PIDGains,
+    options: PIDOptions,
+    evaluation: Any,
+    stability: dict[str, Any],
+    evaluation_settings: dict[str, Any],
+    tuning: dict[str, Any] | None = None,
+    prov: dict[str, Any] | None = None,
+    label: str = "",
+    sample_time_s: float = 1e-3,
+) -> dict[str, Any]:
+    """Assemble the gains file's content (see the module docstring).
+
+    Parameters
+    ----------
+    evaluation : tuners.evaluation.Evaluation
+        Metrics on the ideal and actual models.
+    evaluation_settings : dict
+        Profile, disturbance, seeds, randomize, signal, ideal-model limits.
+    """
+    return json_ready(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "plant": plant,
+            "tuner": tuner,
+            "label": label,
+            "P": gains.P,
+            "I": gains.I,
+            "D": gains.D,
+            "N": gains.N,
+            "sign": options.sign,
+            "sign_convention": "e = r - y" if options.sign == 1 else "e = y - r",
+            "limits": {
+                "output_deg": list(options.output_limits),
+                "anti_windup": options.anti_windup,
+                "kb": options.kb,
+                "derivative_on": options.derivative_on,
+            },
+            "sample_time_s": sample_time_s,
+            "evaluation": evaluation_settings,
+            "metrics": {
+                "ideal": evaluation.ideal,
+                "actual": evaluation.actual,
+                "sim_to_real_gap": evaluation.sim_to_real_gap,
+            },
+            "stability": stability,
+            "tuning": tuning or {},
+            "provenance": prov or provenance(),
+        }
+    )
+
+
+@dataclass(frozen=True)
+class GainsFile:
+    """A loaded gains file: the controller it describes, and the raw content."""
+
+    plant: str
+    tuner: str
+    gains: PIDGains
+    options: PIDOptions
+    content: dict[str, Any]
+
+
+def _number(content: dict[str, Any], key: str, source: str) -> float:
+    value = content.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise GainsFileError(f"{source}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
+    """Read and check a gains file.
+
+    Raises
+    ------
+    GainsFileError
+        Missing or unreadable file, not JSON, not a gains file, a format version this code does
+        not read, or gains/limits that are not valid numbers.
+    """
+    p = Path(path)
+    try:
+        content = json.loads(p.read_text())
+    except OSError as exc:
+        raise GainsFileError(f"cannot read gains file {p}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise GainsFileError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(content, dict) or content.get("format") != FORMAT:
+        raise GainsFileError(f'{p}: not a gains file (expected "format": "{FORMAT}")')
+    version = content.get("format_version")
+    if version != FORMAT_VERSION:
+        raise GainsFileError(
+            f"{p}: gains file format version {version!r} is not supported by this version "
+            f"({__version__}), which reads version {FORMAT_VERSION}; regenerate it with the tuner"
+        )
+    gains = [_number(content, k, str(p)) for k in ("P", "I", "D", "N")]
+    limits = content.get("limits") or {}
+    try:
+        lo, hi = limits.get("output_deg", [None, None])
+        options = PIDOptions(
+            output_limits=(
+                -math.inf if lo is None else float(lo),
+                math.inf if hi is None else float(hi),
+            ),
+            anti_windup=limits.get("anti_windup", "clamping"),
+            kb=float(limits.get("kb", 1.0)),
+            derivative_on=limits.get("derivative_on", "error"),
+            sign=content.get("sign", 1),
+        )
+        pid_gains = PIDGains(*gains)
+    except (TypeError, ValueError) as exc:
+        raise GainsFileError(f"{p}: {exc}") from None
+    return GainsFile(
+        plant=str(content.get("plant", "")),
+        tuner=str(content.get("tuner", "")),
+        gains=pid_gains,
+        options=options,
+        content=content,
+    )

@@ -1,0 +1,114 @@
+"""Figures: a controller's response (like the paper's Figure 11) and the benchmark's plots.
+
+matplotlib with the Agg backend (no display needed); every figure is written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+__all__ = ["budget_plot", "response_plot", "save_figure"]
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> Path:
+    """Save ``fig`` to ``path`` atomically (temporary file in the same folder, then replace)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)
+    return p
+
+
+def response_plot(evaluation: Any, title: str, path: str | os.PathLike[str]) -> Path:
+    """Reference, model (ideal) response and actual-model responses over time, with commands.
+
+    The actual model is drawn for its first held-out seed (solid) and the spread of the others
+    (thin lines); the lower panel shows the controller outputs (servo commands).
+
+    Parameters
+    ----------
+    evaluation : tuners.evaluation.Evaluation
+        What to draw.
+    title : str
+        Figure title.
+    path : path
+        PNG file to write.
+    """
+    ideal, actual = evaluation.ideal_trajectory, evaluation.actual_trajectory
+    t = ideal.t
+    fig, (ax, axu) = plt.subplots(
+        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
+    )
+    ax.plot(t, ideal.r[0], color="k", lw=1.2, ls="--", label="reference")
+    for i in range(1, len(actual)):
+        ax.plot(t, actual.y_true[i], color="tab:orange", lw=0.5, alpha=0.35)
+    ax.plot(t, ideal.y_true[0], color="tab:blue", lw=1.4, label="model (ideal TF)")
+    ax.plot(
+        t,
+        actual.y_true[0],
+        color="tab:orange",
+        lw=1.2,
+        label=f"actual model (seed {evaluation.seeds[0]}; thin: {len(actual) - 1} more seeds)",
+    )
+    ax.set_ylabel("jaw angle (deg)")
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    axu.plot(t, ideal.u[0], color="tab:blue", lw=0.8, label="command, model")
+    axu.plot(t, actual.u[0], color="tab:orange", lw=0.6, alpha=0.8, label="command, actual")
+    axu.set_xlabel("time (s)")
+    axu.set_ylabel("command (deg)")
+    lo = np.nanpercentile(np.concatenate([ideal.u[0], actual.u[0]]), [0.5, 99.5])
+    if np.all(np.isfinite(lo)) and lo[1] > lo[0]:
+        pad = 0.1 * (lo[1] - lo[0])
+        axu.set_ylim(lo[0] - pad, lo[1] + pad)
+    axu.grid(alpha=0.3)
+    axu.legend(loc="best", fontsize=7)
+    return save_figure(fig, path)
+
+
+def budget_plot(
+    curves: Mapping[str, Sequence[tuple[int, float]]],
+    title: str,
+    path: str | os.PathLike[str],
+) -> Path:
+    """Best cost so far against simulated episodes used, one line per tuner.
+
+    Parameters
+    ----------
+    curves : mapping of label to [(episodes, best cost), ...]
+        Monotone curves.
+    """
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for label, pts in curves.items():
+        if not pts:
+            continue
+        x, y = zip(*pts, strict=True)
+        ax.step(x, y, where="post", label=label)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("simulated episodes (20 s runs on the actual model)")
+    ax.set_ylabel("best cost so far (tuning seeds)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)

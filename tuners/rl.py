@@ -1,0 +1,548 @@
+"""Learn PID gains (or a controller) with stable-baselines3 on the Gymnasium environments.
+
+Usage::
+
+    python -m tuners.rl train --plant test2                        # PPO on GripperPIDTune-v0
+    python -m tuners.rl train --plant test2 --algo sac --timesteps 20000
+    python -m tuners.rl export --plant test2                       # the policy's gains file
+    python -m tuners.rl train --plant test1,test2,test3            # plant-conditioned policy
+    python -m tuners.rl export --plant test4 --run pid-tune-ppo-test1+test2+test3
+    python -m tuners.rl train --plant test2 --env gain-schedule     # or servo: metrics only
+    tensorboard --logdir results/rl
+
+``pid-tune`` is a contextual bandit: one step chooses P, I, D for a whole 20 s episode, the reward
+is minus the shared objective's cost (the cost Optuna minimises), and the observation describes
+the plant, the actual-gripper parameters (randomised per episode) and the reference. Training
+uses the environments' native vector form (one call of the simulation core for all ``--n-envs``
+episodes) behind a stable-baselines3 ``VecEnv``. Every ``--eval-every`` episodes the policy's
+deterministic gains are scored like an Optuna trial (same tuning seeds, same cost), which gives
+the budget curve (best cost against simulated episodes); an ``EvalCallback`` keeps the best
+model, a ``CheckpointCallback`` saves checkpoints, TensorBoard logs go to ``<run>/tb``. A run
+lives in ``<out>/rl/<run>/`` (``model.zip``, ``best/``, ``checkpoints/``, ``tb/``,
+``history.json``); ``export`` writes ``<out>/<plant>/rl.json`` (a gains file) for the plant given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env.config import ConfigError
+from gripper_env.objective import load_objective
+from gripper_env.pid import PIDGains
+from gripper_env.plants import load_plant
+from tuners import cli
+from tuners.gains_file import write_json
+from tuners.optuna import BatchScorer
+from tuners.settings import OptunaSettings, load_settings
+
+__all__ = ["ENV_IDS", "benchmark_tune", "main", "policy_gains", "train"]
+
+ENV_IDS = {
+    "pid-tune": "gripper_env/GripperPIDTune-v0",
+    "gain-schedule": "gripper_env/GripperGainSchedule-v0",
+    "servo": "gripper_env/GripperServo-v0",
+}
+#: Action range of the gains (P, I, D) at |a| = 1: wide enough for the Optuna search ranges.
+GAIN_MAX = (10.0, 100.0, 0.1)
+
+
+def _require_envs():
+    try:
+        import gymnasium as gym
+        import stable_baselines3  # noqa: F401
+
+        import gripper_env.envs  # noqa: F401 - registers the environments
+    except ImportError as exc:
+        raise ConfigError(
+            f"tuners.rl needs the Gymnasium environments and stable-baselines3 ({exc}); "
+            "pip install -e '.[rl]'"
+        ) from None
+    return gym
+
+
+def env_kwargs(inputs: cli.Inputs, plants: list[str], env: str) -> dict[str, Any]:
+    """Keyword arguments of the environment: plants, preset, reference, PID structure."""
+    _, actual = inputs.settings.options(1)
+    kwargs: dict[str, Any] = {
+        "plant": plants if len(plants) > 1 else plants[0],
+        "disturbance": inputs.disturbance_name,
+        "reference": inputs.profile_name,
+        "randomize": inputs.settings.randomize,
+        "pid_options": {
+            "output_limits": actual.output_limits,
+            "anti_windup": actual.anti_windup,
+            "derivative_on": actual.derivative_on,
+            "sign": 1,
+        },
+    }
+    if env in ("pid-tune", "gain-schedule"):
+        kwargs["gain_max"] = GAIN_MAX
+        kwargs["derivative_filter"] = inputs.settings.pid.N
+    if env == "servo":
+        kwargs.pop("pid_options")
+    return kwargs
+
+
+def make_vec_env(env: str, kwargs: dict[str, Any], n_envs: int, seed: int):
+    """A stable-baselines3 VecEnv of ``n_envs`` environments.
+
+    ``pid-tune`` uses the native vector environment (one core call per step); its episodes all
+    end at every step, so each step is followed by the autoreset step of Gymnasium's
+    ``NEXT_STEP`` mode. The others are a ``DummyVecEnv`` of single environments.
+    """
+    gym = _require_envs()
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+    if env != "pid-tune":
+        return sb3_make_vec_env(ENV_IDS[env], n_envs=n_envs, seed=seed, env_kwargs=kwargs)
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    vec = gym.make_vec(
+        ENV_IDS[env], num_envs=n_envs, vectorization_mode="vector_entry_point", **kwargs
+    )
+    return VecMonitor(_BanditVecEnv(vec, seed))  # episode returns for logs and evaluation
+
+
+def _bandit_vec_env_class():
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class BanditVecEnv(VecEnv):
+        """SB3 view of a Gymnasium vector env whose episodes are one step long."""
+
+        def __init__(self, vec: Any, seed: int) -> None:
+            self.vec = vec
+            super().__init__(vec.num_envs, vec.single_observation_space, vec.single_action_space)
+            self._seed = seed
+            self._actions: np.ndarray | None = None
+            self._obs: np.ndarray | None = None
+
+        def reset(self):
+            obs, _ = self.vec.reset(seed=self._seed)
+            self._seed = None
+            self._obs = obs
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = np.asarray(actions, dtype=np.float32)
+
+        def step_wait(self):
+            obs, rew, term, trunc, info = self.vec.step(self._actions)
+            done = np.logical_or(term, trunc)
+            costs = np.asarray(info.get("cost", -rew), dtype=float)
+            infos = [
+                {"terminal_observation": obs[i], "cost": float(costs[i])}
+                for i in range(self.num_envs)
+            ]
+            if done.all():  # NEXT_STEP autoreset: this step only starts the next episodes
+                obs, *_ = self.vec.step(self._actions)
+            self._obs = obs
+            return obs, rew.astype(np.float32), done, infos
+
+        def close(self) -> None:
+            self.vec.close()
+
+        def get_attr(self, attr_name, indices=None):
+            return [getattr(self.vec, attr_name, None)] * len(self._idx(indices))
+
+        def set_attr(self, attr_name, value, indices=None) -> None:
+            setattr(self.vec, attr_name, value)
+
+        def env_method(self, method_name, *args, indices=None, **kwargs):
+            return [getattr(self.vec, method_name)(*args, **kwargs)]
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False] * len(self._idx(indices))
+
+        def _idx(self, indices):
+            if indices is None:
+                return range(self.num_envs)
+            return [indices] if isinstance(indices, int) else list(indices)
+
+    return BanditVecEnv
+
+
+def _BanditVecEnv(vec: Any, seed: int):  # a class made on first use (lazy import)
+    return _bandit_vec_env_class()(vec, seed)
+
+
+def policy_gains(model: Any, env_id: str, kwargs: dict[str, Any], plant: str) -> PIDGains:
+    """The gains a ``pid-tune`` policy chooses (deterministically) for one plant's nominal
+    context (the preset's own friction and noise, the configured reference)."""
+    gym = _require_envs()
+    from gripper_env.envs.spaces import action_to_gains
+
+    one = dict(kwargs, plant=plant, randomize=False)
+    env = gym.make(env_id, **one)
+    obs, _ = env.reset(seed=0)
+    action, _ = model.predict(obs, deterministic=True)
+    env.close()
+    g = action_to_gains(np.asarray(action, dtype=float)[None, :], one.get("gain_max", GAIN_MAX))[0]
+    return PIDGains(
+        float(g[0]), float(g[1]), float(g[2]), float(kwargs.get("derivative_filter", 100.0))
+    )
+
+
+def evaluate_controller(
+    model: Any, env_id: str, kwargs: dict[str, Any], plant: str, seeds: list[int], profile: str
+) -> dict[str, Any]:
+    """Metrics of a ``gain-schedule`` or ``servo`` policy over held-out episodes.
+
+    Each seed runs one episode (deterministic policy) with ``render_mode="rgb_array"`` so the
+    environment keeps its reference, measured position and command; those become a trajectory
+    for :func:`gripper_env.metrics.compute_metrics` and the shared objective, summarised like a
+    gains file's ``actual`` block.
+    """
+    gym = _require_envs()
+    from gripper_env.metrics import compute_metrics
+    from gripper_env.references import load_reference
+    from gripper_env.simulation import Trajectory
+    from tuners.evaluation import _with_cost, summarize_runs
+
+    objective = load_objective()
+    rows = []
+    for seed in seeds:
+        env = gym.make(env_id, render_mode="rgb_array", **dict(kwargs, plant=plant))
+        obs, _ = env.reset(seed=int(seed))
+        done = False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, term, trunc, _ = env.step(action)
+            done = term or trunc
+        t, series, _ = env.unwrapped._series()  # the episode the env recorded for rendering
+        env.close()
+        ref = load_reference(profile, float(t[1] - t[0]))
+        n = min(len(t), len(ref))
+        traj = Trajectory(
+            t=t[:n],
+            r=series["reference"][None, :n],
+            u=series["command"][None, :n],
+            y=series["position"][None, :n],
+            y_true=series["position"][None, :n],
+            stable=np.array([np.isfinite(series["position"][:n]).all()]),
+            saturated_s=np.zeros(1),
+            reference=ref,
+            closed_loop=True,
+        )
+        rows += _with_cost(compute_metrics(traj), objective, ref.duration_s)
+    return summarize_runs(rows)
+
+
+def _algo(name: str):
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[name]
+
+
+def _algo_kwargs(name: str, env: str, n_envs: int) -> dict[str, Any]:
+    if name == "ppo":
+        if env == "pid-tune":  # a bandit: no bootstrapping, large batches of whole episodes
+            return {
+                "n_steps": max(1, 256 // n_envs),
+                "batch_size": 64,
+                "gamma": 0.0,
+                "gae_lambda": 0.0,
+                "n_epochs": 10,
+                "learning_rate": 1e-3,
+                "ent_coef": 0.0,
+            }
+        return {"n_steps": 512, "batch_size": 128}
+    if env == "pid-tune":
+        return {
+            "gamma": 0.0,
+            "learning_starts": 256,
+            "batch_size": 128,
+            "train_freq": 1,
+            "gradient_steps": 1,
+        }
+    return {}
+
+
+def train(
+    inputs: cli.Inputs,
+    plants: list[str],
+    *,
+    env: str = "pid-tune",
+    algo: str = "ppo",
+    timesteps: int = 20000,
+    n_envs: int = 16,
+    seed: int = 0,
+    run_dir: Path,
+    eval_every: int = 512,
+    optuna_settings: OptunaSettings | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Train a policy; return the history (episodes, best cost) and the run's facts."""
+    _require_envs()
+    from stable_baselines3.common.callbacks import (
+        BaseCallback,
+        CallbackList,
+        CheckpointCallback,
+        EvalCallback,
+    )
+
+    kwargs = env_kwargs(inputs, plants, env)
+    vec = make_vec_env(env, kwargs, n_envs, seed)
+    eval_env = make_vec_env(env, kwargs, 1 if env != "pid-tune" else 8, seed + 10_000)
+    cls = _algo(algo)
+    model = cls(
+        "MlpPolicy",
+        vec,
+        seed=seed,
+        verbose=0,
+        tensorboard_log=str(run_dir / "tb"),
+        device="cpu",
+        **_algo_kwargs(algo, env, n_envs),
+    )
+    opt = optuna_settings or load_settings(OptunaSettings)
+    history: list[tuple[int, float]] = []
+    start = time.perf_counter()
+
+    class BudgetCurve(BaseCallback):
+        """Score the policy's gains on the tuning seeds, like an Optuna trial."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_at = 0
+            self.best = float("inf")
+            _, actual = inputs.settings.options(1)
+            self.scorer = BatchScorer(
+                plant=load_plant(plants[0]),
+                reference=inputs.reference,
+                disturbance=inputs.disturbance,
+                seeds=opt.tuning_seeds.seeds(),
+                options=actual,
+                objective=load_objective(),
+                signal=inputs.settings.signal,
+                randomize=inputs.settings.randomize,
+            )
+
+        def _on_step(self) -> bool:
+            if env == "pid-tune" and self.num_timesteps >= self.next_at:
+                self.next_at = self.num_timesteps + eval_every
+                g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
+                cost = float(self.scorer(g.as_array()[None, :])[0][0])
+                self.best = min(self.best, cost)
+                history.append((int(self.num_timesteps), self.best))
+                self.logger.record("tuning/policy_cost", cost)
+            return True
+
+    callbacks = [
+        BudgetCurve(),
+        CheckpointCallback(
+            save_freq=max(1, 10 * eval_every // n_envs),
+            save_path=str(run_dir / "checkpoints"),
+            name_prefix=algo,
+        ),
+        EvalCallback(
+            eval_env,
+            n_eval_episodes=8,
+            eval_freq=max(1, 4 * eval_every // n_envs),
+            best_model_save_path=str(run_dir / "best"),
+            log_path=str(run_dir / "eval"),
+            deterministic=True,
+            verbose=0,
+        ),
+    ]
+    model.learn(total_timesteps=timesteps, callback=CallbackList(callbacks), progress_bar=progress)
+    wall = time.perf_counter() - start
+    run_dir.mkdir(parents=True, exist_ok=True)
+    model.save(run_dir / "model.zip")
+    facts = {
+        "env": env,
+        "env_id": ENV_IDS[env],
+        "env_kwargs": kwargs,
+        "algo": algo,
+        "plants": plants,
+        "timesteps": timesteps,
+        "episodes": int(model.num_timesteps) if env == "pid-tune" else None,
+        "n_envs": n_envs,
+        "seed": seed,
+        "train_wall_time_s": wall,
+        "history": history,
+    }
+    write_json(run_dir / "history.json", facts)
+    vec.close()
+    eval_env.close()
+    return {"model": model, **facts}
+
+
+def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, out: Path):
+    """Train ``pid-tune`` on one plant and return gains and the budget curve (benchmark)."""
+    run_dir = Path(out) / "rl" / f"benchmark-pid-tune-{algo}-{inputs.plant.name}"
+    facts = train(
+        inputs,
+        [inputs.plant.name],
+        algo=algo,
+        timesteps=timesteps,
+        seed=seed,
+        run_dir=run_dir,
+        n_envs=16,
+        eval_every=max(16, timesteps // 16),
+    )
+    gains = policy_gains(
+        facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
+    )
+    facts.pop("model")
+    return {
+        "gains": gains,
+        **facts,
+        "best_value_tuning": facts["history"][-1][1] if facts["history"] else None,
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# Command line
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.rl",
+        description="Learn PID gains (or a controller) with stable-baselines3.",
+    )
+    sub = parser.add_subparsers(dest="command_name", required=True)
+    tr = sub.add_parser(
+        "train", help="train a policy", formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+    ex = sub.add_parser(
+        "export",
+        help="turn a pid-tune policy into a gains file",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    for p in (tr, ex):
+        p.add_argument(
+            "--plant",
+            required=True,
+            help="plant, or a comma-separated list (train: a plant-conditioned "
+            "policy; export: the plant to give gains for)",
+        )
+        p.add_argument("--disturbance", default="actual", help="actual-gripper preset")
+        p.add_argument("--profile", default="step", help="reference profile")
+        p.add_argument("--seed", type=int, default=0, help="random seed")
+        p.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+        p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+        p.add_argument("--eval-config", type=Path, default=None, help="evaluation settings")
+        p.add_argument(
+            "--env",
+            choices=tuple(ENV_IDS),
+            default="pid-tune",
+            help="environment: pid-tune (gains per episode), gain-schedule, servo",
+        )
+        p.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm")
+    tr.add_argument("--timesteps", type=int, default=20000, help="environment steps")
+    tr.add_argument("--n-envs", type=int, default=16, help="parallel environments")
+    tr.add_argument(
+        "--eval-every",
+        type=int,
+        default=512,
+        help="score the policy's gains every this many steps (budget curve)",
+    )
+    ex.add_argument(
+        "--run", default=None, help="run folder name under OUT/rl (default: <env>-<algo>-<plant>)"
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = cli.parse(build_parser(), argv)
+    plants = [p.strip() for p in args.plant.split(",") if p.strip()]
+    for p in plants:
+        load_plant(p)
+    args.plant = plants[0]
+    inputs = cli.resolve(args)
+    _require_envs()
+    if args.command_name == "train":
+        if args.timesteps < 1 or args.n_envs < 1:
+            raise ValueError("--timesteps and --n-envs must be at least 1")
+        run = f"{args.env}-{args.algo}-{'+'.join(plants)}"
+        facts = train(
+            inputs,
+            plants,
+            env=args.env,
+            algo=args.algo,
+            timesteps=args.timesteps,
+            n_envs=args.n_envs,
+            seed=args.seed,
+            run_dir=args.out / "rl" / run,
+            eval_every=args.eval_every,
+            progress=not args.json,
+        )
+        facts.pop("model")
+        if args.json:
+            print(json.dumps(json.loads((args.out / "rl" / run / "history.json").read_text())))
+        else:
+            best = facts["history"][-1][1] if facts["history"] else None
+            print(
+                f"trained {run}: {facts['timesteps']} steps in "
+                f"{facts['train_wall_time_s']:.0f} s; best policy cost on the tuning seeds "
+                f"{best}; wrote {args.out / 'rl' / run}"
+            )
+        return 0
+    # export
+    run = args.run or f"{args.env}-{args.algo}-{args.plant}"
+    path = args.out / "rl" / run / "model.zip"
+    if not path.is_file():
+        raise ValueError(f"no trained model at {path}; run 'python -m tuners.rl train' first")
+    facts = json.loads((args.out / "rl" / run / "history.json").read_text())
+    model = _algo(facts["algo"]).load(path, device="cpu")
+    if facts["env"] != "pid-tune":  # a controller, not gains: report its metrics
+        kwargs = env_kwargs(inputs, facts["plants"], facts["env"])
+        seeds = [int(s) for s in inputs.settings.seeds.seeds()]
+        actual = evaluate_controller(
+            model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name
+        )
+        content = {
+            "format": "gripper-policy-metrics",
+            "plant": args.plant,
+            "tuner": f"rl-{facts['env']}",
+            "run": run,
+            "trained_on": facts["plants"],
+            "algo": facts["algo"],
+            "timesteps": facts["timesteps"],
+            "train_wall_time_s": facts["train_wall_time_s"],
+            "seeds": seeds,
+            "metrics": {"actual": actual},
+            "note": "metrics of the measured angle (the environment records what the agent sees)",
+        }
+        path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
+        if args.json:
+            print(json.dumps(json.loads(path.read_text()), indent=2))
+        else:
+            m = actual["mean"]
+            print(
+                f"{run} on {args.plant}: cost {m['cost']}, IAE {m['iae']}, SD gap "
+                f"{m['sd_gap_deg']}, effort {m['control_effort']} (mean of {len(seeds)} "
+                f"held-out seeds); wrote {path}"
+            )
+        return 0
+    kwargs = env_kwargs(inputs, facts["plants"], "pid-tune")
+    gains = policy_gains(model, ENV_IDS["pid-tune"], kwargs, args.plant)
+    held_out = args.plant not in facts["plants"]
+    cli.publish(
+        args,
+        inputs,
+        tuner="rl" if facts["plants"] == [args.plant] else "rl-conditioned",
+        gains=gains,
+        sign=1,
+        label=run,
+        tuning={
+            "run": run,
+            "trained_on": facts["plants"],
+            "held_out_plant": held_out,
+            "algo": facts["algo"],
+            "timesteps": facts["timesteps"],
+            "train_wall_time_s": facts["train_wall_time_s"],
+            "history": facts["history"],
+        },
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))

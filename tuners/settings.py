@@ -1,0 +1,239 @@
+"""Tuner and evaluation settings: ``configs/tuners/*.yaml``, validated on load.
+
+Each file has a pydantic schema here; a problem is a :class:`~gripper_env.config.ConfigError`
+that names the file and the key. A command-line ``--config PATH`` replaces the default file.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from gripper_env.config import CONFIG_DIR, ConfigError, load_yaml, validate
+from gripper_env.pid import PIDGains, PIDOptions
+
+__all__ = [
+    "ClassicalSettings",
+    "EvaluationSettings",
+    "OptunaSettings",
+    "ParamRange",
+    "SeedRange",
+    "check_disjoint",
+    "load_settings",
+]
+
+_STRICT = ConfigDict(extra="forbid")
+
+
+class SeedRange(BaseModel):
+    """A block of consecutive disturbance seeds ``start, start + 1, ..., start + count - 1``."""
+
+    model_config = _STRICT
+
+    start: int = Field(0, ge=0)
+    count: int = Field(4, ge=1, le=10000)
+
+    def seeds(self) -> np.ndarray:
+        """The seeds as an int64 array."""
+        return np.arange(self.start, self.start + self.count, dtype=np.int64)
+
+
+class PIDSettings(BaseModel):
+    """PID structure used for every evaluation (see :class:`gripper_env.pid.PIDOptions`)."""
+
+    model_config = _STRICT
+
+    N: float = Field(100.0, gt=0, lt=2000.0)
+    output_limits_deg: tuple[float, float] = (0.0, 180.0)
+    anti_windup: Literal["none", "clamping", "back-calculation"] = "clamping"
+    kb: float = 1.0
+    derivative_on: Literal["error", "measurement"] = "error"
+
+    @field_validator("output_limits_deg")
+    @classmethod
+    def _limits(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if math.isnan(v[0]) or math.isnan(v[1]) or v[0] >= v[1]:
+            raise ValueError(f"must be [min, max] with min < max, got {list(v)}")
+        return v
+
+    def options(self, sign: int = 1) -> PIDOptions:
+        """The :class:`PIDOptions` with error sign ``sign``."""
+        return PIDOptions(
+            output_limits=tuple(self.output_limits_deg),
+            anti_windup=self.anti_windup,
+            kb=self.kb,
+            derivative_on=self.derivative_on,
+            sign=sign,
+        )
+
+
+class EvaluationSettings(BaseModel):
+    """``configs/tuners/evaluation.yaml``: PID structure and held-out seeds."""
+
+    model_config = _STRICT
+
+    pid: PIDSettings = PIDSettings()
+    seeds: SeedRange = SeedRange(start=100000, count=10)
+    randomize: bool = True
+    limits_on_ideal: bool = False
+    signal: Literal["measured", "true"] = "true"
+
+    @field_validator("signal", mode="before")
+    @classmethod
+    def _yaml_true(cls, v: object) -> object:
+        return "true" if v is True else v  # an unquoted YAML `true`
+
+    def options(self, sign: int = 1) -> tuple[PIDOptions, PIDOptions]:
+        """PID options on the ``(ideal, actual)`` models for error sign ``sign``."""
+        actual = self.pid.options(sign)
+        if self.limits_on_ideal:
+            return actual, actual
+        ideal = PIDOptions(
+            anti_windup=actual.anti_windup,
+            kb=actual.kb,
+            derivative_on=actual.derivative_on,
+            sign=sign,
+        )
+        return ideal, actual
+
+
+class ParamRange(BaseModel):
+    """Search range of one gain.
+
+    ``linear``: uniform in ``[low, high]``; ``log``: log-uniform in ``[low, high]`` (``low > 0``);
+    ``symlog``: either sign with magnitude log-uniform in ``[low, high]``, searched as one float
+    ``u`` in ``[-1, 1]`` with ``value = sign(u) * low * (high / low) ** |u|``.
+    """
+
+    model_config = _STRICT
+
+    scale: Literal["linear", "log", "symlog"] = "linear"
+    low: float
+    high: float
+
+    @model_validator(mode="after")
+    def _order(self) -> ParamRange:
+        if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
+            raise ValueError(f"need finite low < high, got [{self.low}, {self.high}]")
+        if self.scale in ("log", "symlog") and self.low <= 0:
+            raise ValueError(f"scale {self.scale!r} needs low > 0, got {self.low}")
+        return self
+
+    def decode(self, u: float) -> float:
+        """The gain for a searched value (identity except for ``symlog``)."""
+        if self.scale != "symlog":
+            return float(u)
+        mag = self.low * (self.high / self.low) ** abs(u)
+        return float(math.copysign(mag, u))
+
+
+class SearchSpace(BaseModel):
+    """Ranges of P, I, D and N."""
+
+    model_config = _STRICT
+
+    P: ParamRange
+    I: ParamRange  # noqa: E741 - Simulink's name
+    D: ParamRange
+    N: ParamRange = ParamRange(scale="log", low=10.0, high=1000.0)
+
+    @field_validator("N")
+    @classmethod
+    def _n_range(cls, v: ParamRange) -> ParamRange:
+        if v.low <= 0 or v.high >= 2000.0:
+            raise ValueError("N must stay in (0, 2000) 1/s so that N*dt < 2 at dt = 1 ms")
+        return v
+
+
+MOTerm = Literal["overshoot_pct", "iae", "sd_gap_deg", "settling_time_s", "control_effort"]
+
+
+class MultiObjective(BaseModel):
+    model_config = _STRICT
+
+    objectives: list[MOTerm] = ["overshoot_pct", "iae", "sd_gap_deg"]
+
+    @field_validator("objectives")
+    @classmethod
+    def _two(cls, v: list[str]) -> list[str]:
+        if len(v) < 2 or len(set(v)) != len(v):
+            raise ValueError("need at least two different objectives")
+        return v
+
+
+class OptunaSettings(BaseModel):
+    """``configs/tuners/optuna.yaml`` (see the comments there)."""
+
+    model_config = _STRICT
+
+    trials: int = Field(200, ge=1)
+    batch_size: int = Field(16, ge=1, le=1024)
+    tuning_seeds: SeedRange = SeedRange()
+    sampler: Literal["tpe", "cmaes", "random"] = "tpe"
+    n_startup_trials: int = Field(16, ge=0)
+    tune_N: bool = False
+    ideal_weight: float = Field(0.0, ge=0)
+    search: SearchSpace
+    multi_objective: MultiObjective = MultiObjective()
+    heartbeat_interval_s: int = Field(5, ge=1)
+    heartbeat_grace_s: int = Field(30, ge=1)
+
+    @model_validator(mode="after")
+    def _grace(self) -> OptunaSettings:
+        if self.heartbeat_grace_s <= self.heartbeat_interval_s:
+            raise ValueError("heartbeat_grace_s must exceed heartbeat_interval_s")
+        return self
+
+    def gains(self, params: dict[str, float], default_n: float) -> PIDGains:
+        """Gains from a trial's searched parameters."""
+        s = self.search
+        n = s.N.decode(params["N"]) if self.tune_N else default_n
+        return PIDGains(
+            s.P.decode(params["P"]), s.I.decode(params["I"]), s.D.decode(params["D"]), n
+        )
+
+
+class ClassicalSettings(BaseModel):
+    """``configs/tuners/classical.yaml`` (see the comments there)."""
+
+    model_config = _STRICT
+
+    rule: Literal["simc", "lambda"] = "simc"
+    window_s: float = Field(9.0, gt=0)
+    extra_dead_time_s: float = Field(0.0, ge=0)
+    tau_c_factor: float = Field(1.0, gt=0)
+    tau_c_min_s: float = Field(0.1, ge=0)
+
+
+_DEFAULT_FILES = {
+    EvaluationSettings: "evaluation.yaml",
+    OptunaSettings: "optuna.yaml",
+    ClassicalSettings: "classical.yaml",
+}
+
+
+def load_settings(kind: type[BaseModel], path: str | os.PathLike[str] | None = None):
+    """Load and validate one settings file (default ``configs/tuners/<kind>.yaml``).
+
+    Raises
+    ------
+    ConfigError
+        Missing file, invalid YAML, unknown key or value out of range (names file and key).
+    """
+    p = CONFIG_DIR / "tuners" / _DEFAULT_FILES[kind] if path is None else path
+    return validate(kind, load_yaml(p), str(p))
+
+
+def check_disjoint(tuning: SeedRange, held_out: SeedRange) -> None:
+    """Refuse tuning seeds that overlap the held-out evaluation seeds."""
+    if tuning.start < held_out.start + held_out.count and held_out.start < (
+        tuning.start + tuning.count
+    ):
+        raise ConfigError(
+            f"tuning seeds [{tuning.start}, {tuning.start + tuning.count}) overlap the held-out "
+            f"evaluation seeds [{held_out.start}, {held_out.start + held_out.count})"
+        )
