@@ -11,10 +11,11 @@ them rather than risked.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable
+import types
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
-__all__ = ["stamp_caches"]
+__all__ = ["renamed", "stamp_caches"]
 
 
 def stamp_caches(dispatchers: Iterable[object], sources: Iterable[str]) -> None:
@@ -30,3 +31,20 @@ def stamp_caches(dispatchers: Iterable[object], sources: Iterable[str]) -> None:
             cache_file._source_stamp = stamp
         elif cache is not None and hasattr(cache, "disable"):  # pragma: no cover
             cache.disable()
+
+
+def renamed(fn: Callable[..., object], suffix: str) -> Callable[..., object]:
+    """A copy of the plain function ``fn`` named ``<name><suffix>``.
+
+    Numba keys its on-disk cache by the function's qualified name and signature, not by the
+    compile flags: compiling one function twice, serial and ``parallel=True``, makes the two
+    variants load each other's machine code from the cache (the parallel one silently serial, or
+    the serial one starting threads). Compile ``renamed(fn, "_parallel")`` instead.
+    """
+    copy = types.FunctionType(
+        fn.__code__, fn.__globals__, fn.__name__ + suffix, fn.__defaults__, fn.__closure__
+    )
+    copy.__qualname__ = fn.__qualname__ + suffix
+    copy.__doc__ = fn.__doc__
+    copy.__module__ = fn.__module__
+    return copy

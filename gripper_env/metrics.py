@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
+from gripper_env._numba_cache import renamed
 from gripper_env.references import Segment
 
 __all__ = ["Metrics", "compute_metrics", "fit_percent", "sample_sd", "step_metrics"]
@@ -209,7 +210,7 @@ def _metrics_impl(
 
 
 _metrics_serial = njit(cache=True)(_metrics_impl)
-_metrics_parallel = njit(cache=True, parallel=True)(_metrics_impl)
+_metrics_parallel = njit(cache=True, parallel=True)(renamed(_metrics_impl, "_parallel"))
 #: Batches at least this large are scored on all cores (threads cost more for a few runs).
 PARALLEL_MIN_BATCH = 16
 

@@ -43,7 +43,7 @@ from numba import njit, prange
 
 from gripper_env import friction
 from gripper_env import pid as _pid_module
-from gripper_env._numba_cache import stamp_caches
+from gripper_env._numba_cache import renamed, stamp_caches
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.friction import (
     F_DIR,
@@ -229,11 +229,16 @@ def _advance_impl(
     small = n_x <= 2
     record = out_r.shape[1] > 0
     buf_len = delay_buf.shape[1]
+    shared_ref = ref.shape[0] == 1
+    shared_plant = plant_a.shape[0] == 1
     for b in prange(n_runs):
+        # numba types a prange index as unsigned in its parallel lowering, and unsigned mixed
+        # with signed becomes float: keep every row index a signed int explicitly
+        b = np.int64(b)
         prm = params[b]
         st = state[b]
-        rb = min(b, ref.shape[0] - 1)  # (an int whatever the caller's types)
-        pb = min(b, plant_a.shape[0] - 1)
+        rb = np.int64(0) if shared_ref else b
+        pb = np.int64(0) if shared_plant else b
         if st[S_DIVERGED] != 0.0:
             if record:
                 for k in range(n_steps):
@@ -400,7 +405,7 @@ def _advance_impl(
 
 
 _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
-_advance_parallel = njit(cache=True, nogil=True, parallel=True)(_advance_impl)
+_advance_parallel = njit(cache=True, nogil=True, parallel=True)(renamed(_advance_impl, "_parallel"))
 # the kernels inline the PID and friction steps: their caches depend on those files too
 stamp_caches(
     (_advance_serial, _advance_parallel), (__file__, _pid_module.__file__, friction.__file__)
