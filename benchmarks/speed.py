@@ -230,8 +230,9 @@ noise) with the PID (the paper's tuned gains, output limits 0-180 deg, clamping 
 |---|---|---|---|
 {table}
 
-Recording writes 4 x 1024 x 20 000 doubles (655 MB) per batch, so that row is bound by memory
-bandwidth; the tuners record, the environments' vector stepping does not.
+Recording writes 4 x 1024 x 20 000 doubles (655 MB) per batch into preallocated arrays; the
+tuners record whole trajectories, the environments' vector stepping records one control period.
+Batches of 16 runs or more run on all cores (numba `prange`), smaller ones on one.
 """
 
 

@@ -256,6 +256,7 @@ def _advance_impl(
         fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
         mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
         lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
+        inv_lsb = 1.0 / lsb if lsb > 0.0 else 0.0  # a division would sit on every step's path
         delay = int(prm[P_DELAY])
         step_max = rate * refresh * dt
         dff = plant_d[pb]
@@ -298,7 +299,7 @@ def _advance_impl(
                 z, g = _normal(z)
                 y_meas += noise * g
             if lsb > 0.0:
-                code = math.floor((y_meas - adc_lo) / lsb + 0.5)
+                code = math.floor((y_meas - adc_lo) * inv_lsb + 0.5)
                 if code < 0.0:
                     code = 0.0
                 elif code > adc_max:
@@ -558,6 +559,7 @@ class BatchSimulator:
         self.plants = plant_list
         self.dt_s = float(dt_s if dt_s is not None else plant_list[0].dt_s)
         self._matrices: dict[int, tuple[Plant, np.ndarray, np.ndarray, float]] = {}
+        self._rest: dict[tuple[int, bool], tuple[Plant, np.ndarray, float]] = {}
         n_x = max(p.order for p in plant_list)
         self.n_x = n_x
         self.plant_a = np.zeros((len(plant_list), n_x, n_x))
@@ -584,6 +586,15 @@ class BatchSimulator:
             hit = (plant, a, b, d)
             self._matrices[id(plant)] = hit
         return hit[1], hit[2], hit[3]
+
+    def _unit_rest(self, plant: Plant, exact: bool) -> tuple[np.ndarray, float]:
+        """Rest state for an output of 1 deg (the rest state is linear in it), cached."""
+        key = (id(plant), exact)
+        hit = self._rest.get(key)
+        if hit is None or hit[0] is not plant:
+            hit = (plant, *plant.rest_state(1.0, exact=exact))
+            self._rest[key] = hit
+        return hit[1], hit[2]
 
     def _write_plant(self, row: int, plant: Plant) -> None:
         a, b, d = self._zoh(plant)
@@ -701,7 +712,7 @@ class BatchSimulator:
             plant_of_row = np.zeros(len(idx), dtype=np.int64) if len(self.plants) == 1 else idx
             for k in np.unique(plant_of_row):
                 plant = self.plants[k]
-                x_unit, u_unit = plant.rest_state(1.0, exact=initial == "equilibrium")
+                x_unit, u_unit = self._unit_rest(plant, initial == "equilibrium")
                 sel = plant_of_row == k
                 st[sel, S_X : S_X + plant.order] = y_rows[sel, None] * x_unit
                 u0[sel] = y_rows[sel] * u_unit
