@@ -526,10 +526,11 @@ def noise_states(seeds: np.ndarray | int) -> np.ndarray:
     Distinct seeds give distinct, decorrelated streams; the mapping is fixed, so a seed means the
     same noise in a single run, a batch and a vector environment.
     """
-    z = np.asarray(seeds).astype(np.uint64) * _U64_GOLDEN + np.uint64(0x2545F4914F6CDD1D)
-    z = (z ^ (z >> _U64_30)) * _U64_M1
-    z = (z ^ (z >> _U64_27)) * _U64_M2
-    return z ^ (z >> _U64_31)
+    with np.errstate(over="ignore"):  # SplitMix64 wraps around on purpose
+        z = np.asarray(seeds).astype(np.uint64) * _U64_GOLDEN + np.uint64(0x2545F4914F6CDD1D)
+        z = (z ^ (z >> _U64_30)) * _U64_M1
+        z = (z ^ (z >> _U64_27)) * _U64_M2
+        return z ^ (z >> _U64_31)
 
 
 def sampling_rng(seed: int) -> np.random.Generator:
