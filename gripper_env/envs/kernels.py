@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from gripper_env import friction, pid, simulation
 from gripper_env._numba_cache import stamp_caches
@@ -277,27 +277,22 @@ def step_serial(
     return env[0, E_REW], env[0, E_TERM] != 0.0, env[0, E_TRUNC] != 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def step_parallel(
     actions, cfg, ref, env, obs, drive,
     params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
 ):  # fmt: skip
-    """One control period of every row, the physics on all cores (same results as
-    :func:`step_serial`).
-
-    Only the core's kernel runs in parallel: the per-row action and reward loops are cheap
-    (about 0.1 us per row) and, as parallel regions of their own, cost more in thread wake-ups
-    than they save (measured: milliseconds per call on the shared 2-core machine).
-    """
+    """One control period of every row on all cores (same results as :func:`step_serial`):
+    the rows' action and reward loops and the core's kernel each split over the cores."""
     n_rows = env.shape[0]
-    for b in range(n_rows):
-        _pre(b, actions, cfg, ref, env, params, drive)
+    for b in prange(n_rows):
+        _pre(np.int64(b), actions, cfg, ref, env, params, drive)
     _advance_parallel(
         int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
         params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
     )  # fmt: skip
-    for b in range(n_rows):
-        _post(b, actions, cfg, ref, env, obs, state, out_u, out_y)
+    for b in prange(n_rows):
+        _post(np.int64(b), actions, cfg, ref, env, obs, state, out_u, out_y)
 
 
 def observation_size(mode: int, n_actions: int, n_context: int) -> int:
