@@ -200,6 +200,209 @@ def _normal_draws(z: np.uint64, n: int) -> np.ndarray:
     return out
 
 
+@njit(cache=True, nogil=True)
+def _advance_row(
+    b: int,
+    n_steps: int,
+    closed_loop: bool,
+    dt: float,
+    ref: np.ndarray,
+    ref_offset: int,
+    params: np.ndarray,
+    plant_a: np.ndarray,
+    plant_b: np.ndarray,
+    plant_d: np.ndarray,
+    state: np.ndarray,
+    rng: np.ndarray,
+    delay_buf: np.ndarray,
+    out_r: np.ndarray,
+    out_u: np.ndarray,
+    out_y: np.ndarray,
+    out_yt: np.ndarray,
+) -> None:
+    """Advance run ``b`` by ``n_steps`` physics steps (see the module docstring).
+
+    ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
+    ``out_*`` are (B, n_steps) or (B, 0) to record nothing. The run's state is loaded into local
+    scalars, stepped, and stored back, so the compiled loop works in registers. Callers that do
+    more per row (the vector environments) call this inside their own parallel loop.
+    """
+    n_x = plant_b.shape[1]
+    small = n_x <= 2
+    record = out_r.shape[1] > 0
+    buf_len = delay_buf.shape[1]
+    shared_ref = ref.shape[0] == 1
+    shared_plant = plant_a.shape[0] == 1
+    prm = params[b]
+    st = state[b]
+    rb = np.int64(0) if shared_ref else b
+    pb = np.int64(0) if shared_plant else b
+    if st[S_DIVERGED] != 0.0:
+        if record:
+            for k in range(n_steps):
+                out_r[b, k] = ref[rb, ref_offset + k]
+                out_u[b, k] = np.nan
+                out_y[b, k] = np.nan
+                out_yt[b, k] = np.nan
+        return
+    # parameters
+    p_gain, i_gain, d_gain, n_filt = prm[P_P], prm[P_I], prm[P_D], prm[P_N]
+    u_lo, u_hi, kb, sgn = prm[P_ULO], prm[P_UHI], prm[P_KB], prm[P_SIGN]
+    aw, dmeas = int(prm[P_AW]), int(prm[P_DMEAS])
+    cmd_lo, cmd_hi, quantum = prm[P_CMD_LO], prm[P_CMD_HI], prm[P_QUANTUM]
+    refresh, rate = prm[P_REFRESH], prm[P_RATE]
+    fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
+    mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
+    lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
+    inv_lsb = 1.0 / lsb if lsb > 0.0 else 0.0  # a division would sit on every step's path
+    delay = int(prm[P_DELAY])
+    step_max = rate * refresh * dt
+    dff = plant_d[pb]
+    a = plant_a[pb]
+    bv = plant_b[pb]
+    a00 = a[0, 0]
+    b0 = bv[0]
+    a01 = a[0, 1] if n_x > 1 else 0.0
+    a10 = a[1, 0] if n_x > 1 else 0.0
+    a11 = a[1, 1] if n_x > 1 else 0.0
+    b1 = bv[1] if n_x > 1 else 0.0
+    # state
+    x = st[S_X : S_X + n_x]
+    x_next = st[S_X + n_x : S_X + 2 * n_x]
+    x0 = x[0]
+    x1 = x[1] if n_x > 1 else 0.0
+    xi, xf = st[S_XI], st[S_XF]
+    cmd, countdown, cmd_clip = st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP]
+    f_out, f_xprev, f_xss = st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS]
+    f_dir, f_stuck = st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK]
+    bl_out = st[S_BACKLASH]
+    didx = int(st[S_DIDX])
+    v_prev = st[S_VPREV]
+    saturated = st[S_SATURATED]
+    z = rng[b]
+    y_meas = st[S_YMEAS]
+    u = st[S_U]
+    done = n_steps
+    for k in range(n_steps):
+        # 1. true jaw angle before this step's input reaches the plant
+        y_now = x0 + dff * v_prev
+        # 2. sensor: delay line, noise, ADC
+        if delay > 0:
+            delay_buf[b, didx] = y_now
+            y_meas = delay_buf[b, (didx - delay) % buf_len]
+            didx = (didx + 1) % buf_len
+        else:
+            y_meas = y_now
+        if noise > 0.0:
+            z, g = _normal(z)
+            y_meas += noise * g
+        if lsb > 0.0:
+            code = math.floor((y_meas - adc_lo) * inv_lsb + 0.5)
+            if code < 0.0:
+                code = 0.0
+            elif code > adc_max:
+                code = adc_max
+            y_meas = adc_lo + code * lsb
+        # 3. controller
+        r = ref[rb, ref_offset + k]
+        clipped = False
+        if closed_loop:
+            u, v, xi, xf = pid_step(
+                r, y_meas, p_gain, i_gain, d_gain, n_filt, dt,
+                u_lo, u_hi, aw, kb, sgn, dmeas, xi, xf,
+            )  # fmt: skip
+            clipped = u != v
+        else:
+            u = r
+        # 4. servo command path: latch on refresh ticks, hold in between
+        if countdown <= 0.0:
+            c = u
+            cmd_clip = 0.0
+            if c > cmd_hi:
+                c = cmd_hi
+                cmd_clip = 1.0
+            elif c < cmd_lo:
+                c = cmd_lo
+                cmd_clip = 1.0
+            if quantum > 0.0:
+                c = quantum * math.floor(c / quantum + 0.5)
+            if step_max > 0.0:
+                if c > cmd + step_max:
+                    c = cmd + step_max
+                elif c < cmd - step_max:
+                    c = cmd - step_max
+            cmd = c
+            countdown = refresh
+        countdown -= 1.0
+        if clipped or cmd_clip != 0.0:
+            saturated += 1.0
+        # 5. friction and backlash
+        v_in = cmd
+        if fric != 0:
+            f_out, f_xss, f_dir, f_stuck = stiction_scalar(
+                fric, cmd, s_deg, j_deg, f_out, f_xprev, f_xss, f_dir, f_stuck
+            )
+            f_xprev = cmd
+            v_in = f_out
+        if play > 0.0:
+            bl_out = backlash_step(v_in, play, bl_out)
+            v_in = bl_out
+        # 6. plant: output at t_k, zero-order-hold update, mechanical stops
+        y_true = x0 + dff * v_in
+        if small:
+            x0_new = a00 * x0 + a01 * x1 + b0 * v_in
+            x1 = a10 * x0 + a11 * x1 + b1 * v_in
+            x0 = x0_new
+        else:
+            x[0] = x0
+            for i in range(n_x):
+                acc = bv[i] * v_in
+                for j in range(n_x):
+                    acc += a[i, j] * x[j]
+                x_next[i] = acc
+            for i in range(n_x):
+                x[i] = x_next[i]
+            x0 = x[0]
+            x1 = x[1]
+        if x0 < mech_lo:
+            x0 = mech_lo
+        elif x0 > mech_hi:
+            x0 = mech_hi
+        v_prev = v_in
+        if record:
+            out_r[b, k] = r
+            out_u[b, k] = u
+            out_y[b, k] = y_meas
+            out_yt[b, k] = y_true
+        if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
+            done = k + 1
+            break
+    # store the state back
+    x[0] = x0
+    if n_x > 1:
+        x[1] = x1
+    st[S_XI], st[S_XF] = xi, xf
+    st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP] = cmd, countdown, cmd_clip
+    st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS] = f_out, f_xprev, f_xss
+    st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK] = f_dir, f_stuck
+    st[S_BACKLASH] = bl_out
+    st[S_DIDX] = didx
+    st[S_VPREV] = v_prev
+    st[S_SATURATED] = saturated
+    st[S_YMEAS] = y_meas
+    st[S_U] = u
+    st[S_STEPS] += done
+    rng[b] = z
+    if done < n_steps or not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
+        st[S_DIVERGED] = 1.0
+        if record:
+            for k in range(done - 1, n_steps):
+                out_r[b, k] = ref[rb, ref_offset + k]
+                out_u[b, k] = np.nan
+                out_y[b, k] = np.nan
+                out_yt[b, k] = np.nan
+
+
 def _advance_impl(
     n_steps: int,
     closed_loop: bool,
@@ -218,198 +421,22 @@ def _advance_impl(
     out_y: np.ndarray,
     out_yt: np.ndarray,
 ) -> None:
-    """Advance every run by ``n_steps`` physics steps (see the module docstring).
-
-    ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
-    ``out_*`` are (B, n_steps) or (B, 0) to record nothing. The state of a run is loaded into
-    local scalars, stepped, and stored back, so the compiled loop works in registers.
-    """
-    n_runs = params.shape[0]
-    n_x = plant_b.shape[1]
-    small = n_x <= 2
-    record = out_r.shape[1] > 0
-    buf_len = delay_buf.shape[1]
-    shared_ref = ref.shape[0] == 1
-    shared_plant = plant_a.shape[0] == 1
-    for b in prange(n_runs):
+    """Advance every run by ``n_steps`` physics steps: :func:`_advance_row` over the batch."""
+    for b in prange(params.shape[0]):
         # numba types a prange index as unsigned in its parallel lowering, and unsigned mixed
-        # with signed becomes float: keep every row index a signed int explicitly
-        b = np.int64(b)
-        prm = params[b]
-        st = state[b]
-        rb = np.int64(0) if shared_ref else b
-        pb = np.int64(0) if shared_plant else b
-        if st[S_DIVERGED] != 0.0:
-            if record:
-                for k in range(n_steps):
-                    out_r[b, k] = ref[rb, ref_offset + k]
-                    out_u[b, k] = np.nan
-                    out_y[b, k] = np.nan
-                    out_yt[b, k] = np.nan
-            continue
-        # parameters
-        p_gain, i_gain, d_gain, n_filt = prm[P_P], prm[P_I], prm[P_D], prm[P_N]
-        u_lo, u_hi, kb, sgn = prm[P_ULO], prm[P_UHI], prm[P_KB], prm[P_SIGN]
-        aw, dmeas = int(prm[P_AW]), int(prm[P_DMEAS])
-        cmd_lo, cmd_hi, quantum = prm[P_CMD_LO], prm[P_CMD_HI], prm[P_QUANTUM]
-        refresh, rate = prm[P_REFRESH], prm[P_RATE]
-        fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
-        mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
-        lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
-        inv_lsb = 1.0 / lsb if lsb > 0.0 else 0.0  # a division would sit on every step's path
-        delay = int(prm[P_DELAY])
-        step_max = rate * refresh * dt
-        dff = plant_d[pb]
-        a = plant_a[pb]
-        bv = plant_b[pb]
-        a00 = a[0, 0]
-        b0 = bv[0]
-        a01 = a[0, 1] if n_x > 1 else 0.0
-        a10 = a[1, 0] if n_x > 1 else 0.0
-        a11 = a[1, 1] if n_x > 1 else 0.0
-        b1 = bv[1] if n_x > 1 else 0.0
-        # state
-        x = st[S_X : S_X + n_x]
-        x_next = st[S_X + n_x : S_X + 2 * n_x]
-        x0 = x[0]
-        x1 = x[1] if n_x > 1 else 0.0
-        xi, xf = st[S_XI], st[S_XF]
-        cmd, countdown, cmd_clip = st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP]
-        f_out, f_xprev, f_xss = st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS]
-        f_dir, f_stuck = st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK]
-        bl_out = st[S_BACKLASH]
-        didx = int(st[S_DIDX])
-        v_prev = st[S_VPREV]
-        saturated = st[S_SATURATED]
-        z = rng[b]
-        y_meas = st[S_YMEAS]
-        u = st[S_U]
-        done = n_steps
-        for k in range(n_steps):
-            # 1. true jaw angle before this step's input reaches the plant
-            y_now = x0 + dff * v_prev
-            # 2. sensor: delay line, noise, ADC
-            if delay > 0:
-                delay_buf[b, didx] = y_now
-                y_meas = delay_buf[b, (didx - delay) % buf_len]
-                didx = (didx + 1) % buf_len
-            else:
-                y_meas = y_now
-            if noise > 0.0:
-                z, g = _normal(z)
-                y_meas += noise * g
-            if lsb > 0.0:
-                code = math.floor((y_meas - adc_lo) * inv_lsb + 0.5)
-                if code < 0.0:
-                    code = 0.0
-                elif code > adc_max:
-                    code = adc_max
-                y_meas = adc_lo + code * lsb
-            # 3. controller
-            r = ref[rb, ref_offset + k]
-            clipped = False
-            if closed_loop:
-                u, v, xi, xf = pid_step(
-                    r, y_meas, p_gain, i_gain, d_gain, n_filt, dt,
-                    u_lo, u_hi, aw, kb, sgn, dmeas, xi, xf,
-                )  # fmt: skip
-                clipped = u != v
-            else:
-                u = r
-            # 4. servo command path: latch on refresh ticks, hold in between
-            if countdown <= 0.0:
-                c = u
-                cmd_clip = 0.0
-                if c > cmd_hi:
-                    c = cmd_hi
-                    cmd_clip = 1.0
-                elif c < cmd_lo:
-                    c = cmd_lo
-                    cmd_clip = 1.0
-                if quantum > 0.0:
-                    c = quantum * math.floor(c / quantum + 0.5)
-                if step_max > 0.0:
-                    if c > cmd + step_max:
-                        c = cmd + step_max
-                    elif c < cmd - step_max:
-                        c = cmd - step_max
-                cmd = c
-                countdown = refresh
-            countdown -= 1.0
-            if clipped or cmd_clip != 0.0:
-                saturated += 1.0
-            # 5. friction and backlash
-            v_in = cmd
-            if fric != 0:
-                f_out, f_xss, f_dir, f_stuck = stiction_scalar(
-                    fric, cmd, s_deg, j_deg, f_out, f_xprev, f_xss, f_dir, f_stuck
-                )
-                f_xprev = cmd
-                v_in = f_out
-            if play > 0.0:
-                bl_out = backlash_step(v_in, play, bl_out)
-                v_in = bl_out
-            # 6. plant: output at t_k, zero-order-hold update, mechanical stops
-            y_true = x0 + dff * v_in
-            if small:
-                x0_new = a00 * x0 + a01 * x1 + b0 * v_in
-                x1 = a10 * x0 + a11 * x1 + b1 * v_in
-                x0 = x0_new
-            else:
-                x[0] = x0
-                for i in range(n_x):
-                    acc = bv[i] * v_in
-                    for j in range(n_x):
-                        acc += a[i, j] * x[j]
-                    x_next[i] = acc
-                for i in range(n_x):
-                    x[i] = x_next[i]
-                x0 = x[0]
-                x1 = x[1]
-            if x0 < mech_lo:
-                x0 = mech_lo
-            elif x0 > mech_hi:
-                x0 = mech_hi
-            v_prev = v_in
-            if record:
-                out_r[b, k] = r
-                out_u[b, k] = u
-                out_y[b, k] = y_meas
-                out_yt[b, k] = y_true
-            if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
-                done = k + 1
-                break
-        # store the state back
-        x[0] = x0
-        if n_x > 1:
-            x[1] = x1
-        st[S_XI], st[S_XF] = xi, xf
-        st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP] = cmd, countdown, cmd_clip
-        st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS] = f_out, f_xprev, f_xss
-        st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK] = f_dir, f_stuck
-        st[S_BACKLASH] = bl_out
-        st[S_DIDX] = didx
-        st[S_VPREV] = v_prev
-        st[S_SATURATED] = saturated
-        st[S_YMEAS] = y_meas
-        st[S_U] = u
-        st[S_STEPS] += done
-        rng[b] = z
-        if done < n_steps or not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
-            st[S_DIVERGED] = 1.0
-            if record:
-                for k in range(done - 1, n_steps):
-                    out_r[b, k] = ref[rb, ref_offset + k]
-                    out_u[b, k] = np.nan
-                    out_y[b, k] = np.nan
-                    out_yt[b, k] = np.nan
+        # with signed becomes float: hand the row index on as a signed int
+        _advance_row(
+            np.int64(b), n_steps, closed_loop, dt, ref, ref_offset, params, plant_a, plant_b,
+            plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+        )  # fmt: skip
 
 
 _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
 _advance_parallel = njit(cache=True, nogil=True, parallel=True)(renamed(_advance_impl, "_parallel"))
 # the kernels inline the PID and friction steps: their caches depend on those files too
 stamp_caches(
-    (_advance_serial, _advance_parallel), (__file__, _pid_module.__file__, friction.__file__)
+    (_advance_row, _advance_serial, _advance_parallel),
+    (__file__, _pid_module.__file__, friction.__file__),
 )
 
 #: Batches at least this large run on all cores.

@@ -22,12 +22,11 @@ import numpy as np
 from numba import njit, prange
 
 from gripper_env import friction, pid, simulation
-from gripper_env._numba_cache import stamp_caches
+from gripper_env._numba_cache import renamed, stamp_caches
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
-    _advance_parallel,
-    _advance_serial,
+    _advance_row,
 )
 
 # cfg entries
@@ -259,40 +258,30 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
         obs[b, oa0 + j] = a
 
 
-@njit(cache=True)
-def step_serial(
+def _step_impl(
     actions, cfg, ref, env, obs, drive,
     params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
 ):  # fmt: skip
-    """One control period of every row, on one core; returns row 0's (reward, term, trunc)."""
-    n_rows = env.shape[0]
-    for b in range(n_rows):
-        _pre(b, actions, cfg, ref, env, params, drive)
-    _advance_serial(
-        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
-        params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-    )  # fmt: skip
-    for b in range(n_rows):
-        _post(b, actions, cfg, ref, env, obs, state, out_u, out_y)
+    """One control period of every row: its action, its physics steps in the core
+    (:func:`gripper_env.simulation._advance_row`), its reward and observation - fused per row so
+    the parallel variant runs one parallel region per step; returns row 0's (reward, term, trunc).
+    """
+    n_sub = int(cfg[C_NSUB])
+    closed = cfg[C_MODE] != MODE_SERVO
+    dt = cfg[C_DT]
+    for b in prange(env.shape[0]):
+        bi = np.int64(b)  # (a prange index is unsigned in parallel lowering)
+        _pre(bi, actions, cfg, ref, env, params, drive)
+        _advance_row(
+            bi, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b, plant_d, state,
+            rng, delay_buf, out_r, out_u, out_y, out_yt,
+        )  # fmt: skip
+        _post(bi, actions, cfg, ref, env, obs, state, out_u, out_y)
     return env[0, E_REW], env[0, E_TERM] != 0.0, env[0, E_TRUNC] != 0.0
 
 
-@njit(cache=True, parallel=True)
-def step_parallel(
-    actions, cfg, ref, env, obs, drive,
-    params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-):  # fmt: skip
-    """One control period of every row on all cores (same results as :func:`step_serial`):
-    the rows' action and reward loops and the core's kernel each split over the cores."""
-    n_rows = env.shape[0]
-    for b in prange(n_rows):
-        _pre(np.int64(b), actions, cfg, ref, env, params, drive)
-    _advance_parallel(
-        int(cfg[C_NSUB]), cfg[C_MODE] != MODE_SERVO, cfg[C_DT], drive, np.int64(0),
-        params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-    )  # fmt: skip
-    for b in prange(n_rows):
-        _post(np.int64(b), actions, cfg, ref, env, obs, state, out_u, out_y)
+step_serial = njit(cache=True)(_step_impl)
+step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
 
 
 def observation_size(mode: int, n_actions: int, n_context: int) -> int:
