@@ -497,6 +497,26 @@ def _result(study, settings, default_n, run_here, interrupted, seeds_per_trial) 
     )
 
 
+def make_scorer(
+    inputs: cli.Inputs, settings: OptunaSettings, terms: list[str] | None = None
+) -> BatchScorer:
+    """The trial scorer of a search: the actual model over the tuning seeds (+ the ideal one)."""
+    ideal_opts, actual_opts = inputs.settings.options(1)
+    return BatchScorer(
+        plant=inputs.plant,
+        reference=inputs.reference,
+        disturbance=inputs.disturbance,
+        seeds=settings.tuning_seeds.seeds(),
+        options=actual_opts,
+        objective=load_objective(),
+        signal=inputs.settings.signal,
+        randomize=inputs.settings.randomize,
+        terms=terms or [],
+        ideal_weight=settings.ideal_weight,
+        ideal_options=ideal_opts,
+    )
+
+
 def search(
     inputs: cli.Inputs,
     settings: OptunaSettings,
@@ -507,19 +527,7 @@ def search(
     progress: bool = False,
 ) -> tuple[StudyResult, BatchScorer]:
     """One single-objective search in memory (no storage): the benchmark's entry point."""
-    ideal_opts, actual_opts = inputs.settings.options(1)
-    scorer = BatchScorer(
-        plant=inputs.plant,
-        reference=inputs.reference,
-        disturbance=inputs.disturbance,
-        seeds=settings.tuning_seeds.seeds(),
-        options=actual_opts,
-        objective=load_objective(),
-        signal=inputs.settings.signal,
-        randomize=inputs.settings.randomize,
-        ideal_weight=settings.ideal_weight,
-        ideal_options=ideal_opts,
-    )
+    scorer = make_scorer(inputs, settings)
     study = optuna.create_study(
         study_name=f"{inputs.plant.name}-{sampler_name}",
         sampler=optuna.samplers.RandomSampler(seed=seed),
@@ -637,20 +645,7 @@ def main(argv: list[str] | None = None) -> int:
         },
     )
     # 2. search
-    ideal_opts, actual_opts = inputs.settings.options(1)
-    scorer = BatchScorer(
-        plant=inputs.plant,
-        reference=inputs.reference,
-        disturbance=inputs.disturbance,
-        seeds=settings.tuning_seeds.seeds(),
-        options=actual_opts,
-        objective=load_objective(),
-        signal=inputs.settings.signal,
-        randomize=inputs.settings.randomize,
-        terms=terms,
-        ideal_weight=settings.ideal_weight,
-        ideal_options=ideal_opts,
-    )
+    scorer = make_scorer(inputs, settings, terms)
     result = run_study(
         study,
         scorer,
