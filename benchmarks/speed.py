@@ -76,6 +76,7 @@ def _plain_python_episode() -> Callable[[], object]:
     n = len(ref)
     out = tuple(np.empty((1, n)) for _ in range(4))
     swaps = {
+        "_advance_row": simulation._advance_row.py_func,
         "pid_step": pid.pid_step.py_func,
         "stiction_scalar": friction.stiction_scalar.py_func,
         "backlash_step": friction.backlash_step.py_func,
