@@ -283,6 +283,9 @@ def _advance_row(
     y_meas = st[S_YMEAS]
     u = st[S_U]
     done = n_steps
+    # 1-D views of this run's rows: one index per access in the loop
+    ref_row = ref[rb, ref_offset:]
+    rec_r, rec_u, rec_y, rec_yt = out_r[b], out_u[b], out_y[b], out_yt[b]
     for k in range(n_steps):
         # 1. true jaw angle before this step's input reaches the plant
         y_now = x0 + dff * v_prev
@@ -304,7 +307,7 @@ def _advance_row(
                 code = adc_max
             y_meas = adc_lo + code * lsb
         # 3. controller
-        r = ref[rb, ref_offset + k]
+        r = ref_row[k]
         clipped = False
         if closed_loop:
             u, v, xi, xf = pid_step(
@@ -370,10 +373,10 @@ def _advance_row(
             x0 = mech_hi
         v_prev = v_in
         if record:
-            out_r[b, k] = r
-            out_u[b, k] = u
-            out_y[b, k] = y_meas
-            out_yt[b, k] = y_true
+            rec_r[k] = r
+            rec_u[k] = u
+            rec_y[k] = y_meas
+            rec_yt[k] = y_true
         if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
             done = k + 1
             break
