@@ -1,6 +1,8 @@
 """Speed of the Gymnasium environments, against CartPole and SyncVectorEnv, in one run.
 
-``python -m benchmarks.envs_speed [--repeats N] [--quick]`` measures, as medians of repeats:
+:func:`measure` returns, as medians of repeats (``python -m benchmarks.speed`` runs it after the
+core's figures and writes both into ``results/speed.md`` and ``results/speed.json``;
+``python -m benchmarks.envs_speed [--repeats N] [--quick]`` runs it alone and prints the table):
 
 * time per ``step`` of ``GripperServo-v0`` through ``gym.make`` (TimeLimit, OrderEnforcing,
   PassiveEnvChecker) against ``CartPole-v1`` through ``gym.make``, both with the same random
@@ -11,20 +13,15 @@
   physics steps per second (20 per environment step);
 * whole ``GripperPIDTune-v0`` episodes (20 s of 1 ms physics, metrics and cost) per second,
   through ``gym.make`` (reset + step) and through its native vector environment;
-
-and writes ``results/speed_envs.md`` and ``results/speed_envs.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import gymnasium as gym
 import numba
@@ -32,7 +29,6 @@ import numpy as np
 
 import gripper_env  # noqa: F401  (registers the ids)
 
-RESULTS = Path(__file__).resolve().parent.parent / "results"
 SERVO = "gripper_env/GripperServo-v0"
 GAIN_SCHEDULE = "gripper_env/GripperGainSchedule-v0"
 PID_TUNE = "gripper_env/GripperPIDTune-v0"
@@ -120,20 +116,16 @@ def pid_tune_vector_rate(num_envs: int) -> Callable[[], float]:
     return measure
 
 
-def main(argv: list[str] | None = None) -> dict[str, float]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=7)
-    parser.add_argument("--quick", action="store_true", help="fewer steps (a smoke run)")
-    parser.add_argument("--num-envs", type=int, default=1024)
-    args = parser.parse_args(argv)
-    reps = args.repeats
-    n_single = 5_000 if args.quick else 20_000
-    n_vec = 20 if args.quick else 100
-    n_sync = 2 if args.quick else 5
-    n = args.num_envs
+def measure(repeats: int = 7, quick: bool = False, num_envs: int = 1024) -> dict[str, float]:
+    """Run the environment benchmarks; ``quick`` takes fewer steps (a smoke run)."""
+    reps = repeats
+    n_single = 5_000 if quick else 20_000
+    n_vec = 20 if quick else 100
+    n_sync = 2 if quick else 5
+    n = num_envs
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
-    fig: dict[str, float] = {}
+    fig: dict[str, float] = {"repeats": reps}
     cartpole = step_time(gym.make("CartPole-v1"), n_single)
     servo = step_time(gym.make(SERVO), n_single)
     servo_raw = step_time(gym.make(SERVO).unwrapped, n_single)
@@ -167,32 +159,25 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     native.close()
     sync.close()
 
-    fig["pid_tune_make_episodes_per_s"] = _median(pid_tune_episode_rate(10 if args.quick else 40),
+    fig["pid_tune_make_episodes_per_s"] = _median(pid_tune_episode_rate(10 if quick else 40),
                                                   reps)  # fmt: skip
-    n_tune = 64 if args.quick else 256
+    n_tune = 64 if quick else 256
     fig["pid_tune_vector_envs"] = n_tune
     fig["pid_tune_vector_episodes_per_s"] = _median(pid_tune_vector_rate(n_tune), max(3, reps // 2))
     fig["numba_threads"] = numba.get_num_threads()
     fig["load_average_1min"] = load
-    _write(fig, reps, args.quick)
     return fig
 
 
-def _write(fig: dict[str, float], reps: int, quick: bool) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    meta = {
-        "command": "python -m benchmarks.envs_speed" + (" --quick" if quick else ""),
-        "python": platform.python_version(),
-        "numba": numba.__version__,
-        "gymnasium": gym.__version__,
-        "cores": os.cpu_count(),
-        "repeats": reps,
-    }
-    (RESULTS / "speed_envs.json").write_text(json.dumps({**meta, **fig}, indent=2) + "\n")
+def markdown(fig: dict[str, float]) -> str:
+    """The environments' section of ``results/speed.md``."""
 
     def yes(ok: bool) -> str:
         return "yes" if ok else "**no**"
 
+    n = int(fig["num_envs"])
+    sync_env_step_us = fig["sync_vector_step_ms"] * 1e3 / n
+    need_ms = fig["sync_vector_step_ms"] / 50
     rows = [
         ("`CartPole-v1` via `gym.make`, time per step", f"{fig['cartpole_make_step_us']:.2f} us",
          "reference", ""),
@@ -204,51 +189,64 @@ def _write(fig: dict[str, float], reps: int, quick: bool) -> None:
          "", ""),
         ("`GripperGainSchedule-v0` via `gym.make`, time per step",
          f"{fig['gain_schedule_make_step_us']:.2f} us", "", ""),
-        (f"native vector env, N = {fig['num_envs']}, time per step",
+        (f"native vector env, N = {n}, time per step",
          f"{fig['native_vector_step_ms']:.3f} ms", "", ""),
         ("  physics steps per second", f"{fig['native_physics_steps_per_s']:.3g}", ">= 2e7",
          yes(fig["native_physics_steps_per_s"] >= 2e7)),
-        (f"`SyncVectorEnv` of {fig['num_envs']} `gym.make` envs, time per step",
+        (f"`SyncVectorEnv` of {n} `gym.make` envs, time per step",
          f"{fig['sync_vector_step_ms']:.2f} ms", "", ""),
         ("  physics steps per second", f"{fig['sync_physics_steps_per_s']:.3g}", "", ""),
         ("native / Sync physics steps per second", f"{fig['native_vs_sync']:.1f}x", ">= 50x",
          yes(fig["native_vs_sync"] >= 50)),
         ("`GripperPIDTune-v0` via `gym.make`, episodes per second (reset + step)",
          f"{fig['pid_tune_make_episodes_per_s']:.0f}", "reported", ""),
-        (f"`GripperPIDTune-v0` native vector env, N = {fig['pid_tune_vector_envs']}, "
+        (f"`GripperPIDTune-v0` native vector env, N = {fig['pid_tune_vector_envs']:.0f}, "
          "episodes per second", f"{fig['pid_tune_vector_episodes_per_s']:.0f}", "reported", ""),
     ]  # fmt: skip
     lines = [
-        "# Environment speed",
+        "## Environments",
         "",
-        f"`{meta['command']}` on {meta['cores']} cores (numba threads "
-        f"{fig['numba_threads']:.0f}, 1-min load average {fig['load_average_1min']:.2f} at the "
-        f"start: the machine is shared), Python {meta['python']}, gymnasium "
-        f"{meta['gymnasium']}, numba {meta['numba']}; medians of {reps} repeats, all in the same "
-        "run. `GripperServo-v0` with its defaults: plant test2, the full `actual` chain (1-deg "
-        "commands at 50 Hz, Choudhury stiction, stops, 10-bit ADC, noise), 20 ms control period "
-        "= 20 physics steps of 1 ms per step. Random actions, the same for both sides of a "
-        "comparison; only `step` calls are timed (CartPole's frequent resets are not counted).",
+        f"Numba threads {fig['numba_threads']:.0f}, 1-min load average "
+        f"{fig['load_average_1min']:.2f} at the start (the machine is shared), gymnasium "
+        f"{gym.__version__}; medians of {fig['repeats']:.0f} repeats, in the same run as the "
+        "core's figures above. `GripperServo-v0` with its defaults: plant test2, the full "
+        "`actual` chain (1-deg commands at 50 Hz, Choudhury stiction, stops, 10-bit ADC, noise), "
+        "20 ms control period = 20 physics steps of 1 ms per step. Random actions, the same for "
+        "both sides of a comparison; only `step` calls are timed (CartPole's frequent resets are "
+        "not counted).",
         "",
         "| measurement | figure | target | met |",
         "|---|---|---|---|",
         *[f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows],
         "",
-        f"SyncVectorEnv was measured over the same {fig['num_envs']} environments (built with "
+        f"SyncVectorEnv was measured over the same {n} environments (built with "
         '`gym.make_vec(..., vectorization_mode="sync")`, each with gym.make\'s wrappers), with '
         "fewer steps per repeat than the native one, the repeats of the two interleaved; both "
-        "rates are per physics step (20 per environment step).",
+        "rates are per physics step (20 per environment step). Sync costs "
+        f"{sync_env_step_us:.1f} us per environment step here, so 50x needs <= {need_ms:.3f} ms "
+        f"per {n}-row native step.",
         "",
+        "The native vector env runs one parallel loop per step: each row's action, its physics "
+        "steps in the core, its reward, flags and observation, with the core's row function and "
+        'the kernels\' helpers inlined into that loop (numba `inline="always"`) and no array '
+        "views per row (each view takes an atomic reference on an array both threads share). "
         "`GripperPIDTune-v0` episodes run the whole chain with the PID (gains from random "
         "actions) and score them with `compute_metrics` and the shared objective (serial below "
-        "16 runs, parallel above). The native vector env runs one parallel loop per step: each "
-        "row's action, its physics steps in the core and its reward; SyncVectorEnv costs about "
-        "8 us per environment step, so 50x would need <= 0.17 ms per 1024-row step, of which the "
-        "20 x 1024 physics steps alone take about 0.14 ms on both cores.",
+        "16 runs, parallel above).",
         "",
     ]
-    (RESULTS / "speed_envs.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--quick", action="store_true", help="fewer steps (a smoke run)")
+    parser.add_argument("--num-envs", type=int, default=1024)
+    args = parser.parse_args(argv)
+    fig = measure(args.repeats, args.quick, args.num_envs)
+    print(markdown(fig))
+    return fig
 
 
 if __name__ == "__main__":

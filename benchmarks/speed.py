@@ -9,6 +9,9 @@
   (a discrete ``NonlinearIOSystem``: ZOH plant + Forward Euler PID);
 * a batch of 1024 such episodes (parallel over the machine's cores), with and without recording
   the trajectories;
+* then the Gymnasium environments (:mod:`benchmarks.envs_speed`): ``GripperServo-v0`` against
+  ``CartPole-v1``, the native vector env against ``SyncVectorEnv`` at N = 1024, and
+  ``GripperPIDTune-v0`` episodes per second;
 
 and writes ``results/speed.md`` and ``results/speed.json``. The machine is shared and noisy:
 figures are medians and the ratios are measured in the same run.
@@ -29,6 +32,7 @@ import control
 import numba
 import numpy as np
 
+from benchmarks import envs_speed
 from gripper_env import friction, pid, simulation
 from gripper_env.disturbances import load_disturbance
 from gripper_env.pid import PIDOptions
@@ -159,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         "--slow-repeats", type=int, default=3, help="repeats of the python-control/Python loops"
     )
     parser.add_argument("--out", type=Path, default=RESULTS, help="folder for speed.md/json")
+    parser.add_argument(
+        "--envs-repeats", type=int, default=9, help="repeats of the environments' timings"
+    )
+    parser.add_argument("--no-envs", action="store_true", help="skip the environments' timings")
     args = parser.parse_args(argv)
 
     episode_steps = len(load_reference("step"))
@@ -188,10 +196,15 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "slow_repeats": args.slow_repeats,
     }
+    if not args.no_envs:
+        figures["envs"] = envs_speed.measure(args.envs_repeats)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "speed.json").write_text(json.dumps(figures, indent=2) + "\n")
-    (args.out / "speed.md").write_text(_markdown(figures))
-    print(_markdown(figures))
+    text = _markdown(figures)
+    if "envs" in figures:
+        text += "\n" + envs_speed.markdown(figures["envs"])
+    (args.out / "speed.md").write_text(text)
+    print(text)
     return 0
 
 
@@ -219,7 +232,9 @@ def _markdown(f: dict) -> str:
     ]  # fmt: skip
     table = "\n".join(f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows)
     m = f["machine"]
-    return f"""# Simulation core speed
+    return f"""# Speed
+
+## Simulation core
 
 `python -m benchmarks.speed` on {m["cpus"]} cores, Python {m["python"]}, numba {m["numba"]};
 medians of {f["repeats"]} repeats ({f["slow_repeats"]} for the slow references), all in the same

@@ -200,7 +200,7 @@ def _normal_draws(z: np.uint64, n: int) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _advance_row(
     b: int,
     n_steps: int,
@@ -226,6 +226,12 @@ def _advance_row(
     ``out_*`` are (B, n_steps) or (B, 0) to record nothing. The run's state is loaded into local
     scalars, stepped, and stored back, so the compiled loop works in registers. Callers that do
     more per row (the vector environments) call this inside their own parallel loop.
+
+    Numba inlines it into its callers (``inline="always"``), and it indexes the 2-D arrays
+    directly rather than through row views: a call passes ~150 array fields, and every view
+    takes a reference on the whole array, an atomic add on a counter that all threads share.
+    Both showed in the environments' step, which runs 20 physics steps per row and call (1024
+    rows: 0.30 -> 0.19 ms with the kernels' helpers inlined too, A/B in one process).
     """
     n_x = plant_b.shape[1]
     small = n_x <= 2
@@ -233,11 +239,9 @@ def _advance_row(
     buf_len = delay_buf.shape[1]
     shared_ref = ref.shape[0] == 1
     shared_plant = plant_a.shape[0] == 1
-    prm = params[b]
-    st = state[b]
     rb = np.int64(0) if shared_ref else b
     pb = np.int64(0) if shared_plant else b
-    if st[S_DIVERGED] != 0.0:
+    if state[b, S_DIVERGED] != 0.0:
         if record:
             for k in range(n_steps):
                 out_r[b, k] = ref[rb, ref_offset + k]
@@ -246,46 +250,54 @@ def _advance_row(
                 out_yt[b, k] = np.nan
         return
     # parameters
-    p_gain, i_gain, d_gain, n_filt = prm[P_P], prm[P_I], prm[P_D], prm[P_N]
-    u_lo, u_hi, kb, sgn = prm[P_ULO], prm[P_UHI], prm[P_KB], prm[P_SIGN]
-    aw, dmeas = int(prm[P_AW]), int(prm[P_DMEAS])
-    cmd_lo, cmd_hi, quantum = prm[P_CMD_LO], prm[P_CMD_HI], prm[P_QUANTUM]
-    refresh, rate = prm[P_REFRESH], prm[P_RATE]
-    fric, s_deg, j_deg, play = int(prm[P_FRIC]), prm[P_S], prm[P_J], prm[P_BACKLASH]
-    mech_lo, mech_hi = prm[P_MECH_LO], prm[P_MECH_HI]
-    lsb, adc_lo, adc_max, noise = prm[P_ADC_LSB], prm[P_ADC_LO], prm[P_ADC_MAX], prm[P_NOISE]
+    p_gain, i_gain, d_gain, n_filt = params[b, P_P], params[b, P_I], params[b, P_D], params[b, P_N]
+    u_lo, u_hi, kb, sgn = params[b, P_ULO], params[b, P_UHI], params[b, P_KB], params[b, P_SIGN]
+    aw, dmeas = int(params[b, P_AW]), int(params[b, P_DMEAS])
+    cmd_lo, cmd_hi, quantum = params[b, P_CMD_LO], params[b, P_CMD_HI], params[b, P_QUANTUM]
+    refresh, rate = params[b, P_REFRESH], params[b, P_RATE]
+    fric, s_deg, j_deg, play = (
+        int(params[b, P_FRIC]),
+        params[b, P_S],
+        params[b, P_J],
+        params[b, P_BACKLASH],
+    )
+    mech_lo, mech_hi = params[b, P_MECH_LO], params[b, P_MECH_HI]
+    lsb, adc_lo, adc_max, noise = (
+        params[b, P_ADC_LSB],
+        params[b, P_ADC_LO],
+        params[b, P_ADC_MAX],
+        params[b, P_NOISE],
+    )
     inv_lsb = 1.0 / lsb if lsb > 0.0 else 0.0  # a division would sit on every step's path
-    delay = int(prm[P_DELAY])
+    delay = int(params[b, P_DELAY])
     step_max = rate * refresh * dt
     dff = plant_d[pb]
-    a = plant_a[pb]
-    bv = plant_b[pb]
-    a00 = a[0, 0]
-    b0 = bv[0]
-    a01 = a[0, 1] if n_x > 1 else 0.0
-    a10 = a[1, 0] if n_x > 1 else 0.0
-    a11 = a[1, 1] if n_x > 1 else 0.0
-    b1 = bv[1] if n_x > 1 else 0.0
+    a00 = plant_a[pb, 0, 0]
+    b0 = plant_b[pb, 0]
+    a01 = plant_a[pb, 0, 1] if n_x > 1 else 0.0
+    a10 = plant_a[pb, 1, 0] if n_x > 1 else 0.0
+    a11 = plant_a[pb, 1, 1] if n_x > 1 else 0.0
+    b1 = plant_b[pb, 1] if n_x > 1 else 0.0
     # state
-    x = st[S_X : S_X + n_x]
-    x_next = st[S_X + n_x : S_X + 2 * n_x]
-    x0 = x[0]
-    x1 = x[1] if n_x > 1 else 0.0
-    xi, xf = st[S_XI], st[S_XF]
-    cmd, countdown, cmd_clip = st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP]
-    f_out, f_xprev, f_xss = st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS]
-    f_dir, f_stuck = st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK]
-    bl_out = st[S_BACKLASH]
-    didx = int(st[S_DIDX])
-    v_prev = st[S_VPREV]
-    saturated = st[S_SATURATED]
+    x0 = state[b, S_X]
+    x1 = state[b, S_X + 1] if n_x > 1 else 0.0
+    xi, xf = state[b, S_XI], state[b, S_XF]
+    cmd, countdown, cmd_clip = state[b, S_CMD], state[b, S_COUNTDOWN], state[b, S_CMDCLIP]
+    f_out, f_xprev, f_xss = (
+        state[b, S_FRIC + F_OUT],
+        state[b, S_FRIC + F_XPREV],
+        state[b, S_FRIC + F_XSS],
+    )
+    f_dir, f_stuck = state[b, S_FRIC + F_DIR], state[b, S_FRIC + F_STUCK]
+    bl_out = state[b, S_BACKLASH]
+    didx = int(state[b, S_DIDX])
+    v_prev = state[b, S_VPREV]
+    saturated = state[b, S_SATURATED]
     z = rng[b]
-    y_meas = st[S_YMEAS]
-    u = st[S_U]
+    y_meas = state[b, S_YMEAS]
+    u = state[b, S_U]
     done = n_steps
     # 1-D views of this run's rows: one index per access in the loop
-    ref_row = ref[rb, ref_offset:]
-    rec_r, rec_u, rec_y, rec_yt = out_r[b], out_u[b], out_y[b], out_yt[b]
     for k in range(n_steps):
         # 1. true jaw angle before this step's input reaches the plant
         y_now = x0 + dff * v_prev
@@ -307,7 +319,7 @@ def _advance_row(
                 code = adc_max
             y_meas = adc_lo + code * lsb
         # 3. controller
-        r = ref_row[k]
+        r = ref[rb, ref_offset + k]
         clipped = False
         if closed_loop:
             u, v, xi, xf = pid_step(
@@ -357,47 +369,51 @@ def _advance_row(
             x1 = a10 * x0 + a11 * x1 + b1 * v_in
             x0 = x0_new
         else:
-            x[0] = x0
+            state[b, S_X] = x0
             for i in range(n_x):
-                acc = bv[i] * v_in
+                acc = plant_b[pb, i] * v_in
                 for j in range(n_x):
-                    acc += a[i, j] * x[j]
-                x_next[i] = acc
+                    acc += plant_a[pb, i, j] * state[b, S_X + j]
+                state[b, S_X + n_x + i] = acc
             for i in range(n_x):
-                x[i] = x_next[i]
-            x0 = x[0]
-            x1 = x[1]
+                state[b, S_X + i] = state[b, S_X + n_x + i]
+            x0 = state[b, S_X]
+            x1 = state[b, S_X + 1]
         if x0 < mech_lo:
             x0 = mech_lo
         elif x0 > mech_hi:
             x0 = mech_hi
         v_prev = v_in
         if record:
-            rec_r[k] = r
-            rec_u[k] = u
-            rec_y[k] = y_meas
-            rec_yt[k] = y_true
+            out_r[b, k] = r
+            out_u[b, k] = u
+            out_y[b, k] = y_meas
+            out_yt[b, k] = y_true
         if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
             done = k + 1
             break
     # store the state back
-    x[0] = x0
+    state[b, S_X] = x0
     if n_x > 1:
-        x[1] = x1
-    st[S_XI], st[S_XF] = xi, xf
-    st[S_CMD], st[S_COUNTDOWN], st[S_CMDCLIP] = cmd, countdown, cmd_clip
-    st[S_FRIC + F_OUT], st[S_FRIC + F_XPREV], st[S_FRIC + F_XSS] = f_out, f_xprev, f_xss
-    st[S_FRIC + F_DIR], st[S_FRIC + F_STUCK] = f_dir, f_stuck
-    st[S_BACKLASH] = bl_out
-    st[S_DIDX] = didx
-    st[S_VPREV] = v_prev
-    st[S_SATURATED] = saturated
-    st[S_YMEAS] = y_meas
-    st[S_U] = u
-    st[S_STEPS] += done
+        state[b, S_X + 1] = x1
+    state[b, S_XI], state[b, S_XF] = xi, xf
+    state[b, S_CMD], state[b, S_COUNTDOWN], state[b, S_CMDCLIP] = cmd, countdown, cmd_clip
+    state[b, S_FRIC + F_OUT], state[b, S_FRIC + F_XPREV], state[b, S_FRIC + F_XSS] = (
+        f_out,
+        f_xprev,
+        f_xss,
+    )
+    state[b, S_FRIC + F_DIR], state[b, S_FRIC + F_STUCK] = f_dir, f_stuck
+    state[b, S_BACKLASH] = bl_out
+    state[b, S_DIDX] = didx
+    state[b, S_VPREV] = v_prev
+    state[b, S_SATURATED] = saturated
+    state[b, S_YMEAS] = y_meas
+    state[b, S_U] = u
+    state[b, S_STEPS] += done
     rng[b] = z
     if done < n_steps or not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
-        st[S_DIVERGED] = 1.0
+        state[b, S_DIVERGED] = 1.0
         if record:
             for k in range(done - 1, n_steps):
                 out_r[b, k] = ref[rb, ref_offset + k]

@@ -124,7 +124,9 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
             self._act[0, 0] = a
         else:
             self._set_action(action)
-        reward, terminated, truncated = self._kernel(*self._args)
+        bad, _, reward, terminated, truncated = self._kernel(*self._args)
+        if bad >= 0:  # (the checks above catch it first)
+            raise ValueError(f"action must be finite, got {action!r} (NaN or infinite)")
         if terminated or truncated:
             self._done = True
         if self.render_mode is not None:

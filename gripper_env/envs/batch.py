@@ -132,12 +132,16 @@ class ControlBatch:
         cfg[K.C_GDEC] = GAIN_DECADES
         cfg[K.C_PMAX], cfg[K.C_IMAX], cfg[K.C_DMAX] = s.gain_max
         cfg[K.C_DIVPEN] = DIVERGED_PENALTY
+        cfg[K.C_MAXSTEPS] = 0.0  # no limit: see set_time_limit
         self.cfg = cfg
         self.n_context = len(context_features(s.plants[0], s.disturbance, _any_reference(s)))
         self.n_obs = K.observation_size(mode, self.n_actions, self.n_context * observe_context)
         # Preallocated buffers.
         self.actions = np.zeros((n_rows, self.n_actions))
         self.env = K.empty_env_state(n_rows, self.n_actions)
+        self.rewards = np.zeros(n_rows)
+        self.terminated = np.zeros(n_rows, dtype=bool)
+        self.truncated = np.zeros(n_rows, dtype=bool)
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
         self.out = tuple(np.zeros((n_rows, s.n_sub)) for _ in range(4))
@@ -150,6 +154,7 @@ class ControlBatch:
         sim, cfg = self.sim, self.cfg
         self._args = (
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
+            self.rewards, self.terminated, self.truncated,
             sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
             *self.out,
         )  # fmt: skip
@@ -227,13 +232,23 @@ class ControlBatch:
         )
 
     # ------------------------------------------------------------------------------------------
-    def step(self) -> tuple[float, bool, bool] | None:
+    def set_time_limit(self, max_steps: int | None) -> None:
+        """Truncate each row's episode after ``max_steps`` steps (``None``: no limit)."""
+        self.cfg[K.C_MAXSTEPS] = 0.0 if max_steps is None else float(max_steps)
+
+    def step(self) -> tuple[int, int, float, bool, bool]:
         """Advance every row one control period with the actions in :attr:`actions`.
 
-        Rewards and flags are in :attr:`env` (``E_REW``, ``E_TERM``, ``E_TRUNC``), observations
-        in :attr:`obs`; a batch of one also returns row 0's ``(reward, terminated, truncated)``.
+        Outputs are in :attr:`rewards`, :attr:`terminated`, :attr:`truncated` and :attr:`obs`.
+        Returns ``(bad_row, n_resetting, reward, terminated, truncated)``: the first row with a
+        non-finite action (nothing was stepped) or -1, the number of rows whose episode had ended
+        and which now wait in ``DONE_RESETTING`` for :meth:`reset_rows`, and row 0's outputs.
         """
         return self._kernel(*self._args)
+
+    def resetting_rows(self) -> list[int]:
+        """Rows the last :meth:`step` marked ``DONE_RESETTING``."""
+        return [int(i) for i in np.flatnonzero(self.env[:, K.E_DONE] == K.DONE_RESETTING)]
 
 
 def _any_reference(s: Settings) -> Reference:

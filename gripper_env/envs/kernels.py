@@ -9,9 +9,13 @@ environment calls the same functions, so both play identical trajectories.
 Layouts (columns):
 
 * ``cfg`` (float64, shape (N_CFG,)): the ``C_*`` constants of the batch.
-* ``env`` (float64, (B, E_A0 + n_actions)): the ``E_*`` per-environment state and outputs.
+* ``env`` (float64, (B, E_A0 + n_actions)): the ``E_*`` per-environment state.
 * ``obs`` (float32, (B, n_obs)): tracking part, then previous actions from column ``C_OA0``, then
   context features (written at reset, never touched here).
+* ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
+
+The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
+array arguments, and the array views it would take, cost more than a control period's physics.
 """
 
 from __future__ import annotations
@@ -51,8 +55,9 @@ from gripper_env.simulation import (
     C_IMAX,  # |I| at action 1
     C_DMAX,  # |D| at action 1
     C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
-) = range(20)
-N_CFG = 20
+    C_MAXSTEPS,  # truncate after this many steps (0: no limit; the vector envs' time limit)
+) = range(21)
+N_CFG = 21
 
 MODE_SERVO = 0
 MODE_GAINS = 1
@@ -66,11 +71,14 @@ MODE_GAINS = 1
     E_EPREV,  # normalised error at the previous observation
     E_UPREV,  # controller output at the previous physics step (deg)
     E_DIR,  # direction of the latest reference move: -1, 0, +1
-    E_REW,  # reward of the last step
-    E_TERM,  # 1 if the last step terminated the episode (the run diverged)
-    E_TRUNC,  # 1 if the last step reached the end of the reference
+    E_STEPS,  # steps (control periods) since reset
+    E_DONE,  # DONE_RUNNING, DONE_ENDED (reset on the next step) or DONE_RESETTING (in this step)
     E_A0,  # previous (clipped) action, E_A0 + j
-) = range(11)
+) = range(10)
+
+DONE_RUNNING = 0.0
+DONE_ENDED = 1.0
+DONE_RESETTING = 2.0
 
 
 @njit(cache=True, inline="always")
@@ -82,7 +90,7 @@ def _clip(x: float, bound: float) -> float:
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pre(b, actions, cfg, ref, env, params, drive):
     """Action of row ``b`` -> its drive for this period (servo command, or gains + reference)."""
     n_sub = int(cfg[C_NSUB])
@@ -109,7 +117,7 @@ def _pre(b, actions, cfg, ref, env, params, drive):
         drive[b, k] = ref[rb, min(t + k, last)]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def period_reward(ref_row, t, last, y, direction, variation, jh, ch, w_over, w_var, var_cap):
     """Reward of one control period from its physics steps (the formula of the docstrings).
 
@@ -165,7 +173,7 @@ def period_reward(ref_row, t, last, y, direction, variation, jh, ch, w_over, w_v
     return -(track + w_over * over + w_var * variation), direction
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def tracking_observation(y, r_next, e_prev, integral, n_steps, dt, jc, jh, rate, bound, obs_row):
     """Write the tracking part of an observation (:data:`~gripper_env.envs.spaces.TRACKING_NAMES`).
 
@@ -209,21 +217,26 @@ def tracking_observation(y, r_next, e_prev, integral, n_steps, dt, jc, jh, rate,
     return e, integral
 
 
-@njit(cache=True)
-def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
-    """Reward and observation of row ``b`` from the period's recorded physics steps."""
+@njit(cache=True, inline="always")
+def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state, out_u, out_y):
+    """Reward, flags and observation of row ``b`` from the period's recorded physics steps."""
     n_sub = int(cfg[C_NSUB])
     t = int(env[b, E_T])
     t_new = t + n_sub
     last = int(env[b, E_REFLEN]) - 1
     env[b, E_T] = t_new
-    env[b, E_TRUNC] = 1.0 if t_new >= env[b, E_LEN] else 0.0
+    steps = env[b, E_STEPS] + 1.0
+    env[b, E_STEPS] = steps
+    trunc = t_new >= env[b, E_LEN] or (cfg[C_MAXSTEPS] > 0.0 and steps >= cfg[C_MAXSTEPS])
+    truncated[b] = trunc
     if state[b, S_DIVERGED] != 0.0:
         # the run left the divergence bound: end the episode, keep the last observation
-        env[b, E_REW] = -cfg[C_DIVPEN]
-        env[b, E_TERM] = 1.0
+        rewards[b] = -cfg[C_DIVPEN]
+        terminated[b] = True
+        env[b, E_DONE] = DONE_ENDED
         return
-    env[b, E_TERM] = 0.0
+    terminated[b] = False
+    env[b, E_DONE] = DONE_ENDED if trunc else DONE_RUNNING
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
     u_prev = env[b, E_UPREV]
     variation = 0.0
@@ -239,7 +252,7 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
         ref[rb], t, last, out_y[b], env[b, E_DIR], variation,
         cfg[C_JH], cfg[C_CH], cfg[C_WOS], cfg[C_WU], cfg[C_UCAP],
     )  # fmt: skip
-    env[b, E_REW] = reward
+    rewards[b] = reward
     env[b, E_DIR] = direction
     env[b, E_UPREV] = u_prev
     # observation at the start of the next period
@@ -259,25 +272,52 @@ def _post(b, actions, cfg, ref, env, obs, state, out_u, out_y):
 
 
 def _step_impl(
-    actions, cfg, ref, env, obs, drive,
+    actions, cfg, ref, env, obs, drive, rewards, terminated, truncated,
     params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
 ):  # fmt: skip
     """One control period of every row: its action, its physics steps in the core
-    (:func:`gripper_env.simulation._advance_row`), its reward and observation - fused per row so
-    the parallel variant runs one parallel region per step; returns row 0's (reward, term, trunc).
+    (:func:`gripper_env.simulation._advance_row`), its reward, flags and observation - fused per
+    row, so the parallel variant runs one parallel region per step.
+
+    Nothing is touched if an action is not finite. A row whose episode ended on the previous step
+    (``E_DONE == DONE_ENDED``) is not stepped: it is marked ``DONE_RESETTING`` with reward 0 and
+    no flags, for the caller to reset (the vector environments' next-step autoreset).
+
+    Returns
+    -------
+    bad_row : int
+        The first row with a non-finite action, or -1.
+    n_resetting : int
+        Rows marked ``DONE_RESETTING``.
+    reward, terminated, truncated : float, bool, bool
+        Row 0's outputs (what a single environment returns).
     """
+    n_rows = env.shape[0]
+    for b in range(n_rows):  # check every action before any state changes
+        for j in range(actions.shape[1]):
+            if not math.isfinite(actions[b, j]):
+                return b, 0, 0.0, False, False
     n_sub = int(cfg[C_NSUB])
     closed = cfg[C_MODE] != MODE_SERVO
     dt = cfg[C_DT]
-    for b in prange(env.shape[0]):
+    n_resetting = 0
+    for b in prange(n_rows):
         bi = np.int64(b)  # (a prange index is unsigned in parallel lowering)
-        _pre(bi, actions, cfg, ref, env, params, drive)
-        _advance_row(
-            bi, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b, plant_d, state,
-            rng, delay_buf, out_r, out_u, out_y, out_yt,
-        )  # fmt: skip
-        _post(bi, actions, cfg, ref, env, obs, state, out_u, out_y)
-    return env[0, E_REW], env[0, E_TERM] != 0.0, env[0, E_TRUNC] != 0.0
+        if env[bi, E_DONE] != DONE_RUNNING:
+            env[bi, E_DONE] = DONE_RESETTING
+            rewards[bi] = 0.0
+            terminated[bi] = False
+            truncated[bi] = False
+            n_resetting += 1
+        else:
+            _pre(bi, actions, cfg, ref, env, params, drive)
+            _advance_row(
+                bi, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b, plant_d,
+                state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+            )  # fmt: skip
+            _post(bi, actions, cfg, ref, env, obs, rewards, terminated, truncated, state, out_u,
+                  out_y)  # fmt: skip
+    return -1, n_resetting, rewards[0], terminated[0], truncated[0]
 
 
 step_serial = njit(cache=True)(_step_impl)

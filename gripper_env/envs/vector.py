@@ -139,6 +139,7 @@ class _ControlVectorEnv(_SeededVectorEnv):
             self.settings, self.num_envs, self._mode, bool(observe_context),
             overshoot_weight, chatter_weight,
         )  # fmt: skip
+        self._batch.set_time_limit(max_episode_steps)
         self._act_shape = (self.num_envs, self._batch.n_actions)
         self._started = False
 
@@ -151,8 +152,6 @@ class _ControlVectorEnv(_SeededVectorEnv):
         mask = self._reset_mask(options)
         rows = self._seed_rows(seed, mask)
         self._batch.reset_rows(rows, self._draw(rows))
-        self._elapsed[mask] = 0
-        self._autoreset[mask] = False
         self._started = True
         return self._batch.obs.copy(), {}
 
@@ -161,24 +160,30 @@ class _ControlVectorEnv(_SeededVectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if not self._started:
             raise RuntimeError(f"{self._name}: call reset() before step()")
-        self._batch.actions[:] = check_actions(actions, self._act_shape, "actions")
-        self._batch.step()
-        env = self._batch.env
-        rewards = env[:, K.E_REW].copy()
-        terminated = env[:, K.E_TERM] != 0.0
-        truncated = env[:, K.E_TRUNC] != 0.0
-        self._elapsed += 1
-        if self.max_episode_steps is not None:
-            truncated |= self._elapsed >= self.max_episode_steps
-        if self._autoreset.any():
-            rows = [int(i) for i in np.flatnonzero(self._autoreset)]
-            self._batch.reset_rows(rows, self._draw(rows))
-            rewards[rows] = 0.0
-            terminated[rows] = False
-            truncated[rows] = False
-            self._elapsed[rows] = 0
-        self._autoreset = terminated | truncated
-        return self._batch.obs.copy(), rewards, terminated, truncated, {}
+        batch = self._batch
+        # fast path for what agents pass: a float array of the batch's shape (the kernel checks
+        # that every entry is finite before it steps anything)
+        if (
+            type(actions) is np.ndarray
+            and actions.shape == self._act_shape
+            and (actions.dtype.kind == "f")
+        ):
+            np.copyto(batch.actions, actions)
+        else:
+            batch.actions[:] = check_actions(actions, self._act_shape, "actions")
+        bad, n_resetting, _, _, _ = batch.step()
+        if bad >= 0:
+            raise ValueError(
+                f"actions must be finite, got {np.asarray(actions)[bad]!r} (NaN or infinite) for "
+                f"environment {bad}"
+            )
+        if n_resetting:  # next-step autoreset of the environments whose episode ended
+            rows = batch.resetting_rows()
+            batch.reset_rows(rows, self._draw(rows))
+        return (
+            batch.obs.copy(), batch.rewards.copy(), batch.terminated.copy(),
+            batch.truncated.copy(), {},
+        )  # fmt: skip
 
 
 class GripperServoVectorEnv(_ControlVectorEnv):

@@ -89,8 +89,16 @@ def test_vector_reset_mask_and_seed_list():
 
 def test_vector_bad_actions():
     envs = gym.make_vec(SERVO, num_envs=2, vectorization_mode="vector_entry_point")
+    clean = gym.make_vec(SERVO, num_envs=2, vectorization_mode="vector_entry_point")
     envs.reset(seed=0)
-    with pytest.raises(ValueError, match="finite"):
+    clean.reset(seed=0)
+    with pytest.raises(ValueError, match=r"finite.*environment 1"):
         envs.step(np.array([[0.0], [np.nan]], np.float32))
+    with pytest.raises(ValueError, match="finite"):
+        envs.step([[np.inf], [0.5]])
+    # a refused step changes nothing: the next one equals that of environments that never saw it
+    good = np.array([[0.3], [-0.2]], np.float32)
+    for a, b in zip(envs.step(good)[:4], clean.step(good)[:4], strict=True):
+        np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="shape"):
         envs.step(np.zeros((3, 1), np.float32))
