@@ -146,6 +146,13 @@ _U64_127 = np.uint64(127)
 
 
 @njit(cache=True, inline="always")
+def _floor(x: float) -> float:
+    """``floor(x)`` as a float: numba's ``math.floor`` returns an int, and the float -> int ->
+    float round trip on every physics step cost ~9 % of the environments' step (A/B)."""
+    return np.floor(x)
+
+
+@njit(cache=True, inline="always")
 def _uniform(z: np.uint64) -> tuple[np.uint64, float]:
     """A uniform draw in (0, 1]."""
     z, a = _splitmix64(z)
@@ -304,15 +311,16 @@ def _advance_row(
         # 2. sensor: delay line, noise, ADC
         if delay > 0:
             delay_buf[b, didx] = y_now
-            y_meas = delay_buf[b, (didx - delay) % buf_len]
-            didx = (didx + 1) % buf_len
+            j = didx - delay  # delay < buf_len: one wrap at most, no integer division
+            y_meas = delay_buf[b, j + buf_len if j < 0 else j]
+            didx = didx + 1 if didx + 1 < buf_len else 0
         else:
             y_meas = y_now
         if noise > 0.0:
             z, g = _normal(z)
             y_meas += noise * g
         if lsb > 0.0:
-            code = math.floor((y_meas - adc_lo) * inv_lsb + 0.5)
+            code = _floor((y_meas - adc_lo) * inv_lsb + 0.5)
             if code < 0.0:
                 code = 0.0
             elif code > adc_max:
@@ -340,7 +348,7 @@ def _advance_row(
                 c = cmd_lo
                 cmd_clip = 1.0
             if quantum > 0.0:
-                c = quantum * math.floor(c / quantum + 0.5)
+                c = quantum * _floor(c / quantum + 0.5)
             if step_max > 0.0:
                 if c > cmd + step_max:
                     c = cmd + step_max
