@@ -25,6 +25,7 @@ import math
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -197,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         },
         "repeats": args.repeats,
         "slow_repeats": args.slow_repeats,
+        "command": " ".join(
+            ["python -m benchmarks.speed", *(argv if argv is not None else sys.argv[1:])]
+        ),
     }
     if not args.no_envs:
         figures["envs"] = envs_speed.measure(args.envs_repeats)
@@ -238,7 +242,7 @@ def _markdown(f: dict) -> str:
 
 ## Simulation core
 
-`python -m benchmarks.speed` on {m["cpus"]} cores, Python {m["python"]}, numba {m["numba"]};
+`{f["command"]}` on {m["cpus"]} cores, Python {m["python"]}, numba {m["numba"]};
 medians of {f["repeats"]} repeats ({f["slow_repeats"]} for the slow references), all in the same
 run. Episode: the `step` profile (20 s, {f["episode_steps"]} physics steps at 1 ms) on plant test2
 through the full `actual` chain (1-deg commands at 50 Hz, Choudhury stiction, stops, 10-bit ADC,

