@@ -35,7 +35,7 @@ __all__ = [
 
 
 class _SeededVectorEnv(VectorEnv):
-    """Per-environment generators, seeding like ``SyncVectorEnv``, and the time limit."""
+    """Per-environment generators, seeding like ``SyncVectorEnv``, shared argument checks."""
 
     metadata: ClassVar[dict[str, Any]] = {
         "autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -63,8 +63,6 @@ class _SeededVectorEnv(VectorEnv):
         self.max_episode_steps = max_episode_steps
         self.render_mode = None
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
-        self._autoreset = np.zeros(self.num_envs, dtype=bool)
 
     def _seed_rows(self, seed: int | list[int | None] | None, mask: np.ndarray) -> list[int]:
         n = self.num_envs
@@ -246,6 +244,9 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         self._slots: dict[int, Any] = self._single.slots
         self._episodes: list[Any] = [None] * self.num_envs
         self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
+        # (the control envs keep these per row in their kernel's state)
+        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
 
     def _start(self, rows: list[int]) -> None:
