@@ -116,16 +116,17 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._done:
             raise RuntimeError(f"{self._name}: call reset() before step() (the episode has ended)")
-        # fast path for what agents pass: a float array of the action's shape
-        if type(action) is np.ndarray and action.shape == (1,) and self._batch.n_actions == 1:
-            a = float(action[0])
-            if not math.isfinite(a):
-                raise ValueError(f"action must be finite, got {action!r} (NaN or infinite)")
-            self._act[0, 0] = a
+        # fast path for what agents pass: a float array of the action's shape (the kernel refuses
+        # a non-finite action before it changes any state)
+        if (
+            type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f"
+            and self._batch.n_actions == 1
+        ):  # fmt: skip
+            self._act[0, 0] = action[0]
         else:
             self._set_action(action)
         bad, _, reward, terminated, truncated = self._kernel(*self._args)
-        if bad >= 0:  # (the checks above catch it first)
+        if bad >= 0:
             raise ValueError(f"action must be finite, got {action!r} (NaN or infinite)")
         if terminated or truncated:
             self._done = True

@@ -17,6 +17,12 @@ def test_non_finite_action_raises(env_id, bad):
     action[-1] = bad
     with pytest.raises(ValueError, match="finite"):
         env.step(action)
+    # the refused step changed nothing: the next one equals a fresh environment's first step
+    clean = gym.make(env_id)
+    clean.reset(seed=0)
+    good = np.full(env.action_space.shape, 0.25, np.float32)
+    for a, b in zip(env.step(good)[:4], clean.step(good)[:4], strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
