@@ -30,7 +30,9 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from gripper_env._numba_cache import renamed
+from gripper_env import _schedule
+from gripper_env._numba_cache import renamed, stamp_caches
+from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.references import Segment
 
 __all__ = ["Metrics", "compute_metrics", "fit_percent", "sample_sd", "step_metrics"]
@@ -198,19 +200,27 @@ def _metrics_impl(
     run_out: np.ndarray,
     seg_out: np.ndarray,
 ) -> None:
-    """One pass per run (parallel over runs); ``r`` is (1 or B, T).
+    """One pass per run (parallel over runs, :mod:`gripper_env._schedule`); ``r`` is (1 or B, T).
 
     Run columns: IAE, ISE, ITAE, control effort, mean of y, SD of y, SD of r.
     """
     n_runs = y.shape[0]
     shared = r.shape[0] == 1
-    for b in prange(n_runs):
-        r_row = r[0] if shared else r[b]
-        _run(t, r_row, y[b], u[b], seg_bounds, seg_values, run_out[b], seg_out[b])
+    chunk = rows_per_chunk(y.shape[1])
+    n_chunks = (n_runs + chunk - 1) // chunk
+    counter = np.zeros(1, np.int64)
+    for _ in prange(n_workers(n_chunks)):
+        c = fetch_add(counter, np.int64(1))
+        while c < n_chunks:
+            for b in range(c * chunk, min(n_runs, (c + 1) * chunk)):
+                r_row = r[0] if shared else r[b]
+                _run(t, r_row, y[b], u[b], seg_bounds, seg_values, run_out[b], seg_out[b])
+            c = fetch_add(counter, np.int64(1))
 
 
 _metrics_serial = njit(cache=True)(_metrics_impl)
 _metrics_parallel = njit(cache=True, parallel=True)(renamed(_metrics_impl, "_parallel"))
+stamp_caches((_metrics_serial, _metrics_parallel), (__file__, _schedule.__file__))
 #: Batches at least this large are scored on all cores (threads cost more for a few runs).
 PARALLEL_MIN_BATCH = 16
 

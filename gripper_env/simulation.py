@@ -41,9 +41,10 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from gripper_env import friction
+from gripper_env import _schedule, friction
 from gripper_env import pid as _pid_module
 from gripper_env._numba_cache import renamed, stamp_caches
+from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.friction import (
     F_DIR,
@@ -448,14 +449,23 @@ def _advance_impl(
     out_y: np.ndarray,
     out_yt: np.ndarray,
 ) -> None:
-    """Advance every run by ``n_steps`` physics steps: :func:`_advance_row` over the batch."""
-    for b in prange(params.shape[0]):
-        # numba types a prange index as unsigned in its parallel lowering, and unsigned mixed
-        # with signed becomes float: hand the row index on as a signed int
-        _advance_row(
-            np.int64(b), n_steps, closed_loop, dt, ref, ref_offset, params, plant_a, plant_b,
-            plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-        )  # fmt: skip
+    """Advance every run by ``n_steps`` physics steps: :func:`_advance_row` over the batch.
+
+    The rows are shared out in chunks to one worker per thread (:mod:`gripper_env._schedule`).
+    """
+    n_rows = params.shape[0]
+    chunk = rows_per_chunk(n_steps)
+    n_chunks = (n_rows + chunk - 1) // chunk
+    counter = np.zeros(1, np.int64)
+    for _ in prange(n_workers(n_chunks)):
+        c = fetch_add(counter, np.int64(1))
+        while c < n_chunks:
+            for b in range(c * chunk, min(n_rows, (c + 1) * chunk)):
+                _advance_row(
+                    b, n_steps, closed_loop, dt, ref, ref_offset, params, plant_a, plant_b,
+                    plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+                )  # fmt: skip
+            c = fetch_add(counter, np.int64(1))
 
 
 _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
@@ -463,7 +473,7 @@ _advance_parallel = njit(cache=True, nogil=True, parallel=True)(renamed(_advance
 # the kernels inline the PID and friction steps: their caches depend on those files too
 stamp_caches(
     (_advance_row, _advance_serial, _advance_parallel),
-    (__file__, _pid_module.__file__, friction.__file__),
+    (__file__, _pid_module.__file__, friction.__file__, _schedule.__file__),
 )
 
 #: Batches at least this large run on all cores.

@@ -25,8 +25,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from gripper_env import friction, pid, simulation
+from gripper_env import _schedule, friction, pid, simulation
 from gripper_env._numba_cache import renamed, stamp_caches
+from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
@@ -300,24 +301,32 @@ def _step_impl(
     n_sub = int(cfg[C_NSUB])
     closed = cfg[C_MODE] != MODE_SERVO
     dt = cfg[C_DT]
-    n_resetting = 0
-    for b in prange(n_rows):
-        bi = np.int64(b)  # (a prange index is unsigned in parallel lowering)
-        if env[bi, E_DONE] != DONE_RUNNING:
-            env[bi, E_DONE] = DONE_RESETTING
-            rewards[bi] = 0.0
-            terminated[bi] = False
-            truncated[bi] = False
-            n_resetting += 1
-        else:
-            _pre(bi, actions, cfg, ref, env, params, drive)
-            _advance_row(
-                bi, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b, plant_d,
-                state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-            )  # fmt: skip
-            _post(bi, actions, cfg, ref, env, obs, rewards, terminated, truncated, state, out_u,
-                  out_y)  # fmt: skip
-    return -1, n_resetting, rewards[0], terminated[0], truncated[0]
+    # rows in chunks, shared out to one worker per thread (gripper_env._schedule)
+    chunk = rows_per_chunk(n_sub)
+    n_chunks = (n_rows + chunk - 1) // chunk
+    workers = n_workers(n_chunks)
+    counter = np.zeros(1, np.int64)
+    resetting = np.zeros(workers, np.int64)
+    for w in prange(workers):
+        c = fetch_add(counter, np.int64(1))
+        while c < n_chunks:
+            for b in range(c * chunk, min(n_rows, (c + 1) * chunk)):
+                if env[b, E_DONE] != DONE_RUNNING:
+                    env[b, E_DONE] = DONE_RESETTING
+                    rewards[b] = 0.0
+                    terminated[b] = False
+                    truncated[b] = False
+                    resetting[w] += 1
+                else:
+                    _pre(b, actions, cfg, ref, env, params, drive)
+                    _advance_row(
+                        b, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b,
+                        plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+                    )  # fmt: skip
+                    _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
+                          out_u, out_y)  # fmt: skip
+            c = fetch_add(counter, np.int64(1))
+    return -1, int(resetting.sum()), rewards[0], terminated[0], truncated[0]
 
 
 step_serial = njit(cache=True)(_step_impl)
@@ -337,5 +346,5 @@ def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:
 # these kernels compile the core's kernel (and its PID and friction steps) into themselves
 stamp_caches(
     (_clip, _pre, period_reward, tracking_observation, _post, step_serial, step_parallel),
-    (__file__, simulation.__file__, pid.__file__, friction.__file__),
+    (__file__, simulation.__file__, pid.__file__, friction.__file__, _schedule.__file__),
 )

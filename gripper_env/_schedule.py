@@ -1,0 +1,79 @@
+"""Dynamic work sharing for the compiled batch kernels.
+
+Numba's ``prange`` splits a loop into one contiguous block per thread before it starts. That is
+only as fast as the slowest thread, and on shared machines the threads are rarely equal: a worker
+wakes up tens of microseconds after the main thread, or its virtual CPU shares a physical core
+with someone else's work. On this project's 2-vCPU CI machine one thread of a 1024-environment
+step often ran at ~60 % of the other's speed, and the static split waited for it.
+
+The kernels therefore ``prange`` over *workers* and let each worker take the next
+chunk of rows from a shared counter (:func:`fetch_add`, one atomic add per chunk) until none is
+left, so a fast thread simply does more chunks. Rows are independent and each is computed by
+exactly one worker, so the results do not depend on the schedule. Compiled without
+``parallel=True`` the same code runs the workers one after the other (the first takes every
+chunk).
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+__all__ = ["CHUNK_STEPS", "MAX_WORKERS", "fetch_add", "n_workers", "rows_per_chunk"]
+
+#: Workers of a kernel call. ``prange`` deals them out to the threads in blocks; the first worker
+#: a thread starts takes chunks until none are left, so the later ones find nothing to do. A
+#: constant (rather than the thread count) keeps the compiled code cacheable and correct for any
+#: ``numba.set_num_threads``; it caps the threads a call can use.
+MAX_WORKERS = 64
+
+#: Physics steps of work (rows x steps) a chunk holds at least: ~3 us, so that the atomic add
+#: and the tail (one chunk at most on the slowest thread) stay negligible.
+CHUNK_STEPS = 320
+
+
+@intrinsic
+def fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped-def]
+    """Atomically add ``increment`` to ``counter[0]`` and return its previous value.
+
+    Parameters
+    ----------
+    counter : ndarray of int64, shape (1,)
+        The shared counter.
+    increment : int64
+        The amount to add.
+
+    Returns
+    -------
+    int64
+        ``counter[0]`` before the addition.
+    """
+    if not (
+        isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1
+    ):
+        return None
+    sig = types.int64(counter, types.int64)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        arr_type = signature.args[0]
+        arr = context.make_array(arr_type)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(
+            context, builder, arr_type, arr, [ir.Constant(ir.IntType(64), 0)]
+        )
+        return builder.atomic_rmw("add", ptr, args[1], "monotonic")
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def rows_per_chunk(n_steps: int) -> int:
+    """Rows per chunk for rows of ``n_steps`` physics steps (at least one)."""
+    return max(1, CHUNK_STEPS // max(n_steps, 1))
+
+
+@njit(cache=True, inline="always")
+def n_workers(n_chunks: int) -> int:
+    """Workers for ``n_chunks`` chunks: :data:`MAX_WORKERS`, never more than there are chunks."""
+    return max(1, min(MAX_WORKERS, n_chunks))
