@@ -209,6 +209,18 @@ def _normal_draws(z: np.uint64, n: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _record_diverged(b, k0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt):
+    """Recording of a diverged run from step ``k0``: the reference, NaN for the rest."""
+    for k in range(k0, n_steps):
+        if out_r is not None:
+            out_r[b, k] = ref[rb, ref_offset + k]
+        out_u[b, k] = np.nan
+        out_y[b, k] = np.nan
+        if out_yt is not None:
+            out_yt[b, k] = np.nan
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _advance_row(
     b: int,
     n_steps: int,
@@ -223,17 +235,20 @@ def _advance_row(
     state: np.ndarray,
     rng: np.ndarray,
     delay_buf: np.ndarray,
-    out_r: np.ndarray,
+    out_r: np.ndarray | None,
     out_u: np.ndarray,
     out_y: np.ndarray,
-    out_yt: np.ndarray,
+    out_yt: np.ndarray | None,
 ) -> None:
     """Advance run ``b`` by ``n_steps`` physics steps (see the module docstring).
 
     ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
-    ``out_*`` are (B, n_steps) or (B, 0) to record nothing. The run's state is loaded into local
-    scalars, stepped, and stored back, so the compiled loop works in registers. Callers that do
-    more per row (the vector environments) call this inside their own parallel loop.
+    ``out_*`` are (B, n_steps) or (B, 0) to record nothing; ``out_r`` and ``out_yt`` may be
+    ``None`` to leave the reference and the true angle out (numba compiles them away: the
+    environments need neither, and the two stores were ~5 % of their step). The run's state is
+    loaded into local scalars, stepped, and stored back, so the compiled loop works in
+    registers. Callers that do more per row (the vector environments) call this inside their
+    own parallel loop.
 
     Numba inlines it into its callers (``inline="always"``), and it indexes the 2-D arrays
     directly rather than through row views: a call passes ~150 array fields, and every view
@@ -243,7 +258,7 @@ def _advance_row(
     """
     n_x = plant_b.shape[1]
     small = n_x <= 2
-    record = out_r.shape[1] > 0
+    record = out_u.shape[1] > 0
     buf_len = delay_buf.shape[1]
     shared_ref = ref.shape[0] == 1
     shared_plant = plant_a.shape[0] == 1
@@ -251,11 +266,7 @@ def _advance_row(
     pb = np.int64(0) if shared_plant else b
     if state[b, S_DIVERGED] != 0.0:
         if record:
-            for k in range(n_steps):
-                out_r[b, k] = ref[rb, ref_offset + k]
-                out_u[b, k] = np.nan
-                out_y[b, k] = np.nan
-                out_yt[b, k] = np.nan
+            _record_diverged(b, 0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt)
         return
     # parameters
     p_gain, i_gain, d_gain, n_filt = params[b, P_P], params[b, P_I], params[b, P_D], params[b, P_N]
@@ -394,10 +405,12 @@ def _advance_row(
             x0 = mech_hi
         v_prev = v_in
         if record:
-            out_r[b, k] = r
+            if out_r is not None:
+                out_r[b, k] = r
             out_u[b, k] = u
             out_y[b, k] = y_meas
-            out_yt[b, k] = y_true
+            if out_yt is not None:
+                out_yt[b, k] = y_true
         if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
             done = k + 1
             break
@@ -424,11 +437,7 @@ def _advance_row(
     if done < n_steps or not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
         state[b, S_DIVERGED] = 1.0
         if record:
-            for k in range(done - 1, n_steps):
-                out_r[b, k] = ref[rb, ref_offset + k]
-                out_u[b, k] = np.nan
-                out_y[b, k] = np.nan
-                out_yt[b, k] = np.nan
+            _record_diverged(b, done - 1, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt)
 
 
 def _advance_impl(
@@ -444,10 +453,10 @@ def _advance_impl(
     state: np.ndarray,
     rng: np.ndarray,
     delay_buf: np.ndarray,
-    out_r: np.ndarray,
+    out_r: np.ndarray | None,
     out_u: np.ndarray,
     out_y: np.ndarray,
-    out_yt: np.ndarray,
+    out_yt: np.ndarray | None,
 ) -> None:
     """Advance every run by ``n_steps`` physics steps: :func:`_advance_row` over the batch.
 
@@ -472,7 +481,7 @@ _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
 _advance_parallel = njit(cache=True, nogil=True, parallel=True)(renamed(_advance_impl, "_parallel"))
 # the kernels inline the PID and friction steps: their caches depend on those files too
 stamp_caches(
-    (_advance_row, _advance_serial, _advance_parallel),
+    (_record_diverged, _advance_row, _advance_serial, _advance_parallel),
     (__file__, _pid_module.__file__, friction.__file__, _schedule.__file__),
 )
 

@@ -144,7 +144,10 @@ class ControlBatch:
         self.truncated = np.zeros(n_rows, dtype=bool)
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
-        self.out = tuple(np.zeros((n_rows, s.n_sub)) for _ in range(4))
+        # the period's recorded command and measured angle (the kernels leave the reference and
+        # the true angle unrecorded: nothing here needs them)
+        self.out_u = np.zeros((n_rows, s.n_sub))
+        self.out_y = np.zeros((n_rows, s.n_sub))
         self.episodes: list[Episode | None] = [None] * n_rows
         self._kernel = K.step_parallel if n_rows >= PARALLEL_MIN_BATCH else K.step_serial
         self._bind()
@@ -156,7 +159,7 @@ class ControlBatch:
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
             self.rewards, self.terminated, self.truncated,
             sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
-            *self.out,
+            None, self.out_u, self.out_y, None,
         )  # fmt: skip
 
     # ------------------------------------------------------------------------------------------

@@ -13,6 +13,9 @@ Layouts (columns):
 * ``obs`` (float32, (B, n_obs)): tracking part, then previous actions from column ``C_OA0``, then
   context features (written at reset, never touched here).
 * ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
+* ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's command and measured angle, recorded
+  by the core; ``out_r`` and ``out_yt`` are ``None`` in the environments (the core then compiles
+  their recording away) or (B, n_sub) arrays.
 
 The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
 array arguments, and the array views it would take, cost more than a control period's physics.
