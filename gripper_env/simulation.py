@@ -214,7 +214,8 @@ def _record_diverged(b, k0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, o
     for k in range(k0, n_steps):
         if out_r is not None:
             out_r[b, k] = ref[rb, ref_offset + k]
-        out_u[b, k] = np.nan
+        if out_u is not None:
+            out_u[b, k] = np.nan
         out_y[b, k] = np.nan
         if out_yt is not None:
             out_yt[b, k] = np.nan
@@ -236,16 +237,17 @@ def _advance_row(
     rng: np.ndarray,
     delay_buf: np.ndarray,
     out_r: np.ndarray | None,
-    out_u: np.ndarray,
+    out_u: np.ndarray | None,
     out_y: np.ndarray,
     out_yt: np.ndarray | None,
 ) -> None:
     """Advance run ``b`` by ``n_steps`` physics steps (see the module docstring).
 
     ``ref`` is (1 or B, T_ref) and read at column ``ref_offset + k``; ``plant_*`` are (1 or B, ...);
-    ``out_*`` are (B, n_steps) or (B, 0) to record nothing; ``out_r`` and ``out_yt`` may be
-    ``None`` to leave the reference and the true angle out (numba compiles them away: the
-    environments need neither, and the two stores were ~5 % of their step). The run's state is
+    ``out_*`` are (B, n_steps) or (B, 0) to record nothing; ``out_r``, ``out_u`` and ``out_yt``
+    may be ``None`` to leave the reference, the controller output and the true angle out (numba
+    compiles those stores away: the environments need only some, and the reference and true
+    angle were ~5 % of their step). The run's state is
     loaded into local scalars, stepped, and stored back, so the compiled loop works in
     registers. Callers that do more per row (the vector environments) call this inside their
     own parallel loop.
@@ -258,7 +260,7 @@ def _advance_row(
     """
     n_x = plant_b.shape[1]
     small = n_x <= 2
-    record = out_u.shape[1] > 0
+    record = out_y.shape[1] > 0
     buf_len = delay_buf.shape[1]
     shared_ref = ref.shape[0] == 1
     shared_plant = plant_a.shape[0] == 1
@@ -407,7 +409,8 @@ def _advance_row(
         if record:
             if out_r is not None:
                 out_r[b, k] = r
-            out_u[b, k] = u
+            if out_u is not None:
+                out_u[b, k] = u
             out_y[b, k] = y_meas
             if out_yt is not None:
                 out_yt[b, k] = y_true
@@ -454,7 +457,7 @@ def _advance_impl(
     rng: np.ndarray,
     delay_buf: np.ndarray,
     out_r: np.ndarray | None,
-    out_u: np.ndarray,
+    out_u: np.ndarray | None,
     out_y: np.ndarray,
     out_yt: np.ndarray | None,
 ) -> None:

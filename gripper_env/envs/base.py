@@ -139,7 +139,7 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
         b = self._batch
         t = int(b.env[0, K.E_T]) - self.settings.n_sub
         ref = b.ref[0][t : t + self.settings.n_sub]
-        self._history.append((ref.copy(), b.out_y[0].copy(), b.out_u[0].copy()))
+        self._history.append((ref.copy(), b.out_y[0].copy(), b.period_command(0).copy()))
         if self.render_mode == "human":
             frame_s = 1.0 / self.metadata["render_fps"]
             every = max(1, round(frame_s / self.settings.control_period_s))

@@ -144,9 +144,10 @@ class ControlBatch:
         self.truncated = np.zeros(n_rows, dtype=bool)
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
-        # the period's recorded command and measured angle (the kernels leave the reference and
-        # the true angle unrecorded: nothing here needs them)
-        self.out_u = np.zeros((n_rows, s.n_sub))
+        # the period's recorded controller output and measured angle (the kernels leave the
+        # reference and the true angle unrecorded: nothing here needs them; in the servo mode the
+        # output is the drive itself)
+        self.out_u = np.zeros((n_rows, s.n_sub)) if mode == K.MODE_GAINS else None
         self.out_y = np.zeros((n_rows, s.n_sub))
         self.episodes: list[Episode | None] = [None] * n_rows
         self._kernel = K.step_parallel if n_rows >= PARALLEL_MIN_BATCH else K.step_serial
@@ -248,6 +249,10 @@ class ControlBatch:
         and which now wait in ``DONE_RESETTING`` for :meth:`reset_rows`, and row 0's outputs.
         """
         return self._kernel(*self._args)
+
+    def period_command(self, row: int) -> np.ndarray:
+        """Controller output (deg) at each physics step of row ``row``'s last period."""
+        return (self.drive if self.out_u is None else self.out_u)[row]
 
     def resetting_rows(self) -> list[int]:
         """Rows the last :meth:`step` marked ``DONE_RESETTING``."""

@@ -13,8 +13,9 @@ Layouts (columns):
 * ``obs`` (float32, (B, n_obs)): tracking part, then previous actions from column ``C_OA0``, then
   context features (written at reset, never touched here).
 * ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
-* ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's command and measured angle, recorded
-  by the core; ``out_r`` and ``out_yt`` are ``None`` in the environments (the core then compiles
+* ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's controller output and measured
+  angle, recorded by the core. ``out_u`` is ``None`` in the servo mode, where the output is the
+  drive itself; ``out_r`` and ``out_yt`` are ``None`` in the environments (the core then compiles
   their recording away) or (B, n_sub) arrays.
 
 The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
@@ -222,7 +223,8 @@ def tracking_observation(y, r_next, e_prev, integral, n_steps, dt, jc, jh, rate,
 
 
 @njit(cache=True, inline="always")
-def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state, out_u, out_y):
+def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state, drive, out_u,
+          out_y):  # fmt: skip
     """Reward, flags and observation of row ``b`` from the period's recorded physics steps."""
     n_sub = int(cfg[C_NSUB])
     t = int(env[b, E_T])
@@ -244,9 +246,9 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
     u_prev = env[b, E_UPREV]
     variation = 0.0
-    if cfg[C_MODE] == MODE_SERVO:  # open loop: the command is held over the period
-        variation = abs(out_u[b, 0] - u_prev)
-        u_prev = out_u[b, n_sub - 1]
+    if out_u is None:  # the servo mode: the action's command, held over the period
+        variation = abs(drive[b, 0] - u_prev)
+        u_prev = drive[b, n_sub - 1]
     else:
         for k in range(n_sub):
             u = out_u[b, k]
@@ -327,7 +329,7 @@ def _step_impl(
                         plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
                     )  # fmt: skip
                     _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
-                          out_u, out_y)  # fmt: skip
+                          drive, out_u, out_y)  # fmt: skip
             c = fetch_add(counter, np.int64(1))
     return -1, int(resetting.sum()), rewards[0], terminated[0], truncated[0]
 
