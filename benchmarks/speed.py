@@ -254,7 +254,8 @@ noise) with the PID (the paper's tuned gains, output limits 0-180 deg, clamping 
 
 Recording writes 4 x 1024 x 20 000 doubles (655 MB) per batch into preallocated arrays; the
 tuners record whole trajectories, the environments' vector stepping records one control period.
-Batches of 16 runs or more run on all cores (numba `prange`), smaller ones on one.
+Batches of 16 runs or more run on all cores (numba `prange`), smaller ones on one; the runs go
+out one at a time to whichever thread is free (`gripper_env._schedule`).
 """
 
 

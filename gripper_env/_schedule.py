@@ -16,10 +16,11 @@ chunk).
 
 from __future__ import annotations
 
+import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 __all__ = ["CHUNK_STEPS", "MAX_WORKERS", "fetch_add", "n_workers", "rows_per_chunk"]
 
@@ -34,22 +35,32 @@ MAX_WORKERS = 64
 CHUNK_STEPS = 320
 
 
-@intrinsic
-def fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped-def]
+def fetch_add(counter: np.ndarray, increment: int) -> int:
     """Atomically add ``increment`` to ``counter[0]`` and return its previous value.
+
+    Compiled, this is one ``lock xadd`` (:func:`_atomic_fetch_add`); run as plain Python (the
+    uncompiled kernels, ``NUMBA_DISABLE_JIT``), where ``prange`` is ``range`` and nothing runs
+    concurrently, it is an ordinary read and add.
 
     Parameters
     ----------
     counter : ndarray of int64, shape (1,)
         The shared counter.
-    increment : int64
+    increment : int
         The amount to add.
 
     Returns
     -------
-    int64
+    int
         ``counter[0]`` before the addition.
     """
+    old = int(counter[0])
+    counter[0] = old + increment
+    return old
+
+
+@intrinsic
+def _atomic_fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped-def]
     if not (
         isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1
     ):
@@ -65,6 +76,14 @@ def fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped-def]
         return builder.atomic_rmw("add", ptr, args[1], "monotonic")
 
     return sig, codegen
+
+
+@overload(fetch_add, inline="always")
+def _fetch_add_compiled(counter, increment):  # type: ignore[no-untyped-def]
+    def impl(counter, increment):  # type: ignore[no-untyped-def]
+        return _atomic_fetch_add(counter, np.int64(increment))
+
+    return impl
 
 
 @njit(cache=True, inline="always")
