@@ -335,10 +335,7 @@ def _advance_row(
             y_meas += noise * g
         if lsb > 0.0:
             code = _floor((y_meas - adc_lo) * inv_lsb + 0.5)
-            if code < 0.0:
-                code = 0.0
-            elif code > adc_max:
-                code = adc_max
+            code = 0.0 if code < 0.0 else (adc_max if code > adc_max else code)
             y_meas = adc_lo + code * lsb
         # 3. controller
         r = ref[rb, ref_offset + k]
@@ -371,8 +368,7 @@ def _advance_row(
             cmd = c
             countdown = refresh
         countdown -= 1.0
-        if clipped or cmd_clip != 0.0:
-            saturated += 1.0
+        saturated += 1.0 if (clipped or cmd_clip != 0.0) else 0.0
         # 5. friction and backlash
         v_in = cmd
         if fric != 0:
@@ -401,10 +397,7 @@ def _advance_row(
                 state[b, S_X + i] = state[b, S_X + n_x + i]
             x0 = state[b, S_X]
             x1 = state[b, S_X + 1]
-        if x0 < mech_lo:
-            x0 = mech_lo
-        elif x0 > mech_hi:
-            x0 = mech_hi
+        x0 = mech_lo if x0 < mech_lo else (mech_hi if x0 > mech_hi else x0)
         v_prev = v_in
         if record:
             if out_r is not None:
