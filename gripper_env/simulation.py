@@ -208,6 +208,33 @@ def _normal_draws(z: np.uint64, n: int) -> np.ndarray:
     return out
 
 
+@njit(cache=True, nogil=True)
+def _update_state_general(
+    b: int,
+    pb: int,
+    x0: float,
+    v_in: float,
+    plant_a: np.ndarray,
+    plant_b: np.ndarray,
+    state: np.ndarray,
+) -> tuple[float, float]:
+    """Zero-order-hold update of run ``b``'s plant of order > 2; returns its first two states.
+
+    Kept out of line (a call, not inlined): the paper's plants are of order 1 and 2, and the
+    general loop's code in the physics loop cost the environments' step 1.03-1.05x.
+    """
+    n_x = plant_b.shape[1]
+    state[b, S_X] = x0
+    for i in range(n_x):
+        acc = plant_b[pb, i] * v_in
+        for j in range(n_x):
+            acc += plant_a[pb, i, j] * state[b, S_X + j]
+        state[b, S_X + n_x + i] = acc
+    for i in range(n_x):
+        state[b, S_X + i] = state[b, S_X + n_x + i]
+    return state[b, S_X], state[b, S_X + 1]
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _record_diverged(b, k0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt):
     """Recording of a diverged run from step ``k0``: the reference, NaN for the rest."""
@@ -387,16 +414,7 @@ def _advance_row(
             x1 = a10 * x0 + a11 * x1 + b1 * v_in
             x0 = x0_new
         else:
-            state[b, S_X] = x0
-            for i in range(n_x):
-                acc = plant_b[pb, i] * v_in
-                for j in range(n_x):
-                    acc += plant_a[pb, i, j] * state[b, S_X + j]
-                state[b, S_X + n_x + i] = acc
-            for i in range(n_x):
-                state[b, S_X + i] = state[b, S_X + n_x + i]
-            x0 = state[b, S_X]
-            x1 = state[b, S_X + 1]
+            x0, x1 = _update_state_general(b, pb, x0, v_in, plant_a, plant_b, state)
         x0 = mech_lo if x0 < mech_lo else (mech_hi if x0 > mech_hi else x0)
         v_prev = v_in
         if record:
@@ -477,7 +495,7 @@ _advance_serial = njit(cache=True, nogil=True)(_advance_impl)
 _advance_parallel = njit(cache=True, nogil=True, parallel=True)(renamed(_advance_impl, "_parallel"))
 # the kernels inline the PID and friction steps: their caches depend on those files too
 stamp_caches(
-    (_record_diverged, _advance_row, _advance_serial, _advance_parallel),
+    (_update_state_general, _record_diverged, _advance_row, _advance_serial, _advance_parallel),
     (__file__, _pid_module.__file__, friction.__file__, _schedule.__file__),
 )
 
