@@ -11,7 +11,17 @@ chunk of rows from a shared counter (:func:`fetch_add`, one atomic add per chunk
 left, so a fast thread simply does more chunks. Rows are independent and each is computed by
 exactly one worker, so the results do not depend on the schedule. Compiled without
 ``parallel=True`` the same code runs the workers one after the other (the first takes every
-chunk).
+chunk). The kernels (the core's batch, the environments' step, the metrics) all use this idiom::
+
+    chunk = rows_per_chunk(n_steps)
+    n_chunks = (n_rows + chunk - 1) // chunk
+    counter = np.zeros(1, np.int64)
+    for w in prange(n_workers(n_chunks)):
+        c = fetch_add(counter, 1)
+        while c < n_chunks:
+            for b in range(c * chunk, min(n_rows, (c + 1) * chunk)):
+                ...  # row b
+            c = fetch_add(counter, 1)
 """
 
 from __future__ import annotations

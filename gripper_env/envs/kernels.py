@@ -306,7 +306,7 @@ def _step_impl(
     # compile-time open loop lets LLVM drop the PID from the physics loop (1.06x)
     closed = out_u is not None
     dt = cfg[C_DT]
-    # rows in chunks, shared out to one worker per thread (gripper_env._schedule)
+    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule)
     chunk = rows_per_chunk(n_sub)
     n_chunks = (n_rows + chunk - 1) // chunk
     workers = n_workers(n_chunks)
