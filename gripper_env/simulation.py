@@ -474,7 +474,7 @@ def _advance_impl(
 ) -> None:
     """Advance every run by ``n_steps`` physics steps: :func:`_advance_row` over the batch.
 
-    The rows are shared out in chunks to one worker per thread (:mod:`gripper_env._schedule`).
+    The rows go out in chunks to whichever thread is free (:mod:`gripper_env._schedule`).
     """
     n_rows = params.shape[0]
     chunk = rows_per_chunk(n_steps)
