@@ -81,17 +81,25 @@ def _solve(zeta: np.ndarray, phi: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def _regressors(
-    data: IOData, den: np.ndarray, n: int, m: int, uf: np.ndarray | None = None
+    data: IOData,
+    den: np.ndarray,
+    n: int,
+    m: int,
+    uf: np.ndarray | None = None,
+    delay_s: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Regressors ``[-y_f^(n-1) .. -y_f, u_f^(m) .. u_f]`` and target ``y_f^(n)``."""
+    """Regressors ``[-y_f^(n-1) .. -y_f, u_f^(m) .. u_f]`` and target ``y_f^(n)``; the input
+    filters see ``u`` ``delay_s`` late."""
     yf = filtered_derivatives(den, data.y, data.dt_s, "foh")
     if uf is None:
-        uf = filtered_derivatives(den, data.u, data.dt_s, "zoh")[:, : m + 1]
+        uf = filtered_derivatives(den, data.u, data.dt_s, "zoh", delay_s)[:, : m + 1]
     phi = np.column_stack([-yf[:, n - 1 :: -1], uf[:, ::-1]])
     return phi, yf[:, n]
 
 
-def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float) -> np.ndarray:
+def svf_least_squares(
+    data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float, delay_s: float = 0.0
+) -> np.ndarray:
     """Least-squares fit through the state-variable filter ``1/(s + lambda)^n``.
 
     Parameters
@@ -102,6 +110,8 @@ def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float
         Model order.
     lam_rad_s : float
         Filter pole ``lambda`` (rad/s); about the bandwidth of the system works best.
+    delay_s : float
+        Input delay of the model (s).
 
     Returns
     -------
@@ -109,12 +119,16 @@ def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float
         ``theta = [a_{n-1}..a_0, b_m..b_0]``.
     """
     den = np.real(np.poly(np.full(n_poles, -float(lam_rad_s))))
-    phi, target = _regressors(data, den, n_poles, n_zeros)
+    phi, target = _regressors(data, den, n_poles, n_zeros, delay_s=delay_s)
     return _solve(phi, phi, target)
 
 
 def initial_estimate(
-    data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float | None = None
+    data: IOData,
+    n_poles: int,
+    n_zeros: int,
+    lam_rad_s: float | None = None,
+    delay_s: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """SVF least-squares start, with ``lambda`` chosen from the data unless given.
 
@@ -139,12 +153,13 @@ def initial_estimate(
         grid = np.logspace(np.log10(lo), np.log10(hi), max(2, int(3 * np.log10(hi / lo)) + 1))
     best: tuple[float, np.ndarray, float] | None = None
     for lam in grid:
-        theta = svf_least_squares(data, n_poles, n_zeros, lam)
+        theta = svf_least_squares(data, n_poles, n_zeros, lam, delay_s)
         if not np.all(np.isfinite(theta)):
             continue
         num, den = split_params(theta, n_poles)
         den, _ = stabilise(den)
-        cost = float(np.sum((data.y - zoh_response(num, den, data.u, data.dt_s)) ** 2))
+        y_hat = zoh_response(num, den, data.u, data.dt_s, delay_s=delay_s)
+        cost = float(np.sum((data.y - y_hat) ** 2))
         if np.isfinite(cost) and (best is None or cost < best[0]):
             best = (cost, np.concatenate([den[1:], num]), float(lam))
     if best is None:
@@ -183,6 +198,8 @@ def srivc(
     max_iter: int = 30,
     tol: float = 1e-7,
     max_stall: int = 3,
+    delay_s: float = 0.0,
+    instrument_input: np.ndarray | None = None,
 ) -> SrivcResult:
     """Refine ``theta0`` with the SRIVC iterations (Young and Garnier).
 
@@ -201,6 +218,14 @@ def srivc(
     max_stall : int
         Also stop after this many iterations in a row without a smaller simulation error
         (not converged; the best iterate is returned).
+    delay_s : float
+        Input delay of the model (s).
+    instrument_input : ndarray, optional
+        Closed loop: the input's noise-free part predicted from the reference
+        (:func:`gripper_env.sysid.closed_loop.predicted_input`). The instruments are then built
+        from it (``x = B/A u_hat``), the regressors from the measured input, and the simulation
+        error that picks the best iterate uses it too; both are uncorrelated with the noise
+        that the feedback puts into the measured input, so the estimate stays consistent.
 
     Returns
     -------
@@ -212,12 +237,13 @@ def srivc(
     converged = False
     it = 0
     stalled = 0
+    u_aux = data.u if instrument_input is None else instrument_input
     for it in range(1, max_iter + 1):  # noqa: B007 (the count is reported)
         num, den = split_params(theta, n)
         den, _ = stabilise(den)
         theta = np.concatenate([den[1:], num])
         # Auxiliary model output x = B/A u, its filtered derivatives p^i/A x and p^k/A u.
-        sens = model_sensitivities(num, den, data.u, data.dt_s)
+        sens = model_sensitivities(num, den, u_aux, data.dt_s, delay_s=delay_s)
         cost = float(np.sum((data.y - sens.y_hat) ** 2))
         if cost < best[0] * (1 - 1e-9):
             best = (cost, theta)
@@ -230,7 +256,8 @@ def srivc(
                 # follows does not need more.
                 break
         # d_a = -[p^{n-1}/A x, ..., x/A]: exactly the noise-free regressors; d_b = [p^m/A u ..].
-        phi, target = _regressors(data, den, n, m, uf=sens.d_b[:, ::-1])
+        uf = sens.d_b[:, ::-1] if instrument_input is None else None
+        phi, target = _regressors(data, den, n, m, uf=uf, delay_s=delay_s)
         zeta = np.column_stack([sens.d_a, sens.d_b])
         new = _solve(zeta, phi, target)
         if not np.all(np.isfinite(new)):
@@ -242,7 +269,7 @@ def srivc(
             break
     num, den = split_params(theta, n)
     den, _ = stabilise(den)
-    cost = float(np.sum((data.y - zoh_response(num, den, data.u, data.dt_s)) ** 2))
+    cost = float(np.sum((data.y - zoh_response(num, den, u_aux, data.dt_s, delay_s=delay_s)) ** 2))
     if cost <= best[0]:
         best = (cost, np.concatenate([den[1:], num]))
     return SrivcResult(theta=best[1], n_iter=it, converged=converged, cost=best[0])
