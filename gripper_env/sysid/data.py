@@ -190,14 +190,14 @@ def _time_base(
     if jitter <= max_jitter:
         return dt, t0, signals, ("uniform" if jitter <= _ROUNDING else "snapped"), jitter
     dt = float(np.median(dts))
-    gap = dts > max_gap * dt
+    gap = dts > max_gap * dt * (1.0 + 1e-6)  # float rounding of the stamps is no gap
     if gap.any():
         i = int(np.argmax(dts))
         raise ValueError(
             f"gap in the time stamps: {dts[i]:.6g} s between t_s[{i}] = {t[i]:.6g} and "
             f"t_s[{i + 1}] = {t[i + 1]:.6g}, {dts[i] / dt:.3g} times the median interval "
             f"{dt:.6g} s (samples lost?); split the record there, or allow --max-gap "
-            f"{np.ceil(dts[i] / dt):g} (max_gap) to resample across it"
+            f"{np.ceil(dts[i] / dt - 1e-6):g} (max_gap) to resample across it"
         )
     n = int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
     grid = t[0] + dt * np.arange(n)

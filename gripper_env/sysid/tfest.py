@@ -49,7 +49,13 @@ from gripper_env.sysid.data import (
 )
 from gripper_env.sysid.delay import default_max_delay, scan_delay
 from gripper_env.sysid.output_error import OutputErrorResult, fit_initial_state, refine_output_error
-from gripper_env.sysid.srivc import initial_estimate, split_params, srivc, stabilise
+from gripper_env.sysid.srivc import (
+    offset_cost,
+    split_params,
+    srivc,
+    stabilise,
+    svf_candidates,
+)
 from gripper_env.sysid.zoh import zoh_response
 
 __all__ = [
@@ -65,6 +71,8 @@ __all__ = [
 
 #: ``input_delay_s=ESTIMATE``: estimate the input delay.
 ESTIMATE = "estimate"
+#: SVF starts that go through SRIVC before the best one is refined.
+STARTS = 3
 #: A pole and a zero closer than this fraction of the pole's magnitude nearly cancel.
 CANCELLATION_RTOL = 0.1
 
@@ -709,7 +717,20 @@ def _starts(
             raise ValueError("svf_lambda_rad_s needs at least one start")
     out: list[tuple[np.ndarray, float, float | None]] = []
     for lam in lams:
-        theta, lam_used = initial_estimate(data, n, m, lam)
+        cands = svf_candidates(data, n, m, lam)
+        if lam is None and len(cands) > 1:
+            # the data's best few filters each through SRIVC, the best afterwards: one start can
+            # end in a local optimum that another avoids (a friction record's flat cost)
+            tau = 0.0 if delay is None else delay
+            scored = []
+            for _, theta, lam_c in cands[:STARTS]:
+                iv = srivc(data, n, m, theta, delay_s=tau)
+                num, den = split_params(iv.theta, n)
+                y_hat = zoh_response(num, den, data.u, data.dt_s, delay_s=tau)
+                scored.append((offset_cost(data.y, y_hat), iv.theta, lam_c))
+            _, theta, lam_used = min(scored, key=lambda c: c[0])
+        else:
+            _, theta, lam_used = cands[0]
         out.append((theta, lam_used, None))
     for est in start_from:
         for corner in _corners(data, est, n, m):

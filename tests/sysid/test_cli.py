@@ -69,7 +69,7 @@ def test_json_plot_and_plant(log_csv, tmp_path):
     )
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
-    for key in ("num", "den", "fit_pct", "fit_pct_zero_ic"):
+    for key in ("num", "den", "input_delay_s", "fit_pct", "fit_pct_rest", "validation"):
         assert key in out
     assert out["den"][0] == 1.0 and len(out["den"]) == 3 and len(out["num"]) == 2
     np.testing.assert_allclose(out["den"], DEN, rtol=0.05)
@@ -83,7 +83,8 @@ def test_json_plot_and_plant(log_csv, tmp_path):
 def test_text_output(log_csv):
     res = run_cli(str(log_csv), "--poles", "1", "--zeros", "0")
     assert res.returncode == 0, res.stderr
-    assert res.stdout.startswith("G(s) = ") and "fit (initial state estimated):" in res.stdout
+    assert res.stdout.startswith("G(s) = ") and "fit on the estimation data:" in res.stdout
+    assert "input delay:" in res.stdout
 
 
 @pytest.mark.parametrize(
@@ -114,12 +115,31 @@ def test_missing_file_and_bad_flag(tmp_path):
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1
 
 
-def test_help_documents_every_flag():
-    res = run_cli("--help")
-    assert res.returncode == 0
+def test_help_documents_every_flag(capsys):
+    from gripper_env.sysid.commands import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    top = capsys.readouterr().out
+    assert all(cmd in top for cmd in ("tf", "greybox", "experiments"))
+    with pytest.raises(SystemExit) as exc:
+        main(["tf", "--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
     for flag in (
         "--poles",
         "--zeros",
+        "--orders",
+        "--delay",
+        "--max-delay",
+        "--split",
+        "--validate",
+        "--reference",
+        "--max-jitter",
+        "--max-gap",
+        "--max-iterations",
+        "--allow-nonconverged",
         "--json",
         "--plot",
         "--offset",
@@ -129,7 +149,7 @@ def test_help_documents_every_flag():
         "--name",
         "LOG.csv",
     ):
-        assert flag in res.stdout
+        assert flag in text
 
 
 def test_plant_dict_keys_and_types():
