@@ -36,12 +36,9 @@ def fit_initial_state(
     *,
     with_offset: bool = False,
     delay_s: float = 0.0,
-    u: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Least-squares initial state (and output-offset correction) for a fixed model.
-
-    ``u`` replaces ``data.u`` as the input (the closed loop's predicted input); ``delay_s`` is
-    the model's input delay (s).
+    """Least-squares initial state (and output-offset correction) for a fixed model with input
+    delay ``delay_s`` (s).
 
     Returns
     -------
@@ -52,10 +49,9 @@ def fit_initial_state(
     y_hat : ndarray
         Simulated output with them (deviations, deg).
     """
-    u_in = data.u if u is None else u
     with np.errstate(all="ignore"):
         sens = model_sensitivities(
-            num, den, u_in, data.dt_s, with_initial_state=True, delay_s=delay_s
+            num, den, data.u, data.dt_s, with_initial_state=True, delay_s=delay_s
         )
     basis = sens.d_x0
     assert basis is not None
@@ -209,7 +205,6 @@ def refine_output_error(
     delay_s: float = 0.0,
     estimate_delay: bool = False,
     max_delay_s: float = np.inf,
-    u: np.ndarray | None = None,
     max_nfev: int = 200,
     ftol: float = 1e-8,
     xtol: float = 1e-8,
@@ -237,8 +232,6 @@ def refine_output_error(
         Estimate the delay too, within ``[0, max_delay_s]``.
     max_delay_s : float
         Upper bound of the estimated delay (s).
-    u : ndarray, optional
-        Input to use instead of ``data.u`` (the closed loop's predicted input).
     max_nfev : int
         Most residual evaluations.
     ftol, xtol, gtol : float
@@ -249,7 +242,6 @@ def refine_output_error(
     OutputErrorResult
     """
     n, m = n_poles, n_zeros
-    u_in = data.u if u is None else u
     problem = _Problem(
         data,
         n,
@@ -257,14 +249,12 @@ def refine_output_error(
         estimate_x0,
         estimate_offset,
         None if estimate_delay else float(delay_s),
-        u_in,
+        data.u,
         float(max_delay_s),
     )
     theta0 = np.asarray(theta0, dtype=float).copy()
     num, den = split_params(theta0, n)
-    x0, offset, _ = fit_initial_state(
-        data, num, den, with_offset=estimate_offset, delay_s=delay_s, u=u_in
-    )
+    x0, offset, _ = fit_initial_state(data, num, den, with_offset=estimate_offset, delay_s=delay_s)
     p0 = np.concatenate(
         [
             theta0,

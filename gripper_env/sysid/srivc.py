@@ -233,7 +233,6 @@ def srivc(
     tol: float = 1e-7,
     max_stall: int = 3,
     delay_s: float = 0.0,
-    instrument_input: np.ndarray | None = None,
 ) -> SrivcResult:
     """Refine ``theta0`` with the SRIVC iterations (Young and Garnier).
 
@@ -254,13 +253,6 @@ def srivc(
         (not converged; the best iterate is returned).
     delay_s : float
         Input delay of the model (s).
-    instrument_input : ndarray, optional
-        Closed loop: the input's noise-free part predicted from the reference
-        (:func:`gripper_env.sysid.closed_loop.predicted_input`). The instruments are then built
-        from it (``x = B/A u_hat``), the regressors from the measured input, and the simulation
-        error that picks the best iterate uses it too; both are uncorrelated with the noise
-        that the feedback puts into the measured input, so the estimate stays consistent.
-
     Returns
     -------
     SrivcResult
@@ -271,13 +263,12 @@ def srivc(
     converged = False
     it = 0
     stalled = 0
-    u_aux = data.u if instrument_input is None else instrument_input
     for it in range(1, max_iter + 1):  # noqa: B007 (the count is reported)
         num, den = split_params(theta, n)
         den, _ = stabilise(den)
         theta = np.concatenate([den[1:], num])
         # Auxiliary model output x = B/A u, its filtered derivatives p^i/A x and p^k/A u.
-        sens = model_sensitivities(num, den, u_aux, data.dt_s, delay_s=delay_s)
+        sens = model_sensitivities(num, den, data.u, data.dt_s, delay_s=delay_s)
         cost = offset_cost(data.y, sens.y_hat)
         if cost < best[0] * (1 - 1e-9):
             best = (cost, theta)
@@ -290,8 +281,7 @@ def srivc(
                 # follows does not need more.
                 break
         # d_a = -[p^{n-1}/A x, ..., x/A]: exactly the noise-free regressors; d_b = [p^m/A u ..].
-        uf = sens.d_b[:, ::-1] if instrument_input is None else None
-        phi, target = _regressors(data, den, n, m, uf=uf, delay_s=delay_s)
+        phi, target = _regressors(data, den, n, m, uf=sens.d_b[:, ::-1], delay_s=delay_s)
         # the constant's columns are their own instruments
         zeta = np.column_stack([sens.d_a, sens.d_b, phi[:, n + m + 1 :]])
         new = _solve(zeta, phi, target)[: n + m + 1]
@@ -304,7 +294,7 @@ def srivc(
             break
     num, den = split_params(theta, n)
     den, _ = stabilise(den)
-    cost = offset_cost(data.y, zoh_response(num, den, u_aux, data.dt_s, delay_s=delay_s))
+    cost = offset_cost(data.y, zoh_response(num, den, data.u, data.dt_s, delay_s=delay_s))
     if cost <= best[0]:
         best = (cost, np.concatenate([den[1:], num]))
     return SrivcResult(theta=best[1], n_iter=it, converged=converged, cost=best[0])

@@ -14,8 +14,9 @@ Pipeline (see :mod:`gripper_env.sysid.srivc` and :mod:`gripper_env.sysid.output_
 5. diagnostics (:class:`IdentificationWarning`): poles beyond the Nyquist frequency,
    near-cancelling pole/zero pairs, no convergence, and data that look like a feedback loop.
 
-With a closed loop's reference ``r``, steps 3 and 4 use the input predicted from the reference
-(:mod:`gripper_env.sysid.closed_loop`) for the instruments and the simulation.
+With a closed loop's reference ``r``, step 4 fits the plant inside the simulated loop instead,
+driven by the reference, with the controller fitted from the log
+(:mod:`gripper_env.sysid.closed_loop`).
 
 The returned model maps **deviations**: ``y - y_op = G(s) e^{-s tau} (u - u_op)`` with the
 operating point of ``offset`` (like MATLAB on detrended data). :meth:`TFEstimate.simulate` adds
@@ -39,7 +40,7 @@ from threadpoolctl import threadpool_limits
 
 from gripper_env.metrics import fit_percent
 from gripper_env.state_space import observer_form
-from gripper_env.sysid.closed_loop import feedback_test, predicted_input
+from gripper_env.sysid.closed_loop import ClosedLoopFit, feedback_test, fit_closed_loop
 from gripper_env.sysid.data import (
     DEFAULT_MAX_GAP,
     DEFAULT_MAX_JITTER,
@@ -221,10 +222,11 @@ class TFEstimate:
         How the time stamps were handled (:class:`gripper_env.sysid.data.IOData`).
     jitter : float
         Largest time-stamp deviation from the uniform grid (fraction of an interval).
-    closed_loop : bool
-        Whether a reference was given and the closed-loop estimator used.
-    input_fit_pct : float
-        Closed loop: how much of the input the reference explains (stage 1, %); NaN otherwise.
+    closed_loop : dict or None
+        With a reference (the closed-loop estimator): the fitted controller
+        (``controller_num``, ``controller_den``), how well the input follows it
+        (``controller_fit_pct``) and how well the simulated loop reproduces the output from the
+        reference (``loop_fit_pct``). None for open-loop data.
     warnings : tuple of str
         Diagnostics (also issued as :class:`IdentificationWarning`).
     validation : FitOnData or None
@@ -257,8 +259,7 @@ class TFEstimate:
     svf_lambda_rad_s: float = math.nan
     time_base: str = "interval"
     jitter: float = 0.0
-    closed_loop: bool = False
-    input_fit_pct: float = math.nan
+    closed_loop: dict[str, Any] | None = None
     warnings: tuple[str, ...] = ()
     validation: FitOnData | None = None
     message: str = ""
@@ -386,8 +387,7 @@ class TFEstimate:
             "y_op": float(self.y_op),
             "y_op_std": float(self.y_op_std),
             "offset": self.offset,
-            "closed_loop": bool(self.closed_loop),
-            "input_fit_pct": _json_float(self.input_fit_pct),
+            "closed_loop": self.closed_loop,
             "residual_rms": float(np.sqrt(np.mean(self.residuals**2))),
             "n_iter_srivc": int(self.n_iter_srivc),
             "n_iter_oe": int(self.n_iter_oe),
@@ -493,23 +493,19 @@ def _srivc_with_delay(
     theta: np.ndarray,
     delay: float | None,
     max_delay_s: float,
-    u_aux: np.ndarray | None,
     max_iter: int,
     tol: float,
 ) -> tuple[np.ndarray, float, int]:
     """SRIVC at a fixed delay, or alternating with the delay scan until the delay settles."""
     if delay is not None:
-        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=delay,
-                   instrument_input=u_aux)  # fmt: skip
+        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=delay)
         return iv.theta, delay, iv.n_iter
-    u_in = data.u if u_aux is None else u_aux
     tau, seen, iters = 0.0, set(), 0
     for _ in range(6):
-        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=tau,
-                   instrument_input=u_aux)  # fmt: skip
+        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=tau)
         theta, iters = iv.theta, iters + iv.n_iter
         num, den = split_params(theta, n)
-        d, _ = scan_delay(num, den, u_in, data.y, data.dt_s, max_delay_s)
+        d, _ = scan_delay(num, den, data.u, data.y, data.dt_s, max_delay_s)
         if d in seen:
             break
         seen.add(d)
@@ -653,10 +649,7 @@ def tfest(
         raise ValueError(f"max_delay_s (--max-delay) must be >= 0 seconds, got {max_delay_s}")
     delay = _delay_setting(input_delay_s, max_delay)
     notes: list[str] = []
-    u_aux, input_fit = None, math.nan
-    if data.r is not None:
-        u_aux, input_fit = predicted_input(data, n + 2)
-    elif check_feedback:
+    if data.r is None and check_feedback:
         fb = feedback_test(data)
         if fb.feedback:
             notes.append(
@@ -667,24 +660,27 @@ def tfest(
             )
     ftol = 0.02 / data.n_samples if tol is None else float(tol)
     starts = _starts(data, n, m, svf_lambda_rad_s, start_from, delay)
-    best: _Candidate | None = None
-    for theta0, lam, tau0 in starts:
-        if tau0 is None:
-            theta, tau, n_iv = _srivc_with_delay(
-                data, n, m, theta0, delay, max_delay, u_aux, max_iter_srivc, srivc_tol
-            )
-        else:  # a start from another estimate keeps its delay as the start
-            theta, tau, n_iv = theta0, tau0, 0
-        cand = _refine(
-            data, n, m, theta, tau, delay is None, max_delay, u_aux, enforce_stability,
-            estimate_initial_state, estimate_output_offset, max_nfev, ftol,
-        )  # fmt: skip
-        cand.lam, cand.n_iter_srivc = lam, n_iv
-        if best is None or cand.cost < best.cost:
-            best = cand
-    assert best is not None
-    est = _estimate(data, n, m, best, delay is None, u_aux, input_fit, estimate_initial_state,
-                    estimate_output_offset)  # fmt: skip
+    if data.r is not None:
+        est = _closed_loop_estimate(data, n, m, starts, delay, max_delay, max_nfev)
+    else:
+        best: _Candidate | None = None
+        for theta0, lam, tau0 in starts:
+            if tau0 is None:
+                theta, tau, n_iv = _srivc_with_delay(
+                    data, n, m, theta0, delay, max_delay, max_iter_srivc, srivc_tol
+                )
+            else:  # a start from another estimate keeps its delay as the start
+                theta, tau, n_iv = theta0, tau0, 0
+            cand = _refine(
+                data, n, m, theta, tau, delay is None, max_delay, enforce_stability,
+                estimate_initial_state, estimate_output_offset, max_nfev, ftol,
+            )  # fmt: skip
+            cand.lam, cand.n_iter_srivc = lam, n_iv
+            if best is None or cand.cost < best.cost:
+                best = cand
+        assert best is not None
+        est = _estimate(data, n, m, best, delay is None, None, estimate_initial_state,
+                        estimate_output_offset)  # fmt: skip
     notes += diagnose(est)
     if delay is None and est.input_delay_s >= max_delay - 0.5 * data.dt_s:
         notes.append(
@@ -692,8 +688,8 @@ def tfest(
             "the data lag the input more than dead time explains (friction on a slow ramp "
             "poses as delay); fix the delay (--delay SECONDS) or model the friction (greybox)"
         )
-    if delay is not None:
-        notes += _delay_hint(data, est, max_delay, u_aux)
+    if delay is not None and data.r is None:
+        notes += _delay_hint(data, est, max_delay)
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=3)
     return dataclasses.replace(est, warnings=tuple(notes))
@@ -749,7 +745,6 @@ def _refine(
     tau: float,
     estimate_delay: bool,
     max_delay: float,
-    u_aux: np.ndarray | None,
     enforce_stability: bool,
     estimate_x0: bool,
     estimate_offset: bool,
@@ -769,7 +764,6 @@ def _refine(
         delay_s=tau,
         estimate_delay=estimate_delay,
         max_delay_s=max_delay,
-        u=u_aux,
         max_nfev=max_nfev,
         ftol=ftol,
     )
@@ -785,6 +779,45 @@ def _refine(
     return _Candidate(oe=oe, cost=float(oe.residuals @ oe.residuals), lam=math.nan, n_iter_srivc=0)
 
 
+def _closed_loop_estimate(
+    data: IOData,
+    n: int,
+    m: int,
+    starts: list[tuple[np.ndarray, float, float | None]],
+    delay: float | None,
+    max_delay: float,
+    max_nfev: int,
+) -> TFEstimate:
+    """The indirect closed-loop fit (:func:`gripper_env.sysid.closed_loop.fit_closed_loop`),
+    started from the open-loop SRIVC estimates (biased, but in the right region)."""
+    thetas = [srivc(data, n, m, theta).theta for theta, _, tau in starts if tau is None]
+    thetas += [theta for theta, _, tau in starts if tau is not None]
+    loop = fit_closed_loop(data, n, m, thetas, delay, max_delay, max_nfev=max_nfev)
+    cov = loop.cov
+    oe = OutputErrorResult(
+        theta=loop.theta,
+        delay_s=loop.delay_s,
+        x0=np.zeros(n),
+        offset=loop.offset,
+        residuals=np.zeros(data.n_samples),
+        cov=cov,
+        n_iter=loop.n_iter,
+        converged=loop.converged,
+        message=loop.message,
+    )
+    cand = _Candidate(oe=oe, cost=0.0, lam=math.nan, n_iter_srivc=0)
+    return _estimate(data, n, m, cand, delay is None, loop, False, True)
+
+
+def _loop_dict(loop: ClosedLoopFit) -> dict[str, Any]:
+    return {
+        "controller_num": [float(c) for c in loop.controller_num],
+        "controller_den": [float(c) for c in loop.controller_den],
+        "controller_fit_pct": float(loop.controller_fit_pct),
+        "loop_fit_pct": float(loop.loop_fit_pct),
+    }
+
+
 def _rest_output(data: IOData) -> float:
     """Mean output (deviation) over the leading samples at which the input has not moved."""
     moved = np.flatnonzero(data.u != data.u[0])
@@ -798,8 +831,7 @@ def _estimate(
     m: int,
     cand: _Candidate,
     delay_estimated: bool,
-    u_aux: np.ndarray | None,
-    input_fit: float,
+    loop: ClosedLoopFit | None,
     estimate_x0: bool,
     estimate_offset: bool,
 ) -> TFEstimate:
@@ -807,15 +839,14 @@ def _estimate(
     num, den = split_params(oe.theta, n)
     std = np.sqrt(np.clip(np.diag(oe.cov), 0.0, None))
     n_theta = n + m + 1
-    k = n_theta + (n if estimate_x0 else 0)
+    k = n_theta + (n if estimate_x0 and loop is None else 0)
     y_op_std = float(std[k]) if estimate_offset else 0.0
-    tau_std = float(std[-1]) if delay_estimated else 0.0
+    tau_std = float(std[-1]) if delay_estimated and loop is None else 0.0
     y_op = data.y_op + oe.offset
     x0, residuals = oe.x0, oe.residuals
-    if u_aux is not None:
+    if loop is not None:
         # report the fit to the measured input, as MATLAB's compare does (initial state refitted)
-        x0, _, y_hat_dev = fit_initial_state(data, num, den, delay_s=oe.delay_s)
-        x0 = x0 if estimate_x0 else np.zeros(n)
+        x0, _, _ = fit_initial_state(data, num, den, delay_s=oe.delay_s)
         y_hat_dev = zoh_response(num, den, data.u, data.dt_s, x0, oe.delay_s) + oe.offset
         residuals = data.y - y_hat_dev
     y_abs = data.y_abs
@@ -846,20 +877,16 @@ def _estimate(
         svf_lambda_rad_s=cand.lam,
         time_base=data.time_base,
         jitter=data.jitter,
-        closed_loop=u_aux is not None,
-        input_fit_pct=input_fit,
+        closed_loop=None if loop is None else _loop_dict(loop),
         message=oe.message,
     )
 
 
-def _delay_hint(
-    data: IOData, est: TFEstimate, max_delay: float, u_aux: np.ndarray | None
-) -> list[str]:
+def _delay_hint(data: IOData, est: TFEstimate, max_delay: float) -> list[str]:
     """With the delay fixed: does shifting the input improve the fit? (A model fitted with too
     short a delay bends its poles to make up for it, so this understates the missing delay.)"""
-    u_in = data.u if u_aux is None else u_aux
     tau = est.input_delay_s
-    d, costs = scan_delay(est.num, est.den, u_in, data.y, data.dt_s, max_delay - tau, tau)
+    d, costs = scan_delay(est.num, est.den, data.u, data.y, data.dt_s, max_delay - tau, tau)
     if d == 0 or not costs[d] < 0.97 * costs[0]:
         return []
     return [
