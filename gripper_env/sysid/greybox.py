@@ -136,6 +136,9 @@ class ActualEstimate:
         ADC and noise.
     delay_s : float
         Sensor delay (s, whole physics steps): dead time between the servo and the log.
+    delay_range_s : (float, float)
+        Delays consistent with the data (s): on a slow ramp a later servo refresh tick and a
+        longer delay look alike.
     refresh_phase_steps : int
         Physics steps from the log's first sample to the servo's first refresh tick after it
         (a property of the log, not of the gripper).
@@ -165,6 +168,7 @@ class ActualEstimate:
     friction: FrictionEstimate
     sensor: SensorEstimate
     delay_s: float
+    delay_range_s: tuple[float, float]
     refresh_phase_steps: int
     offset_deg: float
     fit_pct: float
@@ -239,6 +243,7 @@ class ActualEstimate:
             "friction": self.friction.to_dict(),
             "sensor": self.sensor.to_dict(),
             "delay_s": self.delay_s,
+            "delay_range_s": list(self.delay_range_s),
             "refresh_phase_steps": self.refresh_phase_steps,
             "offset_deg": self.offset_deg,
             "fit_pct": self.fit_pct,
@@ -429,9 +434,9 @@ def identify_actual(
     """
     started = time.perf_counter()
     say = progress or (lambda _m: None)
+    base_d = load_disturbance(base)
     data = prepare_data(time_s, u, y, offset="none", min_samples=200)
     dt = data.dt_s
-    base_d = load_disturbance(base)
     model = friction_model or (
         base_d.friction.model if base_d.friction.model != "none" else "choudhury"
     )
@@ -455,7 +460,9 @@ def identify_actual(
     say(f"friction, coarse grid of {len(pairs)}: S {s_best:g}, J {j_best:g} deg")
 
     # 2. timing with that friction and its transfer function
-    phase, steps = _timing(core, model, s_best, j_best, thetas[best], n_poles, phase)
+    num, den = split_params(thetas[best], n_poles)
+    cand = Plant.from_coefficients(list(num), list(den), name="candidate", dt_s=dt)
+    phase, steps, _ = _timing(core, cand, s_best, j_best, model)
     tau = steps * dt
     say(f"timing: refresh phase {phase} steps, delay {1e3 * tau:g} ms")
 
@@ -489,12 +496,12 @@ def identify_actual(
     # 4. the servo's dynamics at full rate, from the friction output
     v = core.friction_outputs([(friction.S_deg, friction.J_deg)], model, phase)[0]
     dyn = _dynamics(dt, v, data.y, n_poles, n_zeros)
-    steps = min(round(dyn.input_delay_s / dt), round(_MAX_SENSOR_DELAY_S / dt))
     say(f"dynamics: {dyn.paper_form()}")
 
-    # 5. the whole model in the core
+    # 5. the whole model in the core: its timing once more, then the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
-    phase = _phase_scan(core, plant, core.preset(friction.S_deg, friction.J_deg, model, steps))
+    dyn = dataclasses.replace(dyn, input_delay_s=0.0)  # the delay lives in the preset
+    phase, steps, delay_range = _timing(core, plant, friction.S_deg, friction.J_deg, model)
     y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)], [phase],
                      measured=True)[0]  # fmt: skip
     offset = float(np.mean(data.y - y_sim))
@@ -506,6 +513,7 @@ def identify_actual(
         friction=friction,
         sensor=sensor,
         delay_s=steps * dt,
+        delay_range_s=delay_range,
         refresh_phase_steps=phase,
         offset_deg=offset,
         fit_pct=float(fit_percent(data.y, y_sim + offset)),
@@ -522,16 +530,38 @@ def identify_actual(
 
 
 def _timing(
-    core: _Core, model: str, s: float, j: float, theta: np.ndarray, n: int, phase: int
-) -> tuple[int, int]:
-    """Refresh phase, then sensor delay (whole steps), each by a scan of the full model."""
-    num, den = split_params(theta, n)
-    plant = Plant.from_coefficients(list(num), list(den), name="candidate", dt_s=core.dt)
+    core: _Core, plant: Plant, s: float, j: float, model: str
+) -> tuple[int, int, tuple[float, float]]:
+    """Refresh phase and sensor delay (whole steps) by scans of the full model in the core.
+
+    A later refresh tick and a longer delay look alike on a slow ramp (the latched staircase
+    merely shifts), so after a phase scan and a delay scan every pair with about the same total
+    latency is scored too; the best wins, and the delays of the pairs within the 95 %
+    likelihood-ratio bound are reported as its range (s).
+    """
     phase = _phase_scan(core, plant, core.preset(s, j, model))
     max_steps = round(_MAX_SENSOR_DELAY_S / core.dt)
     dists = [core.preset(s, j, model, k) for k in range(max_steps + 1)]
-    sims = core.run(plant, dists, [phase] * len(dists), measured=True)
-    return phase, int(np.argmin(_sse(core.y, sims)))
+    costs = _sse(core.y, core.run(plant, dists, [phase] * len(dists), measured=True))
+    steps = int(np.argmin(costs))
+    r = core.refresh
+    pairs = {(phase, steps)}
+    if r > 1:
+        for ph in range(r):
+            shift = (ph - phase) % r
+            shift = shift - r if shift > r // 2 else shift
+            for k in (steps + shift - 1, steps + shift, steps + shift + 1):
+                if 0 <= k <= max_steps:
+                    pairs.add((ph, k))
+    pairs_list = sorted(pairs)
+    dists = [core.preset(s, j, model, k) for _, k in pairs_list]
+    sims = core.run(plant, dists, [ph for ph, _ in pairs_list], measured=True)
+    costs = _sse(core.y, sims)
+    i = int(np.argmin(costs))
+    bound = costs[i] * (1.0 + _CHI2_95 / core.n)
+    ok = [k for (_, k), c in zip(pairs_list, costs, strict=True) if c <= bound]
+    phase, steps = pairs_list[i]
+    return phase, steps, (min(ok) * core.dt, max(ok) * core.dt)
 
 
 def _phase_scan(core: _Core, plant: Plant, dist: Disturbance) -> int:
