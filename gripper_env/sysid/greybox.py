@@ -50,7 +50,16 @@ from numpy.typing import ArrayLike
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.metrics import fit_percent
 from gripper_env.plants import Plant
-from gripper_env.simulation import BatchSimulator
+from gripper_env.sysid.core_batches import (
+    CHI2_95,
+    MAX_SENSOR_DELAY_S,
+    CoreRuns,
+    consistent,
+    phase_scan,
+    profile,
+    tick_index,
+    timing,
+)
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.orders import Record
 from gripper_env.sysid.sensor import SensorEstimate, estimate_sensor
@@ -61,12 +70,6 @@ __all__ = ["ActualEstimate", "FrictionEstimate", "identify_actual", "response_on
 
 #: Friction candidates span [0, this] deg for S and J unless told otherwise.
 MAX_FRICTION_DEG = 8.0
-#: Likelihood-ratio bound (chi-square, 1 degree of freedom, 95 %) of "consistent with the data".
-_CHI2_95 = 3.84
-#: Runs per core call (bounds the memory of the recorded arrays).
-_CHUNK = 24
-#: Longest sensor delay scanned (s).
-_MAX_SENSOR_DELAY_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -258,132 +261,6 @@ class ActualEstimate:
 
 
 # ----------------------------------------------------------------------------------------------
-# Running the core
-
-
-class _Core:
-    """The record and the base preset, and the batched runs of the core on candidates."""
-
-    def __init__(self, u: np.ndarray, y: np.ndarray, dt: float, base: Disturbance) -> None:
-        self.u, self.y, self.dt, self.base = u, y, dt, base
-        self.svf: dict[str, float] = {}
-        self.n = u.size
-        self.refresh = max(1, round(base.command.refresh_period_s / dt))
-        # a servo that follows its (held, rubbed) command within the step: the core's output
-        # is then the friction output itself, one step late
-        self.instant = Plant.from_coefficients([1.0], [dt / 50.0, 1.0], name="instant", dt_s=dt)
-
-    def preset(self, s: float, j: float, model: str, delay_steps: int = 0, stops: bool = True):
-        blocks: dict[str, Any] = {
-            "friction": {"model": model, "S_deg": float(s), "J_deg": float(j)},
-            "sensor": {"noise_std_deg": 0.0, "adc_bits": 0, "delay_s": delay_steps * self.dt},
-        }
-        if not stops:
-            blocks["mechanics"] = {"limits_deg": None, "object_contact_deg": None}
-        return self.base.with_overrides(blocks)
-
-    def run(
-        self, plant: Plant, dists: list[Disturbance], phases: list[int], measured: bool
-    ) -> np.ndarray:
-        """Open-loop runs on the log's command; row ``b`` starts ``phases[b]`` steps before the
-        log (the refresh phase); returns the measured (or true) angle on the log's samples."""
-        lead = max(phases)
-        out = np.empty((len(dists), self.n))
-        for start in range(0, len(dists), _CHUNK):
-            rows = slice(start, start + _CHUNK)
-            d_rows, p_rows = dists[rows], phases[rows]
-            ref = np.empty((len(d_rows), lead + self.n + 1))
-            for i, ph in enumerate(p_rows):
-                ref[i, :ph] = self.u[0]
-                ref[i, ph : ph + self.n] = self.u
-                ref[i, ph + self.n :] = self.u[-1]
-            cap = max(1, max(round(d.sensor.delay_s / self.dt) for d in d_rows))
-            sim = BatchSimulator(plant, self.dt, delay_capacity=cap)
-            sim.configure(None, d_rows, n_runs=len(d_rows))
-            sim.reset(float(self.u[0]), 0)
-            res = sim.advance(ref.shape[1], ref)
-            # the measured angle at core step k pairs with command k, as in a log; the true
-            # angle of the instantaneous servo is its friction output one step late
-            sig, lag = (res[2], 0) if measured else (res[3], 1)
-            for i, ph in enumerate(p_rows):
-                out[start + i] = sig[i, ph + lag : ph + lag + self.n]
-        return out
-
-    def friction_outputs(
-        self, pairs: list[tuple[float, float]], model: str, phase: int
-    ) -> np.ndarray:
-        dists = [self.preset(s, j, model, stops=False) for s, j in pairs]
-        return self.run(self.instant, dists, [phase] * len(pairs), measured=False)
-
-
-# ----------------------------------------------------------------------------------------------
-# Profile likelihood of the friction
-
-
-def _tick_index(n: int, refresh: int, phase: int) -> np.ndarray:
-    """Samples at which the servo takes a new command (the friction output changes only there)."""
-    first = (refresh - phase % refresh) % refresh
-    return np.arange(first, n, refresh)
-
-
-def _inner_cost(
-    v: np.ndarray,
-    y: np.ndarray,
-    idx: np.ndarray,
-    dt: float,
-    n: int,
-    m: int,
-    tau: float,
-    svf: dict[str, float],
-) -> tuple[float, np.ndarray]:
-    """Squared error of the best transfer function from ``v`` to ``y`` on the tick grid, and its
-    parameters (a short :func:`gripper_env.sysid.tfest`: SRIVC, then output error). The first
-    call picks the state-variable filter from the data, the others reuse it (2x faster)."""
-    vc, yc = v[idx], y[idx]
-    if np.ptp(vc) == 0:
-        return float(np.sum((yc - yc.mean()) ** 2)), np.zeros(n + m + 1)
-    est = tfest(dt, vc, yc, n, m, input_delay_s=tau, max_nfev=20, check_feedback=False,
-                svf_lambda_rad_s=svf.get("lambda"))  # fmt: skip
-    svf.setdefault("lambda", est.svf_lambda_rad_s)
-    return float(est.residuals @ est.residuals), est.params
-
-
-def _profile(
-    core: _Core, pairs: list[tuple[float, float]], model: str, phase: int, tau: float,
-    n: int, m: int,
-) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
-    """Cost of each friction candidate with the transfer function fitted to it."""
-    idx = _tick_index(core.n, core.refresh, phase)
-    costs, thetas = np.empty(len(pairs)), []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # diagnostics of candidates are not the user's business
-        _profile_chunks(core, pairs, model, phase, tau, n, m, idx, costs, thetas)
-    return costs, thetas
-
-
-def _profile_chunks(core, pairs, model, phase, tau, n, m, idx, costs, thetas) -> None:
-    seen: dict[bytes, tuple[float, np.ndarray]] = {}
-    for start in range(0, len(pairs), _CHUNK):
-        chunk = pairs[start : start + _CHUNK]
-        outs = core.friction_outputs(chunk, model, phase)
-        for i in range(len(chunk)):
-            # whole-degree commands make whole brackets of (S, J) give the same friction output
-            key = outs[i][idx].tobytes()
-            if key not in seen:
-                seen[key] = _inner_cost(
-                    outs[i], core.y, idx, core.dt * core.refresh, n, m, tau, core.svf
-                )
-            c, th = seen[key]
-            costs[start + i] = c
-            thetas.append(th)
-
-
-def _consistent(values: np.ndarray, costs: np.ndarray, bound: float) -> tuple[float, float]:
-    ok = values[costs <= bound]
-    return float(ok.min()), float(ok.max())
-
-
-# ----------------------------------------------------------------------------------------------
 # The fit
 
 
@@ -444,7 +321,7 @@ def identify_actual(
         raise ValueError(f"friction_model must be 'choudhury' or 'kano', got {model!r}")
     if not max_friction_deg > 0:
         raise ValueError(f"max_friction_deg must be positive, got {max_friction_deg}")
-    core = _Core(data.u, data.y, dt, base_d)
+    core = CoreRuns(data.u, data.y, dt, base_d)
     sensor = estimate_sensor(data.y, prior_adc_lo_deg=base_d.sensor.adc_range_deg[0])
     say(f"sensor: noise {sensor.noise_std_deg:.3f} deg, ADC step {sensor.lsb_deg:.4f} deg")
     sigma2 = max(sensor.noise_std_deg**2 + sensor.lsb_deg**2 / 12.0, 1e-12)
@@ -453,7 +330,7 @@ def identify_actual(
     coarse = np.concatenate([[0.0], np.arange(0.5, max_friction_deg, 1.0)])
     pairs = [(s, j) for s in coarse for j in coarse]
     phase, tau = 0, 0.0
-    costs, thetas = _profile(core, pairs, model, phase, tau, n_poles, n_zeros)
+    costs, thetas = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
     best = int(np.argmin(costs))
     s_best, j_best = pairs[best]
     coarse_pairs, coarse_costs = np.array(pairs), costs
@@ -462,7 +339,7 @@ def identify_actual(
     # 2. timing with that friction and its transfer function
     num, den = split_params(thetas[best], n_poles)
     cand = Plant.from_coefficients(list(num), list(den), name="candidate", dt_s=dt)
-    phase, steps, _ = _timing(core, cand, s_best, j_best, model)
+    phase, steps, _ = timing(core, cand, s_best, j_best, model)
     tau = steps * dt
     say(f"timing: refresh phase {phase} steps, delay {1e3 * tau:g} ms")
 
@@ -471,15 +348,15 @@ def identify_actual(
     s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
     j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
     pairs = [(s, j) for s in s_vals for j in j_vals]
-    costs, thetas = _profile(core, pairs, model, phase, tau, n_poles, n_zeros)
+    costs, thetas = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
     grid = costs.reshape(s_vals.size, j_vals.size)
-    n_tick = _tick_index(core.n, core.refresh, phase).size
-    bound = float(costs.min()) + _CHI2_95 * float(costs.min()) / max(n_tick, 1)
+    n_tick = tick_index(core.n, core.refresh, phase).size
+    bound = float(costs.min()) + CHI2_95 * float(costs.min()) / max(n_tick, 1)
     # the consistent set, on both grids (the fine one may not reach its edges)
     all_pairs = np.concatenate([np.array(pairs), coarse_pairs])
     all_costs = np.concatenate([costs, coarse_costs])
-    s_rng = _consistent(all_pairs[:, 0], all_costs, bound)
-    j_rng = _consistent(all_pairs[:, 1], all_costs, bound)
+    s_rng = consistent(all_pairs[:, 0], all_costs, bound)
+    j_rng = consistent(all_pairs[:, 1], all_costs, bound)
     i_best = int(np.argmin(costs))
     s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
     si, ji = int(np.argmin(np.abs(s_vals - s_est))), int(np.argmin(np.abs(j_vals - j_est)))
@@ -501,7 +378,7 @@ def identify_actual(
     # 5. the whole model in the core: its timing once more, then the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
     dyn = dataclasses.replace(dyn, input_delay_s=0.0)  # the delay lives in the preset
-    phase, steps, delay_range = _timing(core, plant, friction.S_deg, friction.J_deg, model)
+    phase, steps, delay_range = timing(core, plant, friction.S_deg, friction.J_deg, model)
     y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)], [phase],
                      measured=True)[0]  # fmt: skip
     offset = float(np.mean(data.y - y_sim))
@@ -529,65 +406,16 @@ def identify_actual(
     return est
 
 
-def _timing(
-    core: _Core, plant: Plant, s: float, j: float, model: str
-) -> tuple[int, int, tuple[float, float]]:
-    """Refresh phase and sensor delay (whole steps) by scans of the full model in the core.
-
-    A later refresh tick and a longer delay look alike on a slow ramp (the latched staircase
-    merely shifts), so after a phase scan and a delay scan every pair with about the same total
-    latency is scored too; the best wins, and the delays of the pairs within the 95 %
-    likelihood-ratio bound are reported as its range (s).
-    """
-    phase = _phase_scan(core, plant, core.preset(s, j, model))
-    max_steps = round(_MAX_SENSOR_DELAY_S / core.dt)
-    dists = [core.preset(s, j, model, k) for k in range(max_steps + 1)]
-    costs = _sse(core.y, core.run(plant, dists, [phase] * len(dists), measured=True))
-    steps = int(np.argmin(costs))
-    r = core.refresh
-    pairs = {(phase, steps)}
-    if r > 1:
-        for ph in range(r):
-            shift = (ph - phase) % r
-            shift = shift - r if shift > r // 2 else shift
-            for k in (steps + shift - 1, steps + shift, steps + shift + 1):
-                if 0 <= k <= max_steps:
-                    pairs.add((ph, k))
-    pairs_list = sorted(pairs)
-    dists = [core.preset(s, j, model, k) for _, k in pairs_list]
-    sims = core.run(plant, dists, [ph for ph, _ in pairs_list], measured=True)
-    costs = _sse(core.y, sims)
-    i = int(np.argmin(costs))
-    bound = costs[i] * (1.0 + _CHI2_95 / core.n)
-    ok = [k for (_, k), c in zip(pairs_list, costs, strict=True) if c <= bound]
-    phase, steps = pairs_list[i]
-    return phase, steps, (min(ok) * core.dt, max(ok) * core.dt)
-
-
-def _phase_scan(core: _Core, plant: Plant, dist: Disturbance) -> int:
-    if core.refresh == 1:
-        return 0
-    phases = list(range(core.refresh))
-    sims = core.run(plant, [dist] * len(phases), phases, measured=True)
-    return int(np.argmin(_sse(core.y, sims)))
-
-
-def _sse(y: np.ndarray, sims: np.ndarray) -> np.ndarray:
-    r = y[None, :] - sims
-    r -= r.mean(axis=1, keepdims=True)
-    return np.einsum("ij,ij->i", r, r)
-
-
 def _dynamics(dt: float, v: np.ndarray, y: np.ndarray, n: int, m: int) -> TFEstimate:
     """The transfer function from the friction output; one pole/zero pair fewer when they
     cancel and Akaike's criterion agrees."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = tfest(dt, v, y, n, m, input_delay_s=ESTIMATE, max_delay_s=_MAX_SENSOR_DELAY_S,
+        est = tfest(dt, v, y, n, m, input_delay_s=ESTIMATE, max_delay_s=MAX_SENSOR_DELAY_S,
                     check_feedback=False)  # fmt: skip
         if n > 1 and m > 0 and any("nearly cancel" in w for w in diagnose(est)):
             low = tfest(dt, v, y, n - 1, m - 1, input_delay_s=ESTIMATE,
-                        max_delay_s=_MAX_SENSOR_DELAY_S, check_feedback=False)  # fmt: skip
+                        max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False)  # fmt: skip
             if low.aic <= est.aic + 2.0 and low.stable:
                 est = low
     return est
@@ -620,11 +448,11 @@ def response_on(est: ActualEstimate, record: Record) -> tuple[np.ndarray, np.nda
     added), with the servo's refresh phase fitted to that log; returns ``(y_measured, y_model)``
     on the log's uniform grid."""
     data = prepare_data(record.time_s, record.u, record.y, offset="none", min_samples=2)
-    core = _Core(data.u, data.y, data.dt_s, est.base)
+    core = CoreRuns(data.u, data.y, data.dt_s, est.base)
     plant = dataclasses.replace(est.plant(), dt_s=data.dt_s)
     f = est.friction
     dist = core.preset(f.S_deg, f.J_deg, f.model, round(est.delay_s / data.dt_s))
-    phase = _phase_scan(core, plant, dist)
+    phase = phase_scan(core, plant, dist)
     return data.y, core.run(plant, [dist], [phase], measured=True)[0] + est.offset_deg
 
 
