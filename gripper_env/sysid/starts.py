@@ -25,6 +25,8 @@ __all__ = ["STARTS", "estimation_starts", "nested_theta"]
 
 #: SVF starts that go through SRIVC before the best one is refined.
 STARTS = 3
+#: SRIVC iterations of that screening: enough to rank the starts (the winner is refined).
+SCREEN_ITER = 6
 
 
 def nested_theta(est: TFEstimate, n: int, m: int, corner_rad_s: float) -> np.ndarray | None:
@@ -85,7 +87,7 @@ def estimation_starts(
             tau = 0.0 if delay is None else delay
             scored = []
             for _, theta, lam_c in cands[:STARTS]:
-                iv = srivc(data, n, m, theta, delay_s=tau)
+                iv = srivc(data, n, m, theta, delay_s=tau, max_iter=SCREEN_ITER)
                 num, den = split_params(iv.theta, n)
                 y_hat = zoh_response(num, den, data.u, data.dt_s, delay_s=tau)
                 scored.append((offset_cost(data.y, y_hat), iv.theta, lam_c))

@@ -142,19 +142,22 @@ def _srivc_with_delay(
     if delay is not None:
         iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=delay)
         return iv.theta, delay, iv.n_iter
-    tau, seen, iters = 0.0, set(), 0
-    for _ in range(6):
-        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=tau)
+    steps, seen, iters, move = 0, set(), 0, 0
+    for _ in range(8):
+        # a few iterations per delay: the output-error search that follows finishes the job
+        iv = srivc(data, n, m, theta, max_iter=min(max_iter, 4), tol=tol, delay_s=steps * data.dt_s)
         theta, iters = iv.theta, iters + iv.n_iter
         num, den = split_params(theta, n)
         d, _ = scan_delay(num, den, data.u, data.y, data.dt_s, max_delay_s)
-        if d in seen:
+        if d == steps or d in seen:
             break
-        seen.add(d)
-        new_tau = d * data.dt_s
-        if new_tau == tau:
-            break
-        tau = new_tau
+        seen.add(steps)
+        step = d - steps
+        # a model refitted at too short a delay absorbs part of the rest into its poles, so the
+        # scan moves the delay only part of the way: twice the step when it keeps going
+        new = d + step if move and (step > 0) == (move > 0) else d
+        move, steps = step, int(min(max(new, 0), max_delay_s / data.dt_s))
+    tau = steps * data.dt_s
     return theta, tau, iters
 
 
