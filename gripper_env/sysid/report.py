@@ -152,8 +152,9 @@ def actual_figure(run: IdentificationRun, path: Path) -> Path:
     val = run.validation
     t, u, y = read_log(val.log_path)
     y_meas, y_grey = response_on(run.actual, Record(t, u, y))
-    best = max(val.rows, key=lambda r: r.fit_pct).name
-    y_lin = val.responses[best]
+    same = run.actual_from.split("_")[0]  # the linear model of the same record
+    y_lin = val.responses[same]
+    fit_lin = next(r.fit_pct for r in val.rows if r.name == same)
     dt = float(val.t_s[1] - val.t_s[0])
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
     for ax, (start, _), title in zip(axes, _moves(val.desired_deg)[:2], ("(a) grip", "(b) un-grip"),
@@ -163,7 +164,8 @@ def actual_figure(run: IdentificationRun, path: Path) -> Path:
         ax.plot(tt, val.desired_deg[w], color="0.5", ls="--", lw=1, label="desired")
         ax.plot(tt, y_meas[w], color="C0", lw=0.8, label="measured")
         ax.plot(tt, y_grey[w], color="C3", lw=1.4, label="identified actual gripper (core)")
-        ax.plot(tt, y_lin[w], color="C1", lw=1, label=f"linear TF ({best})")
+        ax.plot(tt, y_lin[w], color="C1", lw=1,
+                label=f"linear TF of the same record ({same}), fit {fit_lin:.2f} %")  # fmt: skip
         ax.set(title=title, xlabel="time (s)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("jaw angle (deg)")
@@ -181,7 +183,7 @@ def actual_figure(run: IdentificationRun, path: Path) -> Path:
 
 
 def _num(x: float, digits: int = 3) -> str:
-    return f"{x:.{digits}g}"
+    return "0" if abs(x) < 1e-6 else f"{x:.{digits}g}"
 
 
 def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plant: Plant | None,
@@ -200,7 +202,9 @@ def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plan
         ("ADC step (deg)", s.lsb_deg, "", None if t is None else t.sensor.lsb_deg),
         ("ADC offset: angle at count 0 (deg)", s.adc_lo_deg, "modulo one count",
          None if t is None else t.sensor.adc_range_deg[0]),
-        ("sensor delay (ms)", 1e3 * a.delay_s, "", None if t is None else 1e3 * t.sensor.delay_s),
+        ("sensor delay (ms)", 1e3 * a.delay_s,
+         f"{1e3 * a.delay_range_s[0]:g}..{1e3 * a.delay_range_s[1]:g} (a later servo tick looks "
+         "alike on a ramp)", None if t is None else 1e3 * t.sensor.delay_s),
         ("sensor offset, measured - model (deg)", a.offset_deg, "not in the core",
          None if t is None else 0.0),
     ]  # fmt: skip
@@ -223,7 +227,7 @@ def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plan
         if true is not None and abs(true) > 1e-9:
             err = f"{100 * (value - true) / true:+.1f} %"
         elif true is not None:
-            err = f"{value - true:+.3g}"
+            err = f"{value - true:+.3g}" if abs(value - true) >= 1e-6 else "0"
         shown = "" if true is None else _num(true, 4)
         lines.append(f"| {name} | {_num(value, 4)} | {rng} | {shown} | {err} |")
     dyn = a.dynamics
