@@ -26,7 +26,7 @@ __all__ = ["STARTS", "estimation_starts", "nested_theta"]
 #: SVF starts that go through SRIVC before the best one is refined.
 STARTS = 3
 #: SRIVC iterations of that screening: enough to rank the starts (the winner is refined).
-SCREEN_ITER = 6
+SCREEN_ITER = 4
 
 
 def nested_theta(est: TFEstimate, n: int, m: int, corner_rad_s: float) -> np.ndarray | None:

@@ -145,7 +145,7 @@ def _srivc_with_delay(
     steps, seen, iters, move = 0, set(), 0, 0
     for _ in range(8):
         # a few iterations per delay: the output-error search that follows finishes the job
-        iv = srivc(data, n, m, theta, max_iter=min(max_iter, 4), tol=tol, delay_s=steps * data.dt_s)
+        iv = srivc(data, n, m, theta, max_iter=min(max_iter, 2), tol=tol, delay_s=steps * data.dt_s)
         theta, iters = iv.theta, iters + iv.n_iter
         num, den = split_params(theta, n)
         d, _ = scan_delay(num, den, data.u, data.y, data.dt_s, max_delay_s)
