@@ -58,6 +58,7 @@ from tuners.settings import OptunaSettings, check_disjoint, load_settings
 
 __all__ = [
     "StudyResult",
+    "best_of",
     "knee_point",
     "main",
     "make_scorer",
@@ -690,7 +691,7 @@ def main(argv: list[str] | None = None) -> int:
         names.append(name)
         if result.interrupted:
             break
-    chosen = _choose(results)
+    chosen = best_of(results)
     wall = time.perf_counter() - start
     # 3. report
     best = results[chosen]
@@ -757,8 +758,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _choose(results: Sequence[StudyResult]) -> int:
-    """The search seed to keep: the best feasible tuning cost (else the first)."""
+def best_of(results: Sequence[StudyResult]) -> int:
+    """Index of the search seed to keep: the best feasible tuning cost (else the first)."""
     feasible = [i for i, r in enumerate(results) if r.feasible]
     if not feasible:
         return 0

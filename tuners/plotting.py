@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-__all__ = ["budget_plot", "response_plot", "save_figure"]
+__all__ = ["budget_plot", "pareto_plot", "response_plot", "save_figure"]
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> Path:
@@ -107,8 +107,59 @@ def budget_plot(
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("simulated episodes (20 s runs on the actual model)")
-    ax.set_ylabel("best cost so far (tuning seeds)")
+    ax.set_ylabel("best feasible cost so far (tuning seeds)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+_KIND_STYLE = {
+    "feedforward": ("k", "s"),
+    "manual": ("tab:gray", "v"),
+    "baseline": ("tab:blue", "o"),
+    "search": ("tab:red", "^"),
+    "robust": ("tab:purple", "D"),
+    "controller": ("tab:green", "*"),
+}
+
+
+def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
+    """Tracking against robustness, one panel per feasible plant: every row's actual-model IAE
+    against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI), and
+    the Ms limit. ``command = reference`` (open loop, S = 1) sits at Ms = 1."""
+    plants = [p for p, d in data["plants"].items() if d.get("feasible")]
+    fig, axes = plt.subplots(
+        1, max(1, len(plants)), figsize=(5.2 * max(1, len(plants)), 4.6), squeeze=False
+    )
+    ms_max = None
+    for ax, plant in zip(axes[0], plants, strict=False):
+        pdata = data["plants"][plant]
+        front = pdata.get("pareto_front") or []
+        if front:
+            ax.plot([f["ms"] for f in front], [f["iae"] for f in front], "-", color="0.6",
+                    lw=1.5, label="MIGO front (max I per Ms)", zorder=1)  # fmt: skip
+        seen = set()
+        for name, row in pdata["tuners"].items():
+            rb = row["robustness"]
+            ms = rb.get("ms") if row["kind"] != "feedforward" else 1.0
+            iae = row["metrics"]["actual"]["mean"]["iae"]
+            if ms is None or iae is None or not np.isfinite(iae):
+                continue
+            ms_max = (rb.get("constraints") or {}).get("ms_max", ms_max)
+            color, marker = _KIND_STYLE.get(row["kind"], ("tab:olive", "x"))
+            label = row["kind"] if row["kind"] not in seen else None
+            seen.add(row["kind"])
+            ax.scatter([min(ms, 4.0)], [iae], c=color, marker=marker, s=40, label=label, zorder=3)
+            ax.annotate(name.replace("classical-", "").replace("manual-", ""),
+                        (min(ms, 4.0), iae), fontsize=6, xytext=(3, 2),
+                        textcoords="offset points")  # fmt: skip
+        if ms_max:
+            ax.axvline(ms_max, color="tab:red", ls=":", lw=1, label=f"Ms limit {ms_max:g}")
+        ax.set_xlabel("Ms with the 20 ms servo hold (capped at 4)")
+        ax.set_ylabel("IAE on the actual model (deg s)")
+        ax.set_yscale("log")
+        ax.set_title(f"{plant}: tracking against robustness", fontsize=10)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, loc="upper right")
     return save_figure(fig, path)
