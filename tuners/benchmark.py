@@ -350,7 +350,7 @@ def _rl_rows(
     best = runs[chosen]
     record(
         inputs, rows, "rl-budget", "search", best["gains"],
-        episodes=sum(r["episodes"] or 0 for r in runs), wall=wall,
+        episodes=sum((r["episodes"] or 0) + r["selection_episodes"] for r in runs), wall=wall,
         tuning={
             "algo": bench.rl.algo,
             "timesteps_per_seed": timesteps,
@@ -417,7 +417,7 @@ def _robust_tuners(
         model = facts.pop("model")
         robust["rl-conditioned"] = {
             "policy": (model, facts["env_kwargs"]),
-            "episodes": facts["episodes"] or 0,
+            "episodes": (facts["episodes"] or 0) + facts["selection_episodes"],
             "wall": time.perf_counter() - t0,
             "tuning": {"tuned_on": plants, "timesteps": steps, "history": facts["history"]},
         }

@@ -327,6 +327,7 @@ def train(
             super().__init__()
             self.next_at = 0
             self.best = float("inf")
+            self.best_gains: PIDGains | None = None
             _, actual = inputs.settings.options(1)
             self.scorer = GainScorer(
                 Task.build(
@@ -341,16 +342,17 @@ def train(
                 g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
                 scores = self.scorer.score(g.as_array()[None, :])
                 cost = float(scores.cost[0])
-                if scores.feasible[0]:  # like Optuna's: the best feasible cost so far
-                    self.best = min(self.best, cost)
+                if scores.feasible[0] and cost < self.best:  # like Optuna's best trial
+                    self.best, self.best_gains = cost, g
                 if np.isfinite(self.best):
                     history.append((int(self.num_timesteps), self.best))
                 self.logger.record("tuning/policy_cost", cost)
                 self.logger.record("tuning/policy_feasible", float(scores.feasible[0]))
             return True
 
+    curve = BudgetCurve()
     callbacks = [
-        BudgetCurve(),
+        curve,
         CheckpointCallback(
             save_freq=max(1, 10 * eval_every // n_envs),
             save_path=str(run_dir / "checkpoints"),
@@ -382,6 +384,8 @@ def train(
         "seed": seed,
         "train_wall_time_s": wall,
         "history": history,
+        "best_gains": None if curve.best_gains is None else curve.best_gains.as_array().tolist(),
+        "selection_episodes": curve.scorer.episodes,  # scoring the proposals on the tuning seeds
     }
     write_json(run_dir / "history.json", facts)
     vec.close()
@@ -402,9 +406,14 @@ def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, 
         n_envs=16,
         eval_every=max(16, timesteps // 16),
     )
-    gains = policy_gains(
-        facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
-    )
+    # like Optuna's best trial: the best feasible gains the policy proposed during training
+    # (scored on the tuning seeds), else the final policy's
+    if facts["best_gains"] is not None:
+        gains = PIDGains(*facts["best_gains"])
+    else:
+        gains = policy_gains(
+            facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
+        )
     facts.pop("model")
     return {
         "gains": gains,
