@@ -41,9 +41,16 @@ def why_not_ranked(row: dict[str, Any]) -> str | None:
     if not rb.get("meets_constraints", False):
         ms, gm = rb.get("ms"), rb.get("gain_margin_db")
         lim = rb.get("constraints", {})
+        ms_max, gm_min = lim.get("ms_max", math.inf), lim.get("gm_min_db", 0.0)
+        misses = []
+        if ms is None or ms > ms_max:
+            misses.append(f"Ms {_f(ms)} > {ms_max:g}")
+        if gm is not None and gm < gm_min:
+            misses.append(f"gain margin {_f(gm)} dB < {gm_min:g} dB")
         return (
-            f"misses the robustness constraints (Ms {_f(ms)} > {lim.get('ms_max', '?')} or GM "
-            f"{_f(gm)} dB < {lim.get('gm_min_db', '?')} dB)"
+            "misses the robustness constraints with the servo hold ("
+            + (", ".join(misses) or "a lower gain margin")
+            + ")"
         )
     return None
 
