@@ -42,7 +42,10 @@ class CoreRuns:
     """The record and the base preset, and the batched runs of the core on candidates."""
 
     def __init__(self, u: np.ndarray, y: np.ndarray, dt: float, base: Disturbance) -> None:
-        self.u, self.y, self.dt, self.base = u, y, dt, base
+        # candidates are deterministic runs: no per-episode randomisation (whose ranges may
+        # name blocks a candidate changes, such as the stops)
+        self.u, self.y, self.dt = u, y, dt
+        self.base = base.model_copy(update={"randomize": {}})
         self.svf: dict[str, float] = {}
         self.n = u.size
         self.refresh = max(1, round(base.command.refresh_period_s / dt))

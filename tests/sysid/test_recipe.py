@@ -50,7 +50,7 @@ def test_record_identify_tune_deploy(configs, tmp_path, capsys):
     assert found["friction"]["S_deg"] == pytest.approx(truth.friction.S_deg, rel=0.15)
     assert found["friction"]["J_deg"] == pytest.approx(truth.friction.J_deg, rel=0.15)
     assert found["sensor"]["noise_std_deg"] == pytest.approx(truth.sensor.noise_std_deg, rel=0.15)
-    assert found["delay_s"] <= 3e-3
+    assert found["delay_s"] <= 5e-3  # 1 ms, known to a few ms from a slope
     assert load_plant("mine").is_stable and load_disturbance("mine").friction.model == "choudhury"
 
     results = tmp_path / "results"
