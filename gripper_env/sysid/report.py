@@ -204,7 +204,8 @@ def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plan
          None if t is None else t.sensor.adc_range_deg[0]),
         ("sensor delay (ms)", 1e3 * a.delay_s,
          f"{1e3 * a.delay_range_s[0]:g}..{1e3 * a.delay_range_s[1]:g} (a later servo tick looks "
-         "alike on a ramp)", None if t is None else 1e3 * t.sensor.delay_s),
+         "alike on a ramp; so does a slightly faster servo)",
+         None if t is None else 1e3 * t.sensor.delay_s),
         ("sensor offset, measured - model (deg)", a.offset_deg, "not in the core",
          None if t is None else 0.0),
     ]  # fmt: skip
