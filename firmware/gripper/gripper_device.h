@@ -29,6 +29,8 @@ struct DeviceConfig {
     real_t jaw_min, jaw_max;
     AdcCalibration adc;
     ServoCalibration servo;
+    real_t adc_slope;           // deg per count, from adc (derived)
+    real_t servo_ticks_per_deg; // Timer1 ticks per deg, from servo (derived)
     uint16_t decimation;
     uint8_t batch;
 };
@@ -53,6 +55,8 @@ inline DeviceConfig default_config() {
     c.servo.us_at_180 = SERVO_US_AT_180_DEFAULT;
     c.decimation = 1;
     c.batch = 10;
+    c.adc_slope = adc_slope<real_t>(c.adc);
+    c.servo_ticks_per_deg = servo_ticks_per_deg<real_t>(c.servo);
     return c;
 }
 
@@ -119,6 +123,8 @@ inline bool validate_configure(const Configure& m, DeviceConfig* out, uint16_t* 
     c.servo.us_at_180 = m.servo_us_at_180;
     c.decimation = m.decimation;
     c.batch = m.telemetry_batch;
+    c.adc_slope = adc_slope<real_t>(c.adc);
+    c.servo_ticks_per_deg = servo_ticks_per_deg<real_t>(c.servo);
     *out = c;
     return true;
 }
@@ -129,27 +135,53 @@ inline uint16_t sat_u16(uint32_t v) { return v > 0xFFFF ? 0xFFFF : (uint16_t)v; 
 // UART has room, so the control loop never blocks on serial output.
 class TxQueue {
   public:
-    enum { CAPACITY = 512 };
+    enum { CAPACITY = 512, MASK = CAPACITY - 1 }; // a power of two: indices wrap with a mask
     TxQueue() : head_(0), count_(0) {}
     size_t free_space() const { return CAPACITY - count_; }
     size_t size() const { return count_; }
     bool push(const uint8_t* data, size_t n) {
         if (n > free_space()) return false;
-        for (size_t k = 0; k < n; ++k) buf_[(head_ + count_ + k) % CAPACITY] = data[k];
-        count_ += n;
+        uint16_t w = (uint16_t)(head_ + count_);
+        for (size_t k = 0; k < n; ++k) buf_[(w + k) & MASK] = data[k];
+        count_ = (uint16_t)(count_ + n);
+        return true;
+    }
+    // Queue the wire frame COBS(raw[0..n)) + 0x00, encoded straight into the queue (no frame
+    // buffer, no second copy). A raw frame is at most MAX_RAW_FRAME (< 254) bytes, so its COBS
+    // form is exactly n + 1 bytes: the same bytes as encode_frame() produces.
+    bool push_frame(const uint8_t* raw, size_t n) {
+        if (n >= 254 || n + 2 > free_space()) return false;
+        uint16_t w = (uint16_t)(head_ + count_);
+        uint16_t code_at = w;
+        uint16_t o = (uint16_t)(w + 1);
+        uint8_t code = 1;
+        for (size_t i = 0; i < n; ++i) {
+            uint8_t b = raw[i];
+            if (b != 0) {
+                buf_[o++ & MASK] = b;
+                ++code;
+            } else {
+                buf_[code_at & MASK] = code;
+                code = 1;
+                code_at = o++;
+            }
+        }
+        buf_[code_at & MASK] = code;
+        buf_[o++ & MASK] = 0;
+        count_ = (uint16_t)(count_ + (uint16_t)(o - w));
         return true;
     }
     uint8_t pop() {
         uint8_t b = buf_[head_];
-        head_ = (head_ + 1) % CAPACITY;
+        head_ = (uint16_t)((head_ + 1) & MASK);
         --count_;
         return b;
     }
 
   private:
     uint8_t buf_[CAPACITY];
-    size_t head_;
-    size_t count_;
+    uint16_t head_;
+    uint16_t count_;
 };
 
 // The device: protocol session, modes, PID, safety and telemetry. Hardware-free: the sketch feeds
@@ -190,28 +222,34 @@ class Device {
         if (rx_.push(byte) == StreamDecoder::FRAME) handle_frame();
     }
 
-    // One control period: now_us is the device time, adc the potentiometer reading taken now,
-    // overrun true when this tick started late.
+    // One control period: control() then finish_tick(). now_us is the device time, adc the
+    // potentiometer reading taken now, overrun true when this tick started late.
     void tick(uint32_t now_us, uint16_t adc, bool overrun) {
+        control(now_us, adc, overrun);
+        finish_tick();
+    }
+
+    // The time-critical half of a tick: safety checks, PID, servo command, telemetry sample. The
+    // sketch applies the servo output right after it, then calls finish_tick().
+    void control(uint32_t now_us, uint16_t adc, bool overrun) {
         now_us_ = now_us;
         if (overrun) ++overruns_;
         uint8_t sample_flags = overrun ? (uint8_t)SAMPLE_OVERRUN : (uint8_t)0;
         if (mode_ != MODE_IDLE && watchdog_expired(now_us, last_rx_us_, WATCHDOG_TIMEOUT_US))
             safe_stop(FAULT_WATCHDOG);
-        real_t y = adc_to_deg<real_t>(adc, cfg_.adc);
+        real_t y = adc_to_deg<real_t>(adc, cfg_.adc, cfg_.adc_slope);
         if (mode_ == MODE_CLOSED_LOOP) {
             rail_ticks_ = adc_at_rail(adc) ? rail_ticks_ + 1 : 0;
             if (rail_ticks_ >= SENSOR_FAULT_TICKS) safe_stop(FAULT_SENSOR);
         }
         if (entry_pending_) enter_mode(y);
-        if (have_setpoint_ && clamp_jaw<real_t>(setpoint_, cfg_.jaw_min, cfg_.jaw_max, safe_deg()) !=
-                                  setpoint_ && mode_ != MODE_IDLE)
-            sample_flags |= SAMPLE_CLAMPED;
-        if (mode_ == MODE_OPEN_LOOP) {
+        if (mode_ != MODE_IDLE) {
             reference_ = clamp_jaw<real_t>(setpoint_, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
+            if (have_setpoint_ && reference_ != setpoint_) sample_flags |= SAMPLE_CLAMPED;
+        }
+        if (mode_ == MODE_OPEN_LOOP) {
             command_ = reference_;
         } else if (mode_ == MODE_CLOSED_LOOP) {
-            reference_ = clamp_jaw<real_t>(setpoint_, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
             real_t v = 0;
             real_t u = pid_update<real_t>(reference_, y, cfg_.gains,
                                           real_t(TICK_PERIOD_US) / real_t(1000000), pid_state_, &v);
@@ -229,10 +267,18 @@ class Device {
         record_sample(adc, sample_flags);
     }
 
+    // The rest of a tick: queue the telemetry frame if the batch is complete. Encoding a frame
+    // (CRC, COBS) costs several thousand cycles; done after the servo update it delays no output.
+    void finish_tick() {
+        if (telemetry_full_) flush_telemetry();
+    }
+
     // Outputs for the sketch.
     bool servo_enabled() const { return servo_on_; }
     real_t servo_command_deg() const { return command_; }
-    uint16_t servo_ticks() const { return servo_pulse_ticks<real_t>(command_, cfg_.servo); }
+    uint16_t servo_ticks() const {
+        return servo_pulse_ticks<real_t>(command_, cfg_.servo, cfg_.servo_ticks_per_deg);
+    }
 
     // State, for STATUS and tests.
     uint8_t mode() const { return mode_; }
@@ -417,18 +463,24 @@ class Device {
         send(s);
     }
 
+    // Frame and queue a message: seq | type | payload | CRC built in place, then COBS-encoded
+    // into the transmit queue (the bytes of encode_message(), without its two buffer copies).
     template <typename Msg>
     void send(const Msg& m) {
-        uint8_t frame[MAX_WIRE_FRAME];
-        size_t len = encode_message(tx_seq_, m, frame, sizeof(frame));
+        uint8_t raw[MAX_RAW_FRAME];
+        raw[0] = tx_seq_;
+        raw[1] = (uint8_t)Msg::TYPE;
+        size_t n = m.encode(raw + 2);
+        put_u16(raw + 2 + n, crc16(raw, n + 2));
         // The sequence number advances even for a dropped frame, so the host sees the gap.
         ++tx_seq_;
-        if (len == 0 || !tx.push(frame, len)) ++tx_dropped_;
+        if (!tx.push_frame(raw, n + 4)) ++tx_dropped_;
     }
 
     void clear_telemetry() {
         telemetry_.count = 0;
         decimation_count_ = 0;
+        telemetry_full_ = false;
     }
 
     void flush_telemetry() {
@@ -443,6 +495,7 @@ class Device {
             return;
         }
         decimation_count_ = (uint16_t)(cfg_.decimation - 1);
+        if (telemetry_full_) flush_telemetry(); // control() twice without finish_tick()
         if (telemetry_.count == 0) {
             telemetry_.t0_us = now_us_;
             telemetry_.decimation = cfg_.decimation;
@@ -453,7 +506,7 @@ class Device {
         s.adc = adc;
         s.flags = (uint8_t)(flags | (mode_ & SAMPLE_MODE_MASK) | (faults_ ? SAMPLE_FAULT : 0) |
                             (servo_on_ ? SAMPLE_SERVO_ON : 0));
-        if (telemetry_.count >= cfg_.batch) flush_telemetry();
+        if (telemetry_.count >= cfg_.batch) telemetry_full_ = true;
     }
 
     StreamDecoder rx_;
@@ -466,7 +519,7 @@ class Device {
     uint32_t refused_, tx_dropped_, overruns_;
     uint16_t decimation_count_, rail_ticks_;
     uint8_t tx_seq_, mode_, faults_, last_rx_seq_;
-    bool session_, configured_, servo_on_, entry_pending_, have_setpoint_;
+    bool session_, configured_, servo_on_, entry_pending_, have_setpoint_, telemetry_full_;
 };
 
 } // namespace gripper

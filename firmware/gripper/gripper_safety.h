@@ -6,6 +6,7 @@
 #define GRIPPER_SAFETY_H
 
 #include <stdint.h>
+#include <string.h>
 
 namespace gripper {
 
@@ -36,6 +37,14 @@ inline bool is_finite(Real x) {
     return (x - x) == (x - x);
 }
 
+// The same test on a float's exponent bits (all ones: infinity or NaN). On the AVR the generic form
+// is two soft-float subtractions and a comparison, ~300 cycles; this is ~10.
+inline bool is_finite(float x) {
+    uint32_t bits;
+    memcpy(&bits, &x, 4);
+    return (bits & 0x7F800000UL) != 0x7F800000UL;
+}
+
 inline bool finite_f(float x) { return is_finite(x); }
 
 // Clamp a servo command (deg) into [lo, hi]. NaN goes to `safe`, which must lie in [lo, hi].
@@ -52,12 +61,24 @@ struct AdcCalibration {
     uint16_t adc_at_hi; // counts at CAL_ANGLE_HI_DEG
 };
 
-// Measured jaw angle (deg) from ADC counts, by the two-point calibration line.
+// Slope of the two-point calibration line (deg per count); the device computes it once per
+// CONFIGURE, not at every tick (a soft-float division is ~500 cycles on the AVR).
+template <typename Real>
+inline Real adc_slope(const AdcCalibration& c) {
+    return (Real(CAL_ANGLE_HI_DEG) - Real(CAL_ANGLE_LO_DEG)) /
+           (Real(c.adc_at_hi) - Real(c.adc_at_lo));
+}
+
+// Measured jaw angle (deg) from ADC counts, by the two-point calibration line of slope `slope`.
+// adc - adc_at_lo is exact in integers and in any float type, so this equals the float form.
+template <typename Real>
+inline Real adc_to_deg(uint16_t adc, const AdcCalibration& c, Real slope) {
+    return Real(CAL_ANGLE_LO_DEG) + Real((int16_t)adc - (int16_t)c.adc_at_lo) * slope;
+}
+
 template <typename Real>
 inline Real adc_to_deg(uint16_t adc, const AdcCalibration& c) {
-    Real slope = (Real(CAL_ANGLE_HI_DEG) - Real(CAL_ANGLE_LO_DEG)) /
-                 (Real(c.adc_at_hi) - Real(c.adc_at_lo));
-    return Real(CAL_ANGLE_LO_DEG) + (Real(adc) - Real(c.adc_at_lo)) * slope;
+    return adc_to_deg<Real>(adc, c, adc_slope<Real>(c));
 }
 
 // ADC counts (rounded, saturated to 0..1023) that the calibration maps to angle deg.
@@ -81,17 +102,26 @@ struct ServoCalibration {
     uint16_t us_at_180; // pulse (us) for 180 deg
 };
 
-// Servo pulse width in Timer1 ticks of 0.5 us for an angle (deg), clamped to the servo range
-// and to the hard pulse limits whatever the calibration.
+// Timer1 ticks (0.5 us) per degree of the servo calibration; computed once per CONFIGURE.
 template <typename Real>
-inline uint16_t servo_pulse_ticks(Real deg, const ServoCalibration& c) {
+inline Real servo_ticks_per_deg(const ServoCalibration& c) {
+    return Real(2) * (Real(c.us_at_180) - Real(c.us_at_0)) / Real(SERVO_MAX_DEG - SERVO_MIN_DEG);
+}
+
+// Servo pulse width in Timer1 ticks of 0.5 us for an angle (deg), clamped to the servo range
+// and to the hard pulse limits whatever the calibration; rounded to the nearest tick.
+template <typename Real>
+inline uint16_t servo_pulse_ticks(Real deg, const ServoCalibration& c, Real ticks_per_deg) {
     deg = clamp_jaw(deg, Real(SERVO_MIN_DEG), Real(SERVO_MAX_DEG), Real(JAW_OPEN_DEG));
-    Real us = Real(c.us_at_0) +
-              deg * (Real(c.us_at_180) - Real(c.us_at_0)) / Real(SERVO_MAX_DEG - SERVO_MIN_DEG);
-    Real ticks = us * Real(2) + Real(0.5);
+    Real ticks = Real(2 * (uint32_t)c.us_at_0) + deg * ticks_per_deg + Real(0.5);
     if (ticks < Real(2 * SERVO_PULSE_MIN_US)) return 2 * SERVO_PULSE_MIN_US;
     if (ticks > Real(2 * SERVO_PULSE_MAX_US)) return 2 * SERVO_PULSE_MAX_US;
     return (uint16_t)ticks;
+}
+
+template <typename Real>
+inline uint16_t servo_pulse_ticks(Real deg, const ServoCalibration& c) {
+    return servo_pulse_ticks<Real>(deg, c, servo_ticks_per_deg<Real>(c));
 }
 
 // True once `timeout_us` has passed since `last_us`; correct across the 71-minute micros() wrap.
