@@ -143,6 +143,10 @@ void setup() {
     servo_timer_begin();
     adc_begin();
     Serial.begin(GRIPPER_BAUD);
+    // A delimiter first: a frame cut by a reset would otherwise swallow the first frame of this
+    // boot on the host's side (found under simavr: the host lost the NO_SESSION that tells it
+    // the board reset).
+    Serial.write((uint8_t)0);
     device.begin(read_device_id(), micros());
     tick_timer_begin();
 #if GRIPPER_USE_HW_WATCHDOG

@@ -19,8 +19,9 @@ with the same host traffic as ``tuners.deploy`` (the profile's value every 20 ms
 every 200 ms) and compares the measured jaw angles. The models differ by the quantisation of
 the command (whole degrees at 50 Hz, or the pulse's 0.05 deg at the timer's 50 Hz phase) and of
 the 10-bit ADC, so the largest difference is judged against those: an angle may differ by the
-command quantum plus two ADC counts, and in time by up to one 20 ms servo frame (the same
-response, its servo updates at another phase).
+command quantum plus two ADC counts, and in time by one 20 ms servo frame plus the pulse's
+width and one physics step (:data:`AGREEMENT_SHIFT_MS`: the same response, its servo updated
+at another phase).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from gripper_env.simulation import simulate
 
 __all__ = [
     "AGREEMENT_DISTURBANCE",
+    "AGREEMENT_SHIFT_MS",
     "Agreement",
     "ScriptedHost",
     "configure_message",
@@ -57,6 +59,9 @@ AGREEMENT_DISTURBANCE: dict[str, Any] = {
     "randomize": {},
 }
 SERVO_FRAME_MS = 20
+# A response may lag another by one servo frame, plus the pulse (the servo has a command when its
+# pulse ends: 1.5 ms at 92 deg, rounded up) and the 1 ms physics step that then takes it in.
+AGREEMENT_SHIFT_MS = SERVO_FRAME_MS + 2 + 1
 HOST_PERIOD_MS = 20  # tuners.deploy sends the profile's value every 20 ms...
 HEARTBEAT_MS = 200  # ...and a heartbeat every 200 ms
 
@@ -117,9 +122,13 @@ class ScriptedHost:
         """Put bytes on the line now (noise, a corrupted frame...)."""
         self.board.receive(data, self.now_us)
 
-    def run(self, ms: int) -> None:
-        """Let ``ms`` milliseconds of device time pass, collecting what the board sends."""
-        for _ in range(ms):
+    def run(self, ms: int, heartbeat_ms: int = 0) -> None:
+        """Let ``ms`` milliseconds of device time pass, collecting what the board sends, and send
+        a HEARTBEAT every ``heartbeat_ms`` (0: none; the board's watchdog needs a frame at least
+        every 500 ms in an active mode)."""
+        for k in range(ms):
+            if heartbeat_ms and k % heartbeat_ms == heartbeat_ms - 1:
+                self.send(proto.Heartbeat(self.ms))
             self.board.step(self.now_us)
             self.ms += 1
             self._collect(self.board.uart_out(UART_BYTES_PER_TICK))
@@ -247,7 +256,7 @@ class Agreement:
     def pairs(self) -> list[tuple[str, str]]:
         return [("emulated", "twin"), ("emulated", "simulation"), ("twin", "simulation")]
 
-    def largest(self, a: str, b: str, shift_ms: int = SERVO_FRAME_MS) -> float:
+    def largest(self, a: str, b: str, shift_ms: int = AGREEMENT_SHIFT_MS) -> float:
         """Largest difference (deg) of two responses, within ``shift_ms`` of time."""
         return float(np.nanmax(tube_difference(self.y_deg[a], self.y_deg[b], shift_ms)))
 

@@ -171,6 +171,7 @@ class TwinBoard:
         self.rig = rig
         self.device_id = device_id
         self.firmware = Firmware(device_id, 0)
+        self.firmware.tx += b"\x00"  # the sketch's boot delimiter (gripper.ino, setup)
 
     @property
     def active(self) -> bool:
@@ -197,8 +198,9 @@ class TwinBoard:
         return self.firmware.uart_drain(max_bytes) if self.firmware.tx and max_bytes else b""
 
     def reset(self, now_us: int) -> None:
-        """The board restarts (no session, servo limp)."""
+        """The board restarts (no session, servo limp) and sends its boot delimiter."""
         self.firmware.begin(self.device_id, now_us)
+        self.firmware.tx += b"\x00"
 
 
 class VirtualDevice:
@@ -212,14 +214,17 @@ class VirtualDevice:
         Device time per wall-clock time; ``0`` runs as fast as possible.
     seed : int
         Noise seed of the rig.
-    device_id : int
-        Board id reported in INFO.
+    device_id : int, optional
+        Board id reported in INFO (default ``"VIRT"``, or ``"EMUL"`` for an image).
     y0_deg : float
         Jaw angle at power-on (deg).
     image : path, optional
         Run this compiled firmware image under simavr
         (:class:`~gripper_env.hardware.emulator.EmulatedBoard`) instead of the Python twin; its
         INFO reports the EEPROM id ``device_id``.
+    harness : path, optional
+        The simavr harness library for ``image`` (default: see
+        :class:`~gripper_env.hardware.emulator.Mega2560`).
 
     Attributes
     ----------
@@ -241,23 +246,26 @@ class VirtualDevice:
         *,
         speed: float = 1.0,
         seed: int = 0,
-        device_id: int = VIRTUAL_DEVICE_ID,
+        device_id: int | None = None,
         y0_deg: float = 92.0,
         image: str | os.PathLike[str] | None = None,
+        harness: str | os.PathLike[str] | None = None,
     ) -> None:
         if not speed >= 0:
             raise ValueError(f"speed must be >= 0 (0 = as fast as possible), got {speed}")
         self.speed = float(speed)
-        self.device_id = device_id
         self.board: TwinBoard | EmulatedBoard
         if image is None:
+            self.device_id = VIRTUAL_DEVICE_ID if device_id is None else device_id
             self.rig = VirtualRig(plant, disturbance, seed, y0_deg)
-            self.board = TwinBoard(self.rig, device_id)
+            self.board = TwinBoard(self.rig, self.device_id)
         else:
-            from gripper_env.hardware.emulator import EmulatedBoard
+            from gripper_env.hardware.emulator import EMULATED_DEVICE_ID, EmulatedBoard
 
+            self.device_id = EMULATED_DEVICE_ID if device_id is None else device_id
+            device_id = self.device_id
             self.rig = VirtualRig(plant, disturbance, seed, y0_deg, pulse_train=True)
-            self.board = EmulatedBoard(self.rig, image=image, device_id=device_id)
+            self.board = EmulatedBoard(self.rig, image=image, harness=harness, device_id=device_id)
         self.firmware = self.board.firmware
         self.ticks = 0
         self.lock = threading.Lock()
@@ -472,19 +480,21 @@ class VirtualDevice:
             self._out += frame
 
     def _write_output(self, master: int) -> None:
-        if self._garbage:
-            with self.lock:
+        # Under the lock: reset() clears the output from another thread, and a bytearray cannot
+        # be resized while os.write holds it (BufferError), nor trimmed by what another wrote.
+        with self.lock:
+            if self._garbage:
                 if not self._silent:
                     self._out += self._garbage
                 self._garbage.clear()
-        if not self._out:
-            return
-        try:
-            written = os.write(master, self._out)
-        except BlockingIOError:
-            return
-        self.bytes_sent += written
-        del self._out[:written]
+            if not self._out:
+                return
+            try:
+                written = os.write(master, self._out)  # non-blocking: never waits
+            except BlockingIOError:
+                return
+            self.bytes_sent += written
+            del self._out[:written]
 
     # ---- introspection for tests ---------------------------------------------------------------
 
@@ -599,15 +609,13 @@ def main(argv: Sequence[str] | None = None, emulated: bool = False) -> int:
         if not 0.0 <= args.y0 <= 180.0:
             raise ValueError(f"--y0 must be an angle in [0, 180] deg, got {args.y0}")
         image = args.image
-        extra = {}
         if emulated:
-            from gripper_env.hardware.emulator import EMULATED_DEVICE_ID, ensure_built
+            from gripper_env.hardware.emulator import ensure_built
 
             image, _harness = ensure_built(args.image, rebuild=args.rebuild)
-            extra["device_id"] = EMULATED_DEVICE_ID
         device = VirtualDevice(
             args.plant, args.disturbance, speed=args.speed, seed=args.seed, y0_deg=args.y0,
-            image=image, **extra,
+            image=image,
         )  # fmt: skip
     except (ValueError, OSError, RuntimeError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
