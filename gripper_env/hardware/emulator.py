@@ -307,12 +307,18 @@ class Mega2560:
             raise EmulatorUnavailable(f"cannot load {self.image}: {err.value.decode()}")
         self._h = handle
         self.device_id = device_id
-        self._lib.gb_eeprom_write(self._h, 0, device_id.to_bytes(4, "little"), 4)
+        self._lib.gb_eeprom_write(self._handle, 0, device_id.to_bytes(4, "little"), 4)
         self._pulse_buf = np.zeros(256, PULSE_DTYPE)
         self._edge_buf = np.zeros(8192, EDGE_DTYPE)
         self._tx_buf = np.zeros(8192, TX_DTYPE)
 
     # ---- lifecycle -----------------------------------------------------------------------------
+
+    @property
+    def _handle(self) -> int:
+        if not self._h:
+            raise RuntimeError("the emulated Mega 2560 is closed")
+        return self._h
 
     def close(self) -> None:
         """Free the emulated MCU (idempotent)."""
@@ -331,14 +337,14 @@ class Mega2560:
 
     def reset(self) -> None:
         """Pull the reset pin: the firmware restarts from its reset vector."""
-        self._lib.gb_reset(self._h)
+        self._lib.gb_reset(self._handle)
 
     # ---- time ----------------------------------------------------------------------------------
 
     @property
     def cycle(self) -> int:
         """Emulated CPU cycles since power-on (16 per microsecond)."""
-        return int(self._lib.gb_cycle(self._h))
+        return int(self._lib.gb_cycle(self._handle))
 
     @property
     def time_us(self) -> float:
@@ -353,7 +359,7 @@ class Mega2560:
         RuntimeError
             If the CPU crashed or stopped (the harness's last log line says why).
         """
-        state = self._lib.gb_run_until(self._h, int(cycle))
+        state = self._lib.gb_run_until(self._handle, int(cycle))
         if state not in (2, 3):  # running, sleeping
             name = CPU_STATES[state] if 0 <= state < len(CPU_STATES) else str(state)
             raise RuntimeError(
@@ -372,24 +378,24 @@ class Mega2560:
 
     def set_adc(self, counts: int, channel: int = 0) -> None:
         """Put the voltage that converts to ``counts`` (0..1023) on ADC ``channel``."""
-        self._lib.gb_set_adc_counts(self._h, channel, int(counts))
+        self._lib.gb_set_adc_counts(self._handle, channel, int(counts))
 
     def write(self, data: bytes) -> int:
         """Queue bytes on the line to the board; they arrive one frame time apart.
 
         Returns the number accepted (the line holds 64 KiB).
         """
-        return int(self._lib.gb_rx_write(self._h, bytes(data), len(data)))
+        return int(self._lib.gb_rx_write(self._handle, bytes(data), len(data)))
 
     @property
     def rx_pending(self) -> int:
         """Bytes queued on the line that have not reached the board yet."""
-        return int(self._lib.gb_rx_pending(self._h))
+        return int(self._lib.gb_rx_pending(self._handle))
 
     @property
     def rx_last_cycle(self) -> int:
         """Cycle at which the last byte queued so far has completely arrived."""
-        return int(self._lib.gb_rx_last_cycle(self._h))
+        return int(self._lib.gb_rx_last_cycle(self._handle))
 
     def read_tx(self) -> np.ndarray:
         """Bytes the firmware transmitted since the last call (``TX_DTYPE``: cycle, byte)."""
@@ -405,7 +411,7 @@ class Mega2560:
 
     def watch_pin(self, port: str, bit: int) -> int:
         """Record the edges of output pin ``port``/``bit`` (``"B", 7`` = pin 13); its index."""
-        index = self._lib.gb_watch_pin(self._h, port.encode(), bit)
+        index = self._lib.gb_watch_pin(self._handle, port.encode(), bit)
         if index < 0:
             raise ValueError(f"cannot watch pin P{port}{bit}")
         return int(index)
@@ -417,7 +423,7 @@ class Mega2560:
     def _drain(self, fn: object, buf: np.ndarray) -> np.ndarray:
         parts = []
         while True:
-            n = fn(self._h, buf.ctypes.data, len(buf))  # type: ignore[operator]
+            n = fn(self._handle, buf.ctypes.data, len(buf))  # type: ignore[operator]
             parts.append(buf[:n].copy())
             if n < len(buf):
                 break
@@ -428,23 +434,23 @@ class Mega2560:
     def stats(self) -> dict[str, int]:
         """Counters of the harness (cycles, instructions, sleep, UART, pulses, stack...)."""
         s = _Stats()
-        self._lib.gb_stats(self._h, ctypes.byref(s))
+        self._lib.gb_stats(self._handle, ctypes.byref(s))
         return {name: getattr(s, name) for name, _ in _Stats._fields_}
 
     def profile(self, enable: bool = True) -> None:
         """Start (or stop) counting the cycles spent at each instruction address."""
-        if self._lib.gb_profile(self._h, int(enable)) != 0:
+        if self._lib.gb_profile(self._handle, int(enable)) != 0:
             raise MemoryError("cannot allocate the cycle profile")
 
     def read_profile(self) -> np.ndarray:
         """Cycles per flash word address since the last call (index = byte address / 2)."""
         out = np.zeros(1 << 17, np.uint32)
-        n = self._lib.gb_profile_read(self._h, out.ctypes.data, len(out))
+        n = self._lib.gb_profile_read(self._handle, out.ctypes.data, len(out))
         return out[:n]
 
     def reset_stack_mark(self) -> None:
         """Forget the stack low-water mark (to measure from now on)."""
-        self._lib.gb_reset_sp_min(self._h)
+        self._lib.gb_reset_sp_min(self._handle)
 
     @property
     def stack_peak_bytes(self) -> int:
@@ -455,7 +461,7 @@ class Mega2560:
     @property
     def last_log(self) -> str:
         """The last warning or error simavr logged."""
-        return (self._lib.gb_last_log(self._h) or b"").decode(errors="replace").strip()
+        return (self._lib.gb_last_log(self._handle) or b"").decode(errors="replace").strip()
 
 
 class EmulatedBoard:
