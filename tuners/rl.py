@@ -37,9 +37,10 @@ from gripper_env.config import ConfigError
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
+from gripper_env.scoring import GainScorer, Task, score_trajectory
 from tuners import cli
 from tuners.gains_file import write_json
-from tuners.optuna import BatchScorer
+from tuners.search_space import search_space
 from tuners.settings import OptunaSettings, load_settings
 
 __all__ = ["ENV_IDS", "benchmark_tune", "main", "policy_gains", "train"]
@@ -49,8 +50,23 @@ ENV_IDS = {
     "gain-schedule": "gripper_env/GripperGainSchedule-v0",
     "servo": "gripper_env/GripperServo-v0",
 }
-#: Action range of the gains (P, I, D) at |a| = 1: wide enough for the Optuna search ranges.
+#: Action range of the gains (P, I, D) at |a| = 1 when no plant scales them (see
+#: :func:`gain_max`).
 GAIN_MAX = (10.0, 100.0, 0.1)
+
+
+def gain_max(inputs: cli.Inputs, plants: list[str]) -> tuple[float, float, float]:
+    """The action range of the gains: the largest magnitudes of the Optuna search ranges,
+    scaled from the plants (:mod:`tuners.search_space`), so both tuners search the same box."""
+    space = search_space(
+        [load_plant(p) for p in plants], inputs.disturbance, load_settings(OptunaSettings)
+    )
+    r = space.ranges
+    return (
+        max(abs(r["P"].low), abs(r["P"].high)),
+        max(abs(r["I"].low), abs(r["I"].high)),
+        max(abs(r["D"].low), abs(r["D"].high)),
+    )
 
 
 def _require_envs():
@@ -83,7 +99,7 @@ def env_kwargs(inputs: cli.Inputs, plants: list[str], env: str) -> dict[str, Any
         },
     }
     if env in ("pid-tune", "gain-schedule"):
-        kwargs["gain_max"] = GAIN_MAX
+        kwargs["gain_max"] = gain_max(inputs, plants)
         kwargs["derivative_filter"] = inputs.settings.pid.N
     if env == "servo":
         kwargs.pop("pid_options")
@@ -200,10 +216,9 @@ def evaluate_controller(
     gains file's ``actual`` block.
     """
     gym = _require_envs()
-    from gripper_env.metrics import compute_metrics
     from gripper_env.references import load_reference
     from gripper_env.simulation import Trajectory
-    from tuners.evaluation import _with_cost, summarize_runs
+    from tuners.evaluation import summarize_runs, with_cost
 
     objective = load_objective()
     rows = []
@@ -230,7 +245,8 @@ def evaluate_controller(
             reference=ref,
             closed_loop=True,
         )
-        rows += _with_cost(compute_metrics(traj), objective, ref.duration_s)
+        metrics, costs = score_trajectory(traj, objective, env.unwrapped.settings.disturbance)
+        rows += with_cost(metrics, costs)
     return summarize_runs(rows)
 
 
@@ -311,30 +327,32 @@ def train(
             super().__init__()
             self.next_at = 0
             self.best = float("inf")
+            self.best_gains: PIDGains | None = None
             _, actual = inputs.settings.options(1)
-            self.scorer = BatchScorer(
-                plant=load_plant(plants[0]),
-                reference=inputs.reference,
-                disturbance=inputs.disturbance,
-                seeds=opt.tuning_seeds.seeds(),
-                options=actual,
-                objective=load_objective(),
-                signal=inputs.settings.signal,
-                randomize=inputs.settings.randomize,
-            )
+            self.scorer = GainScorer(
+                Task.build(
+                    plants[0], inputs.reference, inputs.disturbance, opt.tuning_seeds.seeds(),
+                    randomize=inputs.settings.randomize, options=actual,
+                )
+            )  # fmt: skip
 
         def _on_step(self) -> bool:
             if env == "pid-tune" and self.num_timesteps >= self.next_at:
                 self.next_at = self.num_timesteps + eval_every
                 g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
-                cost = float(self.scorer(g.as_array()[None, :])[0][0])
-                self.best = min(self.best, cost)
-                history.append((int(self.num_timesteps), self.best))
+                scores = self.scorer.score(g.as_array()[None, :])
+                cost = float(scores.cost[0])
+                if scores.feasible[0] and cost < self.best:  # like Optuna's best trial
+                    self.best, self.best_gains = cost, g
+                if np.isfinite(self.best):
+                    history.append((int(self.num_timesteps), self.best))
                 self.logger.record("tuning/policy_cost", cost)
+                self.logger.record("tuning/policy_feasible", float(scores.feasible[0]))
             return True
 
+    curve = BudgetCurve()
     callbacks = [
-        BudgetCurve(),
+        curve,
         CheckpointCallback(
             save_freq=max(1, 10 * eval_every // n_envs),
             save_path=str(run_dir / "checkpoints"),
@@ -366,6 +384,8 @@ def train(
         "seed": seed,
         "train_wall_time_s": wall,
         "history": history,
+        "best_gains": None if curve.best_gains is None else curve.best_gains.as_array().tolist(),
+        "selection_episodes": curve.scorer.episodes,  # scoring the proposals on the tuning seeds
     }
     write_json(run_dir / "history.json", facts)
     vec.close()
@@ -386,9 +406,14 @@ def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, 
         n_envs=16,
         eval_every=max(16, timesteps // 16),
     )
-    gains = policy_gains(
-        facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
-    )
+    # like Optuna's best trial: the best feasible gains the policy proposed during training
+    # (scored on the tuning seeds), else the final policy's
+    if facts["best_gains"] is not None:
+        gains = PIDGains(*facts["best_gains"])
+    else:
+        gains = policy_gains(
+            facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
+        )
     facts.pop("model")
     return {
         "gains": gains,
