@@ -1,4 +1,4 @@
-"""The board's firmware logic in Python: the twin of ``Device`` in ``gripper_core.h``.
+"""The board's firmware logic in Python: the twin of ``Device`` in ``gripper_device.h``.
 
 :class:`Firmware` is the protocol session, mode state machine, PID, safety (jaw clamp, watchdog,
 ESTOP, sensor and numeric faults) and telemetry batching of the Arduino sketch, line for line,

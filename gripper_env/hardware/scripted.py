@@ -56,7 +56,6 @@ AGREEMENT_DISTURBANCE: dict[str, Any] = {
     "extends": "actual",
     "friction": {"model": "none", "S_deg": 0.0, "J_deg": 0.0},
     "sensor": {"noise_std_deg": 0.0},
-    "randomize": {},
 }
 SERVO_FRAME_MS = 20
 # A response may lag another by one servo frame, plus the pulse (the servo has a command when its

@@ -8,7 +8,7 @@ gripper behind it. Every host tool takes the printed path as its ``--port``.
 Inside, three parts mirror the real rig:
 
 * :class:`~gripper_env.hardware.firmware.Firmware`, the board's state machine (the Python twin
-  of ``gripper_core.h``, PID included), ticked every 1 ms of device time;
+  of ``firmware/gripper/gripper_device.h``, PID included), ticked every 1 ms of device time;
 * :class:`VirtualRig`, the servo, jaw and potentiometer: the project's one simulation core
   (:class:`~gripper_env.simulation.BatchSimulator`) in open loop, driven by the firmware's servo
   command one physics step per tick, whose measured angle is reported as 10-bit ADC counts;

@@ -32,8 +32,8 @@ def test_emulated_board_twin_and_simulation_agree_within_the_quantisation(
     # the firmware and the twin got the same frames at the same instants and applied them alike
     runs = a.details["runs"]
     np.testing.assert_array_equal(runs["emulated"]["r"], runs["twin"]["r"])
-    # not three copies of one computation: the quantisations show, and a servo frame of phase
-    assert a.largest("emulated", "twin", shift_ms=0) > budget
+    # not three copies of one computation: the quantisations show, and the PIDs' arithmetic
+    assert a.largest("emulated", "twin", shift_ms=0) >= a.lsb_deg
     assert np.any(runs["emulated"]["u"] != runs["twin"]["u"])  # float32 PID vs float64
     # and each tracks the profile: gripped before the un-grip step, open at the end
     for y in a.y_deg.values():

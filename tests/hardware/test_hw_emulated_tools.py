@@ -24,6 +24,7 @@ from gripper_env.hardware.device import DeviceReset
 from gripper_env.hardware.emulator import EMULATED_DEVICE_ID
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.virtual import _parser as virtual_parser
 from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import step_profile
@@ -170,3 +171,14 @@ def test_the_info_of_the_emulated_board_on_the_pty(emulated) -> None:
         assert dev.info.device_id == EMULATED_DEVICE_ID
         status, _ = dev.heartbeat()
         assert status.flags & proto.StatusFlag.SESSION
+
+
+def test_the_launcher_documents_every_flag() -> None:
+    parser = virtual_parser(emulated=True)
+    text = parser.format_help()
+    assert parser.prog == "python -m gripper_env.hardware.emulator"
+    for action in parser._actions:
+        assert action.help, action.option_strings
+        for option in action.option_strings:
+            assert option in text
+    assert {"--image", "--rebuild", "--speed", "--plant"} <= set(parser._option_string_actions)
