@@ -138,9 +138,12 @@ def emulator_missing() -> str | None:
     missing = [pkg for tool, pkg in needs.items() if shutil.which(tool) is None]
     if not Path("/usr/share/arduino/Arduino.mk").exists():
         missing += ["arduino-mk", "arduino-core-avr"]
-    if shutil.which("pkg-config") and (
-        subprocess.run(["pkg-config", "--exists", "simavr"], check=False).returncode != 0
-    ):
+    if shutil.which("pkg-config"):
+        found = subprocess.run(["pkg-config", "--exists", "simavr"], check=False)
+        has_simavr = found.returncode == 0
+    else:
+        has_simavr = Path("/usr/include/simavr/sim_avr.h").exists()
+    if not has_simavr:
         missing += ["libsimavr-dev"]
     if not Path("/usr/include/libelf.h").exists() and not Path("/usr/include/gelf.h").exists():
         missing += ["libelf-dev"]
