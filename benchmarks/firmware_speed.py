@@ -43,8 +43,6 @@ from gripper_env.hardware.emulator import CYCLES_PER_MS, CYCLES_PER_US, Emulated
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.scripted import (
     AGREEMENT_SHIFT_MS,
-    HEARTBEAT_MS,
-    HOST_PERIOD_MS,
     ScriptedHost,
     configure_message,
     run_agreement,
@@ -96,16 +94,9 @@ def closed_loop(image: Path, harness: Path, duration_s: float) -> dict[str, Any]
     host.run(50)
     host.open_session(configure_message(GAINS, OPTIONS, cal))
     values = _profile(duration_s).values_deg
-    host.send(proto.Setpoint(float(values[0])))
-    host.send(proto.SetMode(proto.Mode.CLOSED_LOOP))
     start_cycle = board.mega.cycle
     sleep0 = board.mega.stats()["sleep_cycles"]
-    for k in range(len(values)):
-        if k % HOST_PERIOD_MS == 0 and k:
-            host.send(proto.Setpoint(float(values[k])))
-        if k % HEARTBEAT_MS == 0 and k:
-            host.send(proto.Heartbeat(k))
-        host.run(1)
+    host.deploy(values)
     stats = board.mega.stats()
     since = host.ms
     host.send(proto.Heartbeat(1))

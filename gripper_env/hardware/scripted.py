@@ -159,6 +159,21 @@ class ScriptedHost:
         cmd = np.where(a[:, 2] == proto.CDEG_NONE, np.nan, a[:, 2] / 100.0)
         return Samples(a[:, 0], ref, cmd, a[:, 3], a[:, 4].astype(np.uint8))
 
+    def deploy(self, values: np.ndarray) -> int:
+        """``tuners.deploy``'s traffic on an open, configured session: the profile's first value,
+        closed loop, then the value every 20 ms and a heartbeat every 200 ms, one sample of
+        ``values`` (deg) per millisecond. Returns the device ms at which closed loop was asked."""
+        self.send(proto.Setpoint(float(values[0])))
+        self.send(proto.SetMode(proto.Mode.CLOSED_LOOP))
+        start = self.ms
+        for k in range(len(values)):
+            if k % HOST_PERIOD_MS == 0 and k:
+                self.send(proto.Setpoint(float(values[k])))
+            if k % HEARTBEAT_MS == 0 and k:
+                self.send(proto.Heartbeat(k))
+            self.run(1)
+        return start
+
     def open_session(self, configure: proto.Configure | None = None) -> proto.Info:
         """HELLO (and CONFIGURE), 5 ms apart; returns the INFO.
 
@@ -281,19 +296,10 @@ class Agreement:
 
 
 def _script(host: ScriptedHost, cfg: proto.Configure, values: np.ndarray) -> None:
-    """The deploy's traffic: session, the profile's first value, closed loop, then the value
-    every 20 ms and a heartbeat every 200 ms."""
+    """Boot, session, the deploy's traffic (:meth:`ScriptedHost.deploy`)."""
     host.run(50)  # boot
     host.open_session(cfg)
-    host.send(proto.Setpoint(float(values[0])))
-    host.send(proto.SetMode(proto.Mode.CLOSED_LOOP))
-    start = host.ms
-    for k in range(len(values)):
-        if k % HOST_PERIOD_MS == 0 and k:
-            host.send(proto.Setpoint(float(values[k])))
-        if k % HEARTBEAT_MS == 0 and k:
-            host.send(proto.Heartbeat(k))
-        host.run(1)
+    start = host.deploy(values)
     host.run(10)  # the last telemetry batch
     if host.replies(proto.ErrorReport, start):
         raise RuntimeError(f"the board refused the deploy: {host.replies(proto.ErrorReport)}")
