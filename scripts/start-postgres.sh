@@ -11,6 +11,8 @@ for _ in $(seq 1 30); do
 done
 su postgres -c "psql -qtAc \"SELECT 1 FROM pg_roles WHERE rolname='gripper'\"" | grep -q 1 \
     || su postgres -c "psql -qc \"CREATE ROLE gripper LOGIN PASSWORD 'gripper'\""
+# the distributed-study test creates a fresh database per run (the table-creation race)
+su postgres -c "psql -qc \"ALTER ROLE gripper CREATEDB\""
 su postgres -c "psql -qtAc \"SELECT 1 FROM pg_database WHERE datname='gripper'\"" | grep -q 1 \
     || su postgres -c "createdb -O gripper gripper"
 echo "start-postgres: postgresql $version on 127.0.0.1:5432"

@@ -20,8 +20,9 @@ the best feasible trial. CMA-ES takes no constraints, so it minimises the penali
 (:meth:`gripper_env.objective.Objective.penalised`).
 
 The search ranges scale with the plant (:mod:`tuners.search_space`); a result within 2 % of a
-bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...) run one after
-the other; the best feasible result is kept and the spread over the seeds is recorded.
+bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...; just
+``<name>`` for one) run one after the other; the best feasible result is kept and the spread
+over the seeds is recorded.
 
 Trials are asked ``batch_size`` at a time, simulated in one batched call, and told. Studies live
 in a storage (default ``sqlite:///<out>/optuna.db``): an interrupted run (Ctrl-C, a killed
@@ -123,22 +124,46 @@ def open_storage(url: str, settings: OptunaSettings) -> optuna.storages.RDBStora
 
         if not event.contains(Engine, "connect", _sqlite_pragmas):
             event.listen(Engine, "connect", _sqlite_pragmas)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        try:
-            return optuna.storages.RDBStorage(
-                _driver_url(url),
-                heartbeat_interval=settings.heartbeat_interval_s,
-                grace_period=settings.heartbeat_grace_s,
-                heartbeat_stale_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(
-                    max_retry=2
-                ),
-            )
-        except Exception as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-            raise ConfigError(
-                f"cannot open storage {redact(url)!r}: {type(exc).__name__}: {first}"
-            ) from None
+    import random
+    import time
+
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    # Workers started together on an empty database race to create its tables: PostgreSQL
+    # refuses the loser's CREATE TABLE / CREATE TYPE (a duplicate key in pg_type, or "already
+    # exists"). The winner's tables are then there, so the loser simply opens again.
+    attempts = 6
+    for attempt in range(attempts):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            try:
+                return optuna.storages.RDBStorage(
+                    _driver_url(url),
+                    heartbeat_interval=settings.heartbeat_interval_s,
+                    grace_period=settings.heartbeat_grace_s,
+                    heartbeat_stale_trial_callback=(
+                        optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=2)
+                    ),
+                )
+            except (IntegrityError, ProgrammingError) as exc:
+                if attempt + 1 < attempts and _creation_race(exc):
+                    time.sleep(0.2 * (attempt + 1) + 0.2 * random.random())
+                    continue
+                raise ConfigError(_storage_error(url, exc)) from None
+            except Exception as exc:
+                raise ConfigError(_storage_error(url, exc)) from None
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _creation_race(exc: Exception) -> bool:
+    """True when ``exc`` is another worker having created the same table or type first."""
+    text = str(exc).lower()
+    return "already exists" in text or "duplicate key" in text
+
+
+def _storage_error(url: str, exc: Exception) -> str:
+    first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"cannot open storage {redact(url)!r}: {type(exc).__name__}: {first}"
 
 
 def make_sampler(name: str, seed: int, settings: OptunaSettings, multi: bool):
@@ -589,7 +614,8 @@ def build_parser():
         "--study-name",
         default=None,
         help="study name prefix (default <plants>-<disturbance>-<profile>-<sampler>[-mo]); each "
-        "search seed i uses <name>-s<i>; reusing a name resumes those studies",
+        "search seed i uses <name>-s<i> (just <name> with --search-seeds 1); reusing a name "
+        "resumes those studies",
     )
     parser.add_argument(
         "--sampler",
@@ -659,7 +685,7 @@ def main(argv: list[str] | None = None) -> int:
     # 2. search: one study per search seed
     results, names = [], []
     for i in range(n_seeds):
-        name = f"{base}-s{i}"
+        name = base if n_seeds == 1 else f"{base}-s{i}"
         study = optuna.create_study(
             storage=storage,
             study_name=name,

@@ -198,13 +198,39 @@ def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, sm
     assert content["tuning"]["trials_this_run"] == 8  # continued, did not start over
 
 
+@pytest.fixture
+def fresh_postgres_database():
+    """A new, empty database on the test server (dropped afterwards), so that workers started
+    together always race to create Optuna's tables, as on a user's first run."""
+    import psycopg2
+
+    base = os.environ["GRIPPER_TEST_POSTGRES_URL"]
+    name = f"gripper_{uuid.uuid4().hex[:10]}"
+    admin = psycopg2.connect(base)
+    admin.autocommit = True
+    try:
+        with admin.cursor() as cur:
+            cur.execute(f"CREATE DATABASE {name}")
+    except psycopg2.errors.InsufficientPrivilege:
+        admin.close()
+        pytest.skip("the test role may not create databases (scripts/start-postgres.sh grants it)")
+    yield base.rsplit("/", 1)[0] + "/" + name
+    with admin.cursor() as cur:
+        cur.execute(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)")
+    admin.close()
+
+
 @pytest.mark.postgres
 @pytest.mark.skipif(
     not os.environ.get("GRIPPER_TEST_POSTGRES_URL"),
     reason="set GRIPPER_TEST_POSTGRES_URL=postgresql://user:pw@127.0.0.1/db (see .ci/run)",
 )
-def test_two_workers_share_one_postgres_study(tmp_path, small_optuna_config, small_eval_config):
-    url = os.environ["GRIPPER_TEST_POSTGRES_URL"]
+def test_two_workers_share_one_postgres_study(
+    tmp_path, small_optuna_config, small_eval_config, fresh_postgres_database
+):
+    """Two workers started at once on an empty database (both create the tables: the loser of
+    that race opens again) share one study: every trial counted once."""
+    url = fresh_postgres_database
     name = f"two-workers-{uuid.uuid4().hex[:8]}"
     target = 32
     procs = []
