@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.base import ControlEnv
+from gripper_env.envs.control_env import ControlEnv
 
 __all__ = ["GripperGainScheduleEnv"]
 

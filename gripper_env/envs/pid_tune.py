@@ -11,19 +11,14 @@ import gymnasium as gym
 import numpy as np
 
 from gripper_env.config import ConfigError
-from gripper_env.envs.base import check_actions
-from gripper_env.envs.batch import PlantSlots
-from gripper_env.envs.common import (
-    RENDER_MODES,
-    Episode,
-    Settings,
-    draw_episode,
-    parse_settings,
-)
-from gripper_env.envs.rendering import EpisodeViewer, render_rgb
+from gripper_env.envs.episode import Episode, draw_episode
+from gripper_env.envs.plant_slots import PlantSlots
+from gripper_env.envs.rendering import RENDER_MODES, EpisodeViewer, render_rgb
+from gripper_env.envs.settings import Settings, parse_settings
 from gripper_env.envs.spaces import (
     OBS_BOUND,
     action_to_gains,
+    check_actions,
     disturbance_features,
     reference_features,
 )

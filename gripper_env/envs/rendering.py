@@ -11,8 +11,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EpisodeViewer", "render_rgb"]
+__all__ = ["RENDER_MODES", "EpisodeViewer", "render_rgb"]
 
+#: The render modes every simulated environment offers.
+RENDER_MODES = ("human", "rgb_array")
 _FIGSIZE_IN = (6.4, 4.0)
 _DPI = 80
 

@@ -20,12 +20,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.base import check_actions
-from gripper_env.envs.batch import ControlBatch
-from gripper_env.envs.common import draw_episode
+from gripper_env.envs.control_batch import ControlBatch
+from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
 from gripper_env.envs.pid_tune import GripperPIDTuneEnv, run_episodes
 from gripper_env.envs.servo import GripperServoEnv
+from gripper_env.envs.spaces import check_actions
 
 __all__ = [
     "GripperGainScheduleVectorEnv",

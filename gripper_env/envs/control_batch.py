@@ -14,51 +14,26 @@ from collections.abc import Sequence
 import numpy as np
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.common import Episode, Settings
+from gripper_env.envs.episode import Episode
+from gripper_env.envs.plant_slots import PlantSlots
+from gripper_env.envs.settings import Settings
 from gripper_env.envs.spaces import (
     GAIN_DECADES,
     OBS_BOUND,
     RATE_TIME_S,
     context_features,
     disturbance_features,
-    plant_features,
     reference_features,
 )
 from gripper_env.references import Reference, step_profile
-from gripper_env.simulation import P_DELAY, PARALLEL_MIN_BATCH, BatchSimulator, build_params
+from gripper_env.simulation import P_DELAY, PARALLEL_MIN_BATCH, build_params
 
-__all__ = ["DIVERGED_PENALTY", "ControlBatch", "PlantSlots"]
+__all__ = ["DIVERGED_PENALTY", "VARIATION_CAP", "ControlBatch"]
 
 #: Reward of a step on which the closed loop diverged (the episode then terminates), negated.
 DIVERGED_PENALTY = 100.0
 #: Cap of the command-variation term of one step.
 VARIATION_CAP = 10.0
-
-
-class PlantSlots:
-    """A core simulator of ``n_rows`` runs whose plant each episode may choose among several.
-
-    With one plant all rows share it; with several, every row has its own plant matrices, sized
-    for the largest candidate, and :meth:`install` swaps a candidate's in.
-    """
-
-    def __init__(self, settings: Settings, n_rows: int) -> None:
-        s = settings
-        self.plants = s.plants
-        self.features = [plant_features(p) for p in s.plants]
-        self.shared = len(s.plants) == 1
-        # one row per environment; with several candidates the core keeps a plant per row
-        plants = s.plants[0] if self.shared else [s.plants[0]] * n_rows
-        self.sim = BatchSimulator(plants, s.dt_s, delay_capacity=delay_capacity(s))
-        if not self.shared:
-            widest = max(s.plants, key=lambda p: p.order)
-            self.sim.set_plant(0, widest)  # size the state for the largest candidate
-            self.sim.set_plant(0, s.plants[0])
-
-    def install(self, row: int, index: int) -> None:
-        """Give ``row`` the candidate plant ``index`` (before resetting that row)."""
-        if not self.shared:
-            self.sim.set_plant(row, self.plants[index])
 
 
 class ControlBatch:
@@ -261,11 +236,3 @@ class ControlBatch:
 
 def _any_reference(s: Settings) -> Reference:
     return s.reference if s.reference is not None else step_profile(s.dt_s)
-
-
-def delay_capacity(s: Settings) -> int:
-    """Delay-line length that holds the preset's delay and any randomised one."""
-    delays = [s.disturbance.sensor.delay_s]
-    if s.randomize and "sensor.delay_s" in s.disturbance.randomize:
-        delays.append(s.disturbance.randomize["sensor.delay_s"][1])
-    return max(64, max(round(d / s.dt_s) for d in delays) + 1)

@@ -1,11 +1,9 @@
-"""Keyword arguments shared by the environments, validated once, and the per-episode draw.
+"""Keyword arguments shared by the environments, validated once at construction.
 
 Every environment takes ``plant``, ``disturbance``, ``reference``, ``randomize`` and
-``render_mode``; :func:`parse_settings` checks them at construction and raises a
-:class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message names the argument.
-:func:`draw_episode` makes every random choice of an episode from the environment's seeded
-generator, always in the same order, so that a single environment and a vector environment with
-the same seeds play identical episodes.
+``render_mode``; :func:`parse_settings` checks them and :func:`check_reward_weights` the reward
+weights, each raising a :class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message
+names the argument. The result is a frozen :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -20,24 +18,21 @@ import numpy as np
 
 from gripper_env.config import ConfigError, validate
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.envs.rendering import RENDER_MODES
 from gripper_env.envs.spaces import GAIN_MAX
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference, random_profile
+from gripper_env.references import Reference, load_reference
 
 __all__ = [
     "RANDOM_REFERENCE",
-    "RENDER_MODES",
-    "Episode",
     "Settings",
-    "draw_episode",
+    "check_reward_weights",
     "parse_settings",
 ]
 
 #: Reference name that draws a new seeded random grip/un-grip profile every episode.
 RANDOM_REFERENCE = "random"
-RENDER_MODES = ("human", "rgb_array")
-_NOISE_SEED_BOUND = 2**63 - 1
 
 
 @dataclass(frozen=True)
@@ -66,16 +61,6 @@ class Settings:
         if self.reference is not None:
             return len(self.reference)
         return round(self.episode_s / self.dt_s)
-
-
-@dataclass(frozen=True)
-class Episode:
-    """The random choices of one episode."""
-
-    plant_index: int
-    disturbance: Disturbance
-    reference: Reference
-    noise_seed: int
 
 
 def _fail(env_name: str, arg: str, message: str) -> ConfigError:
@@ -270,21 +255,11 @@ def parse_settings(
     )
 
 
-def draw_episode(settings: Settings, rng: np.random.Generator) -> Episode:
-    """Draw one episode's plant, disturbance parameters, reference and noise seed.
-
-    The draws happen in this order, each only when it is random: plant index (several plants),
-    disturbance parameters (``randomize``), reference (``"random"``); the noise seed of the
-    simulation core always comes last.
-    """
-    n_plants = len(settings.plants)
-    plant_index = int(rng.integers(n_plants)) if n_plants > 1 else 0
-    dist = settings.disturbance.sample(rng) if settings.randomize else settings.disturbance
-    if settings.reference is None:
-        ref = random_profile(
-            rng, settings.episode_s, settings.dt_s, settings.plants[plant_index].jaw_range_deg
-        )
-    else:
-        ref = settings.reference
-    noise_seed = int(rng.integers(_NOISE_SEED_BOUND))
-    return Episode(plant_index, dist, ref, noise_seed)
+def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:
+    """Raise a :class:`~gripper_env.config.ConfigError` naming a reward weight that is not >= 0."""
+    weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
+    for arg, value in weights.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            raise ConfigError(
+                f"{env_name}: argument {arg!r}: expected a number >= 0, got {value!r}"
+            )

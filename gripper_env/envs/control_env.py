@@ -1,12 +1,11 @@
-"""What the two step-by-step environments (servo control, gain scheduling) share.
+"""The base class of the two step-by-step environments (servo control, gain scheduling).
 
-Each is a :class:`~gripper_env.envs.batch.ControlBatch` of one; this class adds the Gymnasium
-interface: seeding, action checks, episode bookkeeping and rendering.
+Each is a :class:`~gripper_env.envs.control_batch.ControlBatch` of one; :class:`ControlEnv` adds
+the Gymnasium interface: seeding, action checks, episode bookkeeping and rendering.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -14,38 +13,13 @@ import numpy as np
 
 from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
-from gripper_env.envs.batch import ControlBatch
-from gripper_env.envs.common import RENDER_MODES, draw_episode, parse_settings
-from gripper_env.envs.rendering import EpisodeViewer, render_rgb
-from gripper_env.envs.spaces import OBS_BOUND
+from gripper_env.envs.control_batch import ControlBatch
+from gripper_env.envs.episode import draw_episode
+from gripper_env.envs.rendering import RENDER_MODES, EpisodeViewer, render_rgb
+from gripper_env.envs.settings import check_reward_weights, parse_settings
+from gripper_env.envs.spaces import OBS_BOUND, check_actions
 
-__all__ = ["ControlEnv", "check_actions", "check_reward_weights"]
-
-
-def check_actions(actions: Any, shape: tuple[int, ...], what: str = "action") -> np.ndarray:
-    """``actions`` as float64 of ``shape``; a clear ``ValueError`` if malformed or not finite."""
-    try:
-        arr = np.asarray(actions, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{what} must be numbers of shape {shape}, got {actions!r}") from exc
-    if arr.shape != shape:
-        if arr.size == math.prod(shape):
-            arr = arr.reshape(shape)
-        else:
-            raise ValueError(f"{what} must have shape {shape}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite, got {actions!r} (NaN or infinite)")
-    return arr
-
-
-def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:
-    """Raise a :class:`~gripper_env.config.ConfigError` naming a reward weight that is not >= 0."""
-    weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
-    for arg, value in weights.items():
-        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-            raise ConfigError(
-                f"{env_name}: argument {arg!r}: expected a number >= 0, got {value!r}"
-            )
+__all__ = ["ControlEnv"]
 
 
 class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
