@@ -10,13 +10,14 @@ of ``num_envs``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from gripper_env.envs import kernels as K
 from gripper_env.envs.episode import Episode
 from gripper_env.envs.plant_slots import PlantSlots
-from gripper_env.envs.settings import Settings
+from gripper_env.envs.settings import Residual, Settings
 from gripper_env.envs.spaces import (
     GAIN_DECADES,
     OBS_BOUND,
@@ -46,12 +47,15 @@ class ControlBatch:
     n_rows : int
         Number of environments.
     mode : int
-        :data:`~gripper_env.envs.kernels.MODE_SERVO` (action = servo command) or
-        :data:`~gripper_env.envs.kernels.MODE_GAINS` (action = PID gains).
+        :data:`~gripper_env.envs.kernels.MODE_SERVO` (action = servo command),
+        :data:`~gripper_env.envs.kernels.MODE_GAINS` (action = PID gains), or a residual mode
+        (action = a correction to the reference or to a fixed PID's output; needs ``residual``).
     observe_context : bool
         Append the context features to the observation.
     overshoot_weight, chatter_weight : float
         Reward weights (see the environments' docstrings).
+    residual : Residual, optional
+        Size of the correction and the PID's gains of the residual modes.
     """
 
     def __init__(
@@ -62,18 +66,26 @@ class ControlBatch:
         observe_context: bool,
         overshoot_weight: float,
         chatter_weight: float,
+        residual: Residual | None = None,
     ) -> None:
         self.settings = settings
         self.n_rows = n_rows
         self.mode = mode
-        self.n_actions = 1 if mode == K.MODE_SERVO else 3
+        self.n_actions = 3 if mode == K.MODE_GAINS else 1
         self.observe_context = observe_context
+        residual_modes = (K.MODE_RESIDUAL_REFERENCE, K.MODE_RESIDUAL_PID)
+        if (mode in residual_modes) != (residual is not None):
+            raise ValueError("the residual modes, and only they, need a Residual")
+        self.residual = residual
         s = settings
         self.plant_slots = PlantSlots(s, n_rows)
         self.sim = self.plant_slots.sim
         self.gains0 = None
-        if mode == K.MODE_GAINS:
-            self.gains0 = np.zeros((1, 4))
+        if K.closed_loop(mode):
+            self.gains0 = np.zeros((1, 4))  # gains mode: set by every action
+            if mode == K.MODE_RESIDUAL_PID:
+                assert residual is not None
+                self.gains0[0, :3] = residual.pid_gains
             self.gains0[0, 3] = s.derivative_filter
         self.sim.configure(
             None if self.gains0 is None else np.repeat(self.gains0, n_rows, axis=0),
@@ -102,12 +114,13 @@ class ControlBatch:
         cfg[K.C_BOUND] = OBS_BOUND
         cfg[K.C_MODE] = mode
         cfg[K.C_NA] = self.n_actions
-        cfg[K.C_OA0] = 5 if mode == K.MODE_SERVO else 6
+        cfg[K.C_OA0] = 6 if K.closed_loop(mode) else 5
         cfg[K.C_GLOG] = 1.0 if s.gain_scaling == "log" else 0.0
         cfg[K.C_GDEC] = GAIN_DECADES
         cfg[K.C_PMAX], cfg[K.C_IMAX], cfg[K.C_DMAX] = s.gain_max
         cfg[K.C_DIVPEN] = DIVERGED_PENALTY
         cfg[K.C_MAXSTEPS] = 0.0  # no limit: see set_time_limit
+        cfg[K.C_RESIDUAL] = 0.0 if residual is None else residual.bound_deg
         self.cfg = cfg
         self.n_context = len(context_features(s.plants[0], s.disturbance, _any_reference(s)))
         self.n_obs = K.observation_size(mode, self.n_actions, self.n_context * observe_context)
@@ -120,16 +133,28 @@ class ControlBatch:
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
         # the period's recorded controller output and measured angle (the kernels leave the
-        # reference and the true angle unrecorded: nothing here needs them; in the servo mode the
-        # output is the drive itself)
-        self.out_u = np.zeros((n_rows, s.n_sub)) if mode == K.MODE_GAINS else None
+        # reference and the true angle unrecorded: nothing here needs them; in the open-loop
+        # modes the output is the drive itself)
+        self.out_u = np.zeros((n_rows, s.n_sub)) if K.closed_loop(mode) else None
         self.out_y = np.zeros((n_rows, s.n_sub))
         self.episodes: list[Episode | None] = [None] * n_rows
-        self._kernel = K.step_parallel if n_rows >= PARALLEL_MIN_BATCH else K.step_serial
+        self._bind()
+
+    # Copies (pickle, deepcopy, a spawned worker) rebuild the derived references: the compiled
+    # kernel is looked up again rather than serialised, and the argument tuple is rebound to the
+    # copy's own arrays.
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["_kernel"], state["_args"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
         self._bind()
 
     def _bind(self) -> None:
         """Collect the kernel's arguments once (the simulator's arrays are updated in place)."""
+        self._kernel = K.step_parallel if self.n_rows >= PARALLEL_MIN_BATCH else K.step_serial
         sim, cfg = self.sim, self.cfg
         self._args = (
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
@@ -188,7 +213,7 @@ class ControlBatch:
         rows[:, 0] = (y - cfg[K.C_JC]) / cfg[K.C_JH]
         rows[:, 1] = (r0 - cfg[K.C_JC]) / cfg[K.C_JH]
         rows[:, 2] = e
-        if self.mode == K.MODE_GAINS:
+        if K.closed_loop(self.mode):
             rows[:, 5] = (u0 - cfg[K.C_CC]) / cfg[K.C_CH]
         oa0 = int(cfg[K.C_OA0])
         rows[:, oa0 : oa0 + self.n_actions] = env[idx, K.E_A0 : K.E_A0 + self.n_actions]

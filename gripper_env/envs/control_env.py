@@ -16,7 +16,7 @@ from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.rendering import RENDER_MODES, EpisodeViewer, render_rgb
-from gripper_env.envs.settings import check_reward_weights, parse_settings
+from gripper_env.envs.settings import Residual, check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, check_actions
 
 __all__ = ["ControlEnv"]
@@ -28,6 +28,7 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 10}
     _mode = K.MODE_SERVO
     _name = "ControlEnv"
+    _residual: Residual | None = None  # a subclass's __init__ sets it with the residual mode
 
     def __init__(
         self,
@@ -46,20 +47,39 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         self.render_mode = self.settings.render_mode
         self._batch = ControlBatch(
-            self.settings, 1, self._mode, bool(observe_context), overshoot_weight, chatter_weight
-        )
+            self.settings, 1, self._mode, bool(observe_context), overshoot_weight, chatter_weight,
+            self._residual,
+        )  # fmt: skip
         n_act = self._batch.n_actions
         self.action_space = gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)
         self.observation_space = gym.spaces.Box(
             -OBS_BOUND, OBS_BOUND, (self._batch.n_obs,), np.float32
         )
-        self._act = self._batch.actions
-        self._obs_row = self._batch.obs[0]
-        self._kernel = self._batch._kernel
-        self._args = self._batch._args
         self._done = True
         self._history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._viewer: EpisodeViewer | None = None
+        self._bind()
+
+    def _bind(self) -> None:
+        """References into the batch for the fast path of :meth:`step`."""
+        self._act = self._batch.actions
+        self._obs_row = self._batch.obs[0]  # a view: a copy of the env must make its own
+        self._kernel = self._batch._kernel
+        self._args = self._batch._args
+
+    # A copy (pickle, cloudpickle, deepcopy: what spawned workers receive) keeps its batch's
+    # arrays but not the views into them, which unpickling would turn into detached copies; it
+    # rebinds them, and starts without a window.
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        for key in ("_act", "_obs_row", "_kernel", "_args"):
+            del state[key]
+        state["_viewer"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._bind()
 
     # ------------------------------------------------------------------------------------------
     def reset(

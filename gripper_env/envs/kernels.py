@@ -1,10 +1,11 @@
 """Compiled step of a batch of step-by-step environments around the simulation core.
 
-One call maps every environment's action to its drive (a held servo command, or PID gains and the
-reference), advances the core's kernel (:mod:`gripper_env.simulation`) by one control period of
-physics steps for the whole batch, then computes each environment's reward and observation from
-the recorded physics steps. A single environment is a batch of one; the native vector
-environment calls the same functions, so both play identical trajectories.
+One call maps every environment's action to its drive (a held servo command; PID gains and the
+reference; or a bounded correction added to the reference or to the PID's output), advances the
+core's kernel (:mod:`gripper_env.simulation`) by one control period of physics steps for the
+whole batch, then computes each environment's reward and observation from the recorded physics
+steps. A single environment is a batch of one; the native vector environment calls the same
+functions, so both play identical trajectories.
 
 Layouts (columns):
 
@@ -14,9 +15,9 @@ Layouts (columns):
   context features (written at reset, never touched here).
 * ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
 * ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's controller output and measured
-  angle, recorded by the core. ``out_u`` is ``None`` in the servo mode, where the output is the
-  drive itself; ``out_r`` and ``out_yt`` are ``None`` in the environments (the core then compiles
-  their recording away) or (B, n_sub) arrays.
+  angle, recorded by the core. ``out_u`` is ``None`` in the open-loop modes (servo, residual on
+  the reference), where the output is the drive itself; ``out_r`` and ``out_yt`` are ``None`` in
+  the environments (the core then compiles their recording away) or (B, n_sub) arrays.
 
 The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
 array arguments, and the array views it would take, cost more than a control period's physics.
@@ -35,6 +36,7 @@ from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
+    S_XI,
     _advance_row,
 )
 
@@ -61,11 +63,14 @@ from gripper_env.simulation import (
     C_DMAX,  # |D| at action 1
     C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
     C_MAXSTEPS,  # truncate after this many steps (0: no limit; the vector envs' time limit)
-) = range(21)
-N_CFG = 21
+    C_RESIDUAL,  # residual modes: correction (deg) at action +/-1
+) = range(22)
+N_CFG = 22
 
-MODE_SERVO = 0
-MODE_GAINS = 1
+MODE_SERVO = 0  # action = servo command (open loop)
+MODE_GAINS = 1  # action = PID gains (closed loop)
+MODE_RESIDUAL_REFERENCE = 2  # action = correction added to the reference fed to the servo
+MODE_RESIDUAL_PID = 3  # action = correction added to the output of a fixed PID (closed loop)
 
 # env entries
 (
@@ -96,30 +101,43 @@ def _clip(x: float, bound: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _pre(b, actions, cfg, ref, env, params, drive):
-    """Action of row ``b`` -> its drive for this period (servo command, or gains + reference)."""
+def _pre(b, actions, cfg, ref, env, params, state, drive):
+    """Action of row ``b`` -> its drive for this period.
+
+    Servo mode: the held servo command. Gains mode: the PID's gains, and the reference. Residual
+    modes: the reference plus the correction (``reference``), or the reference with the
+    correction added to the PID's output for the period (``pid``: added to the PID's integrator
+    state, which enters its output one to one, and taken off again in :func:`_post`).
+    """
     n_sub = int(cfg[C_NSUB])
-    if cfg[C_MODE] == MODE_SERVO:
+    mode = cfg[C_MODE]
+    if mode == MODE_SERVO:
         cmd = cfg[C_CC] + cfg[C_CH] * _clip(actions[b, 0], 1.0)
         for k in range(n_sub):
             drive[b, k] = cmd
         return
-    for j in range(3):
-        a = _clip(actions[b, j], 1.0)
-        gmax = cfg[C_PMAX + j]
-        if cfg[C_GLOG] != 0.0:
-            dec = cfg[C_GDEC]
-            g = gmax * math.expm1(dec * math.log(10.0) * abs(a)) / (10.0**dec - 1.0)
-            if a < 0.0:
-                g = -g
-        else:
-            g = gmax * a
-        params[b, P_P + j] = g
+    delta = 0.0
+    if mode == MODE_GAINS:
+        for j in range(3):
+            a = _clip(actions[b, j], 1.0)
+            gmax = cfg[C_PMAX + j]
+            if cfg[C_GLOG] != 0.0:
+                dec = cfg[C_GDEC]
+                g = gmax * math.expm1(dec * math.log(10.0) * abs(a)) / (10.0**dec - 1.0)
+                if a < 0.0:
+                    g = -g
+            else:
+                g = gmax * a
+            params[b, P_P + j] = g
+    elif mode == MODE_RESIDUAL_PID:
+        state[b, S_XI] += cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
+    else:
+        delta = cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
     t = int(env[b, E_T])
     last = int(env[b, E_REFLEN]) - 1
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)  # one shared row for a fixed reference
     for k in range(n_sub):
-        drive[b, k] = ref[rb, min(t + k, last)]
+        drive[b, k] = ref[rb, min(t + k, last)] + delta
 
 
 @njit(cache=True, inline="always")
@@ -225,6 +243,8 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
           out_y):  # fmt: skip
     """Reward, flags and observation of row ``b`` from the period's recorded physics steps."""
     n_sub = int(cfg[C_NSUB])
+    if cfg[C_MODE] == MODE_RESIDUAL_PID:  # the correction held for this period only
+        state[b, S_XI] -= cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
     t = int(env[b, E_T])
     t_new = t + n_sub
     last = int(env[b, E_REFLEN]) - 1
@@ -244,9 +264,14 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
     u_prev = env[b, E_UPREV]
     variation = 0.0
-    if out_u is None:  # the servo mode: the action's command, held over the period
+    if cfg[C_MODE] == MODE_SERVO:  # the action's command, held over the period
         variation = abs(drive[b, 0] - u_prev)
         u_prev = drive[b, n_sub - 1]
+    elif out_u is None:  # open loop: the drive is the command
+        for k in range(n_sub):
+            u = drive[b, k]
+            variation += abs(u - u_prev)
+            u_prev = u
     else:
         for k in range(n_sub):
             u = out_u[b, k]
@@ -266,7 +291,7 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     )  # fmt: skip
     env[b, E_EPREV] = e
     env[b, E_INT] = integral
-    if cfg[C_MODE] == MODE_GAINS:
+    if out_u is not None:  # closed loop: the controller's output
         obs[b, 5] = _clip((u_prev - cfg[C_CC]) / cfg[C_CH], cfg[C_BOUND])
     oa0 = int(cfg[C_OA0])
     for j in range(int(cfg[C_NA])):
@@ -323,7 +348,7 @@ def _step_impl(
                     truncated[b] = False
                     resetting[w] += 1
                 else:
-                    _pre(b, actions, cfg, ref, env, params, drive)
+                    _pre(b, actions, cfg, ref, env, params, state, drive)
                     _advance_row(
                         b, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b,
                         plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
@@ -338,9 +363,14 @@ step_serial = njit(cache=True)(_step_impl)
 step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
 
 
+def closed_loop(mode: int) -> bool:
+    """Whether ``mode`` runs the PID (and records and observes its output)."""
+    return mode in (MODE_GAINS, MODE_RESIDUAL_PID)
+
+
 def observation_size(mode: int, n_actions: int, n_context: int) -> int:
     """Length of the observation vector."""
-    return (5 if mode == MODE_SERVO else 6) + n_actions + n_context
+    return (6 if closed_loop(mode) else 5) + n_actions + n_context
 
 
 def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:

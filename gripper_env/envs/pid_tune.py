@@ -235,8 +235,9 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Episode End
 
-    Every episode terminates after its one step (``terminated=True``); the registered
-    ``TimeLimit`` is 1 step.
+    Every episode terminates after its one step (``terminated=True``, ``truncated=False``). The
+    id is registered without a ``TimeLimit`` (one of 1 step would truncate the step that
+    terminates); a step after the end raises until ``reset()``.
 
     ## Arguments
 

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_env import ControlEnv
+from gripper_env.envs.settings import parse_residual
 
-__all__ = ["GripperServoEnv"]
+__all__ = ["DEFAULT_RESIDUAL_DEG", "GripperServoEnv"]
+
+#: Largest correction of the residual modes (deg at action +/-1), unless ``residual_deg`` says.
+DEFAULT_RESIDUAL_DEG = 20.0
 
 
 class GripperServoEnv(ControlEnv):
@@ -109,3 +115,18 @@ class GripperServoEnv(ControlEnv):
 
     _mode = K.MODE_SERVO
     _name = "GripperServo-v0"
+
+    def __init__(
+        self,
+        *,
+        residual: str | None = None,
+        residual_deg: float = DEFAULT_RESIDUAL_DEG,
+        pid_gains: tuple[float, float, float] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self._residual = parse_residual(self._name, residual, residual_deg, pid_gains)
+        if self._residual is not None:
+            self._mode = (
+                K.MODE_RESIDUAL_PID if self._residual.on == "pid" else K.MODE_RESIDUAL_REFERENCE
+            )
+        super().__init__(**kwargs)

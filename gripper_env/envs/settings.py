@@ -26,13 +26,19 @@ from gripper_env.references import Reference, load_reference
 
 __all__ = [
     "RANDOM_REFERENCE",
+    "RESIDUAL_ON",
+    "Residual",
     "Settings",
     "check_reward_weights",
+    "parse_residual",
     "parse_settings",
 ]
 
 #: Reference name that draws a new seeded random grip/un-grip profile every episode.
 RANDOM_REFERENCE = "random"
+#: What a residual policy's correction is added to: the reference fed straight to the servo, or
+#: the output of a fixed PID running at the physics step.
+RESIDUAL_ON = ("reference", "pid")
 
 
 @dataclass(frozen=True)
@@ -263,3 +269,57 @@ def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight:
             raise ConfigError(
                 f"{env_name}: argument {arg!r}: expected a number >= 0, got {value!r}"
             )
+
+
+@dataclass(frozen=True)
+class Residual:
+    """A residual controller: the action is a bounded correction (see :func:`parse_residual`)."""
+
+    on: str  # one of RESIDUAL_ON
+    bound_deg: float  # correction at action +/-1 (deg)
+    pid_gains: tuple[float, float, float]  # P, I, D of the PID (``on="pid"``)
+
+
+def parse_residual(
+    env_name: str, residual: Any, residual_deg: Any, pid_gains: Any
+) -> Residual | None:
+    """Validate the residual-mode arguments of ``GripperServo-v0``.
+
+    Parameters
+    ----------
+    env_name : str
+        Environment name, for messages.
+    residual : {None, "reference", "pid"}
+        ``None``: the action is the servo command itself. ``"reference"``: the servo is
+        commanded ``r + residual_deg * a`` (the reference as feed-forward; ``a = 0`` is the
+        policy "command = reference"). ``"pid"``: a PID with ``pid_gains`` closes the loop at
+        the physics step and ``residual_deg * a`` is added to its output.
+    residual_deg : float
+        Largest correction (deg), at ``|a| = 1``.
+    pid_gains : (float, float, float) or None
+        ``(P, I, D)`` of the PID of ``residual="pid"`` (deg/deg, 1/s, s); required there.
+    """
+    if residual is None:
+        return None
+    if residual not in RESIDUAL_ON:
+        raise _fail(env_name, "residual", f"expected None or one of {RESIDUAL_ON}, got "
+                    f"{residual!r}")  # fmt: skip
+    if not (
+        isinstance(residual_deg, int | float) and math.isfinite(residual_deg) and residual_deg > 0
+    ):
+        raise _fail(env_name, "residual_deg", f"expected a positive angle (deg), got "
+                    f"{residual_deg!r}")  # fmt: skip
+    gains = (0.0, 0.0, 0.0)
+    if residual == "pid":
+        try:
+            gains = tuple(float(g) for g in pid_gains)  # type: ignore[assignment]
+        except (TypeError, ValueError):
+            gains = ()  # type: ignore[assignment]
+        if len(gains) != 3 or not all(math.isfinite(g) for g in gains):
+            raise _fail(
+                env_name, "pid_gains", f"residual='pid' needs three finite gains (P, I, D), "
+                f"got {pid_gains!r}"
+            )  # fmt: skip
+    elif pid_gains is not None:
+        raise _fail(env_name, "pid_gains", "only residual='pid' runs a PID")
+    return Residual(str(residual), float(residual_deg), gains)

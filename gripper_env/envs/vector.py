@@ -134,8 +134,8 @@ class _ControlVectorEnv(_SeededVectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._batch = ControlBatch(
-            self.settings, self.num_envs, self._mode, bool(observe_context),
-            overshoot_weight, chatter_weight,
+            self.settings, self.num_envs, single._mode, bool(observe_context),
+            overshoot_weight, chatter_weight, single._residual,
         )  # fmt: skip
         self._batch.set_time_limit(max_episode_steps)
         self._act_shape = (self.num_envs, self._batch.n_actions)
