@@ -254,6 +254,39 @@ class ControlBatch:
         """Controller output (deg) at each physics step of row ``row``'s last period."""
         return (self.drive if self.out_u is None else self.out_u)[row]
 
+    def period_series(self, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference, measured angle and controller output (deg) of ``row``'s last period."""
+        n_sub = self.settings.n_sub
+        t = int(self.env[row, K.E_T]) - n_sub
+        last = int(self.env[row, K.E_REFLEN]) - 1
+        ref_row = self.ref[row if self.ref.shape[0] > 1 else 0]
+        ref = ref_row[np.minimum(np.arange(t, t + n_sub), last)]
+        return ref, self.out_y[row], self.period_command(row)
+
+    def episode_start(self, row: int) -> tuple[int, float, float, float, str, np.ndarray]:
+        """What a plot of ``row``'s new episode needs: its periods, its first reference, measured
+        angle and controller output (deg), a title and the reference's values."""
+        ep = self.episodes[row]
+        assert ep is not None
+        title = (
+            f"{self.settings.plants[ep.plant_index].name}, {ep.disturbance.name}, "
+            f"{ep.reference.name}"
+        )
+        n_periods = int(self.env[row, K.E_LEN]) // self.settings.n_sub
+        values = ep.reference.values_deg
+        y0 = float(self.sim.measured_deg[row])
+        return n_periods, float(values[0]), y0, float(self.env[row, K.E_UPREV]), title, values
+
+    def episode_info(self, row: int) -> dict[str, Any]:
+        """The reset ``info`` of ``row``'s episode: plant and reference names, noise seed."""
+        ep = self.episodes[row]
+        assert ep is not None
+        return {
+            "plant": self.settings.plants[ep.plant_index].name,
+            "reference": ep.reference.name,
+            "noise_seed": ep.noise_seed,
+        }
+
     def resetting_rows(self) -> list[int]:
         """Rows the last :meth:`step` marked ``DONE_RESETTING``."""
         return [int(i) for i in np.flatnonzero(self.env[:, K.E_DONE] == K.DONE_RESETTING)]

@@ -15,7 +15,7 @@ from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.episode import draw_episode
-from gripper_env.envs.rendering import RENDER_MODES, EpisodeViewer, render_rgb
+from gripper_env.envs.rendering import RENDER_MODES, RowRenderer
 from gripper_env.envs.settings import Residual, check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, check_actions
 
@@ -25,7 +25,7 @@ __all__ = ["ControlEnv"]
 class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
     """Base of :class:`GripperServoEnv` and :class:`GripperGainScheduleEnv` (not registered)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 50}
     _mode = K.MODE_SERVO
     _name = "ControlEnv"
     _residual: Residual | None = None  # a subclass's __init__ sets it with the residual mode
@@ -56,8 +56,13 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
             -OBS_BOUND, OBS_BOUND, (self._batch.n_obs,), np.float32
         )
         self._done = True
-        self._history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._viewer: EpisodeViewer | None = None
+        # real time: one frame per control period
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.settings.control_period_s}
+        self._renderer = (
+            None
+            if self.render_mode is None
+            else RowRenderer(self._batch, 0, self._name, self.render_mode)
+        )
         self._bind()
 
     def _bind(self) -> None:
@@ -69,12 +74,11 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # A copy (pickle, cloudpickle, deepcopy: what spawned workers receive) keeps its batch's
     # arrays but not the views into them, which unpickling would turn into detached copies; it
-    # rebinds them, and starts without a window.
+    # rebinds them (and its renderer starts without a figure).
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         for key in ("_act", "_obs_row", "_kernel", "_args"):
             del state[key]
-        state["_viewer"] = None
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -90,19 +94,11 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
         self._batch.reset_rows([0], [episode])
         self._args = self._batch._args
         self._done = False
-        self._history = []
-        if self.render_mode == "human":
-            self._show()
-        return self._obs_row.copy(), self._episode_info()
-
-    def _episode_info(self) -> dict[str, Any]:
-        ep = self._batch.episodes[0]
-        assert ep is not None
-        return {
-            "plant": self.settings.plants[ep.plant_index].name,
-            "reference": ep.reference.name,
-            "noise_seed": ep.noise_seed,
-        }
+        if self._renderer is not None:
+            self._renderer.start()
+            if self.render_mode == "human":
+                self._renderer.render()
+        return self._obs_row.copy(), self._batch.episode_info(0)
 
     def _set_action(self, action: Any) -> None:
         self._act[0] = check_actions(action, (self._batch.n_actions,))
@@ -124,54 +120,20 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"action must be finite, got {action!r} (NaN or infinite)")
         if terminated or truncated:
             self._done = True
-        if self.render_mode is not None:
-            self._record()
+        if self._renderer is not None:
+            self._renderer.record()
+            if self.render_mode == "human":
+                self._renderer.render()
         return self._obs_row.copy(), reward, terminated, truncated, {}
 
     # ------------------------------------------------------------------------------------------
-    def _record(self) -> None:
-        b = self._batch
-        t = int(b.env[0, K.E_T]) - self.settings.n_sub
-        ref = b.ref[0][t : t + self.settings.n_sub]
-        self._history.append((ref.copy(), b.out_y[0].copy(), b.period_command(0).copy()))
-        if self.render_mode == "human":
-            frame_s = 1.0 / self.metadata["render_fps"]
-            every = max(1, round(frame_s / self.settings.control_period_s))
-            if self._done or len(self._history) % every == 0:
-                self._show()
-
-    def _series(self) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-        ep = self._batch.episodes[0]
-        dt = self.settings.dt_s
-        if self._history:
-            ref, pos, cmd = (np.concatenate(x) for x in zip(*self._history, strict=True))
-        else:
-            ref = np.array([] if ep is None else [ep.reference.values_deg[0]])
-            pos = np.array([float(self._batch.sim.measured_deg[0])]) if ep else np.array([])
-            cmd = pos.copy()
-        t = np.arange(len(ref)) * dt
-        title = (
-            f"{self._name}: {self.settings.plants[ep.plant_index].name}, "
-            f"{ep.disturbance.name}, {ep.reference.name}"
-            if ep is not None
-            else self._name
-        )
-        return t, {"reference": ref, "position": pos, "command": cmd}, title
-
-    def _show(self) -> None:
-        if self._viewer is None:
-            self._viewer = EpisodeViewer()
-        self._viewer.show(*self._series())
-
     def render(self) -> np.ndarray | None:
         """``rgb_array``: the episode so far as an (H, W, 3) uint8 plot; ``human``: draw it."""
-        if self.render_mode == "rgb_array":
-            return render_rgb(*self._series())
-        if self.render_mode == "human":
-            self._show()
-        return None
+        if self._renderer is None:
+            gym.logger.warn(f"{self._name}: render() without a render_mode; pass render_mode=...")
+            return None
+        return self._renderer.render()
 
     def close(self) -> None:
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
+        if self._renderer is not None:
+            self._renderer.close()
