@@ -105,21 +105,31 @@ class Friction(BaseModel):
 
 
 class Mechanics(BaseModel):
-    """Mechanical limits of the jaw.
+    """Mechanical limits of the jaw, and how hard the servo pushes against them.
 
     Attributes
     ----------
     limits_deg : (float, float) or None
-        Mechanical stops (closed, open) in deg; ``null`` for none (the linear model alone).
+        Mechanical stops (closed, open) in deg; ``null`` for none (the linear model alone). The
+        paper commands 21 and 92 deg and saw overshoot on the real gripper (its Figure 11a), so
+        the stops lie beyond those angles; where exactly is not published (see the presets).
     object_contact_deg : float or None
         An object held in the jaws: closing stops at this angle (deg) while the command may keep
         pushing further, which winds up an integrator (a windup test). ``null`` for no object.
+    stall_band_deg : float
+        The servo's proportional band (deg): held against a stop or an object, its internal
+        position loop drives the motor with a torque that grows with how far the command lies
+        beyond the jaw, reaching full (stall) current at this distance. A hobby servo's band is
+        a few degrees. The simulation counts *stall* time (command at least this far beyond a
+        stop or object the jaw touches) and a *force proxy* (the push as a fraction of stall
+        torque, ``min(push / stall_band_deg, 1)``).
     """
 
     model_config = _STRICT
 
     limits_deg: tuple[float, float] | None = None
     object_contact_deg: float | None = None
+    stall_band_deg: float = Field(5.0, gt=0.0)
 
     @field_validator("limits_deg")
     @classmethod
@@ -174,7 +184,9 @@ class Disturbance(BaseModel):
     command, friction, mechanics, sensor
         The blocks (see their classes).
     randomize : dict of str to (float, float)
-        ``"block.parameter": [low, high]``: draw that parameter uniformly per episode.
+        ``"block.parameter": [low, high]``: draw that parameter uniformly per episode. One entry
+        of a pair is ``"block.parameter.0"`` or ``".1"`` (``"mechanics.limits_deg.0"``: the
+        closed stop).
     """
 
     model_config = _STRICT
@@ -190,13 +202,20 @@ class Disturbance(BaseModel):
     @model_validator(mode="after")
     def _check_randomize(self) -> Disturbance:
         for key, (lo, hi) in self.randomize.items():
-            block, _, param = key.partition(".")
+            block, param, index = _split_key(key)
             if block not in _BLOCKS or param not in _BLOCKS[block].model_fields:
                 raise ValueError(
-                    f"randomize: unknown parameter {key!r}; use 'block.parameter' with block one "
-                    f"of {sorted(_BLOCKS)}"
+                    f"randomize: unknown parameter {key!r}; use 'block.parameter' (or "
+                    f"'block.parameter.0' for one entry of a pair) with block one of "
+                    f"{sorted(_BLOCKS)}"
                 )
             value = getattr(getattr(self, block), param)
+            if index is not None:
+                if not isinstance(value, tuple) or not 0 <= index < len(value):
+                    raise ValueError(
+                        f"randomize: {key!r}: parameter '{block}.{param}' has no entry {index}"
+                    )
+                value = value[index]
             if not isinstance(value, int | float) or isinstance(value, bool):
                 raise ValueError(f"randomize: parameter {key!r} is not a number")
             if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
@@ -221,18 +240,34 @@ class Disturbance(BaseModel):
         blocks = {b: getattr(self, b).model_dump() for b in _BLOCKS}
         for key in sorted(self.randomize):
             lo, hi = self.randomize[key]
-            block, _, param = key.partition(".")
+            block, param, index = _split_key(key)
             value = rng.uniform(lo, hi)
-            if isinstance(blocks[block][param], int):
-                value = round(value)
-            blocks[block][param] = value
-        return Disturbance(name=self.name, description=self.description, **blocks)
+            if index is None:
+                if isinstance(blocks[block][param], int):
+                    value = round(value)
+                blocks[block][param] = value
+            else:
+                pair = list(blocks[block][param])
+                pair[index] = value
+                blocks[block][param] = tuple(pair)
+        return validate(
+            Disturbance,
+            {"name": self.name, "description": self.description, **blocks},
+            f"disturbance {self.name!r} randomised",
+        )
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Disturbance:
         """Copy with some blocks' keys replaced: ``{"friction": {"S_deg": 4.0}}``."""
         data = self.model_dump()
         _deep_update(data, dict(overrides))
         return validate(Disturbance, data, f"disturbance {self.name!r} overrides")
+
+
+def _split_key(key: str) -> tuple[str, str, int | None]:
+    """``"block.param"`` -> (block, param, None); ``"block.param.1"`` -> (block, param, 1)."""
+    block, _, rest = key.partition(".")
+    param, _, index = rest.partition(".")
+    return block, param, int(index) if index.isdigit() else (None if index == "" else -1)
 
 
 def _deep_update(base: dict[str, Any], new: Mapping[str, Any]) -> None:
@@ -290,7 +325,8 @@ def describe(d: Disturbance) -> str:
             f"refresh {c.refresh_period_s * 1e3:g} ms, rate limit {c.rate_limit_deg_s:g} deg/s",
             f"friction: {f.model} S={f.S_deg:g} deg J={f.J_deg:g} deg, "
             f"backlash {f.backlash_deg:g} deg",
-            f"mechanics: limits {m.limits_deg}, object at {m.object_contact_deg}",
+            f"mechanics: stops {m.limits_deg} deg, object at {m.object_contact_deg}, servo "
+            f"stall band {m.stall_band_deg:g} deg",
             f"sensor: {s.adc_bits}-bit ADC over {list(s.adc_range_deg)} deg, "
             f"noise {s.noise_std_deg:g} deg, delay {s.delay_s * 1e3:g} ms",
         ]

@@ -6,15 +6,22 @@ Definitions (DESIGN.md section 2):
   ``yinit`` to ``yfinal`` with ``yn = (y - yinit) / (yfinal - yinit)``: rise time from the first
   sample with ``yn >= 0.1`` to the first with ``yn >= 0.9``; settling time = time (from the move's
   first sample) of the first sample after which ``|y - yfinal| <= 2 % |yfinal - yinit|`` for good;
-  overshoot ``max(0, 100 max(yn - 1))`` %, undershoot ``max(0, -100 min(yn))`` %. Sample-based,
+  overshoot ``max(0, 100 max(yn - 1))`` %, undershoot ``max(0, -100 min(yn))`` %. The settling
+  band may be given a floor in deg (``settling_band_deg``): on a gripper with stiction the jaw
+  sticks anywhere within its friction band, and a 2 % band (1.4 deg on the 71 deg grip) inside
+  that band would read "never settles" for every controller. Sample-based,
   without interpolation, like python-control's ``step_info``. A quantity that is never reached
   (no rise, never settles) is ``inf``, never NaN.
 * **Steady-state error**: ``|mean(y) - yfinal|`` over the last 10 % of the segment (deg).
 * **SD**: sample standard deviation (``ddof=1``, like MATLAB's ``std``) of the response over the
   run; **SD gap** ``|SD_reference - SD_response|``.
 * **IAE, ISE, ITAE** of the tracking error ``r - y`` (deg s, deg^2 s, deg s^2), **control effort**
-  = total variation of the controller output ``sum |u[k] - u[k-1]|`` (deg), **saturation time**
-  (s) with the command clipped.
+  = total variation of the controller output ``sum |u[k] - u[k-1]|`` (deg), **servo effort** =
+  total variation of the command the servo actually received (deg; 50 Hz, whole degrees on the
+  actual gripper), **saturation time** (s) with the command clipped.
+* **Contact, stall and force** (from the simulation): time the jaw spent held by a mechanical
+  stop or an object (s), the part of it with the servo command a whole stall band beyond (s: full
+  stall current), and the mean push while held as a fraction of stall torque (0 to 1).
 * **Fit %** between two responses (MATLAB ``compare``):
   ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``.
 
@@ -53,7 +60,11 @@ RUN_KEYS = (
     "ise",
     "itae",
     "control_effort",
+    "servo_effort_deg",
     "saturation_s",
+    "contact_s",
+    "stall_s",
+    "force_proxy",
 )
 
 
@@ -96,11 +107,11 @@ _SEG_COLUMNS = (
 @njit(cache=True)
 def _segment(
     t: np.ndarray, y: np.ndarray, start: int, stop: int, y_init: float, y_final: float,
-    out: np.ndarray,
+    band_floor: float, out: np.ndarray,
 ) -> None:  # fmt: skip
     """Step metrics of ``y[start:stop]`` (one run), written into ``out`` (see _SEG_COLUMNS)."""
     delta = y_final - y_init
-    band = 0.02 * abs(delta)
+    band = max(0.02 * abs(delta), band_floor)
     t0 = t[start]
     lo_idx = -1
     hi_idx = -1
@@ -145,6 +156,7 @@ def _run(
     u: np.ndarray,
     seg_bounds: np.ndarray,
     seg_values: np.ndarray,
+    band_floor: float,
     run_out: np.ndarray,
     seg_out: np.ndarray,
 ) -> None:
@@ -186,7 +198,7 @@ def _run(
     for s in range(seg_bounds.shape[0]):
         _segment(
             t, y, seg_bounds[s, 0], seg_bounds[s, 1], seg_values[s, 0], seg_values[s, 1],
-            seg_out[s],
+            band_floor, seg_out[s],
         )  # fmt: skip
 
 
@@ -197,6 +209,7 @@ def _metrics_impl(
     u: np.ndarray,
     seg_bounds: np.ndarray,
     seg_values: np.ndarray,
+    band_floor: float,
     run_out: np.ndarray,
     seg_out: np.ndarray,
 ) -> None:
@@ -214,7 +227,10 @@ def _metrics_impl(
         while c < n_chunks:
             for b in range(c * chunk, min(n_runs, (c + 1) * chunk)):
                 r_row = r[0] if shared else r[b]
-                _run(t, r_row, y[b], u[b], seg_bounds, seg_values, run_out[b], seg_out[b])
+                _run(
+                    t, r_row, y[b], u[b], seg_bounds, seg_values, band_floor, run_out[b],
+                    seg_out[b],
+                )  # fmt: skip
             c = fetch_add(counter, np.int64(1))
 
 
@@ -225,13 +241,17 @@ stamp_caches((_metrics_serial, _metrics_parallel), (__file__, _schedule.__file__
 PARALLEL_MIN_BATCH = 16
 
 
-def _metrics_kernel(*args: np.ndarray) -> None:
+def _metrics_kernel(*args: Any) -> None:
     kernel = _metrics_parallel if args[2].shape[0] >= PARALLEL_MIN_BATCH else _metrics_serial
     kernel(*args)
 
 
 def step_metrics(
-    t_s: np.ndarray, y: np.ndarray, y_init: float, y_final: float
+    t_s: np.ndarray,
+    y: np.ndarray,
+    y_init: float,
+    y_final: float,
+    settling_band_deg: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Step metrics of a batch of responses to one move (MATLAB ``stepinfo`` with ``yinit``).
 
@@ -243,6 +263,8 @@ def step_metrics(
         Responses (deg).
     y_init, y_final : float
         Value before and after the move (deg); must differ.
+    settling_band_deg : float
+        Floor of the settling band (deg); the band is ``max(2 % |y_final - y_init|, floor)``.
 
     Returns
     -------
@@ -259,7 +281,7 @@ def step_metrics(
     seg_out = np.empty((n_runs, 1, len(_SEG_COLUMNS)))
     _metrics_kernel(
         t, y2, y2, y2, np.array([[0, n]]), np.array([[y_init, y_final]], dtype=float),
-        run_out, seg_out,
+        float(settling_band_deg), run_out, seg_out,
     )  # fmt: skip
     return {name: seg_out[:, 0, i] for i, name in enumerate(_SEG_COLUMNS)}
 
@@ -316,10 +338,19 @@ def _aggregate(parts: list[dict[str, np.ndarray]], n_runs: int) -> dict[str, np.
     return out
 
 
+def _counter(traj: Any, name: str, n_runs: int) -> np.ndarray:
+    """A per-run counter of the trajectory (NaN if it has none)."""
+    value = getattr(traj, name, None)
+    if value is None:
+        return np.full(n_runs, np.nan)
+    return np.asarray(value, dtype=float) * np.ones(n_runs)
+
+
 def compute_metrics(
     traj: Any,
     signal: str = "measured",
     segments: tuple[Segment, ...] | None = None,
+    settling_band_deg: float = 0.0,
 ) -> Metrics:
     """All metrics of a :class:`~gripper_env.simulation.Trajectory` (or any object with ``t``,
     ``r``, ``u``, ``y``, ``y_true``, ``stable``, ``saturated_s`` and ``reference``).
@@ -332,6 +363,11 @@ def compute_metrics(
         Score the measured angle (what an experimenter sees, the default) or the true one.
     segments : tuple of Segment, optional
         Grip/un-grip moves; default the reference's.
+    settling_band_deg : float
+        Floor of the settling band (deg); the band is ``max(2 % of the move, floor)``.
+
+    The contact, stall, force and servo-effort metrics come from the trajectory's counters
+    (:meth:`~gripper_env.simulation.Trajectory.from_simulator`); NaN where it has none.
     """
     if signal not in ("measured", "true"):
         raise ValueError(f"signal must be 'measured' or 'true', got {signal!r}")
@@ -358,7 +394,9 @@ def compute_metrics(
     values = np.array([[s.initial_deg, s.final_deg] for s in segs], dtype=float).reshape(-1, 2)
     run_out = np.empty((n_runs, 7))
     seg_out = np.empty((n_runs, len(segs), len(_SEG_COLUMNS)))
-    _metrics_kernel(t, r, ys, us, bounds, values, run_out, seg_out)
+    if not math.isfinite(settling_band_deg) or settling_band_deg < 0:
+        raise ValueError(f"settling_band_deg must be >= 0, got {settling_band_deg!r}")
+    _metrics_kernel(t, r, ys, us, bounds, values, float(settling_band_deg), run_out, seg_out)
     parts = {"grip": [], "ungrip": []}
     for i, s in enumerate(segs):
         parts[s.kind].append({name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)})
@@ -373,7 +411,11 @@ def compute_metrics(
         "ise": run_out[:, 1],
         "itae": run_out[:, 2],
         "control_effort": run_out[:, 3],
+        "servo_effort_deg": _counter(traj, "servo_effort_deg", n_runs),
         "saturation_s": np.asarray(traj.saturated_s, dtype=float) * np.ones(n_runs),
+        "contact_s": _counter(traj, "contact_s", n_runs),
+        "stall_s": _counter(traj, "stall_s", n_runs),
+        "force_proxy": _counter(traj, "force_proxy", n_runs),
     }
     bad = ~stable
     if bad.any():

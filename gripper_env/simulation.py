@@ -75,7 +75,8 @@ P_CMD_LO, P_CMD_HI, P_QUANTUM, P_REFRESH, P_RATE = range(10, 15)
 P_FRIC, P_S, P_J, P_BACKLASH = range(15, 19)
 P_MECH_LO, P_MECH_HI = range(19, 21)
 P_ADC_LSB, P_ADC_LO, P_ADC_MAX, P_NOISE, P_DELAY = range(21, 26)
-N_PARAMS = 26
+P_STALL_BAND = 26
+N_PARAMS = 27
 
 # State vector (one row per run): controller, command path, friction, sensor, then the plant.
 S_XI, S_XF = 0, 1
@@ -90,7 +91,11 @@ S_DIVERGED = S_U + 1
 S_SATURATED = S_DIVERGED + 1  # count of steps with the command clipped
 S_CMDCLIP = S_SATURATED + 1  # 1 while the held servo command is clipped to its range
 S_STEPS = S_CMDCLIP + 1  # physics steps advanced so far
-S_X = S_STEPS + 1  # plant state, then as many entries of scratch space
+S_CONTACT = S_STEPS + 1  # steps with the jaw held by a stop or an object
+S_STALL = S_CONTACT + 1  # steps held there with the command a whole stall band beyond it
+S_FORCE = S_STALL + 1  # sum over steps of the push as a fraction of stall torque
+S_SERVO_TV = S_FORCE + 1  # total variation of the servo command (deg)
+S_X = S_SERVO_TV + 1  # plant state, then as many entries of scratch space
 
 DIVERGENCE_BOUND = 1e9
 INITIAL_STATES = ("rest", "equilibrium", "zero")
@@ -317,6 +322,8 @@ def _advance_row(
         params[b, P_NOISE],
     )
     inv_lsb = 1.0 / lsb if lsb > 0.0 else 0.0  # a division would sit on every step's path
+    inv_band = 1.0 / params[b, P_STALL_BAND]
+    stall_band = params[b, P_STALL_BAND]
     delay = int(params[b, P_DELAY])
     step_max = rate * refresh * dt
     dff = plant_d[pb]
@@ -341,6 +348,8 @@ def _advance_row(
     didx = int(state[b, S_DIDX])
     v_prev = state[b, S_VPREV]
     saturated = state[b, S_SATURATED]
+    contact, stall, force = state[b, S_CONTACT], state[b, S_STALL], state[b, S_FORCE]
+    servo_tv = state[b, S_SERVO_TV]
     z = rng[b]
     y_meas = state[b, S_YMEAS]
     u = state[b, S_U]
@@ -392,6 +401,7 @@ def _advance_row(
                     c = cmd + step_max
                 elif c < cmd - step_max:
                     c = cmd - step_max
+            servo_tv += abs(c - cmd)
             cmd = c
             countdown = refresh
         countdown -= 1.0
@@ -415,7 +425,14 @@ def _advance_row(
             x0 = x0_new
         else:
             x0, x1 = _update_state_general(b, pb, x0, v_in, plant_a, plant_b, state)
-        x0 = mech_lo if x0 < mech_lo else (mech_hi if x0 > mech_hi else x0)
+        # the jaw against a stop (or an object): how hard the servo pushes into it
+        at_lo = x0 <= mech_lo
+        at_hi = x0 >= mech_hi
+        push = (mech_lo - cmd) if at_lo else ((cmd - mech_hi) if at_hi else 0.0)
+        contact += 1.0 if (at_lo or at_hi) else 0.0
+        stall += 1.0 if push >= stall_band else 0.0
+        force += min(push * inv_band, 1.0) if push > 0.0 else 0.0
+        x0 = mech_lo if at_lo else (mech_hi if at_hi else x0)
         v_prev = v_in
         if record:
             if out_r is not None:
@@ -444,6 +461,8 @@ def _advance_row(
     state[b, S_DIDX] = didx
     state[b, S_VPREV] = v_prev
     state[b, S_SATURATED] = saturated
+    state[b, S_CONTACT], state[b, S_STALL], state[b, S_FORCE] = contact, stall, force
+    state[b, S_SERVO_TV] = servo_tv
     state[b, S_YMEAS] = y_meas
     state[b, S_U] = u
     state[b, S_STEPS] += done
@@ -601,6 +620,7 @@ def _disturbance_row(d: Disturbance, dt_s: float) -> np.ndarray:
         P_ADC_MAX: 2**s.adc_bits - 1 if s.adc_bits else 0,
         P_NOISE: s.noise_std_deg,
         P_DELAY: round(s.delay_s / dt_s),
+        P_STALL_BAND: m.stall_band_deg,
     }
     for key, value in values.items():
         row[key - P_CMD_LO] = value
@@ -886,6 +906,29 @@ class BatchSimulator:
         """Physics steps each run spent with its command clipped (PID limits or servo range)."""
         return self.state[:, S_SATURATED]
 
+    @property
+    def contact_steps(self) -> np.ndarray:
+        """Physics steps each run spent with the jaw held by a mechanical stop or an object."""
+        return self.state[:, S_CONTACT]
+
+    @property
+    def stall_steps(self) -> np.ndarray:
+        """Physics steps each run spent held by a stop or object with the servo command at
+        least ``mechanics.stall_band_deg`` beyond it (full stall current)."""
+        return self.state[:, S_STALL]
+
+    @property
+    def force_sum(self) -> np.ndarray:
+        """Sum over physics steps of the servo's push into a stop or object as a fraction of
+        its stall torque (0 to 1 per step)."""
+        return self.state[:, S_FORCE]
+
+    @property
+    def servo_variation_deg(self) -> np.ndarray:
+        """Total variation of the command the servo received (deg): its 50 Hz, quantised
+        command, not the controller's 1 kHz output."""
+        return self.state[:, S_SERVO_TV]
+
 
 @dataclass
 class Trajectory:
@@ -906,6 +949,15 @@ class Trajectory:
         The reference profile (its grip/un-grip segments feed the metrics).
     closed_loop : bool
         Whether a PID closed the loop.
+    contact_s, stall_s : ndarray, shape (B,), or None
+        Time the jaw spent held by a mechanical stop or an object, and the part of it with the
+        servo command a whole stall band beyond (full stall current), in s. ``None`` where not
+        known (a recorded hardware run).
+    force_proxy : ndarray, shape (B,), or None
+        Mean push of the servo into a stop or object while held there, as a fraction of its
+        stall torque (0 to 1; 0 without contact).
+    servo_effort_deg : ndarray, shape (B,), or None
+        Total variation of the command the servo received (deg; 50 Hz, quantised).
     """
 
     t: np.ndarray
@@ -917,6 +969,39 @@ class Trajectory:
     saturated_s: np.ndarray
     reference: Reference
     closed_loop: bool
+    contact_s: np.ndarray | None = None
+    stall_s: np.ndarray | None = None
+    force_proxy: np.ndarray | None = None
+    servo_effort_deg: np.ndarray | None = None
+
+    @classmethod
+    def from_simulator(
+        cls,
+        sim: BatchSimulator,
+        reference: Reference,
+        out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    ) -> Trajectory:
+        """The trajectory of a simulator's runs over ``reference`` (its accumulated counters
+        cover every step since the runs' last reset)."""
+        dt = sim.dt_s
+        contact = sim.contact_steps
+        return cls(
+            t=reference.t_s,
+            r=out[0],
+            u=out[1],
+            y=out[2],
+            y_true=out[3],
+            stable=~sim.diverged,
+            saturated_s=sim.saturated_steps * dt,
+            reference=reference,
+            closed_loop=sim.closed_loop,
+            contact_s=contact * dt,
+            stall_s=sim.stall_steps * dt,
+            force_proxy=np.divide(
+                sim.force_sum, contact, out=np.zeros_like(contact), where=contact > 0
+            ),
+            servo_effort_deg=sim.servo_variation_deg.copy(),
+        )
 
     @property
     def dt_s(self) -> float:
@@ -1018,17 +1103,7 @@ def simulate(
     y0 = ref.values_deg[0] if y0_deg is None else y0_deg
     sim.reset(y0, seed_arr, initial=initial)
     out = sim.advance(len(ref), ref.values_deg)
-    return Trajectory(
-        t=ref.t_s,
-        r=out[0],
-        u=out[1],
-        y=out[2],
-        y_true=out[3],
-        stable=~sim.diverged,
-        saturated_s=sim.saturated_steps * dt,
-        reference=ref,
-        closed_loop=gain_rows is not None,
-    )
+    return Trajectory.from_simulator(sim, ref, out)
 
 
 def _delay_capacity(dists: Sequence[Disturbance], dt: float) -> int:

@@ -19,7 +19,15 @@ def test_presets_exist_and_are_what_they_say():
     assert actual.command.refresh_period_s == pytest.approx(0.020)
     assert actual.command.quantum_deg == 1.0
     assert actual.friction.model == "choudhury"
-    assert actual.mechanics.limits_deg == (21.0, 92.0)
+    # the stops lie beyond the paper's grip and un-grip angles, for every randomised draw
+    closed, opened = actual.mechanics.limits_deg
+    assert closed < 21.0 and opened > 92.0
+    for seed in range(20):
+        c, o = actual.sample(np.random.default_rng(seed)).mechanics.limits_deg
+        assert 9.0 <= c <= 15.0 < 21.0 and 92.0 < 97.0 <= o <= 103.0
+    obj = load_disturbance("grip-object")
+    assert 21.0 < obj.mechanics.object_contact_deg < 92.0
+    assert obj.randomize["friction.S_deg"] == actual.randomize["friction.S_deg"]  # merged
     assert actual.sensor.adc_bits == 10
     assert 0.2 <= actual.sensor.lsb_deg <= 0.3  # DESIGN.md: 0.2-0.3 deg per count
     worn = load_disturbance("worn")  # extends actual
@@ -69,3 +77,13 @@ def test_overrides_compose():
     assert d.mechanics.object_contact_deg == 40.0
     assert d.friction == load_disturbance("actual").friction
     assert isinstance(d, Disturbance)
+
+
+def test_randomising_one_entry_of_a_pair_and_bad_keys():
+    d = load_disturbance({"extends": "ideal", "randomize": {"command.range_deg.1": [170, 175]}})
+    lo, hi = d.sample(np.random.default_rng(0)).command.range_deg
+    assert lo == -np.inf and 170 <= hi <= 175
+    with pytest.raises(ConfigError, match="no entry 2"):
+        load_disturbance({"extends": "actual", "randomize": {"mechanics.limits_deg.2": [1, 2]}})
+    with pytest.raises(ConfigError, match="unknown parameter"):
+        load_disturbance({"extends": "actual", "randomize": {"mechanics.nope": [1, 2]}})
