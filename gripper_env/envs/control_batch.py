@@ -56,6 +56,9 @@ class ControlBatch:
         Reward weights (see the environments' docstrings).
     residual : Residual, optional
         Size of the correction and the PID's gains of the residual modes.
+    record_true : bool
+        Also record the true jaw angle of each period in :attr:`out_yt` (for whole-episode
+        trajectories, :mod:`gripper_env.envs.rollout`; the environments leave it out).
     """
 
     def __init__(
@@ -67,6 +70,7 @@ class ControlBatch:
         overshoot_weight: float,
         chatter_weight: float,
         residual: Residual | None = None,
+        record_true: bool = False,
     ) -> None:
         self.settings = settings
         self.n_rows = n_rows
@@ -137,6 +141,7 @@ class ControlBatch:
         # modes the output is the drive itself)
         self.out_u = np.zeros((n_rows, s.n_sub)) if K.closed_loop(mode) else None
         self.out_y = np.zeros((n_rows, s.n_sub))
+        self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
         self.episodes: list[Episode | None] = [None] * n_rows
         self._bind()
 
@@ -160,7 +165,7 @@ class ControlBatch:
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
             self.rewards, self.terminated, self.truncated,
             sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
-            None, self.out_u, self.out_y, None,
+            None, self.out_u, self.out_y, self.out_yt,
         )  # fmt: skip
 
     # ------------------------------------------------------------------------------------------
