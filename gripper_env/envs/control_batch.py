@@ -27,7 +27,7 @@ from gripper_env.envs.spaces import (
     reference_features,
 )
 from gripper_env.references import Reference, step_profile
-from gripper_env.simulation import P_DELAY, PARALLEL_MIN_BATCH, build_params
+from gripper_env.simulation import P_DELAY, build_params
 
 __all__ = ["DIVERGED_PENALTY", "VARIATION_CAP", "ControlBatch"]
 
@@ -143,6 +143,15 @@ class ControlBatch:
         self.out_y = np.zeros((n_rows, s.n_sub))
         self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
         self.episodes: list[Episode | None] = [None] * n_rows
+        #: None: the serial or the parallel kernel by batch size (kernels.step_kernel); True or
+        #: False forces one (set_parallel).
+        self.parallel: bool | None = None
+        self._bind()
+
+    def set_parallel(self, parallel: bool | None) -> None:
+        """Run the parallel kernel (``True``), the serial one (``False``), or choose by batch
+        size (``None``, the default). The results are the same; only the speed differs."""
+        self.parallel = parallel
         self._bind()
 
     # Copies (pickle, deepcopy, a spawned worker) rebuild the derived references: the compiled
@@ -159,7 +168,7 @@ class ControlBatch:
 
     def _bind(self) -> None:
         """Collect the kernel's arguments once (the simulator's arrays are updated in place)."""
-        self._kernel = K.step_parallel if self.n_rows >= PARALLEL_MIN_BATCH else K.step_serial
+        self._kernel = K.step_kernel(self.n_rows, self.settings.n_sub, self.parallel)
         sim, cfg = self.sim, self.cfg
         self._args = (
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,

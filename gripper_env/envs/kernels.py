@@ -362,6 +362,21 @@ def _step_impl(
 step_serial = njit(cache=True)(_step_impl)
 step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
 
+#: Physics steps per call (rows x steps per control period) from which a batch runs the parallel
+#: kernel. Below it the serial kernel runs: waking the worker threads costs ~5-20 us on an idle
+#: 2-core machine and far more on a loaded one, while a row's period costs ~0.2-0.5 us. Measured
+#: with ``python -m benchmarks.envs_speed`` (its serial/parallel columns): at 20 steps a period,
+#: serial wins at 64 environments and below, parallel from 256 up when a core is free.
+PARALLEL_MIN_STEPS = 4096
+
+
+def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None):  # type: ignore[no-untyped-def]
+    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call:
+    parallel from :data:`PARALLEL_MIN_STEPS` steps up (``parallel`` forces one or the other)."""
+    if parallel is None:
+        parallel = n_rows > 1 and n_rows * n_sub >= PARALLEL_MIN_STEPS
+    return step_parallel if parallel else step_serial
+
 
 def closed_loop(mode: int) -> bool:
     """Whether ``mode`` runs the PID (and records and observes its output)."""

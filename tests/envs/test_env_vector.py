@@ -7,6 +7,7 @@ from gymnasium.utils.env_checker import data_equivalence
 from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO
 
 import gripper_env  # noqa: F401
+from gripper_env.envs import kernels
 
 
 def compare(env_id, n_envs, n_steps, seed, **kwargs):
@@ -66,11 +67,13 @@ def test_vector_pid_tune_equals_single_envs():
 
 
 def test_vector_parallel_batch_equals_serial():
-    """A batch large enough for the parallel kernel (three chunks of rows, the last partial)
-    gives the same rows as single envs."""
+    """The parallel kernel (forced on a batch of three chunks of rows, the last partial) gives
+    the same rows as single envs."""
     n = 37
     native = gym.make_vec(SERVO, num_envs=n, vectorization_mode="vector_entry_point",
                           max_episode_steps=8)  # fmt: skip
+    native.unwrapped._batch.set_parallel(True)
+    assert native.unwrapped._batch._kernel is kernels.step_parallel
     obs, _ = native.reset(seed=100)
     singles = [gym.make(SERVO, max_episode_steps=8) for _ in range(n)]
     single_obs = [e.reset(seed=100 + i)[0] for i, e in enumerate(singles)]
@@ -147,3 +150,12 @@ def test_vector_renders_the_chosen_envs(env_id):
     with pytest.raises(ValueError, match="'render_envs'"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
                      render_mode="rgb_array", render_envs=[2])  # fmt: skip
+
+
+def test_kernel_by_batch_size():
+    """Small batches run the serial kernel (no thread wake-up), large ones the parallel one."""
+    assert kernels.step_kernel(1, 20) is kernels.step_serial
+    assert kernels.step_kernel(64, 20) is kernels.step_serial
+    assert kernels.step_kernel(1024, 20) is kernels.step_parallel
+    assert kernels.step_kernel(1024, 20, parallel=False) is kernels.step_serial
+    assert kernels.step_kernel(8, 20, parallel=True) is kernels.step_parallel
