@@ -36,6 +36,7 @@ from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
+    S_SERVO_TV,
     S_XI,
     _advance_row,
 )
@@ -83,8 +84,9 @@ MODE_RESIDUAL_PID = 3  # action = correction added to the output of a fixed PID 
     E_DIR,  # direction of the latest reference move: -1, 0, +1
     E_STEPS,  # steps (control periods) since reset
     E_DONE,  # DONE_RUNNING, DONE_ENDED (reset on the next step) or DONE_RESETTING (in this step)
+    E_TV,  # the core's servo-command variation counter at the previous step (deg)
     E_A0,  # previous (clipped) action, E_A0 + j
-) = range(10)
+) = range(11)
 
 DONE_RUNNING = 0.0
 DONE_ENDED = 1.0
@@ -160,7 +162,7 @@ def period_reward(ref_row, t, last, y, direction, variation, jh, ch, w_over, w_v
     direction : float
         +1/-1 for the direction of the latest reference move before the period, 0 before any.
     variation : float
-        Command variation over the period (deg): ``sum_k |u_k - u_{k-1}|``.
+        Variation of the servo's command over the period (deg): ``sum_k |u_k - u_{k-1}|``.
     jh, ch : float
         Half-widths of the jaw range and of the command range (deg).
     w_over, w_var, var_cap : float
@@ -262,21 +264,13 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     terminated[b] = False
     env[b, E_DONE] = DONE_ENDED if trunc else DONE_RUNNING
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
-    u_prev = env[b, E_UPREV]
-    variation = 0.0
-    if cfg[C_MODE] == MODE_SERVO:  # the action's command, held over the period
-        variation = abs(drive[b, 0] - u_prev)
-        u_prev = drive[b, n_sub - 1]
-    elif out_u is None:  # open loop: the drive is the command
-        for k in range(n_sub):
-            u = drive[b, k]
-            variation += abs(u - u_prev)
-            u_prev = u
-    else:
-        for k in range(n_sub):
-            u = out_u[b, k]
-            variation += abs(u - u_prev)
-            u_prev = u
+    # chatter: the variation of the command the servo received (its 50 Hz, quantised command,
+    # counted by the core), not of the controller's 1 kHz output, whose sensor noise the servo
+    # never sees between its refresh ticks
+    tv = state[b, S_SERVO_TV]
+    variation = tv - env[b, E_TV]
+    env[b, E_TV] = tv
+    u_prev = drive[b, n_sub - 1] if out_u is None else out_u[b, n_sub - 1]
     reward, direction = period_reward(
         ref[rb], t, last, out_y[b], env[b, E_DIR], variation,
         cfg[C_JH], cfg[C_CH], cfg[C_WOS], cfg[C_WU], cfg[C_UCAP],
