@@ -222,6 +222,22 @@ class Disturbance(BaseModel):
                 raise ValueError(f"randomize: range for {key!r} must be [low, high], got {lo, hi}")
         return self
 
+    @property
+    def friction_band_deg(self) -> float:
+        """Widest band (deg) in which friction may leave the jaw stuck: the largest stiction
+        band ``S`` the preset (or its randomisation) can draw, plus the largest backlash; 0 for
+        a friction-free model. Settling bands narrower than this measure the friction draw,
+        not the controller."""
+        f = self.friction
+
+        def widest(name: str) -> float:
+            value = getattr(f, name)
+            lo_hi = self.randomize.get(f"friction.{name}")
+            return max(value, lo_hi[1]) if lo_hi is not None else value
+
+        stiction = widest("S_deg") if f.model != "none" else 0.0
+        return float(stiction + widest("backlash_deg"))
+
     def sample(self, rng: np.random.Generator) -> Disturbance:
         """Draw one episode's parameters from the ``randomize`` ranges.
 

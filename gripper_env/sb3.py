@@ -132,7 +132,7 @@ class NativeVecEnv(VecEnv):
         seeds = self._seeds if any(s is not None for s in self._seeds) else None
         options = self._options[0] if self._options and self._options[0] else None
         obs, infos = self.vector_env.reset(seed=seeds, options=options)
-        self.reset_infos = split_infos(infos, self.num_envs)
+        self.reset_infos = self._unbatched(infos)
         self._reset_seeds()
         self._reset_options()
         return obs
@@ -143,7 +143,7 @@ class NativeVecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         obs, rewards, terminated, truncated, infos = self.vector_env.step(self._actions)
         dones = terminated | truncated
-        out = split_infos(infos, self.num_envs) if infos else [{} for _ in range(self.num_envs)]
+        out = self._unbatched(infos)
         for i in range(self.num_envs):
             out[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         if dones.any():
@@ -152,13 +152,22 @@ class NativeVecEnv(VecEnv):
             for i in np.flatnonzero(dones):
                 out[i]["terminal_observation"] = obs[i]
             obs, reset_infos = self.vector_env.reset(options={"reset_mask": dones})
-            for i, info in enumerate(split_infos(reset_infos, self.num_envs)):
+            for i, info in enumerate(self._unbatched(reset_infos)):
                 if dones[i]:
                     self.reset_infos[i] = info
         return obs, rewards.astype(np.float32), dones, out
 
     def close(self) -> None:
         self.vector_env.close()
+
+    def _unbatched(self, infos: dict[str, Any]) -> list[dict[str, Any]]:
+        """Each environment's info dict (fresh dicts: SB3's wrappers add keys to them)."""
+        if not infos:
+            return [{} for _ in range(self.num_envs)]
+        per_env = getattr(self.vector_env, "env_infos", None)
+        if per_env is not None:  # this project's vector envs keep them unbatched
+            return [dict(info) for info in per_env]
+        return split_infos(infos, self.num_envs)
 
     # ------------------------------------------------------------------------------------------
     def get_images(self) -> Sequence[np.ndarray | None]:

@@ -273,6 +273,12 @@ class LoopAnalysis:
             raise ValueError(f"this analysis is for N = {self.loop.N}; build a LoopAnalysis per N")
         return g[:, :3]
 
+    @property
+    def gain_responses(self) -> np.ndarray:
+        """Frequency responses (n_omega, 3) of the P, I and D output maps on :attr:`omega`:
+        ``L = -(gains @ gain_responses.T)`` for gains ``(P, I, D)``."""
+        return self._freq
+
     def loop_gain(self, gains: Any) -> np.ndarray:
         """``L(e^{j omega T})`` on :attr:`omega` for each gain set, shape (B, n_omega)."""
         return -(self._gains(gains) @ self._freq.T)

@@ -1,26 +1,52 @@
-"""Textbook PI tuning from the plant's model: Skogestad's SIMC rule (or IMC/lambda tuning).
+"""Textbook robust PID designs from the plant's model: the baselines every search must beat.
 
 Usage::
 
-    python -m tuners.classical --plant test2
-    python -m tuners.classical --plant test2 --rule lambda
+    python -m tuners.classical --plant test2                      # default method: amigo-pi
+    python -m tuners.classical --plant test2 --method migo
+    python -m tuners.classical --plant test2 --method all         # every method, one table
 
-The baseline a control engineer tries first. The plant's step response over the experiment window
-(``window_s`` in ``configs/tuners/classical.yaml``) gives a first-order-plus-dead-time model:
+The first thing a control engineer tries. Most methods start from a first-order-plus-dead-time
+model ``k exp(-theta s) / (tau s + 1)`` (:func:`fit_fopdt`) read off the plant's step response
+over the experiment window (``window_s`` in ``configs/tuners/classical.yaml``):
 
 * gain ``k`` = response at the end of the window (the paper's plants behave like gain ~1 over
   seconds: their slow pole/zero pairs must not count, so never the infinite-time DC gain);
 * time constant ``tau`` = time to 63.2 % of ``k``;
 * dead time ``theta`` = half the servo refresh period (zero-order hold of the 20 ms servo frame)
-  + the sensor delay + one sample + ``extra_dead_time_s``.
+  + the sensor delay + one sample + ``extra_dead_time_s``: the *effective* dead time of the loop
+  as it runs, ~11 ms on the actual gripper.
 
-With the desired closed-loop time constant ``tau_c = max(tau_c_min_s, tau_c_factor * theta)``:
+Methods (parallel-form gains ``P = Kc``, ``I = Kc / Ti``, ``D = Kc Td``):
 
-* SIMC (Skogestad 2003): ``Kc = tau / (k (tau_c + theta))``,
-  ``tau_I = min(tau, 4 (tau_c + theta))``;
-* lambda (IMC-PI): ``Kc = tau / (k (tau_c + theta))``, ``tau_I = tau``;
+``simc``
+    Skogestad's SIMC PI rule, S. Skogestad, "Simple analytic rules for model reduction and PID
+    controller tuning", J. Process Control 13 (2003) 291-309: ``Kc = tau / (k (tau_c + theta))``,
+    ``Ti = min(tau, 4 (tau_c + theta))`` with the "tight control" choice ``tau_c = theta``
+    (``tau_c_factor``).
+``lambda``
+    IMC / lambda PI tuning (Rivera, Morari and Skogestad, Ind. Eng. Chem. Process Des. Dev. 25
+    (1986) 252-265): ``Kc = tau / (k (lambda + theta))``, ``Ti = tau``, ``lambda = tau_c``.
+``amigo-pi``, ``amigo-pid``
+    K. J. Astrom and T. Hagglund, "Revisiting the Ziegler-Nichols step response method for PID
+    control", J. Process Control 14 (2004) 635-650 (AMIGO: Approximate M-constrained Integral
+    Gain Optimisation, designed for Ms ~ 1.4). PI: ``Kc = 0.15/k + (0.35 - L T / (L + T)^2) T /
+    (k L)``, ``Ti = 0.35 L + 13 L T^2 / (T^2 + 12 L T + 7 L^2)``; PID: ``Kc = (0.2 + 0.45 T / L)
+    / k``, ``Ti = (0.4 L + 0.8 T) L / (L + 0.1 T)``, ``Td = 0.5 L T / (0.3 L + T)`` (``T = tau``,
+    ``L = theta``).
+``migo``
+    MIGO (K. J. Astrom and T. Hagglund, *Advanced PID Control*, ISA 2006, ch. 7): the PI gains
+    with the largest integral gain ``I`` subject to ``Ms <= migo_ms`` (1.4) -- computed here on
+    the loop as it runs (PID at 1 ms, the servo's command hold; :mod:`gripper_env.stability`),
+    not on the FOPDT model.
+``pidtune``
+    Loop shaping like MATLAB ``pidtune``'s default (The MathWorks, *Control System Toolbox*,
+    "PID Controller Tuning"): a PI controller with a phase margin of ``pidtune_pm_deg`` (60 deg)
+    at the highest crossover frequency for which the loop as it runs is stable with a single
+    crossover and at least 6 dB of gain margin.
 
-and the parallel-form gains are ``P = Kc``, ``I = Kc / tau_I``, ``D = 0``.
+Every method's result is evaluated and checked against the same robustness constraints as the
+searches (``configs/objective.yaml``); a design that misses them says so in its gains file.
 """
 
 from __future__ import annotations
@@ -28,6 +54,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -37,10 +64,12 @@ import numpy as np
 from gripper_env.disturbances import Disturbance
 from gripper_env.pid import PIDGains
 from gripper_env.plants import Plant
+from gripper_env.scoring import loop_analysis
+from gripper_env.stability import ServoLoop
 from tuners import cli
 from tuners.settings import ClassicalSettings, load_settings
 
-__all__ = ["FOPDT", "fit_fopdt", "main", "tune"]
+__all__ = ["FOPDT", "METHODS", "design", "fit_fopdt", "main"]
 
 
 @dataclass(frozen=True)
@@ -84,62 +113,204 @@ def fit_fopdt(plant: Plant, disturbance: Disturbance, settings: ClassicalSetting
     return FOPDT(k=k, tau_s=tau, theta_s=theta)
 
 
-def tune(model: FOPDT, settings: ClassicalSettings, n: float = 100.0) -> tuple[PIDGains, float]:
-    """PI gains by the configured rule; returns the gains and ``tau_c`` (s)."""
-    tau_c = max(settings.tau_c_min_s, settings.tau_c_factor * model.theta_s)
-    kc = model.tau_s / (model.k * (tau_c + model.theta_s))
-    if settings.rule == "simc":
-        tau_i = min(model.tau_s, 4.0 * (tau_c + model.theta_s))
-    else:
-        tau_i = model.tau_s
-    return PIDGains(kc, kc / tau_i, 0.0, n), tau_c
+@dataclass(frozen=True)
+class Design:
+    """What a method produced: the gains and the numbers behind them."""
+
+    gains: PIDGains
+    notes: dict[str, float]
+
+
+def _pid(kc: float, ti: float, td: float, n: float) -> PIDGains:
+    return PIDGains(kc, kc / ti, kc * td, n)
+
+
+def _simc(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    tau_c = max(s.tau_c_min_s, s.tau_c_factor * m.theta_s)
+    kc = m.tau_s / (m.k * (tau_c + m.theta_s))
+    return Design(_pid(kc, min(m.tau_s, 4.0 * (tau_c + m.theta_s)), 0.0, ctx.n), {"tau_c_s": tau_c})
+
+
+def _lambda(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    lam = max(s.tau_c_min_s, s.tau_c_factor * m.theta_s)
+    kc = m.tau_s / (m.k * (lam + m.theta_s))
+    return Design(_pid(kc, m.tau_s, 0.0, ctx.n), {"lambda_s": lam})
+
+
+def _amigo_pi(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    k, t, lag = m.k, m.tau_s, m.theta_s
+    kc = 0.15 / k + (0.35 - lag * t / (lag + t) ** 2) * t / (k * lag)
+    ti = 0.35 * lag + 13.0 * lag * t**2 / (t**2 + 12.0 * lag * t + 7.0 * lag**2)
+    return Design(_pid(kc, ti, 0.0, ctx.n), {})
+
+
+def _amigo_pid(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    k, t, lag = m.k, m.tau_s, m.theta_s
+    kc = (0.2 + 0.45 * t / lag) / k
+    ti = (0.4 * lag + 0.8 * t) * lag / (lag + 0.1 * t)
+    td = 0.5 * lag * t / (0.3 * lag + t)
+    return Design(_pid(kc, ti, td, ctx.n), {})
+
+
+@dataclass(frozen=True)
+class _Context:
+    """The loop as it runs, for the methods that design on it."""
+
+    plant: Plant
+    loop: ServoLoop
+
+    @property
+    def n(self) -> float:
+        return self.loop.N
+
+
+def _migo(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    analysis = loop_analysis(ctx.plant, ctx.loop)
+    kc_scale = m.tau_s / (abs(m.k) * m.theta_s)  # the FOPDT's gain scale
+    ki_scale = 1.0 / (abs(m.k) * m.theta_s)
+
+    def best_ki(kp: np.ndarray) -> np.ndarray:
+        """Largest I with Ms <= migo_ms (and a stable loop) for each P, by bisection in log I."""
+        lo = np.full(len(kp), math.log(ki_scale * 1e-4))
+        hi = np.full(len(kp), math.log(ki_scale * 10.0))
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            g = np.column_stack([kp, np.exp(mid), np.zeros(len(kp))])
+            r = analysis.robustness(g)
+            ok = r.stable & (r.ms <= s.migo_ms)
+            lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+        ki = np.exp(lo)
+        g = np.column_stack([kp, ki, np.zeros(len(kp))])
+        r = analysis.robustness(g)
+        return np.where(r.stable & (r.ms <= s.migo_ms), ki, 0.0)
+
+    kp = np.linspace(0.0, 2.0 * kc_scale, 81)
+    ki = best_ki(kp)
+    i = int(np.argmax(ki))
+    # refine around the best grid point
+    fine = np.linspace(kp[max(i - 1, 0)], kp[min(i + 1, len(kp) - 1)], 41)
+    ki_fine = best_ki(fine)
+    j = int(np.argmax(ki_fine))
+    if ki_fine[j] <= 0.0:
+        raise ValueError(f"plant {ctx.plant.name}: no PI gains reach Ms <= {s.migo_ms}")
+    return Design(PIDGains(float(fine[j]), float(ki_fine[j]), 0.0, ctx.n), {"ms_max": s.migo_ms})
+
+
+def _pidtune(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
+    analysis = loop_analysis(ctx.plant, ctx.loop)
+    target = -np.exp(1j * math.radians(s.pidtune_pm_deg))  # L(jwc) = 1 at -180 + PM
+    f_p, f_i = analysis.gain_responses[:, 0], analysis.gain_responses[:, 1]
+    # L = -(P f_p + I f_i) = target: two real equations in (P, I) at every grid frequency
+    a = np.stack(
+        [np.stack([f_p.real, f_i.real], axis=-1), np.stack([f_p.imag, f_i.imag], axis=-1)],
+        axis=1,
+    )
+    rhs = np.stack([-target.real * np.ones_like(f_p.real), -target.imag * np.ones_like(f_p.real)])
+    candidates = np.linalg.solve(a, rhs.T[:, :, None])[:, :, 0]
+    ok_sign = (candidates[:, 0] >= 0.0) & (candidates[:, 1] > 0.0)
+    gains = np.column_stack([candidates, np.zeros(len(candidates))])
+    best = None
+    idx = np.flatnonzero(ok_sign)
+    for chunk in np.array_split(idx, max(1, len(idx) // 256)):
+        if len(chunk) == 0:
+            continue
+        r = analysis.robustness(gains[chunk])
+        good = r.stable & (r.gm_db >= 6.0) & (np.abs(r.pm_deg - s.pidtune_pm_deg) < 0.5)
+        if good.any():
+            best = chunk[np.flatnonzero(good)[-1]]  # grid is ascending: the highest frequency
+    if best is None:
+        raise ValueError(
+            f"plant {ctx.plant.name}: no PI gains give a {s.pidtune_pm_deg:g} deg phase margin"
+        )
+    wc = float(analysis.omega[best])
+    p, i = (float(v) for v in candidates[best])
+    return Design(PIDGains(p, i, 0.0, ctx.n), {"crossover_hz": wc / (2 * math.pi)})
+
+
+#: Method name -> design function ``(FOPDT, settings, context) -> Design``.
+METHODS: dict[str, Callable[[FOPDT, ClassicalSettings, _Context], Design]] = {
+    "simc": _simc,
+    "lambda": _lambda,
+    "amigo-pi": _amigo_pi,
+    "amigo-pid": _amigo_pid,
+    "migo": _migo,
+    "pidtune": _pidtune,
+}
+
+
+def design(
+    method: str,
+    plant: Plant,
+    disturbance: Disturbance,
+    settings: ClassicalSettings,
+    n: float = 100.0,
+) -> tuple[PIDGains, dict[str, object]]:
+    """Gains of one textbook ``method`` for ``plant`` on ``disturbance``'s loop.
+
+    Returns
+    -------
+    gains : PIDGains
+        The design.
+    tuning : dict
+        What the gains file records: the method, the FOPDT model and the method's own figures.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    model = fit_fopdt(plant, disturbance, settings)
+    ctx = _Context(plant, ServoLoop.from_disturbance(disturbance, plant.dt_s, n, 1))
+    result = METHODS[method](model, settings, ctx)
+    return result.gains, {"method": method, "fopdt": asdict(model), **result.notes}
 
 
 def build_parser():
     parser = cli.base_parser(
         "python -m tuners.classical",
-        "PI gains from the plant's model by a textbook rule (SIMC or IMC/lambda).",
+        "PID gains from the plant's model by a textbook robust design.",
     )
     parser.add_argument(
-        "--rule",
-        choices=("simc", "lambda"),
+        "--method",
+        choices=(*METHODS, "all"),
         default=None,
-        help="tuning rule (default: the config's 'rule')",
+        help="design method (default: the config's 'method'); 'all' runs every one",
     )
     parser.add_argument(
         "--config",
         type=Path,
         default=None,
-        help="rule settings; default configs/tuners/classical.yaml",
+        help="method settings; default configs/tuners/classical.yaml",
     )
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
-    start = time.perf_counter()
     inputs = cli.resolve(args)
     settings = load_settings(ClassicalSettings, args.config)
-    if args.rule is not None:
-        settings = settings.model_copy(update={"rule": args.rule})
-    model = fit_fopdt(inputs.plant, inputs.disturbance, settings)
-    gains, tau_c = tune(model, settings, inputs.settings.pid.N)
-    tuner = "classical" if settings.rule == "simc" else f"classical-{settings.rule}"
-    cli.publish(
-        args,
-        inputs,
-        tuner=tuner,
-        gains=gains,
-        sign=1,
-        label=settings.rule,
-        tuning={"rule": settings.rule, "fopdt": asdict(model), "tau_c_s": tau_c},
-        config={"classical": settings.model_dump()},
-        wall_time_s=time.perf_counter() - start,
-        notes=[
-            f"{settings.rule}: FOPDT k={model.k:.4g} tau={model.tau_s:.4g} s "
-            f"theta={model.theta_s:.4g} s, tau_c={tau_c:.4g} s"
-        ],
-    )
+    chosen = args.method or settings.method
+    methods = list(METHODS) if chosen == "all" else [chosen]
+    if args.json and len(methods) > 1:
+        raise ValueError("--json prints one gains file; use it with one --method, not 'all'")
+    for method in methods:
+        start = time.perf_counter()
+        gains, tuning = design(
+            method, inputs.plant, inputs.disturbance, settings, inputs.settings.pid.N
+        )
+        fopdt = tuning["fopdt"]
+        cli.publish(
+            args,
+            inputs,
+            tuner=f"classical-{method}",
+            gains=gains,
+            sign=1,
+            label=method,
+            tuning=tuning,
+            config={"classical": settings.model_dump()},
+            wall_time_s=time.perf_counter() - start,
+            notes=[
+                f"{method}: FOPDT k={fopdt['k']:.4g} tau={fopdt['tau_s']:.4g} s "
+                f"theta={fopdt['theta_s']:.4g} s"
+            ],
+        )
     return 0
 
 

@@ -25,11 +25,11 @@ import numpy as np
 
 from gripper_env.config import ConfigError
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
-from gripper_env.stability import stability_report
-from tuners.evaluation import Evaluation, evaluate, metric_rows
+from tuners.evaluation import PAPER_PLANTS, Evaluation, evaluate, metric_rows
 from tuners.gains_file import (
     GainsFileError,
     build_gains_file,
@@ -133,7 +133,7 @@ def evaluation_settings(inputs: Inputs, ideal_options: PIDOptions) -> dict[str, 
         "disturbance": inputs.disturbance_name,
         "seeds": [int(v) for v in s.seeds.seeds()],
         "randomize": s.randomize,
-        "signal": s.signal,
+        "signal": load_objective().signal,
         "ideal_output_limits_deg": list(ideal_options.output_limits),
         "interval": "95 % confidence interval of the mean over seeds (Student t)",
     }
@@ -144,6 +144,7 @@ def evaluate_inputs(
 ) -> Evaluation:
     """Evaluate gains with the inputs' plant, profile, preset and held-out seeds."""
     s = inputs.settings
+    cross = PAPER_PLANTS if inputs.plant.name in PAPER_PLANTS else ()
     return evaluate(
         inputs.plant,
         gains,
@@ -152,8 +153,8 @@ def evaluate_inputs(
         disturbance=inputs.disturbance,
         seeds=s.seeds.seeds(),
         randomize=s.randomize,
-        signal=s.signal,
         ideal_options=ideal_options,
+        cross_plants=cross,
     )
 
 
@@ -181,14 +182,12 @@ def make_result(
     """
     ideal_opts, actual_opts = inputs.settings.options(sign)
     ev = evaluate_inputs(inputs, gains, actual_opts, ideal_opts)
-    stab = stability_report(inputs.plant, gains, sign).as_dict()
     content = build_gains_file(
         plant=inputs.plant.name,
         tuner=tuner,
         gains=gains,
         options=actual_opts,
         evaluation=ev,
-        stability=stab,
         evaluation_settings=evaluation_settings(inputs, ideal_opts),
         tuning=tuning,
         prov=provenance(
@@ -262,7 +261,7 @@ def _fmt(x: float) -> str:
 
 def format_table(content: dict[str, Any], ev: Evaluation) -> str:
     """A plain-text table of the main metrics on both models and the stability check."""
-    stab = content["stability"]
+    stab = content["robustness"]
     g = content
     n = ev.actual["n_seeds"]
     lines = [
@@ -275,14 +274,36 @@ def format_table(content: dict[str, Any], ev: Evaluation) -> str:
     lines.append(
         f"actual: {n} held-out seeds, stable in {ev.actual['stable_fraction'] * 100:.0f} %"
     )
-    gm, pm = stab["gain_margin_db"], stab["phase_margin_deg"]
+    fast = stab["loop_1ms"]
     lines.append(
-        f"nominal closed loop: {'stable' if stab['stable'] else 'UNSTABLE'}, max |z| = "
-        f"{stab['max_pole_magnitude']:.7f}, gain margin "
-        f"{'none' if gm is None else f'{gm:.3g} dB'}, phase margin "
-        f"{'none' if pm is None else f'{pm:.3g} deg'}"
+        f"loop as it runs (servo command held {stab['refresh_period_s'] * 1e3:g} ms): "
+        f"{_margins(stab)}"
     )
+    lines.append(f"1 ms loop alone (the paper's model):      {_margins(fast)}")
+    lim = stab["constraints"]
+    lines.append(
+        f"robustness constraints (Ms <= {lim['ms_max']:g}, GM >= {lim['gm_min_db']:g} dB with "
+        f"the hold): {'met' if stab['meets_constraints'] else 'NOT MET'}"
+    )
+    worst = (content.get("cross_model") or {}).get("worst")
+    if worst:
+        lines.append(
+            f"on the other identifications (worst): Ms {_fmt(worst['ms'])}, GM "
+            f"{_fmt(worst['gain_margin_db'])} dB, overshoot {_fmt(worst['overshoot_pct'])} %, "
+            f"{'stable' if worst['stable'] else 'UNSTABLE on at least one'}"
+        )
+    for flag in (content.get("tuning") or {}).get("on_bound") or []:
+        lines.append(f"warning: {flag}")
     return "\n".join(lines)
+
+
+def _margins(block: dict[str, Any]) -> str:
+    gm, pm, ms = block["gain_margin_db"], block["phase_margin_deg"], block["ms"]
+    return (
+        f"{'stable' if block['stable'] else 'UNSTABLE'}, GM "
+        f"{'inf' if gm is None else f'{gm:.3g}'} dB, PM {'none' if pm is None else f'{pm:.3g}'}"
+        f" deg, Ms {'-' if ms is None else f'{ms:.3g}'}"
+    )
 
 
 def _one_line(exc: BaseException) -> str:

@@ -6,7 +6,9 @@ Recipe:
 
 1. read the gains file (plant, P, I, D, N, sign, limits);
 2. **stability gate**: refuse (exit 2) gains whose closed loop is unstable on the gains file's
-   plant (:func:`gripper_env.stability.stability_report`), unless ``--allow-unstable``;
+   plant as the board runs it, with the servo's 20 ms command hold
+   (:func:`gripper_env.stability.stability_report`), unless ``--allow-unstable``; warn when
+   they are stable but miss the tuners' robustness constraints;
 3. configure the board (gains, limits, sign, anti-windup, calibration) and run the profile in
    closed loop on the board's PID, the host streaming the reference at 50 Hz; the log
    ``response.csv`` (``t_s, reference_deg, command_deg, position_deg``) is written as it goes
@@ -36,6 +38,7 @@ from gripper_env.hardware.device import GripperDevice, TelemetryBlock
 from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.metrics import compute_metrics, fit_percent
+from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import PROFILES, load_reference
 from gripper_env.simulation import simulate
@@ -174,15 +177,28 @@ def _run(args: argparse.Namespace) -> int:
     plant, tuner, gains, options = load_gains(args.gains)
     if not plant:
         raise ValueError(f"{args.gains}: the gains file names no plant (needed for the gate)")
-    report = stability_report(plant, gains, options.sign)
+    # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
+    report = stability_report(plant, gains, options.sign, disturbance="actual")
     if not report.stable and not args.allow_unstable:
         raise ValueError(
             f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
-            f"(sign {options.sign:+d}) give an unstable closed loop on plant {plant} (largest "
-            f"|pole| {report.max_pole_magnitude:.4f} >= 1); pass --allow-unstable to run anyway"
+            f"(sign {options.sign:+d}) give an unstable closed loop on plant {plant} with the "
+            f"servo's {report.refresh_period_s * 1e3:g} ms command hold (largest |z| "
+            f"{report.max_pole_magnitude:.4f} >= 1); pass --allow-unstable to run anyway"
         )
     if not report.stable:
         print(f"warning: running gains that are unstable on plant {plant}", file=sys.stderr)
+    else:
+        lim = load_objective().constraints
+        if not report.meets(lim.ms_max, lim.gm_min_db):
+            gm = report.gain_margin_db
+            print(
+                f"warning: these gains are stable but not robust on plant {plant} with the "
+                f"servo's hold (Ms {report.ms:.2f}, gain margin "
+                f"{'inf' if gm is None else f'{gm:.1f}'} dB; the tuners require Ms <= "
+                f"{lim.ms_max:g} and >= {lim.gm_min_db:g} dB)",
+                file=sys.stderr,
+            )
     reference = load_reference(args.profile)
     calibration = load_calibration(args.calibration)
     out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")

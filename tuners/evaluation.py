@@ -1,36 +1,58 @@
 """Evaluate one set of gains the way every tuner and the benchmark report it.
 
-The same controller (gains and :class:`~gripper_env.pid.PIDOptions`) runs on two models over one
-reference profile:
+The same controller (gains and :class:`~gripper_env.pid.PIDOptions`) is scored through the one
+scoring path (:mod:`gripper_env.scoring`):
 
 * ``ideal``: the identified transfer function alone (the paper's "model"), one deterministic run;
 * ``actual``: the actual-gripper preset (default ``actual``), one run per held-out disturbance
-  seed (friction and noise drawn from the preset's ``randomize`` ranges), summarised as mean,
-  sample standard deviation and the 95 % confidence interval of the mean (Student t).
+  seed (friction, noise and stop positions drawn from the preset's ``randomize`` ranges),
+  summarised as mean, sample standard deviation and the 95 % confidence interval of the mean
+  (Student t);
+* ``robustness``: stability, gain and phase margins, ``Ms`` and ``Mt`` of the loop as it runs
+  (PID at 1 ms, the servo command held for the preset's refresh period) and of the 1 ms loop
+  alone, and whether the gains meet the objective's constraints;
+* ``cross_model``: the same gains on the other identifications of the gripper (the paper's four
+  plants are four fits of one gripper): stability, margins and actual-model overshoot and IAE on
+  each, and the worst case.
 
 Metrics use the project's JSON keys (:meth:`gripper_env.metrics.Metrics.as_dict`) plus ``cost``,
-the shared objective (:mod:`gripper_env.objective`). ``sim_to_real_gap`` is ``actual mean - ideal``
-for every numeric metric.
+the shared objective (:mod:`gripper_env.objective`), on the objective's signal (the true jaw
+angle by default). ``sim_to_real_gap`` is ``actual mean - ideal`` for every numeric metric.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.metrics import compute_metrics
+from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.metrics import Metrics
 from gripper_env.objective import Objective, load_objective
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
-from gripper_env.simulation import Trajectory, simulate
+from gripper_env.scoring import GainScorer, Task, reachability
+from gripper_env.simulation import Trajectory
+from gripper_env.stability import stability_report
 
-__all__ = ["Evaluation", "evaluate", "metric_rows", "summarize_runs"]
+__all__ = [
+    "PAPER_PLANTS",
+    "Evaluation",
+    "cross_model",
+    "evaluate",
+    "metric_rows",
+    "robustness_block",
+    "summarize_runs",
+    "with_cost",
+]
+
+#: The paper's four identifications of the one gripper (cross-model evaluation).
+PAPER_PLANTS = ("test1", "test2", "test3", "test4")
 
 
 @dataclass
@@ -52,6 +74,10 @@ class Evaluation:
         The held-out disturbance seeds.
     ideal_trajectory, actual_trajectory : Trajectory
         The ideal run and the actual runs (one per seed), for plots and CSV.
+    robustness : dict
+        :func:`robustness_block` of the gains.
+    cross_model : dict
+        :func:`cross_model` of the gains (empty if not asked for).
     """
 
     ideal: dict[str, Any]
@@ -61,10 +87,12 @@ class Evaluation:
     seeds: list[int]
     ideal_trajectory: Trajectory
     actual_trajectory: Trajectory
+    robustness: dict[str, Any] = field(default_factory=dict)
+    cross_model: dict[str, Any] = field(default_factory=dict)
 
 
-def _with_cost(metrics, objective: Objective, duration_s: float) -> list[dict[str, Any]]:
-    costs = objective.cost(metrics, duration_s)
+def with_cost(metrics: Metrics, costs: np.ndarray) -> list[dict[str, Any]]:
+    """One dict per run: its metrics (JSON keys) and ``cost``."""
     rows = []
     for i in range(len(metrics)):
         row = metrics.as_dict(i)
@@ -92,6 +120,8 @@ def summarize_runs(rows: list[dict[str, Any]]) -> dict[str, Any]:
     t = float(stats.t.ppf(0.975, n - 1)) if n > 1 else math.inf
 
     def mean(v: np.ndarray) -> float:
+        if np.isnan(v).all():
+            return math.nan
         return float(v.mean()) if np.all(np.isfinite(v)) else math.inf
 
     def std(v: np.ndarray) -> float:
@@ -124,20 +154,105 @@ def _gap(actual: dict[str, Any], ideal: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def robustness_block(
+    plant: Plant,
+    gains: PIDGains,
+    sign: int,
+    disturbance: Disturbance,
+    objective: Objective,
+) -> dict[str, Any]:
+    """Stability and margins as the loop runs and at 1 ms, and the constraint verdict."""
+    report = stability_report(plant, gains, sign, disturbance)
+    lim = objective.constraints
+    block = report.as_dict()
+    block["constraints"] = {"ms_max": lim.ms_max, "gm_min_db": lim.gm_min_db}
+    block["meets_constraints"] = report.meets(lim.ms_max, lim.gm_min_db)
+    return block
+
+
+def cross_model(
+    gains: PIDGains,
+    sign: int,
+    options: PIDOptions,
+    *,
+    plants: Sequence[str | Plant],
+    reference: str | Reference,
+    disturbance: Disturbance,
+    seeds: Sequence[int],
+    randomize: bool,
+    objective: Objective,
+) -> dict[str, Any]:
+    """The gains on other identifications of the gripper: per plant and the worst case.
+
+    Per plant: stability and margins as the loop runs, ``Ms``, and on the actual model the mean
+    overshoot (worse of grip and un-grip), IAE and stall over the seeds. The worst case is over
+    the plants on which the reference can be followed at all (:func:`reachability`: test1
+    cannot follow the step profile within the servo's range, so it is listed, not counted).
+    """
+    per: dict[str, Any] = {}
+    for p in plants:
+        plant = load_plant(p)
+        task = Task.build(
+            plant, reference, disturbance, seeds, randomize=randomize, options=options,
+            objective=objective,
+        )  # fmt: skip
+        s = GainScorer(task).score(gains.as_array()[None, :])
+        rb = robustness_block(plant, gains, sign, disturbance, objective)
+        reach = reachability(plant, task.reference, disturbance)
+        m = s.metrics
+        overshoot = np.maximum(m.grip["overshoot_pct"], m.ungrip["overshoot_pct"])
+        per[plant.name] = {
+            "stable": rb["stable"],
+            "ms": rb["ms"],
+            "gain_margin_db": rb["gain_margin_db"],
+            "phase_margin_deg": rb["phase_margin_deg"],
+            "meets_constraints": rb["meets_constraints"],
+            "stable_runs": float(np.mean(m.stable)),
+            "overshoot_pct": float(np.mean(overshoot)),
+            "iae": float(np.mean(m.run["iae"])),
+            "stall_s": float(np.mean(m.run["stall_s"])),
+            "profile_feasible": reach.feasible,
+        }
+    counted = {k: v for k, v in per.items() if v["profile_feasible"]}
+    if not counted:
+        return {"plants": per, "worst": {}} if per else {}
+
+    def worst(key: str, pick) -> Any:
+        values = [v[key] for v in counted.values()]
+        if key in ("ms", "gain_margin_db", "phase_margin_deg"):
+            values = [math.inf if x is None else x for x in values]
+        return pick(values)
+
+    return {
+        "plants": per,
+        "worst": {
+            "over": sorted(counted),
+            "stable": all(v["stable"] and v["stable_runs"] == 1.0 for v in counted.values()),
+            "ms": worst("ms", max),
+            "gain_margin_db": worst("gain_margin_db", min),
+            "phase_margin_deg": worst("phase_margin_deg", min),
+            "overshoot_pct": worst("overshoot_pct", max),
+            "iae": worst("iae", max),
+            "stall_s": worst("stall_s", max),
+            "meets_constraints": all(v["meets_constraints"] for v in counted.values()),
+        },
+    }
+
+
 def evaluate(
     plant: str | Plant,
     gains: PIDGains,
     options: PIDOptions,
     *,
     profile: str | Reference = "step",
-    disturbance: str = "actual",
+    disturbance: str | Disturbance = "actual",
     seeds: np.ndarray | list[int] = (100000,),
     randomize: bool = True,
-    signal: str = "measured",
     objective: Objective | None = None,
     ideal_options: PIDOptions | None = None,
+    cross_plants: Sequence[str] = (),
 ) -> Evaluation:
-    """Run the controller on the ideal model once and on the actual model once per seed.
+    """Score the controller on the ideal model once and on the actual model once per seed.
 
     Parameters
     ----------
@@ -149,18 +264,18 @@ def evaluate(
         Limits, anti-windup, derivative input, sign convention.
     profile : str or Reference
         Reference profile (``"step"``, ``"slope60"``, ... or a CSV path).
-    disturbance : str
+    disturbance : str or Disturbance
         Actual-gripper preset (name or YAML path).
     seeds : array of int
         Held-out disturbance seeds.
     randomize : bool
         Draw each seed's disturbance parameters from the preset's ranges.
-    signal : {"measured", "true"}
-        Which angle the metrics score.
     objective : Objective, optional
         Default: ``configs/objective.yaml``.
     ideal_options : PIDOptions, optional
         PID options on the ideal model (default ``options``); the paper's model had no limits.
+    cross_plants : sequence of str
+        Other identifications to score the same gains on (:func:`cross_model`).
     """
     p = load_plant(plant)
     ref = load_reference(profile, p.dt_s)
@@ -168,43 +283,53 @@ def evaluate(
     obj = objective or load_objective()
     seed_arr = np.asarray(seeds, dtype=np.int64)
     row = gains.as_array()[None, :]
-    ideal_traj = simulate(
-        p, ref, gains=row, disturbance="ideal", pid_options=ideal_options or options
-    )
-    actual_traj = simulate(
-        p,
-        ref,
-        gains=np.repeat(row, len(seed_arr), axis=0),
-        disturbance=dist,
-        seeds=seed_arr,
-        randomize=randomize,
-        pid_options=options,
-    )
-    ideal = _with_cost(compute_metrics(ideal_traj, signal), obj, ref.duration_s)[0]
-    runs = _with_cost(compute_metrics(actual_traj, signal), obj, ref.duration_s)
+    ideal = GainScorer(
+        Task.build(p, ref, "ideal", [0], randomize=False, options=ideal_options or options,
+                   objective=obj)
+    ).score(row, keep_trajectory=True)  # fmt: skip
+    actual = GainScorer(
+        Task.build(p, ref, dist, seed_arr, randomize=randomize, options=options, objective=obj)
+    ).score(row, keep_trajectory=True)
+    ideal_row = with_cost(ideal.metrics, ideal.run_cost.ravel())[0]
+    runs = with_cost(actual.metrics, actual.run_cost.ravel())
     summary = summarize_runs(runs)
+    others = [name for name in cross_plants if name != p.name]
     return Evaluation(
-        ideal=ideal,
+        ideal=ideal_row,
         actual=summary,
         actual_runs=runs,
-        sim_to_real_gap=_gap(summary["mean"], ideal),
+        sim_to_real_gap=_gap(summary["mean"], ideal_row),
         seeds=[int(s) for s in seed_arr],
-        ideal_trajectory=ideal_traj,
-        actual_trajectory=actual_traj,
+        ideal_trajectory=ideal.trajectory,
+        actual_trajectory=actual.trajectory,
+        robustness=robustness_block(p, gains, options.sign, dist, obj),
+        cross_model=cross_model(
+            gains,
+            options.sign,
+            options,
+            plants=others,
+            reference=ref,
+            disturbance=dist,
+            seeds=seed_arr,
+            randomize=randomize,
+            objective=obj,
+        ),
     )
 
 
 #: Rows of the printed metrics table: (label, path into a metrics dict).
 TABLE_ROWS = (
+    ("IAE deg*s", ("iae",)),
     ("grip overshoot %", ("grip", "overshoot_pct")),
     ("un-grip overshoot %", ("ungrip", "overshoot_pct")),
     ("grip settling s", ("grip", "settling_time_s")),
     ("un-grip settling s", ("ungrip", "settling_time_s")),
     ("grip rise s", ("grip", "rise_time_s")),
+    ("stall s", ("stall_s",)),
+    ("saturation s", ("saturation_s",)),
+    ("servo effort deg", ("servo_effort_deg",)),
     ("SD deg", ("sd_deg",)),
     ("SD gap deg", ("sd_gap_deg",)),
-    ("IAE deg*s", ("iae",)),
-    ("control effort deg", ("control_effort",)),
     ("cost", ("cost",)),
 )
 

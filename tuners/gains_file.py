@@ -16,9 +16,16 @@
                                 stable_fraction}; sim_to_real_gap {...}  (metric keys: grip and
                                 ungrip {overshoot_pct, rise_time_s, settling_time_s,
                                 steady_state_error_deg, ...}, sd_deg, sd_gap_deg, iae, ise, itae,
-                                control_effort, stable, cost)
-    stability                   closed loop on the nominal plant (gripper_env.stability)
-    tuning                      what the tuner wants to record (trials, best cost, study, ...)
+                                control_effort, servo_effort_deg, saturation_s, contact_s,
+                                stall_s, force_proxy, stable, cost)
+    robustness                  the loop as it runs, with the servo's command hold: stable,
+                                max_pole_magnitude, gain_margin_db, phase_margin_deg, ms, mt,
+                                refresh_period_s; loop_1ms {...} (the 1 ms loop alone);
+                                constraints, meets_constraints (gripper_env.stability)
+    cross_model                 the gains on the other identifications: plants {name: {...}}
+                                and the worst case (tuners.evaluation.cross_model)
+    tuning                      what the tuner wants to record (trials, best cost, study, search
+                                ranges, on_bound: gains within 2 % of a search bound, ...)
     provenance                  command, config, seed, version, git_commit, date, wall_time_s
 
 Infinite or undefined numbers (a run that never settles, an unstable run) are written as
@@ -58,7 +65,9 @@ __all__ = [
 ]
 
 FORMAT = "gripper-gains"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions this code reads (version 1 had the 1 ms loop's margins as "stability").
+READABLE_VERSIONS = (1, 2)
 
 
 class GainsFileError(ValueError):
@@ -148,7 +157,6 @@ def build_gains_file(
     gains: PIDGains,
     options: PIDOptions,
     evaluation: Any,
-    stability: dict[str, Any],
     evaluation_settings: dict[str, Any],
     tuning: dict[str, Any] | None = None,
     prov: dict[str, Any] | None = None,
@@ -190,7 +198,8 @@ def build_gains_file(
                 "actual": evaluation.actual,
                 "sim_to_real_gap": evaluation.sim_to_real_gap,
             },
-            "stability": stability,
+            "robustness": evaluation.robustness,
+            "cross_model": evaluation.cross_model,
             "tuning": tuning or {},
             "provenance": prov or provenance(),
         }
@@ -234,10 +243,11 @@ def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
     if not isinstance(content, dict) or content.get("format") != FORMAT:
         raise GainsFileError(f'{p}: not a gains file (expected "format": "{FORMAT}")')
     version = content.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
         raise GainsFileError(
             f"{p}: gains file format version {version!r} is not supported by this version "
-            f"({__version__}), which reads version {FORMAT_VERSION}; regenerate it with the tuner"
+            f"({__version__}), which reads versions {list(READABLE_VERSIONS)}; regenerate it "
+            "with the tuner"
         )
     gains = [_number(content, k, str(p)) for k in ("P", "I", "D", "N")]
     limits = content.get("limits") or {}

@@ -1,21 +1,34 @@
-"""Search PID gains with Optuna, scoring batches of trials in one call of the simulation core.
+"""Search PID gains with Optuna, under the robustness constraints, in batches through the core.
 
 Usage::
 
     python -m tuners.optuna --plant test2
     python -m tuners.optuna --plant test2 --trials 400 --sampler cmaes --seed 3
-    python -m tuners.optuna --plant test2 --multi-objective          # Pareto front + knee
+    python -m tuners.optuna --plant test2 --plants test2,test3,test4      # robust: all three
+    python -m tuners.optuna --plant test2 --multi-objective               # Pareto front + knee
     python -m tuners.optuna --plant test2 --storage postgresql://user:pw@host/db --seed 7
-    optuna-dashboard sqlite:///results/optuna.db                     # look at the studies
+    optuna-dashboard sqlite:///results/optuna.db                          # look at the studies
 
-Each trial's gains are simulated on the ``actual`` model under ``tuning_seeds`` randomised
-disturbance draws (``configs/tuners/optuna.yaml``) and scored with the shared objective
-(``configs/objective.yaml``), averaged over the draws. Trials are asked ``batch_size`` at a time,
-simulated in one batched call (``batch_size x seeds`` runs), and told. The study lives in a
-storage (default ``sqlite:///<out>/optuna.db``): an interrupted run (Ctrl-C, a killed process)
-resumes from it when rerun with the same command, keeping every finished trial; ``--trials`` is
-the number of finished trials the study should hold. Several processes (or machines) may work on
-one study through a shared PostgreSQL storage; give each its own ``--seed``.
+Each trial's gains are scored through the one scoring path (:mod:`gripper_env.scoring`) on the
+``actual`` model under ``tuning_seeds`` randomised disturbance draws
+(``configs/tuners/optuna.yaml``) with the shared objective (``configs/objective.yaml``),
+averaged over the draws (and over the plants in the robust mode). The objective's robustness
+limits (``Ms`` and the gain margin of the loop as it runs, with the servo's command hold) are
+Optuna *constraints*
+(:meth:`optuna.trial.Trial.set_constraint`): TPE samples toward feasible gains and the result is
+the best feasible trial. CMA-ES takes no constraints, so it minimises the penalised cost
+(:meth:`gripper_env.objective.Objective.penalised`).
+
+The search ranges scale with the plant (:mod:`tuners.search_space`); a result within 2 % of a
+bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...) run one after
+the other; the best feasible result is kept and the spread over the seeds is recorded.
+
+Trials are asked ``batch_size`` at a time, simulated in one batched call, and told. Studies live
+in a storage (default ``sqlite:///<out>/optuna.db``): an interrupted run (Ctrl-C, a killed
+process) resumes from it when rerun with the same command, keeping every finished trial;
+``--trials`` is the number of finished trials each study should hold. Several processes (or
+machines) may work on the same studies through a shared PostgreSQL storage; give each its own
+``--seed``. Only Optuna's public API is used (ask/tell, enqueue, the storage's heartbeats).
 """
 
 from __future__ import annotations
@@ -25,124 +38,43 @@ import math
 import sys
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import optuna
-from optuna.distributions import BaseDistribution, FloatDistribution
-from optuna.storages._heartbeat import is_heartbeat_enabled
 from optuna.trial import TrialState
 from tqdm import tqdm
 
 from gripper_env.config import ConfigError
-from gripper_env.disturbances import Disturbance
-from gripper_env.metrics import compute_metrics
-from gripper_env.objective import Objective, load_objective
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.plants import Plant
-from gripper_env.references import Reference
-from gripper_env.simulation import simulate
+from gripper_env.objective import Objective
+from gripper_env.plants import load_plant
+from gripper_env.scoring import GainScorer, Task
 from tuners import cli
-from tuners.settings import OptunaSettings, ParamRange, check_disjoint, load_settings
+from tuners.search_space import SearchSpace, search_space
+from tuners.settings import OptunaSettings, check_disjoint, load_settings
 
 __all__ = [
-    "BatchScorer",
     "StudyResult",
+    "best_of",
     "knee_point",
     "main",
+    "make_scorer",
     "open_storage",
     "run_study",
-    "search_distributions",
+    "search",
 ]
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-
-# ----------------------------------------------------------------------------------------------
-# Scoring a batch of gain sets
-
-
-@dataclass
-class BatchScorer:
-    """Scores many gain sets on the actual model under common disturbance seeds, in one call.
-
-    Parameters
-    ----------
-    plant, reference, disturbance
-        What to simulate.
-    seeds : ndarray of int
-        Tuning seeds (each gain set runs once per seed).
-    options : PIDOptions
-        PID structure.
-    objective : Objective
-        The shared cost.
-    signal : {"measured", "true"}
-        Which angle the metrics score.
-    randomize : bool
-        Draw each seed's disturbance parameters from the preset's ranges.
-    terms : list of str
-        Objective terms returned by :meth:`terms` (multi-objective search).
-    ideal_weight : float
-        Add this times the cost on the ideal model (the paper's TF): the actual model's stops
-        sit at the step's end points and hide overshoot, which the ideal model shows.
-    ideal_options : PIDOptions
-        PID options on the ideal model.
-    """
-
-    plant: Plant
-    reference: Reference
-    disturbance: Disturbance
-    seeds: np.ndarray
-    options: PIDOptions
-    objective: Objective
-    signal: str = "true"
-    randomize: bool = True
-    terms: list[str] = field(default_factory=list)
-    episodes: int = 0
-    ideal_weight: float = 0.0
-    ideal_options: PIDOptions | None = None
-
-    def __call__(self, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean cost (k,) and mean objective terms (k, len(terms)) of ``k`` gain sets (k, 4)."""
-        k, s = len(gains), len(self.seeds)
-        traj = simulate(
-            self.plant,
-            self.reference,
-            gains=np.repeat(np.asarray(gains, dtype=float), s, axis=0),
-            disturbance=self.disturbance,
-            seeds=np.tile(self.seeds, k),
-            randomize=self.randomize,
-            pid_options=self.options,
-        )
-        self.episodes += k * s
-        metrics = compute_metrics(traj, self.signal)
-        duration = self.reference.duration_s
-        cost = self.objective.cost(metrics, duration).reshape(k, s).mean(axis=1)
-        if self.ideal_weight > 0:
-            ideal = simulate(
-                self.plant,
-                self.reference,
-                gains=np.asarray(gains, dtype=float),
-                disturbance="ideal",
-                pid_options=self.ideal_options or self.options,
-            )
-            self.episodes += k
-            ideal_metrics = compute_metrics(ideal, self.signal)
-            cost = cost + self.ideal_weight * self.objective.cost(ideal_metrics, duration)
-        parts = self.objective.terms(metrics, duration)
-        stable = np.asarray(metrics.stable, dtype=bool)
-        cols = []
-        for name in self.terms:
-            value = np.where(stable, parts[name], self.objective.unstable_cost)
-            value = np.where(np.isfinite(value), value, self.objective.max_cost)
-            cols.append(value.reshape(k, s).mean(axis=1))
-        return cost, np.stack(cols, axis=1) if cols else np.zeros((k, 0))
+#: Constraint names recorded on every trial (feasible when all are <= 0).
+CONSTRAINTS = ("ms", "gain_margin", "stability")
 
 
 # ----------------------------------------------------------------------------------------------
-# Storage, sampler, search space
+# Storage and sampler
 
 
 def redact(url: str) -> str:
@@ -209,18 +141,6 @@ def open_storage(url: str, settings: OptunaSettings) -> optuna.storages.RDBStora
             ) from None
 
 
-def search_distributions(settings: OptunaSettings) -> dict[str, BaseDistribution]:
-    """Optuna distributions of the searched parameters (``symlog`` ones as floats in [-1, 1])."""
-
-    def dist(r: ParamRange) -> FloatDistribution:
-        if r.scale == "symlog":
-            return FloatDistribution(-1.0, 1.0)
-        return FloatDistribution(r.low, r.high, log=r.scale == "log")
-
-    names = ["P", "I", "D"] + (["N"] if settings.tune_N else [])
-    return {n: dist(getattr(settings.search, n)) for n in names}
-
-
 def make_sampler(name: str, seed: int, settings: OptunaSettings, multi: bool):
     """The sampler: TPE (multivariate, constant liar for batches), CMA-ES, or random."""
     if name == "random":
@@ -264,22 +184,26 @@ class StudyResult:
     Attributes
     ----------
     gains : PIDGains
-        Best gains (single objective) or the knee of the Pareto front.
+        Best feasible gains (single objective) or the knee of the feasible Pareto front; the
+        least infeasible if no trial was feasible.
     best_value : float
         Their cost on the tuning seeds.
     best_trial : int
         Trial number.
+    feasible : bool
+        Whether the best trial meets the robustness constraints.
     n_complete, n_run_here : int
         Finished trials in the study; trials this process finished.
     history : list of (int, float)
-        ``(episodes, best cost so far)`` over the study's finished trials in order.
+        ``(episodes, best feasible cost so far)`` over the study's finished trials in order.
     pareto : list of dict
-        Multi-objective only: the front (trial, values, gains).
+        Multi-objective only: the feasible front (trial, values, gains).
     """
 
-    gains: PIDGains
+    gains: Any
     best_value: float
     best_trial: int
+    feasible: bool
     n_complete: int
     n_run_here: int
     history: list[tuple[int, float]]
@@ -309,73 +233,89 @@ def _check_study_attrs(study: optuna.Study, attrs: dict[str, Any]) -> None:
             study.set_user_attr(key, value)
 
 
-def _decode(trial: optuna.trial.FrozenTrial | optuna.Trial, settings, default_n: float):
-    return settings.gains(trial.params, default_n)
+def _constraints(ms: float, gm_db: float, stable: bool, objective: Objective) -> dict[str, float]:
+    """Optuna constraint values (feasible when all <= 0), finite for the storage."""
+    lim = objective.constraints
+    return {
+        "ms": float(min(ms - lim.ms_max, 1e6)) if math.isfinite(ms) else 1e6,
+        "gain_margin": float(np.clip(lim.gm_min_db - gm_db, -1e3, 1e3)),
+        "stability": -1.0 if stable else 1.0,
+    }
+
+
+def _is_feasible(trial: optuna.trial.FrozenTrial) -> bool:
+    return bool(trial.constraints) and all(v <= 0.0 for v in trial.constraints.values())
 
 
 class _Mirror:
-    """The sampler's in-memory copy of a stored study.
+    """The sampler's in-memory copy of a stored study (public API only).
 
     Sampling through an RDB study reads the storage several times per parameter; instead the
-    sampler works on an in-memory study that is brought up to date once per batch (finished trials
-    of other workers are added), and the stored study only records trials: each one is created
-    with its parameters in one write and told in another. Samplers keep their state (CMA-ES's)
-    on the mirror's own trials.
+    sampler works on an in-memory study, brought up to date once per batch with the finished
+    trials of other workers. Each trial it samples is put in the stored study with
+    :meth:`optuna.Study.enqueue_trial` and taken with :meth:`optuna.Study.ask`, which also takes
+    trials re-queued from a killed worker first.
     """
 
-    def __init__(self, study: optuna.Study, sampler: optuna.samplers.BaseSampler) -> None:
+    def __init__(self, study: optuna.Study, sampler: Any, constrained: bool) -> None:
         self.study = study
         self.memory = optuna.create_study(directions=study.directions, sampler=sampler)
-        self.synced: set[int] = set()  # stored trial ids already in the mirror
+        self.constrained = constrained  # CMA-ES takes no constraints (it warns on them)
+        self.mirrored: set[int] = set()  # stored trial numbers already in the memory study
 
     def sync(self) -> list[optuna.trial.FrozenTrial]:
         """Add stored finished trials the mirror has not seen; return every stored trial."""
-        trials = self.study._storage.get_all_trials(self.study._study_id, deepcopy=False)
+        trials = self.study.get_trials(deepcopy=False)
         for t in trials:
-            if t.state == TrialState.COMPLETE and t._trial_id not in self.synced:
-                self.synced.add(t._trial_id)
+            if t.state == TrialState.COMPLETE and t.number not in self.mirrored:
+                self.mirrored.add(t.number)
                 self.memory.add_trial(
                     optuna.trial.create_trial(
-                        params=t.params, distributions=t.distributions, values=t.values
+                        params=t.params,
+                        distributions=t.distributions,
+                        values=t.values,
+                        constraints=t.constraints if self.constrained else None,
                     )
                 )
         return trials
 
-    def ask(self, dists: dict[str, BaseDistribution]) -> tuple[optuna.Trial, optuna.Trial]:
-        """A new trial: sampled on the mirror, recorded in the storage (RUNNING) in one write."""
+    def ask(self, dists: dict[str, Any]) -> tuple[optuna.Trial | None, optuna.Trial]:
+        """A trial sampled on the mirror and put in the stored study; ``(None, trial)`` when
+        the stored study handed out a re-queued trial instead."""
         mine = self.memory.ask(dists)
-        template = optuna.trial.create_trial(
-            state=TrialState.RUNNING, params=mine.params, distributions=dists
-        )
-        trial_id = self.study._storage.create_new_trial(self.study._study_id, template)
-        self.synced.add(trial_id)
-        return mine, optuna.Trial(self.study, trial_id)
-
-    def ask_waiting(self, dists: dict[str, BaseDistribution]) -> tuple[None, optuna.Trial]:
-        """A re-queued trial (of a killed worker) from the storage, with its parameters."""
-        trial = self.study.ask(dists)
-        return None, trial
+        self.study.enqueue_trial(mine.params, skip_if_exists=False)
+        stored = self.study.ask(dists)
+        if stored.params != mine.params:  # a re-queued trial of a killed worker came first
+            self.memory.tell(mine, state=TrialState.FAIL)
+            return None, stored
+        self.mirrored.add(stored.number)
+        return mine, stored
 
 
 def run_study(
     study: optuna.Study,
-    scorer: BatchScorer,
+    scorer: GainScorer,
+    space: SearchSpace,
     settings: OptunaSettings,
     n_trials: int,
     default_n: float,
-    sampler: optuna.samplers.BaseSampler | None = None,
+    sampler: Any = None,
     progress: bool = True,
+    terms: Sequence[str] = (),
+    storage: Any = None,
 ) -> StudyResult:
-    """Ask, simulate, tell in batches until the study holds ``n_trials`` finished trials.
+    """Ask, score, tell in batches until the study holds ``n_trials`` finished trials.
 
     Parameters
     ----------
     study : optuna.Study
-        The stored study (its own sampler only serves races on re-queued trials).
-    scorer : BatchScorer
-        Scores a batch of gain sets.
+        The (stored) study.
+    scorer : GainScorer
+        Scores a batch of gain sets on the task.
+    space : SearchSpace
+        The searched ranges.
     settings : OptunaSettings
-        Search space and batch size.
+        Batch size.
     n_trials : int
         Finished trials the study should hold.
     default_n : float
@@ -384,18 +324,26 @@ def run_study(
         Searches on the in-memory mirror (default TPE).
     progress : bool
         Show a progress bar (on a terminal).
+    terms : sequence of str
+        Multi-objective: the objective terms to minimise (empty: the weighted cost).
+    storage : optuna.storages.RDBStorage, optional
+        The study's storage, for heartbeats (killed workers' trials are re-queued).
 
     Ctrl-C fails the batch in flight (its trials are not finished) and stops; every finished
-    trial is already in the storage. Stale trials of killed workers are failed, re-queued and
-    evaluated again.
+    trial is already in the storage.
     """
-    multi = len(study.directions) > 1
-    dists = search_distributions(settings)
-    mirror = _Mirror(study, sampler or optuna.samplers.TPESampler())
+    multi = bool(terms)
+    objective = scorer.task.objective
+    is_cmaes = isinstance(sampler, optuna.samplers.CmaEsSampler)
+    dists = space.distributions()
+    mirror = _Mirror(study, sampler or optuna.samplers.TPESampler(), constrained=not is_cmaes)
     warnings.filterwarnings("ignore", message="Heartbeat of storage", category=UserWarning)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        optuna.storages.fail_stale_trials(study)
+    heartbeat = storage is not None and storage.get_heartbeat_interval() is not None
+    if heartbeat:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            optuna.storages.fail_stale_trials(study)
+        study_id = storage.get_study_id_from_name(study.study_name)
     trials = mirror.sync()
     done = sum(t.state == TrialState.COMPLETE for t in trials)
     run_here = 0
@@ -410,21 +358,30 @@ def run_study(
         dynamic_ncols=True,
     )
     pending: list[tuple[optuna.Trial | None, optuna.Trial]] = []
-    storage = study._storage  # heartbeats: there is no public API for ask-and-tell
-    heartbeat = is_heartbeat_enabled(storage)
     try:
         while done < n_trials:
             k = min(settings.batch_size, n_trials - done)
-            waiting = sum(t.state == TrialState.WAITING for t in trials)
-            pending = [mirror.ask_waiting(dists) for _ in range(min(waiting, k))]
-            pending += [mirror.ask(dists) for _ in range(k - len(pending))]
+            pending = [mirror.ask(dists) for _ in range(k)]
             if heartbeat:
                 for _, t in pending:
-                    storage.record_heartbeat(t._trial_id)
-            gains = np.stack([_decode(t, settings, default_n).as_array() for _, t in pending])
-            cost, terms = scorer(gains)
+                    trial_id = storage.get_trial_id_from_study_id_trial_number(study_id, t.number)
+                    storage.record_heartbeat(trial_id)
+            gains = np.stack([space.gains(t.params, default_n).as_array() for _, t in pending])
+            scores = scorer.score(gains)
             for i, (mine, stored) in enumerate(pending):
-                value = terms[i].tolist() if multi else float(cost[i])
+                cons = _constraints(
+                    scores.ms[i], scores.gm_db[i], bool(scores.stable[i]), objective
+                )
+                for key, value in cons.items():
+                    stored.set_constraint(key, value)
+                    if mine is not None and not is_cmaes:
+                        mine.set_constraint(key, value)
+                stored.set_user_attr("cost", float(scores.cost[i]))
+                if multi:
+                    value: Any = [float(scores.terms[name][i]) for name in terms]
+                    value = [v if math.isfinite(v) else objective.unstable_cost for v in value]
+                else:
+                    value = float(scores.penalised[i] if is_cmaes else scores.cost[i])
                 study.tell(stored, value)
                 if mine is not None:
                     mirror.memory.tell(mine, value)
@@ -434,8 +391,6 @@ def run_study(
             new_done = sum(t.state == TrialState.COMPLETE for t in trials)
             bar.update(min(new_done, n_trials) - min(done, n_trials))
             done = new_done
-            if not multi:
-                bar.set_postfix(best=f"{mirror.memory.best_value:.3g}")
     except KeyboardInterrupt:
         interrupted = True
         for _, t in pending:
@@ -445,29 +400,47 @@ def run_study(
                 pass
     finally:
         bar.close()
-    return _result(study, settings, default_n, run_here, interrupted, len(scorer.seeds))
+    return _result(study, space, settings, default_n, run_here, interrupted, scorer, terms)
 
 
-def _result(study, settings, default_n, run_here, interrupted, seeds_per_trial) -> StudyResult:
+def _result(
+    study: optuna.Study,
+    space: SearchSpace,
+    settings: OptunaSettings,
+    default_n: float,
+    run_here: int,
+    interrupted: bool,
+    scorer: GainScorer,
+    terms: Sequence[str],
+) -> StudyResult:
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if not complete:
         raise KeyboardInterrupt
     complete.sort(key=lambda t: t.number)
-    multi = len(study.directions) > 1
+    per_trial = scorer.task.runs_per_gain_set
+    feasible = [t for t in complete if _is_feasible(t)]
     history: list[tuple[int, float]] = []
     pareto: list[dict[str, Any]] = []
-    if multi:
+
+    def cost(t: optuna.trial.FrozenTrial) -> float:
+        return float(t.user_attrs.get("cost", t.values[0]))
+
+    def violation(t: optuna.trial.FrozenTrial) -> float:
+        return sum(max(v, 0.0) for v in t.constraints.values())
+
+    if terms:
         front = [t for t in study.best_trials if t.state == TrialState.COMPLETE]
-        values = np.array([t.values for t in front])
-        best = front[knee_point(values)]
-        best_value = float(np.linalg.norm(values[knee_point(values)]))
-        names = settings.multi_objective.objectives
+        if front:
+            values = np.array([t.values for t in front])
+            best = front[knee_point(values)]
+        else:  # no feasible trial: the least infeasible
+            best = min(complete, key=violation)
         for t in sorted(front, key=lambda t: t.values[0]):
-            g = _decode(t, settings, default_n)
+            g = space.gains(t.params, default_n)
             pareto.append(
                 {
                     "trial": t.number,
-                    "values": dict(zip(names, t.values, strict=True)),
+                    "values": dict(zip(terms, t.values, strict=True)),
                     "P": g.P,
                     "I": g.I,
                     "D": g.D,
@@ -475,46 +448,47 @@ def _result(study, settings, default_n, run_here, interrupted, seeds_per_trial) 
                 }
             )
     else:
-        best = min(complete, key=lambda t: t.value)
-        best_value = float(best.value)
+        best = min(feasible, key=cost) if feasible else min(complete, key=violation)
         running = math.inf
         for i, t in enumerate(complete):
-            if t.value < running:
-                running = float(t.value)
-                history.append(((i + 1) * seeds_per_trial, running))
-        if history and history[-1][0] != len(complete) * seeds_per_trial:
-            history.append((len(complete) * seeds_per_trial, running))
+            if _is_feasible(t) and cost(t) < running:
+                running = cost(t)
+                history.append(((i + 1) * per_trial, running))
+        if history and history[-1][0] != len(complete) * per_trial:
+            history.append((len(complete) * per_trial, running))
     return StudyResult(
-        gains=_decode(best, settings, default_n),
-        best_value=best_value,
+        gains=space.gains(best.params, default_n),
+        best_value=cost(best),
         best_trial=best.number,
+        feasible=_is_feasible(best),
         n_complete=len(complete),
         n_run_here=run_here,
         history=history,
         pareto=pareto,
-        episodes_per_trial=seeds_per_trial,
+        episodes_per_trial=per_trial,
         interrupted=interrupted,
     )
 
 
-def make_scorer(
-    inputs: cli.Inputs, settings: OptunaSettings, terms: list[str] | None = None
-) -> BatchScorer:
-    """The trial scorer of a search: the actual model over the tuning seeds (+ the ideal one)."""
-    ideal_opts, actual_opts = inputs.settings.options(1)
-    return BatchScorer(
-        plant=inputs.plant,
-        reference=inputs.reference,
-        disturbance=inputs.disturbance,
-        seeds=settings.tuning_seeds.seeds(),
-        options=actual_opts,
-        objective=load_objective(),
-        signal=inputs.settings.signal,
+def make_task(inputs: cli.Inputs, settings: OptunaSettings, plants: Sequence[str] = ()) -> Task:
+    """The tuning task: the plant(s) on the actual model over the tuning seeds."""
+    _, actual_opts = inputs.settings.options(1)
+    plant_list = [load_plant(p) for p in plants] if plants else [inputs.plant]
+    return Task.build(
+        plant_list,
+        inputs.reference,
+        inputs.disturbance,
+        settings.tuning_seeds.seeds(),
         randomize=inputs.settings.randomize,
-        terms=terms or [],
-        ideal_weight=settings.ideal_weight,
-        ideal_options=ideal_opts,
+        options=actual_opts,
     )
+
+
+def make_scorer(
+    inputs: cli.Inputs, settings: OptunaSettings, plants: Sequence[str] = ()
+) -> GainScorer:
+    """The trial scorer of a search (:func:`make_task`)."""
+    return GainScorer(make_task(inputs, settings, plants))
 
 
 def search(
@@ -525,43 +499,84 @@ def search(
     sampler_name: str = "tpe",
     seed: int = 0,
     progress: bool = False,
-) -> tuple[StudyResult, BatchScorer]:
+    plants: Sequence[str] = (),
+) -> tuple[StudyResult, GainScorer, SearchSpace]:
     """One single-objective search in memory (no storage): the benchmark's entry point."""
-    scorer = make_scorer(inputs, settings)
+    scorer = make_scorer(inputs, settings, plants)
+    space = search_space(scorer.task.plants, inputs.disturbance, settings)
     study = optuna.create_study(
-        study_name=f"{inputs.plant.name}-{sampler_name}",
+        study_name=f"{inputs.plant.name}-{sampler_name}-s{seed}",
         sampler=optuna.samplers.RandomSampler(seed=seed),
     )
     sampler = make_sampler(sampler_name, seed, settings, multi=False)
     result = run_study(
-        study, scorer, settings, n_trials, inputs.settings.pid.N, sampler=sampler, progress=progress
-    )
-    return result, scorer
+        study, scorer, space, settings, n_trials, inputs.settings.pid.N, sampler=sampler,
+        progress=progress,
+    )  # fmt: skip
+    return result, scorer, space
+
+
+def seed_summary(results: Sequence[StudyResult], seeds: Sequence[int]) -> dict[str, Any]:
+    """The spread of the best cost over independent search seeds, and each seed's result."""
+    costs = np.array([r.best_value for r in results])
+    return {
+        "search_seeds": list(seeds),
+        "best_cost": {
+            "min": float(costs.min()),
+            "median": float(np.median(costs)),
+            "max": float(costs.max()),
+        },
+        "per_seed": [
+            {
+                "seed": s,
+                "best_value_tuning": r.best_value,
+                "feasible": r.feasible,
+                "P": r.gains.P,
+                "I": r.gains.I,
+                "D": r.gains.D,
+                "N": r.gains.N,
+            }
+            for s, r in zip(seeds, results, strict=True)
+        ],
+    }
 
 
 # ----------------------------------------------------------------------------------------------
 # Command line
 
 
-def tuner_name(sampler: str, multi: bool) -> str:
+def tuner_name(sampler: str, multi: bool, robust: bool = False) -> str:
     """File stem of the result: ``optuna`` (TPE), ``optuna-cmaes``, ``optuna-random``,
-    ``optuna-mo``."""
-    if multi:
-        return "optuna-mo"
-    return "optuna" if sampler == "tpe" else f"optuna-{sampler}"
+    ``optuna-mo``; ``-robust`` when tuned on several plants."""
+    name = "optuna-mo" if multi else ("optuna" if sampler == "tpe" else f"optuna-{sampler}")
+    return f"{name}-robust" if robust else name
 
 
 def build_parser():
     parser = cli.base_parser(
         "python -m tuners.optuna",
-        "Search PID gains with Optuna on the actual-gripper model (robust over disturbance seeds).",
+        "Search PID gains with Optuna on the actual-gripper model, under robustness "
+        "constraints (robust over disturbance seeds, and over plants with --plants).",
     )
     parser.add_argument(
         "--trials",
         type=int,
         default=None,
-        help="finished trials the study should hold (default: the config's 'trials'); a rerun "
-        "of an interrupted study runs only the missing ones",
+        help="finished trials each search seed's study should hold (default: the config's "
+        "'trials'); a rerun of an interrupted study runs only the missing ones",
+    )
+    parser.add_argument(
+        "--search-seeds",
+        type=int,
+        default=None,
+        help="independent studies (sampler seeds SEED, SEED+1, ...); the best feasible result "
+        "is kept and the spread reported (default: the config's 'search_seeds')",
+    )
+    parser.add_argument(
+        "--plants",
+        default=None,
+        help="robust mode: tune on several identifications at once, e.g. test2,test3,test4 "
+        "(mean cost over them, constraints on every one); the gains file is written for --plant",
     )
     parser.add_argument(
         "--storage",
@@ -572,8 +587,8 @@ def build_parser():
     parser.add_argument(
         "--study-name",
         default=None,
-        help="study name (default <plant>-<disturbance>-<profile>-<sampler>[-mo]); reusing a "
-        "name resumes that study",
+        help="study name prefix (default <plants>-<disturbance>-<profile>-<sampler>[-mo]); each "
+        "search seed i uses <name>-s<i>; reusing a name resumes those studies",
     )
     parser.add_argument(
         "--sampler",
@@ -584,8 +599,8 @@ def build_parser():
     parser.add_argument(
         "--multi-objective",
         action="store_true",
-        help="Pareto front of (overshoot %%, IAE, SD gap) instead of the weighted cost; the knee "
-        "point becomes the gains file",
+        help="Pareto front of the config's multi_objective terms instead of the weighted cost "
+        "(constraints still apply); the knee point becomes the gains file",
     )
     parser.add_argument(
         "--config",
@@ -597,21 +612,39 @@ def build_parser():
     return parser
 
 
+def _plants_arg(args: Any) -> list[str]:
+    if args.plants is None:
+        return []
+    plants = [p.strip() for p in args.plants.split(",") if p.strip()]
+    if len(plants) < 2:
+        raise ValueError(
+            f"--plants needs at least two plants separated by commas, got {args.plants!r}"
+        )
+    for p in plants:
+        load_plant(p)
+    return plants
+
+
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     start = time.perf_counter()
     # 1. check every input before anything is written
     inputs = cli.resolve(args)
+    plants = _plants_arg(args)
     settings = load_settings(OptunaSettings, args.config)
     check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
     n_trials = settings.trials if args.trials is None else args.trials
     if n_trials < 1:
         raise ValueError(f"--trials must be at least 1, got {n_trials}")
+    n_seeds = settings.search_seeds if args.search_seeds is None else args.search_seeds
+    if n_seeds < 1:
+        raise ValueError(f"--search-seeds must be at least 1, got {n_seeds}")
     sampler_name = args.sampler or settings.sampler
     multi = args.multi_objective
-    sampler = make_sampler(sampler_name, args.seed, settings, multi)
-    name = args.study_name or (
-        f"{inputs.plant.name}-{Path(inputs.disturbance_name).stem}-"
+    make_sampler(sampler_name, args.seed, settings, multi)  # checks the combination
+    terms = settings.multi_objective.objectives if multi else []
+    base = args.study_name or (
+        f"{'+'.join(plants) or inputs.plant.name}-{Path(inputs.disturbance_name).stem}-"
         f"{Path(inputs.profile_name).stem}-{sampler_name}{'-mo' if multi else ''}"
     )
     if args.storage is None:
@@ -620,86 +653,117 @@ def main(argv: list[str] | None = None) -> int:
     else:
         url = args.storage
     storage = open_storage(url, settings)
-    terms = settings.multi_objective.objectives if multi else []
-    study = optuna.create_study(
-        storage=storage,
-        study_name=name,
-        sampler=optuna.samplers.RandomSampler(seed=args.seed),
-        load_if_exists=True,
-        directions=["minimize"] * (len(terms) if multi else 1),
-    )
-    if len(study.directions) != (len(terms) if multi else 1):
-        raise ConfigError(
-            f"study {name!r} has {len(study.directions)} objectives; use another --study-name"
+    scorer = make_scorer(inputs, settings, plants)
+    space = search_space(scorer.task.plants, inputs.disturbance, settings)
+    # 2. search: one study per search seed
+    results, names = [], []
+    for i in range(n_seeds):
+        name = f"{base}-s{i}"
+        study = optuna.create_study(
+            storage=storage,
+            study_name=name,
+            sampler=optuna.samplers.RandomSampler(seed=args.seed + i),
+            load_if_exists=True,
+            directions=["minimize"] * (len(terms) if multi else 1),
         )
-    _check_study_attrs(
-        study,
-        {
-            "plant": inputs.plant.name,
-            "disturbance": inputs.disturbance_name,
-            "profile": inputs.profile_name,
-            "search": settings.search.model_dump(),
-            "tune_N": settings.tune_N,
-            "tuning_seeds": settings.tuning_seeds.model_dump(),
-            "objectives": terms or ["cost"],
-        },
-    )
-    # 2. search
-    scorer = make_scorer(inputs, settings, terms)
-    result = run_study(
-        study,
-        scorer,
-        settings,
-        n_trials,
-        inputs.settings.pid.N,
-        sampler=sampler,
-        progress=not args.no_progress,
-    )
+        if len(study.directions) != (len(terms) if multi else 1):
+            raise ConfigError(
+                f"study {name!r} has {len(study.directions)} objectives; use another --study-name"
+            )
+        _check_study_attrs(
+            study,
+            {
+                "plants": [p.name for p in scorer.task.plants],
+                "disturbance": inputs.disturbance_name,
+                "profile": inputs.profile_name,
+                "search": space.as_dict()["ranges"],
+                "tuning_seeds": settings.tuning_seeds.model_dump(),
+                "objectives": terms or ["cost"],
+                "objective": scorer.task.objective.model_dump(),
+            },
+        )
+        result = run_study(
+            study, scorer, space, settings, n_trials, inputs.settings.pid.N,
+            sampler=make_sampler(sampler_name, args.seed + i, settings, multi),
+            progress=not args.no_progress, terms=terms, storage=storage,
+        )  # fmt: skip
+        results.append(result)
+        names.append(name)
+        if result.interrupted:
+            break
+    chosen = best_of(results)
     wall = time.perf_counter() - start
     # 3. report
+    best = results[chosen]
     tuning = {
-        "study_name": name,
+        "study_names": names,
         "storage": redact(url),
         "sampler": sampler_name,
         "multi_objective": multi,
         "objectives": terms or ["cost"],
-        "trials_in_study": result.n_complete,
-        "trials_this_run": result.n_run_here,
-        "best_trial": result.best_trial,
-        "best_value_tuning": result.best_value,
+        "tuned_on": [p.name for p in scorer.task.plants],
+        "trials_per_seed": n_trials,
+        "trials_in_study": best.n_complete,
+        "trials_this_run": sum(r.n_run_here for r in results),
+        "chosen_seed": chosen,
+        "best_trial": best.best_trial,
+        "best_value_tuning": best.best_value,
+        "feasible": best.feasible,
         "tuning_seeds": settings.tuning_seeds.seeds().tolist(),
-        "episodes_per_trial": result.episodes_per_trial,
+        "episodes_per_trial": best.episodes_per_trial,
         "episodes_this_run": scorer.episodes,
-        "history": [list(p) for p in result.history],
-        "pareto_front": result.pareto,
+        "history": [list(p) for p in best.history],
+        "pareto_front": best.pareto,
+        "search_space": space.as_dict(),
+        "on_bound": space.on_bound(best.gains),
+        **seed_summary(results, list(range(len(results)))),
         "search_wall_time_s": wall,
     }
     notes = []
+    if len(results) > 1:
+        c = tuning["best_cost"]
+        notes.append(
+            f"{len(results)} search seeds: best tuning cost {c['min']:.4g} / {c['median']:.4g} / "
+            f"{c['max']:.4g} (min / median / max); kept seed {chosen}"
+        )
+    if not best.feasible:
+        notes.append(
+            "warning: no trial met the robustness constraints; these are the least infeasible "
+            "gains (raise --trials, or widen the search in the config)"
+        )
     if multi:
         notes.append(
-            f"Pareto front: {len(result.pareto)} trials; knee point = trial {result.best_trial}"
+            f"Pareto front: {len(best.pareto)} trials; knee point = trial {best.best_trial}"
         )
-    if result.interrupted:
+    if best.interrupted or len(results) < n_seeds:
         notes.append(
-            f"interrupted: {result.n_complete} finished trials are in {redact(url)}; rerun the "
-            "same command to resume (reporting the best so far)"
+            f"interrupted: finished trials are in {redact(url)}; rerun the same command to "
+            "resume (reporting the best so far)"
         )
     cli.publish(
         args,
         inputs,
-        tuner=tuner_name(sampler_name, multi),
-        gains=result.gains,
+        tuner=tuner_name(sampler_name, multi, robust=bool(plants)),
+        gains=best.gains,
         sign=1,
         tuning=tuning,
         config={"optuna": settings.model_dump()},
         wall_time_s=time.perf_counter() - start,
         notes=notes,
-        label=name,
+        label=names[chosen],
     )
-    if result.interrupted:
+    if best.interrupted or len(results) < n_seeds:
         print(notes[-1], file=sys.stderr)
         return cli.EXIT_INTERRUPTED
     return 0
+
+
+def best_of(results: Sequence[StudyResult]) -> int:
+    """Index of the search seed to keep: the best feasible tuning cost (else the first)."""
+    feasible = [i for i, r in enumerate(results) if r.feasible]
+    if not feasible:
+        return 0
+    return min(feasible, key=lambda i: results[i].best_value)
 
 
 logging.getLogger("sqlalchemy").setLevel(logging.WARNING)

@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-__all__ = ["budget_plot", "response_plot", "save_figure"]
+__all__ = ["budget_plot", "pareto_plot", "response_plot", "save_figure"]
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> Path:
@@ -107,8 +107,78 @@ def budget_plot(
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("simulated episodes (20 s runs on the actual model)")
-    ax.set_ylabel("best cost so far (tuning seeds)")
+    ax.set_ylabel("best feasible cost so far (tuning seeds)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+_KIND_STYLE = {
+    "feedforward": ("k", "s"),
+    "manual": ("tab:gray", "v"),
+    "baseline": ("tab:blue", "o"),
+    "search": ("tab:red", "^"),
+    "robust": ("tab:purple", "D"),
+    "controller": ("tab:green", "*"),
+}
+
+
+def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
+    """Tracking against robustness, one panel per feasible plant: every row's actual-model IAE
+    against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI), and
+    the Ms limit (the feasible side shaded). ``command = reference`` (open loop, S = 1) sits at
+    Ms = 1. Rows far worse than the best are drawn as arrows at the top edge with their IAE."""
+    plants = [p for p, d in data["plants"].items() if d.get("feasible")]
+    n = max(1, len(plants))
+    fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 5.0), squeeze=False)
+    for ax, plant in zip(axes[0], plants, strict=False):
+        pdata = data["plants"][plant]
+        points = []
+        ms_max = None
+        for name, row in pdata["tuners"].items():
+            rb = row["robustness"]
+            ms = rb.get("ms") if row["kind"] != "feedforward" else 1.0
+            iae = row["metrics"]["actual"]["mean"]["iae"]
+            if ms is None or iae is None or not np.isfinite(iae):
+                continue
+            ms_max = (rb.get("constraints") or {}).get("ms_max", ms_max)
+            points.append((name, row["kind"], min(ms, 4.0), iae))
+        if not points:
+            continue
+        best = min(p[3] for p in points)
+        top = 2.6 * best
+        front = pdata.get("pareto_front") or []
+        if front:
+            ax.plot([f["ms"] for f in front], [min(f["iae"], top) for f in front], "-",
+                    color="0.55", lw=1.5, label="MIGO front (max I per Ms)", zorder=1)  # fmt: skip
+        if ms_max:
+            ax.axvspan(0.9, ms_max, color="tab:green", alpha=0.06, lw=0)
+            ax.axvline(ms_max, color="tab:red", ls=":", lw=1, label=f"Ms limit {ms_max:g}")
+        seen = set()
+        for name, kind, ms, iae in points:
+            color, marker = _KIND_STYLE.get(kind, ("tab:olive", "x"))
+            label = kind if kind not in seen else None
+            seen.add(kind)
+            short = name.replace("classical-", "").replace("manual-", "")
+            if iae > top:  # off the chart: an arrow at the top edge, with its IAE
+                ax.scatter([ms], [top], c=color, marker="^", s=30, label=label, zorder=3)
+                ax.annotate(f"{short} ({iae:.0f})", (ms, top), fontsize=6, xytext=(3, -9),
+                            textcoords="offset points", color="0.3")  # fmt: skip
+                continue
+            ax.scatter([ms], [iae], c=color, marker=marker, s=40, label=label, zorder=3)
+            ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2), textcoords="offset points")
+        ax.set_xlim(0.9, 4.15)
+        ax.set_ylim(0.9 * best, top * 1.04)
+        ax.set_xlabel("Ms with the 20 ms servo hold (capped at 4; shaded: feasible)")
+        ax.set_ylabel("IAE on the actual model (deg s)")
+        ax.set_title(f"{plant}: tracking against robustness", fontsize=10)
+        ax.grid(alpha=0.3)
+    handles: dict[str, Any] = {}
+    for ax in axes[0]:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(lab, h)
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
+               fontsize=8, frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return save_figure(fig, path)

@@ -35,13 +35,15 @@ from typing import Any
 import numpy as np
 
 from gripper_env.config import ConfigError
+from gripper_env.disturbances import load_disturbance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
+from gripper_env.scoring import GainScorer, Task, score_trajectory
 from tuners import cli
 from tuners.gains_file import write_json
-from tuners.optuna import BatchScorer
 from tuners.rl_controller import controller_row  # the benchmark's RL-controller row
+from tuners.search_space import search_space
 from tuners.settings import OptunaSettings, load_settings
 
 __all__ = ["ENV_IDS", "benchmark_tune", "controller_row", "main", "policy_gains", "train"]
@@ -51,8 +53,23 @@ ENV_IDS = {
     "gain-schedule": "gripper_env/GripperGainSchedule-v0",
     "servo": "gripper_env/GripperServo-v0",
 }
-#: Action range of the gains (P, I, D) at |a| = 1: wide enough for the Optuna search ranges.
+#: Action range of the gains (P, I, D) at |a| = 1 when no plant scales them (see
+#: :func:`gain_max`).
 GAIN_MAX = (10.0, 100.0, 0.1)
+
+
+def gain_max(inputs: cli.Inputs, plants: list[str]) -> tuple[float, float, float]:
+    """The action range of the gains: the largest magnitudes of the Optuna search ranges,
+    scaled from the plants (:mod:`tuners.search_space`), so both tuners search the same box."""
+    space = search_space(
+        [load_plant(p) for p in plants], inputs.disturbance, load_settings(OptunaSettings)
+    )
+    r = space.ranges
+    return (
+        max(abs(r["P"].low), abs(r["P"].high)),
+        max(abs(r["I"].low), abs(r["I"].high)),
+        max(abs(r["D"].low), abs(r["D"].high)),
+    )
 
 
 def _require_envs():
@@ -85,7 +102,7 @@ def env_kwargs(inputs: cli.Inputs, plants: list[str], env: str) -> dict[str, Any
         },
     }
     if env in ("pid-tune", "gain-schedule"):
-        kwargs["gain_max"] = GAIN_MAX
+        kwargs["gain_max"] = gain_max(inputs, plants)
         kwargs["derivative_filter"] = inputs.settings.pid.N
     if env == "servo":
         kwargs.pop("pid_options")
@@ -130,26 +147,28 @@ def evaluate_controller(
     plant: str,
     seeds: list[int],
     profile: str,
-    signal: str = "true",
+    objective: Any = None,
 ) -> dict[str, Any]:
     """Metrics of a ``gain-schedule`` or ``servo`` policy over held-out episodes.
 
     The deterministic policy runs one episode per seed (:func:`gripper_env.envs.rollout.
     policy_trajectory`: the episodes :func:`~gripper_env.simulation.simulate` runs for those
-    seeds) and the trajectories are scored like every tuner's, summarised like a gains file's
-    ``actual`` block.
+    seeds) and the trajectories are scored through the one scoring path
+    (:func:`gripper_env.scoring.score_trajectory`, the objective's signal), summarised like a
+    gains file's ``actual`` block.
     """
     _require_envs()
     from gripper_env.envs.rollout import policy_trajectory
-    from gripper_env.metrics import compute_metrics
-    from tuners.evaluation import _with_cost, summarize_runs
+    from tuners.evaluation import summarize_runs, with_cost
 
     def policy(obs: np.ndarray) -> np.ndarray:
         return model.predict(obs, deterministic=True)[0]
 
     one = dict(kwargs, plant=plant, reference=profile)
     traj = policy_trajectory(policy, seeds, env_id=env_id, **one)
-    rows = _with_cost(compute_metrics(traj, signal), load_objective(), traj.reference.duration_s)
+    disturbance = load_disturbance(kwargs.get("disturbance", "actual"))
+    metrics, costs = score_trajectory(traj, objective or load_objective(), disturbance)
+    rows = with_cost(metrics, costs)
     return summarize_runs(rows)
 
 
@@ -230,30 +249,32 @@ def train(
             super().__init__()
             self.next_at = 0
             self.best = float("inf")
+            self.best_gains: PIDGains | None = None
             _, actual = inputs.settings.options(1)
-            self.scorer = BatchScorer(
-                plant=load_plant(plants[0]),
-                reference=inputs.reference,
-                disturbance=inputs.disturbance,
-                seeds=opt.tuning_seeds.seeds(),
-                options=actual,
-                objective=load_objective(),
-                signal=inputs.settings.signal,
-                randomize=inputs.settings.randomize,
-            )
+            self.scorer = GainScorer(
+                Task.build(
+                    plants[0], inputs.reference, inputs.disturbance, opt.tuning_seeds.seeds(),
+                    randomize=inputs.settings.randomize, options=actual,
+                )
+            )  # fmt: skip
 
         def _on_step(self) -> bool:
             if env == "pid-tune" and self.num_timesteps >= self.next_at:
                 self.next_at = self.num_timesteps + eval_every
                 g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
-                cost = float(self.scorer(g.as_array()[None, :])[0][0])
-                self.best = min(self.best, cost)
-                history.append((int(self.num_timesteps), self.best))
+                scores = self.scorer.score(g.as_array()[None, :])
+                cost = float(scores.cost[0])
+                if scores.feasible[0] and cost < self.best:  # like Optuna's best trial
+                    self.best, self.best_gains = cost, g
+                if np.isfinite(self.best):
+                    history.append((int(self.num_timesteps), self.best))
                 self.logger.record("tuning/policy_cost", cost)
+                self.logger.record("tuning/policy_feasible", float(scores.feasible[0]))
             return True
 
+    curve = BudgetCurve()
     callbacks = [
-        BudgetCurve(),
+        curve,
         CheckpointCallback(
             save_freq=max(1, 10 * eval_every // n_envs),
             save_path=str(run_dir / "checkpoints"),
@@ -285,6 +306,8 @@ def train(
         "seed": seed,
         "train_wall_time_s": wall,
         "history": history,
+        "best_gains": None if curve.best_gains is None else curve.best_gains.as_array().tolist(),
+        "selection_episodes": curve.scorer.episodes,  # scoring the proposals on the tuning seeds
     }
     write_json(run_dir / "history.json", facts)
     vec.close()
@@ -305,9 +328,14 @@ def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, 
         n_envs=16,
         eval_every=max(16, timesteps // 16),
     )
-    gains = policy_gains(
-        facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
-    )
+    # like Optuna's best trial: the best feasible gains the policy proposed during training
+    # (scored on the tuning seeds), else the final policy's
+    if facts["best_gains"] is not None:
+        gains = PIDGains(*facts["best_gains"])
+    else:
+        gains = policy_gains(
+            facts["model"], ENV_IDS["pid-tune"], facts["env_kwargs"], inputs.plant.name
+        )
     facts.pop("model")
     return {
         "gains": gains,
@@ -456,7 +484,7 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs) -> int:
         columns.pop(1)
     print(
         f"{inputs.plant.name}, actual model, mean of {len(inputs.settings.seeds.seeds())} "
-        f"held-out seeds ({inputs.settings.signal} angle); trained "
+        f"held-out seeds ({load_objective().signal} angle); trained "
         f"{row['tuning']['timesteps']} steps in {row['tuning']['train_wall_time_s']:.0f} s"
     )
     print(f"{'':22s}" + "".join(f"{name:>22s}" for name, _ in columns))
@@ -524,9 +552,8 @@ def main(argv: list[str] | None = None) -> int:
         kwargs = env_kwargs(inputs, facts["plants"], facts["env"])
         seeds = [int(s) for s in inputs.settings.seeds.seeds()]
         actual = evaluate_controller(
-            model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name,
-            inputs.settings.signal,
-        )  # fmt: skip
+            model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name
+        )
         content = {
             "format": "gripper-policy-metrics",
             "plant": args.plant,
@@ -538,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
             "train_wall_time_s": facts["train_wall_time_s"],
             "seeds": seeds,
             "metrics": {"actual": actual},
-            "signal": inputs.settings.signal,
+            "signal": load_objective().signal,
         }
         path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
         if args.json:

@@ -33,12 +33,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from gripper_env.config import CONFIG_DIR, load_yaml, validate
-from gripper_env.metrics import compute_metrics
+from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
+from gripper_env.scoring import score_trajectory
 from gripper_env.simulation import Trajectory, simulate
 from tuners import cli
-from tuners.evaluation import _with_cost, summarize_runs
+from tuners.evaluation import summarize_runs, with_cost
 from tuners.gains_file import json_ready, provenance, write_json
 from tuners.settings import OptunaSettings, load_settings
 
@@ -53,6 +54,7 @@ __all__ = [
 ]
 
 SERVO = "gripper_env/GripperServo-v0"
+_IDEAL = load_disturbance("ideal")
 _ON = {"pid": "the PID's output", "reference": "the reference"}
 
 
@@ -132,10 +134,11 @@ class TrainedController:
         self.vecnormalize.save(str(folder / "vecnormalize.pkl"))
 
 
-def _score(traj: Trajectory, inputs: cli.Inputs) -> list[dict[str, Any]]:
-    """Metrics and cost of every run of a trajectory, as every tuner's evaluation scores them."""
-    metrics = compute_metrics(traj, inputs.settings.signal)
-    return _with_cost(metrics, load_objective(), traj.reference.duration_s)
+def _score(traj: Trajectory, disturbance: Disturbance) -> list[dict[str, Any]]:
+    """Metrics and cost of every run of a trajectory on ``disturbance``, through the one scoring
+    path every tuner's evaluation takes (:func:`gripper_env.scoring.score_trajectory`)."""
+    metrics, costs = score_trajectory(traj, load_objective(), disturbance)
+    return with_cost(metrics, costs)
 
 
 def evaluate_policy(
@@ -154,7 +157,8 @@ def evaluate_policy(
     ideal = policy_trajectory(policy, [0], **dict(kwargs, disturbance="ideal", randomize=False),
                               **ref)  # fmt: skip
     actual = policy_trajectory(policy, seeds, **kwargs, **ref)
-    return _score(ideal, inputs)[0], summarize_runs(_score(actual, inputs)), ideal, actual
+    runs = _score(actual, inputs.disturbance)
+    return _score(ideal, _IDEAL)[0], summarize_runs(runs), ideal, actual
 
 
 def reference_row(inputs: cli.Inputs) -> dict[str, Any]:
@@ -167,8 +171,8 @@ def reference_row(inputs: cli.Inputs) -> dict[str, Any]:
                       randomize=s.randomize)  # fmt: skip
     return {
         "P": None, "I": None, "D": None, "N": None, "sign": None, "stability": None,
-        "metrics": {"ideal": _score(ideal, inputs)[0],
-                    "actual": summarize_runs(_score(actual, inputs))},
+        "metrics": {"ideal": _score(ideal, _IDEAL)[0],
+                    "actual": summarize_runs(_score(actual, inputs.disturbance))},
         "wall_time_s": 0.0,
         "tuning": {"controller": "command = reference (open loop, no controller)"},
     }  # fmt: skip
@@ -216,7 +220,7 @@ def train_controller(
         venv.training = False
         traj = policy_trajectory(controller, tuning_seeds, reference=inputs.reference, **kwargs)
         venv.training = True
-        return float(np.mean([r["cost"] for r in _score(traj, inputs)]))
+        return float(np.mean([r["cost"] for r in _score(traj, inputs.disturbance)]))
 
     history = [(0, tuning_cost())]
     best = history[0][1]
@@ -336,7 +340,7 @@ def controller_row(
         "evaluation": {
             "profile": inputs.profile_name, "disturbance": inputs.disturbance_name,
             "seeds": [int(x) for x in seeds], "randomize": inputs.settings.randomize,
-            "signal": inputs.settings.signal,
+            "signal": load_objective().signal,
         },
         "provenance": provenance(config={"rl_controller": s.model_dump()}, seed=s.seed,
                                  wall_time_s=wall, command=command),

@@ -14,7 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gripper_env.config import CONFIG_DIR, ConfigError, load_yaml, validate
-from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.pid import PIDOptions
 
 __all__ = [
     "ClassicalSettings",
@@ -80,12 +80,6 @@ class EvaluationSettings(BaseModel):
     seeds: SeedRange = SeedRange(start=100000, count=10)
     randomize: bool = True
     limits_on_ideal: bool = False
-    signal: Literal["measured", "true"] = "true"
-
-    @field_validator("signal", mode="before")
-    @classmethod
-    def _yaml_true(cls, v: object) -> object:
-        return "true" if v is True else v  # an unquoted YAML `true`
 
     def options(self, sign: int = 1) -> tuple[PIDOptions, PIDOptions]:
         """PID options on the ``(ideal, actual)`` models for error sign ``sign``."""
@@ -131,11 +125,13 @@ class ParamRange(BaseModel):
         return float(math.copysign(mag, u))
 
 
-class SearchSpace(BaseModel):
-    """Ranges of P, I, D and N."""
+class SearchSettings(BaseModel):
+    """Ranges of P, I, D and N; ``units: plant`` scales P, I and D by the plant
+    (:mod:`tuners.search_space`)."""
 
     model_config = _STRICT
 
+    units: Literal["plant", "absolute"] = "plant"
     P: ParamRange
     I: ParamRange  # noqa: E741 - Simulink's name
     D: ParamRange
@@ -149,13 +145,22 @@ class SearchSpace(BaseModel):
         return v
 
 
-MOTerm = Literal["overshoot_pct", "iae", "sd_gap_deg", "settling_time_s", "control_effort"]
+MOTerm = Literal[
+    "iae",
+    "overshoot_pct",
+    "settling_time_s",
+    "stall_s",
+    "saturation_s",
+    "servo_effort_deg",
+    "sd_gap_deg",
+    "control_effort",
+]
 
 
 class MultiObjective(BaseModel):
     model_config = _STRICT
 
-    objectives: list[MOTerm] = ["overshoot_pct", "iae", "sd_gap_deg"]
+    objectives: list[MOTerm] = ["iae", "overshoot_pct", "servo_effort_deg"]
 
     @field_validator("objectives")
     @classmethod
@@ -173,11 +178,11 @@ class OptunaSettings(BaseModel):
     trials: int = Field(200, ge=1)
     batch_size: int = Field(16, ge=1, le=1024)
     tuning_seeds: SeedRange = SeedRange()
+    search_seeds: int = Field(3, ge=1, le=100)
     sampler: Literal["tpe", "cmaes", "random"] = "tpe"
     n_startup_trials: int = Field(16, ge=0)
     tune_N: bool = False
-    ideal_weight: float = Field(0.0, ge=0)
-    search: SearchSpace
+    search: SearchSettings
     multi_objective: MultiObjective = MultiObjective()
     heartbeat_interval_s: int = Field(5, ge=1)
     heartbeat_grace_s: int = Field(30, ge=1)
@@ -188,13 +193,8 @@ class OptunaSettings(BaseModel):
             raise ValueError("heartbeat_grace_s must exceed heartbeat_interval_s")
         return self
 
-    def gains(self, params: dict[str, float], default_n: float) -> PIDGains:
-        """Gains from a trial's searched parameters."""
-        s = self.search
-        n = s.N.decode(params["N"]) if self.tune_N else default_n
-        return PIDGains(
-            s.P.decode(params["P"]), s.I.decode(params["I"]), s.D.decode(params["D"]), n
-        )
+
+ClassicalMethod = Literal["simc", "lambda", "amigo-pi", "amigo-pid", "migo", "pidtune"]
 
 
 class ClassicalSettings(BaseModel):
@@ -202,11 +202,13 @@ class ClassicalSettings(BaseModel):
 
     model_config = _STRICT
 
-    rule: Literal["simc", "lambda"] = "simc"
+    method: ClassicalMethod = "amigo-pi"
     window_s: float = Field(9.0, gt=0)
     extra_dead_time_s: float = Field(0.0, ge=0)
     tau_c_factor: float = Field(1.0, gt=0)
-    tau_c_min_s: float = Field(0.1, ge=0)
+    tau_c_min_s: float = Field(0.0, ge=0)
+    migo_ms: float = Field(1.4, gt=1.0)
+    pidtune_pm_deg: float = Field(60.0, gt=0.0, lt=90.0)
 
 
 _DEFAULT_FILES = {

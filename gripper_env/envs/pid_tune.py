@@ -22,8 +22,9 @@ from gripper_env.envs.spaces import (
     disturbance_features,
     reference_features,
 )
-from gripper_env.metrics import Metrics, compute_metrics
+from gripper_env.metrics import Metrics
 from gripper_env.objective import Objective, load_objective
+from gripper_env.scoring import robustness, score_trajectory
 from gripper_env.simulation import Trajectory
 
 __all__ = ["EpisodeRenderer", "EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
@@ -121,46 +122,87 @@ def _run_chunk(
     y0 = np.array([r.values_deg[0] for r in refs])
     seeds = np.array([ep.noise_seed for ep in episodes], dtype=np.int64)
     sim.reset(y0, seeds, initial="rest")
-    r_out, u_out, y_out, yt_out = sim.advance(n_t, ref)
-    stable = ~sim.diverged
-    saturated = sim.saturated_steps * settings.dt_s
+    out = sim.advance(n_t, ref)
+    whole = Trajectory.from_simulator(sim, refs[0], out)  # sliced per episode below if needed
+    # the one scoring path: metrics on the objective's signal and settling band, then the cost
     if shared:
-        traj = Trajectory(
-            refs[0].t_s, r_out, u_out, y_out, yt_out, stable, saturated, refs[0], True
-        )
-        metrics = [compute_metrics(traj)]
-        costs = objective.cost(metrics[0], refs[0].duration_s)
+        metrics, costs = score_trajectory(whole, objective, settings.disturbance)
         rows = [(0, b) for b in range(n)]
+        parts = [metrics]
     else:
-        metrics, cost_list, rows = [], [], []
+        parts, cost_list, rows = [], [], []
         for b, r in enumerate(refs):
-            m = len(r)
-            traj = Trajectory(
-                r.t_s, r_out[b : b + 1, :m], u_out[b : b + 1, :m], y_out[b : b + 1, :m],
-                yt_out[b : b + 1, :m], stable[b : b + 1], saturated[b : b + 1], r, True,
-            )  # fmt: skip
-            metrics.append(compute_metrics(traj))
-            cost_list.append(objective.cost(metrics[-1], r.duration_s)[0])
+            one = _episode_slice(whole, b, r)
+            m, c = score_trajectory(one, objective, settings.disturbance)
+            parts.append(m)
+            cost_list.append(c[0])
             rows.append((b, 0))
         costs = np.asarray(cost_list)
+    # robustness of each episode's gains on its plant and loop (servo refresh and delay)
+    violation = np.empty(n)
+    margins = []
+    lim = objective.constraints
+    for b, ep in enumerate(episodes):
+        rb = robustness(
+            settings.plants[ep.plant_index],
+            ep.disturbance,
+            gains[b : b + 1],
+            settings.pid_options.sign,
+        )
+        violation[b] = rb.violation(lim.ms_max, lim.gm_min_db)[0]
+        margins.append(rb.row(0))
+    penalised = objective.penalised(costs, violation)
     infos = [
-        _info(metrics[mi], i, objective, gains[b], costs[b], refs[b].duration_s)
+        _info(parts[mi], i, objective, gains[b], costs[b], penalised[b], margins[b],
+              refs[b].duration_s)
         for b, (mi, i) in enumerate(rows)
-    ]
+    ]  # fmt: skip
     trajectories = []
     if keep:
+        r_out, u_out, y_out, _ = out
         for b, r in enumerate(refs):
             m = len(r)
             trajectories.append((r_out[b, :m].copy(), y_out[b, :m].copy(), u_out[b, :m].copy()))
-    return costs, infos, trajectories
+    return penalised, infos, trajectories
+
+
+def _episode_slice(whole: Trajectory, b: int, ref: Any) -> Trajectory:
+    """Run ``b`` of a batch trimmed to its own reference's length."""
+    m = len(ref)
+    one = slice(b, b + 1)
+    return Trajectory(
+        t=ref.t_s,
+        r=whole.r[one, :m],
+        u=whole.u[one, :m],
+        y=whole.y[one, :m],
+        y_true=whole.y_true[one, :m],
+        stable=whole.stable[one],
+        saturated_s=whole.saturated_s[one],
+        reference=ref,
+        closed_loop=True,
+        contact_s=whole.contact_s[one],
+        stall_s=whole.stall_s[one],
+        force_proxy=whole.force_proxy[one],
+        servo_effort_deg=whole.servo_effort_deg[one],
+    )
 
 
 def _info(
-    metrics: Metrics, i: int, objective: Objective, gains: np.ndarray, cost: float, dur: float
+    metrics: Metrics,
+    i: int,
+    objective: Objective,
+    gains: np.ndarray,
+    cost: float,
+    penalised: float,
+    margins: dict[str, Any],
+    dur: float,
 ) -> dict[str, Any]:
     terms = objective.terms(metrics, dur)
     info = _defined(metrics.as_dict(i))
     info["cost"] = float(cost)
+    info["penalised_cost"] = float(penalised)
+    info["feasible"] = bool(penalised == cost)
+    info["robustness"] = margins
     info["cost_terms"] = {k: float(v[i]) for k, v in terms.items()}
     info["gains"] = {"P": float(gains[0]), "I": float(gains[1]), "D": float(gains[2]),
                      "N": float(gains[3])}  # fmt: skip
@@ -221,11 +263,17 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Rewards
 
-    ``reward = -objective.cost(compute_metrics(trajectory), duration_s)``: a weighted sum of
-    IAE, overshoot, SD gap, settling time and control effort, capped at ``max_cost`` (1000) for
-    stable runs, ``unstable_cost`` (10000) for a diverged run. ``info`` holds the metrics
-    (``grip``, ``ungrip``, ``iae``, ``sd_gap_deg``, ..., ``stable``), ``cost``, ``cost_terms``
-    and ``gains``.
+    ``reward = -objective.penalised(cost, violation)``, through the one scoring path
+    (:func:`gripper_env.scoring.score_trajectory`), the same as every tuner's: ``cost`` is the
+    shared objective's weighted sum of IAE, visible overshoot, settling time, stall, saturation and
+    servo effort on the objective's signal (the true jaw angle), capped at ``max_cost`` (1000) for
+    stable runs and ``unstable_cost`` (10000) for a diverged run; gains that miss the robustness
+    constraints (``Ms <= 1.6``, 6 dB gain margin on the loop as it runs, with the servo's 20 ms
+    command hold) cost ``infeasible_penalty`` (100) more, graded by how far they miss. Typical
+    rewards: about -10 to -30 for good gains on test2-test4, below -100 for infeasible ones.
+    ``info`` holds the metrics (``grip``, ``ungrip``, ``iae``, ``stall_s``, ...,
+    ``stable``), ``cost``, ``penalised_cost``, ``feasible``, ``robustness`` (margins),
+    ``cost_terms`` and ``gains``.
 
     ## Starting State
 

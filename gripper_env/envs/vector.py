@@ -85,6 +85,7 @@ class _SeededVectorEnv(VectorEnv):
         self.render_mode = render_mode
         self.render_envs = tuple(rendered)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._infos: dict[int, dict[str, Any]] = {}
 
     def _seed_rows(self, seed: int | list[int | None] | None, mask: np.ndarray) -> list[int]:
         n = self.num_envs
@@ -117,6 +118,21 @@ class _SeededVectorEnv(VectorEnv):
                 )
             return mask
         return np.ones(self.num_envs, dtype=bool)
+
+    @property
+    def env_infos(self) -> list[dict[str, Any]]:
+        """Each environment's ``info`` of the last ``reset`` or ``step``, unbatched: what the
+        batched ``info`` was built from (Gymnasium's batching turns a ``None`` that follows a
+        number into NaN; :class:`gripper_env.sb3.NativeVecEnv` hands these to SB3 instead)."""
+        return [self._infos.get(i, {}) for i in range(self.num_envs)]
+
+    def _batched(self, infos: dict[int, dict[str, Any]]) -> dict[str, Any]:
+        """Remember the environments' infos; return them batched, as ``SyncVectorEnv`` does."""
+        self._infos = infos
+        out: dict[str, Any] = {}
+        for i in sorted(infos):
+            out = self._add_info(out, infos[i], i)
+        return out
 
     def _draw(self, rows: list[int]) -> list[Any]:
         episodes = []
@@ -170,17 +186,14 @@ class _ControlVectorEnv(_SeededVectorEnv):
             else [RowRenderer(self._batch, i, single._name, render_mode) for i in self.render_envs]
         )
 
-    def _start(self, rows: list[int]) -> dict[str, Any]:
-        """Reset ``rows`` (new episodes from their generators); their batched reset ``info``."""
+    def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
+        """Reset ``rows`` (new episodes from their generators); their reset ``info``."""
         batch = self._batch
         batch.reset_rows(rows, self._draw(rows))
-        infos: dict[str, Any] = {}
-        for i in rows:
-            infos = self._add_info(infos, batch.episode_info(i), i)
         for renderer in self._renderers:
             if renderer.row in rows:
                 renderer.start()
-        return infos
+        return {i: batch.episode_info(i) for i in rows}
 
     def reset(
         self,
@@ -190,7 +203,7 @@ class _ControlVectorEnv(_SeededVectorEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         mask = self._reset_mask(options)
         rows = self._seed_rows(seed, mask)
-        infos = self._start(rows)
+        infos = self._batched(self._start(rows))
         self._started = True
         if self.render_mode == "human":
             self.render()
@@ -223,7 +236,10 @@ class _ControlVectorEnv(_SeededVectorEnv):
             if renderer.row not in rows:
                 renderer.record()
         # next-step autoreset of the environments whose episode ended
-        infos = self._start(rows) if rows else {}
+        if rows:
+            infos = self._batched(self._start(rows))
+        else:
+            infos, self._infos = {}, {}
         if self.render_mode == "human":
             self.render()
         return (
@@ -316,12 +332,12 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
             else {i: EpisodeRenderer(self.settings, render_mode) for i in self.render_envs}
         )
 
-    def _start(self, rows: list[int]) -> dict[str, Any]:
-        infos: dict[str, Any] = {}
+    def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
+        infos = {}
         for i, ep in zip(rows, self._draw(rows), strict=True):
             self._episodes[i] = ep
             self._obs[i] = self._single.context(ep)
-            infos = self._add_info(infos, self._single.episode_info(ep), i)
+            infos[i] = self._single.episode_info(ep)
             if i in self._renderers:
                 self._renderers[i].start(ep)
         self._elapsed[rows] = 0
@@ -335,7 +351,7 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         mask = self._reset_mask(options)
         rows = self._seed_rows(seed, mask)
-        infos = self._start(rows)
+        infos = self._batched(self._start(rows))
         self._autoreset[mask] = False
         self._started = True
         return self._obs.copy(), infos
@@ -350,7 +366,7 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         restart = [int(i) for i in np.flatnonzero(self._autoreset)]
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
-        infos: dict[str, Any] = {}
+        infos: dict[int, dict[str, Any]] = {}
         if run:
             res = run_episodes(
                 self.settings, self._slots, [self._episodes[i] for i in run], acts[run],
@@ -360,16 +376,16 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
             terminated[run] = True
             self._elapsed[run] += 1
             for k, i in enumerate(run):
-                infos = self._add_info(infos, res.infos[k], i)
+                infos[i] = res.infos[k]
                 if i in self._renderers:
                     self._renderers[i].finish(res.trajectories[k], res.infos[k])
         if restart:
-            infos = _merge_infos(infos, self._start(restart))
+            infos.update(self._start(restart))
         truncated = np.zeros(self.num_envs, dtype=bool)
         if self.max_episode_steps is not None:
             truncated[run] = self._elapsed[run] >= self.max_episode_steps
         self._autoreset = terminated | truncated
-        return self._obs.copy(), rewards, terminated, truncated, infos
+        return self._obs.copy(), rewards, terminated, truncated, self._batched(infos)
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """``rgb_array``: one frame per environment of ``render_envs``; ``human``: draw them."""
@@ -382,19 +398,6 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
     def close_extras(self, **kwargs: Any) -> None:
         for renderer in self._renderers.values():
             renderer.close()
-
-
-def _merge_infos(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    """Two batched infos of disjoint sets of environments, as one."""
-    out = dict(a)
-    for key, value in b.items():
-        if key not in out or key.startswith("_"):
-            out[key] = value if key not in out else out[key] | value
-        elif isinstance(value, dict):
-            out[key] = _merge_infos(out[key], value)
-        else:
-            out[key] = np.where(b[f"_{key}"], value, out[key])
-    return out
 
 
 _SINGLE: dict[int, type[gym.Env]] = {

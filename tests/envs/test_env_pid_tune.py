@@ -1,4 +1,5 @@
-"""GripperPIDTune's reward is minus the shared objective, checked through simulate() directly."""
+"""GripperPIDTune's reward is minus the shared objective (penalised when the gains miss the
+robustness constraints), checked through simulate(), the metrics and the loop analysis directly."""
 
 import gymnasium as gym
 import numpy as np
@@ -6,11 +7,26 @@ import pytest
 from helpers import PID_TUNE, signed_log_gains
 
 import gripper_env  # noqa: F401
+from gripper_env.disturbances import load_disturbance
 from gripper_env.envs.spaces import action_to_gains, gains_to_action
 from gripper_env.metrics import compute_metrics
 from gripper_env.objective import load_objective
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
+from gripper_env.pid import PIDGains
 from gripper_env.simulation import simulate
+from gripper_env.stability import stability_report
+
+
+def _expected_reward(plant, gains, traj, disturbance, preset="actual"):
+    """Minus the objective's cost on the true angle with the preset's friction settling band,
+    plus the penalty if the gains miss the constraints (stability_report, not the env)."""
+    obj = load_objective()
+    band = obj.settling_band_deg(load_disturbance(preset))
+    metrics = compute_metrics(traj, "true", settling_band_deg=band)
+    cost = obj.cost(metrics, traj.reference.duration_s)[0]
+    report = stability_report(plant, PIDGains(*gains), disturbance=disturbance)
+    feasible = report.meets(obj.constraints.ms_max, obj.constraints.gm_min_db)
+    return cost, feasible, -(cost if feasible else cost + obj.infeasible_penalty)
 
 
 @pytest.mark.parametrize("action", [[0.668, 0.752, -0.347], [-0.2, 0.9, 0.0], [1.0, 1.0, 1.0]])
@@ -24,12 +40,34 @@ def test_reward_is_minus_objective_cost_of_simulate(action):
         "test2", "step", gains=[signed_log_gains(action)], disturbance="actual",
         seeds=info0["noise_seed"],
     )  # fmt: skip
-    cost = load_objective().cost(compute_metrics(traj), duration_s=20.0)[0]
-    assert reward == pytest.approx(-cost, rel=1e-12, abs=1e-12)
+    cost, feasible, expected = _expected_reward("test2", signed_log_gains(action), traj, "actual")
     assert info["cost"] == pytest.approx(cost, rel=1e-12)
-    assert info["iae"] == pytest.approx(compute_metrics(traj).run["iae"][0], rel=1e-12)
-    for key in ("grip", "ungrip", "sd_gap_deg", "control_effort", "stable", "gains", "cost_terms"):
+    assert info["feasible"] == feasible
+    if feasible:
+        assert reward == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    else:  # at least the penalty, more the further from feasible
+        assert reward <= expected
+    assert info["iae"] == pytest.approx(compute_metrics(traj, "true").run["iae"][0], rel=1e-12)
+    for key in ("grip", "ungrip", "stall_s", "servo_effort_deg", "stable", "gains", "cost_terms",
+                "robustness"):  # fmt: skip
         assert key in info
+
+
+def test_infeasible_gains_are_clearly_worse():
+    """The old Optuna winner (Ms 10.6 with the hold) scores at least the penalty worse than a
+    robust PI (AMIGO)."""
+    gain_max = (10.0, 100.0, 0.1)
+    env = gym.make(PID_TUNE, gain_max=gain_max)
+    rewards, infos = [], []
+    for gains in ((0.3712, 98.64, -0.002567), (2.43, 39.0, 0.0)):
+        env.reset(seed=3)
+        action = gains_to_action(gains, gain_max).astype(np.float32)
+        _, r, _, _, info = env.step(action)
+        rewards.append(r)
+        infos.append(info)
+    assert not infos[0]["feasible"] and infos[1]["feasible"]
+    assert infos[0]["robustness"]["ms"] > 10
+    assert rewards[0] < rewards[1] - load_objective().infeasible_penalty
 
 
 def test_reward_with_randomised_episode_matches_simulate():
@@ -43,8 +81,12 @@ def test_reward_with_randomised_episode_matches_simulate():
         info0["plant"], ep.reference, gains=[signed_log_gains(action)], disturbance=ep.disturbance,
         seeds=info0["noise_seed"],
     )  # fmt: skip
-    cost = load_objective().cost(compute_metrics(traj), duration_s=ep.reference.duration_s)[0]
-    assert reward == pytest.approx(-cost, rel=1e-12)
+    cost, feasible, expected = _expected_reward(
+        info0["plant"], signed_log_gains(action), traj, ep.disturbance
+    )
+    assert feasible == (reward >= -cost - 1e-9)
+    if feasible:
+        assert reward == pytest.approx(expected, rel=1e-12)
 
 
 def test_paper_tuned_gains_beat_untuned_on_ideal_test2():
@@ -60,8 +102,10 @@ def test_diverging_gains_get_the_unstable_cost():
     env = gym.make(PID_TUNE, disturbance="ideal", plant="test4")
     env.reset(seed=0)
     _, reward, _, _, info = env.step(np.array([-1.0, -1.0, -1.0], np.float32))
-    assert not info["stable"]
-    assert reward == -load_objective().unstable_cost
+    assert not info["stable"] and not info["feasible"]
+    obj = load_objective()
+    assert info["cost"] == obj.unstable_cost
+    assert reward <= -(obj.unstable_cost + obj.infeasible_penalty)
 
 
 def test_gain_map_round_trip_and_sign():

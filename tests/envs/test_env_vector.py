@@ -3,8 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import data_equivalence
-from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO
+from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO, assert_same_info
 
 import gripper_env  # noqa: F401
 from gripper_env.envs import kernels
@@ -23,7 +22,7 @@ def compare(env_id, n_envs, n_steps, seed, **kwargs):
     np.testing.assert_array_equal(obs_n, obs_s)
     assert set(info_n) == {"plant", "_plant", "reference", "_reference", "noise_seed",
                            "_noise_seed"}  # fmt: skip
-    assert data_equivalence(info_n, info_s, exact=True)
+    assert_same_info(info_n, info_s)
     rng = np.random.default_rng(seed)
     resets = 0
     for _ in range(n_steps):
@@ -32,7 +31,7 @@ def compare(env_id, n_envs, n_steps, seed, **kwargs):
         out_s = sync.step(actions)
         for a, b in zip(out_n[:4], out_s[:4], strict=True):
             np.testing.assert_array_equal(a, b)
-        assert data_equivalence(out_n[4], out_s[4], exact=True), (out_n[4], out_s[4])
+        assert_same_info(out_n[4], out_s[4])
         resets += int(np.sum(out_n[2] | out_n[3]))
     native.close()
     sync.close()

@@ -1,53 +1,110 @@
-import json
+"""The textbook designs against their published formulas, and the two that design on the loop
+as it runs against their own definitions."""
 
+import json
+import math
+
+import numpy as np
 import pytest
 
 from gripper_env.disturbances import load_disturbance
+from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
+from gripper_env.stability import stability_report
 from tuners import classical, cli
 from tuners.settings import ClassicalSettings
+
+ACTUAL = load_disturbance("actual")
 
 
 def test_fopdt_of_test2_is_its_fast_pole():
     # test2 ~ 10.35 / (s + 10.34) over seconds: gain ~1, tau ~ 1/10.34 s; theta = 10 ms + 1 ms
-    model = classical.fit_fopdt(
-        load_plant("test2"), load_disturbance("actual"), ClassicalSettings()
-    )
+    model = classical.fit_fopdt(load_plant("test2"), ACTUAL, ClassicalSettings())
     assert model.k == pytest.approx(1.0, abs=0.01)
     assert model.tau_s == pytest.approx(1 / 10.34, abs=0.002)
     assert model.theta_s == pytest.approx(0.011)
 
 
-def test_simc_by_hand():
-    model = classical.FOPDT(k=1.0, tau_s=0.1, theta_s=0.01)
-    s = ClassicalSettings(tau_c_min_s=0.1)
-    gains, tau_c = classical.tune(model, s)
-    assert tau_c == 0.1
-    assert gains.P == pytest.approx(0.1 / 0.11)
-    assert gains.I == pytest.approx(gains.P / 0.1)  # tau_I = min(tau, 4 (tau_c + theta)) = tau
-    lam, _ = classical.tune(
-        classical.FOPDT(1.0, 1.0, 0.01), s.model_copy(update={"rule": "lambda"})
-    )
-    assert lam.I == pytest.approx(lam.P / 1.0)
+def _design(method, m, **settings):
+    ctx = classical._Context(load_plant("test2"), _loop())
+    return classical.METHODS[method](m, ClassicalSettings(**settings), ctx)
 
 
-def test_simc_on_test2_lands_near_the_papers_tuned_gains(tmp_path, capsys, small_eval_config):
+def _loop():
+    from gripper_env.stability import ServoLoop
+
+    return ServoLoop.from_disturbance(ACTUAL)
+
+
+def test_formula_methods_by_hand():
+    m = classical.FOPDT(k=1.0, tau_s=0.1, theta_s=0.01)
+    # SIMC, tau_c = theta: Kc = 0.1 / 0.02 = 5, Ti = min(0.1, 4 * 0.02) = 0.08
+    simc = _design("simc", m).gains
+    assert simc.P == pytest.approx(5.0) and simc.I == pytest.approx(5.0 / 0.08) and simc.D == 0
+    # lambda with lambda = theta: Ti = tau
+    lam = _design("lambda", m).gains
+    assert lam.I == pytest.approx(lam.P / 0.1)
+    # AMIGO PI (Astrom & Hagglund 2004), L = 0.01, T = 0.1
+    kc = 0.15 + (0.35 - 0.001 / 0.0121) * 0.1 / 0.01
+    ti = 0.35 * 0.01 + 13 * 0.01 * 0.01 / (0.01 + 0.012 + 0.0007)
+    pi = _design("amigo-pi", m).gains
+    assert pi.P == pytest.approx(kc) and pi.I == pytest.approx(kc / ti)
+    # AMIGO PID
+    kc = 0.2 + 0.45 * 10
+    ti = (0.004 + 0.08) * 0.01 / (0.01 + 0.01)
+    td = 0.5 * 0.001 / (0.003 + 0.1)
+    pid = _design("amigo-pid", m).gains
+    assert (pid.P, pid.I, pid.D) == pytest.approx((kc, kc / ti, kc * td))
+
+
+def test_migo_is_the_largest_integral_gain_with_ms_14():
+    """MIGO's definition, checked on the loop as it runs: Ms = 1.4 at the design, and no PI
+    with a larger I stays within Ms 1.4 (a grid of P around it)."""
+    gains, _ = classical.design("migo", load_plant("test2"), ACTUAL, ClassicalSettings())
+    report = stability_report("test2", gains)
+    assert report.stable and report.ms == pytest.approx(1.4, abs=0.005)
+    from gripper_env.scoring import loop_analysis
+
+    analysis = loop_analysis(load_plant("test2"), _loop())
+    kp = np.linspace(0.5 * gains.P, 1.5 * gains.P, 41)
+    trial = np.column_stack([kp, np.full_like(kp, gains.I * 1.03), np.zeros_like(kp)])
+    r = analysis.robustness(trial)
+    assert not np.any(r.stable & (r.ms <= 1.4))
+
+
+def test_pidtune_has_a_60_degree_phase_margin_at_its_highest_feasible_crossover():
+    gains, tuning = classical.design("pidtune", load_plant("test3"), ACTUAL, ClassicalSettings())
+    report = stability_report("test3", gains)
+    assert report.phase_margin_deg == pytest.approx(60.0, abs=0.5)
+    assert report.gain_margin_db >= 6.0
+    assert report.gain_crossover_hz == pytest.approx(tuning["crossover_hz"], rel=0.01)
+    # a higher crossover with PM 60 would cost the 6 dB gain margin
+    faster = stability_report("test3", PIDGains(gains.P * 1.15, gains.I * 1.15, 0.0))
+    assert faster.gain_margin_db < 6.0
+
+
+@pytest.mark.parametrize("method", ["amigo-pi", "migo"])
+def test_robust_designs_meet_the_constraints_on_the_loop_as_it_runs(method):
+    for plant in ("test2", "test3", "test4"):
+        gains, _ = classical.design(method, load_plant(plant), ACTUAL, ClassicalSettings())
+        assert stability_report(plant, gains).meets(1.6, 6.0), (method, plant)
+
+
+def test_all_methods_from_the_command_line(tmp_path, capsys, small_eval_config):
     code = cli.run(
         classical.main,
-        [
-            "--plant",
-            "test2",
-            "--out",
-            str(tmp_path),
-            "--json",
-            "--eval-config",
-            str(small_eval_config),
-        ],
-    )
+        ["--plant", "test2", "--method", "all", "--out", str(tmp_path),
+         "--eval-config", str(small_eval_config)],
+    )  # fmt: skip
     assert code == 0
-    content = json.loads(capsys.readouterr().out)
-    # the paper tuned (1, 9, -0.001) by hand; SIMC gives P ~ 0.87, I ~ 9
-    assert 0.7 < content["P"] < 1.1 and 8 < content["I"] < 10 and content["D"] == 0
-    assert content["stability"]["stable"]
-    assert content["tuning"]["rule"] == "simc"
-    assert (tmp_path / "test2" / "classical.json").is_file()
+    printed = capsys.readouterr().out
+    for method in classical.METHODS:
+        content = json.loads((tmp_path / "test2" / f"classical-{method}.json").read_text())
+        assert content["tuning"]["method"] == method and content["robustness"]["stable"]
+        assert math.isfinite(content["metrics"]["actual"]["mean"]["iae"])
+    assert printed.count("robustness constraints") == len(classical.METHODS)
+
+
+def test_unknown_method_is_refused(tmp_path, capsys):
+    with pytest.raises(ValueError, match="unknown method"):
+        classical.design("zn", load_plant("test2"), ACTUAL, ClassicalSettings())

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.stability import stability_report
 from tuners.evaluation import evaluate, summarize_runs
 from tuners.gains_file import (
     FORMAT_VERSION,
@@ -44,7 +43,6 @@ def _content(plant="test2", gains=None, sign=1):
         gains=gains,
         options=opts,
         evaluation=ev,
-        stability=stability_report(plant, gains, sign).as_dict(),
         evaluation_settings={"profile": "step"},
     )
 
@@ -71,10 +69,15 @@ def test_round_trip(tmp_path):
             "ise",
             "itae",
             "control_effort",
+            "servo_effort_deg",
+            "stall_s",
             "stable",
             "cost",
         }
     assert set(content["metrics"]["actual"]) >= {"mean", "std", "ci95_low", "ci95_high"}
+    rb = content["robustness"]
+    assert rb["refresh_period_s"] == pytest.approx(0.020) and "loop_1ms" in rb
+    assert rb["meets_constraints"] in (True, False) and rb["constraints"]["ms_max"] == 1.6
     assert not list(tmp_path.glob(".*tmp"))  # no temporary file left behind
 
 
@@ -91,6 +94,7 @@ def test_unreachable_values_are_written_as_null(tmp_path):
     "patch, message",
     [
         ({"format_version": FORMAT_VERSION + 1}, "format version"),
+        ({"format_version": 0}, "format version"),
         ({"format": "something-else"}, "not a gains file"),
         ({"P": "one"}, "'P' must be a finite number"),
         ({"P": None}, "'P' must be a finite number"),
@@ -120,3 +124,23 @@ def test_not_json_and_missing(tmp_path):
         load_gains_file(tmp_path / "bad.json")
     with pytest.raises(GainsFileError, match="cannot read"):
         load_gains_file(tmp_path / "missing.json")
+
+
+def test_version_1_files_still_load(tmp_path):
+    """Gains files written before the robustness block (format 1) are still read."""
+    path = tmp_path / "old.json"
+    path.write_text(
+        json.dumps(
+            {
+                "format": "gripper-gains",
+                "format_version": 1,
+                "P": 1.0,
+                "I": 9.0,
+                "D": -0.001,
+                "N": 100.0,
+                "sign": 1,
+                "stability": {"stable": True},
+            }
+        )
+    )
+    assert load_gains_file(path).gains == PIDGains(1.0, 9.0, -0.001, 100.0)

@@ -111,19 +111,13 @@ def test_multi_objective_gives_a_front_and_its_knee(
     content = json.loads(out)
     front = content["tuning"]["pareto_front"]
     assert front and content["tuning"]["best_trial"] in [p["trial"] for p in front]
-    assert set(front[0]["values"]) == {"overshoot_pct", "iae", "sd_gap_deg"}
+    assert set(front[0]["values"]) == {"iae", "overshoot_pct", "servo_effort_deg"}
     assert (tmp_path / "test2" / "optuna-mo.json").is_file()
 
 
 def test_knee_point_by_hand():
     front = np.array([[0.0, 10.0], [1.0, 1.0], [10.0, 0.0]])
     assert knee_point(front) == 1
-
-
-def test_cmaes_sampler_runs(tmp_path, capsys, small_optuna_config, small_eval_config):
-    args = small(tmp_path, small_optuna_config, small_eval_config)
-    code, out, _ = run([*args, "--trials", 12, "--sampler", "cmaes"], capsys)
-    assert code == 0 and json.loads(out)["tuner"] == "optuna-cmaes"
 
 
 @pytest.mark.parametrize(
@@ -261,27 +255,76 @@ def test_two_workers_share_one_postgres_study(tmp_path, small_optuna_config, sma
     assert all(c["tuning"]["storage"].count("***") == 1 for c in contents)  # password hidden
 
 
-def test_ideal_weight_adds_the_ideal_models_cost():
-    from gripper_env.disturbances import load_disturbance
-    from gripper_env.objective import load_objective
-    from gripper_env.pid import PIDOptions
-    from gripper_env.plants import load_plant
-    from gripper_env.references import load_reference
+def test_results_meet_the_constraints_and_flag_bounds(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    """The search's result meets Ms <= 1.6 and 6 dB with the hold (checked independently by
+    stability_report), and any gain at a search bound is flagged."""
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 40], capsys)
+    assert code == 0
+    content = json.loads(out)
+    assert content["tuning"]["feasible"] and content["robustness"]["meets_constraints"]
+    from gripper_env.pid import PIDGains
+    from gripper_env.stability import stability_report
 
-    plant = load_plant("test2")
-    kwargs = dict(
-        plant=plant,
-        reference=load_reference("step"),
-        disturbance=load_disturbance("actual"),
-        seeds=np.arange(2),
-        options=PIDOptions(output_limits=(0.0, 180.0)),
-        objective=load_objective(),
+    report = stability_report("test2", PIDGains(content["P"], content["I"], content["D"]))
+    assert report.ms <= 1.6 and report.gain_margin_db >= 6.0
+    space = content["tuning"]["search_space"]["ranges"]
+    assert space["I"]["high"] == pytest.approx(3.0 * 90.83, rel=0.01)  # scaled by the plant
+    assert isinstance(content["tuning"]["on_bound"], list)
+
+
+def test_bound_flags_by_hand():
+    from gripper_env.pid import PIDGains
+    from tuners.search_space import SearchSpace
+    from tuners.settings import ParamRange
+
+    space = SearchSpace(
+        {
+            "P": ParamRange(scale="linear", low=0.0, high=10.0),
+            "I": ParamRange(scale="log", low=1.0, high=100.0),
+            "D": ParamRange(scale="symlog", low=1e-5, high=0.1),
+        }
     )
-    gains = np.array([[-0.4, 7.0, -0.045, 100.0], [1.0, 9.0, -0.001, 100.0]])
-    plain = optuna_tuner.BatchScorer(**kwargs)
-    both = optuna_tuner.BatchScorer(**kwargs, ideal_weight=1.0, ideal_options=PIDOptions())
-    c0, _ = plain(gains)
-    c1, _ = both(gains)
-    assert plain.episodes == 4 and both.episodes == 6
-    # the untuned gains overshoot ~40 % on the ideal model: a large extra cost; the tuned do not
-    assert c1[0] - c0[0] > 3 * (c1[1] - c0[1]) > 0
+    assert space.on_bound(PIDGains(5.0, 10.0, 0.0)) == []  # D = 0 is inside a symlog range
+    flags = space.on_bound(PIDGains(9.9, 1.05, -0.099))
+    assert len(flags) == 3
+    assert "P = 9.9 is at its upper" in flags[0] and "I = 1.05 is at its lower" in flags[1]
+    assert "D = -0.099 is at its upper" in flags[2]  # the largest magnitude
+
+
+def test_robust_mode_and_search_seed_spread(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    """--plants tunes on several identifications at once (constraints on every one); two search
+    seeds give two studies and their spread."""
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 16, "--plants", "test2,test4", "--search-seeds", 2],
+                       capsys)  # fmt: skip
+    assert code == 0
+    content = json.loads(out)
+    t = content["tuning"]
+    assert content["tuner"] == "optuna-robust" and t["tuned_on"] == ["test2", "test4"]
+    assert t["episodes_per_trial"] == 2 * 2  # plants x tuning seeds
+    assert len(t["per_seed"]) == 2 and t["best_cost"]["min"] <= t["best_cost"]["max"]
+    assert len(t["study_names"]) == 2 and t["study_names"][0].endswith("-s0")
+    if t["feasible"]:
+        assert content["cross_model"]["plants"]["test4"]["meets_constraints"]
+
+
+def test_only_public_optuna_api():
+    """Issue 15: no private Optuna attributes (they break on upgrades)."""
+    import inspect
+
+    source = inspect.getsource(optuna_tuner)
+    for private in ("._storage", "._study_id", "._trial_id", "storages._", "samplers._"):
+        assert private not in source, private
+
+
+def test_cmaes_minimises_the_penalised_cost(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    code, out, _ = run([*args, "--trials", 12, "--sampler", "cmaes"], capsys)
+    assert code == 0 and json.loads(out)["tuner"] == "optuna-cmaes"

@@ -125,7 +125,7 @@ def test_controller_trains_and_scores_against_its_baselines(tmp_path, capsys, sm
     assert actual["n_seeds"] == 3 and actual["mean"]["iae"] > 0
     seeds = [100000, 100001, 100002]
     options = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
-    pid = evaluate("test2", PIDGains(2.4, 39.0, 0.0, 100.0), options, seeds=seeds, signal="true")
+    pid = evaluate("test2", PIDGains(2.4, 39.0, 0.0, 100.0), options, seeds=seeds)
     base = content["baselines"]["base"]["actual"]["mean"]
     assert base["iae"] == pytest.approx(pid.actual["mean"]["iae"], rel=1e-12)
     assert base["cost"] == pytest.approx(pid.actual["mean"]["cost"], rel=1e-12)

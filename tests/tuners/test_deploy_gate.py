@@ -1,0 +1,35 @@
+"""The deploy gate judges the loop as the board runs it: with the servo's 20 ms command hold."""
+
+import json
+
+from gripper_env.pid import PIDGains
+from gripper_env.stability import stability_report
+from tests.tuners.conftest import run_cli
+
+# The old Optuna winner scaled by 1.5: 48 dB of gain margin at 1 ms, unstable with the hold.
+FRAGILE = (1.5 * 0.3712425, 1.5 * 98.640685, 1.5 * -0.0025673578)
+
+
+def _gains_file(path, gains):
+    path.write_text(
+        json.dumps(
+            {"format": "gripper-gains", "format_version": 2, "plant": "test2", "tuner": "manual",
+             "P": gains[0], "I": gains[1], "D": gains[2], "N": 100.0, "sign": 1,
+             "limits": {"output_deg": [0.0, 180.0], "anti_windup": "clamping", "kb": 1.0}}
+        )
+    )  # fmt: skip
+    return str(path)
+
+
+def test_gains_stable_at_1ms_but_not_with_the_hold_are_refused(tmp_path):
+    report = stability_report("test2", PIDGains(*FRAGILE))
+    assert report.loop_1ms["stable"] and report.loop_1ms["gain_margin_db"] > 40
+    assert not report.stable
+    out = tmp_path / "out"
+    proc = run_cli(
+        "tuners.deploy", "--gains", _gains_file(tmp_path / "g.json", FRAGILE),
+        "--port", str(tmp_path / "no-such-port"), "--output-dir", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "unstable closed loop on plant test2 with the servo's 20 ms command hold" in proc.stderr
+    assert proc.stderr.count("\n") == 1 and not out.exists()
