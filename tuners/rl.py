@@ -499,6 +499,16 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs) -> int:
                 value = value.get(key) if isinstance(value, dict) else None
             cells.append("-" if value is None else f"{value:.4g}")
         print(f"{label:22s}" + "".join(f"{c:>22s}" for c in cells))
+    for label, key in (("the base PID", "vs_base"),
+                       ("command = reference", "vs_command_equals_reference")):  # fmt: skip
+        d = row["tuning"][key]
+        if key == "vs_base" and s.residual != "pid":
+            continue
+        print(f"RL controller vs {label}: IAE {d['iae_difference']:+.3g} deg*s "
+              f"({100 * d['iae_relative']:+.1f} %, lower on {d['iae_better_on_seeds']} of "
+              f"{len(row['per_seed_iae'])} seeds, Wilcoxon p = {d['iae_p_value']:.3g}), worse "
+              f"overshoot {d['worse_overshoot_difference_pct']:+.3g} %, stall "
+              f"{d['stall_difference_s']:+.3g} s")  # fmt: skip
     print(f"wrote {path}")
     return 0
 

@@ -66,7 +66,7 @@ class ControllerSettings(BaseModel):
     residual: Literal["pid", "reference"] = "pid"
     residual_deg: float = Field(20.0, gt=0.0, le=180.0)
     timesteps: int = Field(1_000_000, ge=1)
-    quick_timesteps: int = Field(20_000, ge=1)
+    quick_timesteps: int = Field(8192, ge=1)
     checkpoints: int = Field(10, ge=1, le=100)
     n_envs: int = Field(32, ge=1)
     n_steps: int = Field(256, ge=1)
@@ -146,10 +146,10 @@ def evaluate_policy(
     inputs: cli.Inputs,
     kwargs: dict[str, Any],
     seeds: np.ndarray,
-) -> tuple[dict[str, Any], dict[str, Any], Trajectory, Trajectory]:
+) -> tuple[dict[str, Any], list[dict[str, Any]], Trajectory, Trajectory]:
     """The policy on the ideal model (one run) and on the actual model (one run per seed).
 
-    Returns ``(ideal metrics, actual summary, ideal trajectory, actual trajectory)``.
+    Returns ``(ideal metrics, actual runs' metrics, ideal trajectory, actual trajectory)``.
     """
     from gripper_env.envs.rollout import policy_trajectory
 
@@ -157,25 +157,90 @@ def evaluate_policy(
     ideal = policy_trajectory(policy, [0], **dict(kwargs, disturbance="ideal", randomize=False),
                               **ref)  # fmt: skip
     actual = policy_trajectory(policy, seeds, **kwargs, **ref)
-    runs = _score(actual, inputs.disturbance)
-    return _score(ideal, _IDEAL)[0], summarize_runs(runs), ideal, actual
+    return _score(ideal, _IDEAL)[0], _score(actual, inputs.disturbance), ideal, actual
+
+
+def cross_model(
+    policy: Callable[[np.ndarray], np.ndarray],
+    inputs: cli.Inputs,
+    kwargs: dict[str, Any],
+    base: PIDGains | None,
+    seeds: np.ndarray,
+) -> dict[str, Any]:
+    """The policy (and its base PID's margins) on the paper's other identifications of the
+    gripper, in :func:`tuners.evaluation.cross_model`'s shape: a policy trained on one plant,
+    run unchanged on the others."""
+    from gripper_env.envs.rollout import policy_trajectory
+    from gripper_env.plants import load_plant
+    from gripper_env.scoring import reachability
+    from tuners.evaluation import PAPER_PLANTS, worst_case
+
+    if inputs.plant.name not in PAPER_PLANTS:
+        return {}
+    obj = load_objective()
+    per: dict[str, Any] = {}
+    for name in PAPER_PLANTS:
+        if name == inputs.plant.name:
+            continue
+        plant = load_plant(name)
+        traj = policy_trajectory(policy, seeds, **dict(kwargs, plant=name),
+                                 reference=inputs.reference)  # fmt: skip
+        m, _ = score_trajectory(traj, obj, inputs.disturbance)
+        rb = _robustness(plant, base, inputs.disturbance, m.stable)
+        per[name] = {
+            "stable": rb["stable"],
+            "ms": rb["ms"],
+            "gain_margin_db": rb["gain_margin_db"],
+            "phase_margin_deg": rb["phase_margin_deg"],
+            "meets_constraints": rb["meets_constraints"],
+            "stable_runs": float(np.mean(m.stable)),
+            "overshoot_pct": float(np.mean(np.maximum(m.grip["overshoot_pct"],
+                                                      m.ungrip["overshoot_pct"]))),
+            "iae": float(np.mean(m.run["iae"])),
+            "stall_s": float(np.mean(m.run["stall_s"])),
+            "profile_feasible": reachability(plant, inputs.reference, inputs.disturbance).feasible,
+        }  # fmt: skip
+    return worst_case(per)
+
+
+def _robustness(
+    plant: Any, base: PIDGains | None, disturbance: Disturbance, stable_runs: np.ndarray
+) -> dict[str, Any]:
+    """The robustness block of a policy's row: the base PID's margins as the loop runs (the
+    policy adds a correction bounded by ``residual_deg``, which no linear analysis covers: the
+    held-out runs' stability is the check on the whole), or none for the residual on the
+    reference (open loop, like ``command = reference``)."""
+    from tuners.evaluation import robustness_block
+
+    all_stable = bool(np.all(stable_runs))
+    if base is None:
+        return {
+            "stable": all_stable, "meets_constraints": all_stable, "ms": None, "mt": None,
+            "gain_margin_db": None, "phase_margin_deg": None,
+            "note": "residual on the reference: no PID, no linear loop to analyse",
+        }  # fmt: skip
+    block = robustness_block(plant, base, 1, disturbance, load_objective())
+    block["stable"] = bool(block["stable"]) and all_stable
+    block["note"] = (
+        "margins of the base PID; the policy's bounded correction is outside the linear "
+        "analysis (every held-out run must stay stable)"
+    )
+    return block
 
 
 def reference_row(inputs: cli.Inputs) -> dict[str, Any]:
     """The baseline "command = reference" (the servo commanded the reference, no controller):
-    its metrics on both models, in the benchmark's row shape."""
+    its ``metrics`` on both models and its held-out ``runs``."""
     s = inputs.settings
     seeds = s.seeds.seeds()
     ideal = simulate(inputs.plant, inputs.reference, None, "ideal")
     actual = simulate(inputs.plant, inputs.reference, None, inputs.disturbance, seeds=seeds,
                       randomize=s.randomize)  # fmt: skip
+    runs = _score(actual, inputs.disturbance)
     return {
-        "P": None, "I": None, "D": None, "N": None, "sign": None, "stability": None,
-        "metrics": {"ideal": _score(ideal, _IDEAL)[0],
-                    "actual": summarize_runs(_score(actual, inputs.disturbance))},
-        "wall_time_s": 0.0,
-        "tuning": {"controller": "command = reference (open loop, no controller)"},
-    }  # fmt: skip
+        "metrics": {"ideal": _score(ideal, _IDEAL)[0], "actual": summarize_runs(runs)},
+        "runs": runs,
+    }
 
 
 def train_controller(
@@ -275,6 +340,7 @@ def controller_row(
     settings: ControllerSettings | None = None,
     out: str | os.PathLike[str] = "results",
     quick: bool = False,
+    grip_preset: str | None = "grip-object",
     log: Callable[[str], None] = print,
     command: str | None = None,
 ) -> dict[str, Any]:
@@ -283,60 +349,89 @@ def controller_row(
     Parameters
     ----------
     inputs : tuners.cli.Inputs
-        Plant, preset, profile and evaluation settings (held-out seeds, signal).
+        Plant, preset, profile and evaluation settings (held-out seeds).
     base : PIDGains or None
         The PID the policy corrects (``residual: pid``): the benchmark's best robust PID.
     settings : ControllerSettings, optional
         Default ``configs/tuners/rl_controller.yaml``.
     out : path
         Results folder: the run goes to ``<out>/rl/controller-<plant>/``, the row's file to
-        ``<out>/<plant>/rl-controller.json``.
+        ``<out>/<plant>/rl-controller.json`` and its response plot beside it.
     quick : bool
         Train ``quick_timesteps`` instead of ``timesteps`` (a smoke run).
+    grip_preset : str or None
+        The benchmark's grip-onto-an-object scenario preset (``None``: skip it).
 
     Returns
     -------
     dict
-        The benchmark's row shape (``P``, ``I``, ``D``, ``N``, ``sign``, ``stability``,
-        ``metrics`` {``ideal``, ``actual``}, ``wall_time_s``, ``tuning``), with the base PID's
-        gains (``None`` for the residual on the reference) and, under ``tuning``, the training
-        budget and ``baselines``: the base's and command = reference's actual-model metrics.
+        A benchmark row (:mod:`tuners.benchmark`): ``kind`` ``"rl-controller"``, the base PID's
+        ``P``, ``I``, ``D``, ``N`` (``None`` for the residual on the reference), ``robustness``
+        (the base PID's margins, see :func:`_robustness`), ``cross_model``, ``metrics``
+        {``ideal``, ``actual``}, ``per_seed_iae``, ``per_seed_cost``, ``grip_object``,
+        ``episodes`` (20 s episodes simulated in training and checkpoint selection),
+        ``wall_time_s`` and ``tuning`` (the budget, and ``baselines``: the base's and command =
+        reference's metrics on the same seeds).
     """
+    from gripper_env.envs.rollout import policy_trajectory
+    from tuners.benchmark import grip_summary
+
     s = settings or load_controller_settings()
     run_dir = Path(out) / "rl" / f"controller-{inputs.plant.name}"
     t0 = time.perf_counter()
     policy, facts = train_controller(
         inputs, base, s, run_dir, timesteps=s.quick_timesteps if quick else None, log=log
     )
+    wall = time.perf_counter() - t0
     kwargs = env_kwargs(inputs, base, s)
     seeds = inputs.settings.seeds.seeds()
-    ideal, actual, ideal_traj, actual_traj = evaluate_policy(policy, inputs, kwargs, seeds)
-    wall = time.perf_counter() - t0
+    ideal, runs, ideal_traj, actual_traj = evaluate_policy(policy, inputs, kwargs, seeds)
     zero = evaluate_policy(lambda obs: np.zeros((len(obs), 1)), inputs, kwargs, seeds)
     baselines = {
-        "base": {"ideal": zero[0], "actual": zero[1]},
-        "command_equals_reference": reference_row(inputs)["metrics"],
+        "base": {"ideal": zero[0], "actual": summarize_runs(zero[1])},
+        "command_equals_reference": None,
     }
+    grip = None
+    if grip_preset is not None:
+        traj = policy_trajectory(policy, seeds, **dict(kwargs, disturbance=grip_preset),
+                                 reference=inputs.reference)  # fmt: skip
+        grip = grip_summary(traj, inputs, grip_preset)
+    open_loop = reference_row(inputs)
+    baselines["command_equals_reference"] = open_loop["metrics"]
+    tuning = {
+        **facts,
+        "baselines": baselines,
+        # paired over the held-out seeds (every controller meets the same draws)
+        "vs_base": _paired(runs, zero[1]),
+        "vs_command_equals_reference": _paired(runs, open_loop["runs"]),
+    }
+    episode_steps = round(inputs.reference.duration_s / 0.020)
     row = {
+        "kind": "rl-controller",
         "P": None if base is None else base.P,
         "I": None if base is None else base.I,
         "D": None if base is None else base.D,
         "N": None if base is None else base.N,
         "sign": 1,
-        "stability": None,  # a policy: no linear loop to analyse
-        "metrics": {"ideal": ideal, "actual": actual},
+        "robustness": _robustness(inputs.plant, base, inputs.disturbance,
+                                  np.array([r["stable"] for r in runs])),
+        "cross_model": cross_model(policy, inputs, kwargs, base, seeds),
+        "metrics": {"ideal": ideal, "actual": summarize_runs(runs)},
+        "per_seed_iae": [r["iae"] for r in runs],
+        "per_seed_cost": [r["cost"] for r in runs],
+        "grip_object": grip,
+        "episodes": int(facts["timesteps"] // episode_steps
+                        + (len(facts["history"])) * len(facts["tuning_seeds"])),
         "wall_time_s": wall,
-        "tuning": {**facts, "baselines": baselines},
-    }
+        "tuning": tuning,
+    }  # fmt: skip
     content = {
         "format": "gripper-policy-metrics",
         "plant": inputs.plant.name,
         "tuner": "rl-controller",
         "controller": f"PPO residual on {_ON[s.residual]} ({s.residual_deg:g} deg at |a| = 1)",
         "policy": str(run_dir / "best"),
-        **{k: v for k, v in row.items() if k != "tuning"},
-        "tuning": facts,
-        "baselines": baselines,
+        **row,
         "evaluation": {
             "profile": inputs.profile_name, "disturbance": inputs.disturbance_name,
             "seeds": [int(x) for x in seeds], "randomize": inputs.settings.randomize,
@@ -349,6 +444,34 @@ def controller_row(
     _plot(ideal_traj, actual_traj, seeds, Path(out) / inputs.plant.name / "rl-controller.png",
           f"{inputs.plant.name}, RL controller: {content['controller']}")  # fmt: skip
     return row
+
+
+def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean per-seed differences ``a - b`` of IAE, cost and overshoot, and the two-sided
+    Wilcoxon signed-rank p-value of the IAE differences (as the leaderboard tests costs)."""
+    from scipy import stats
+
+    def diff(key: str) -> np.ndarray:
+        return np.array([x[key] for x in a], float) - np.array([y[key] for y in b], float)
+
+    d_iae = diff("iae")
+    if not np.all(np.isfinite(d_iae)) or np.allclose(d_iae, 0.0):
+        p = 1.0 if np.allclose(d_iae, 0.0) else 0.0
+    else:
+        p = float(stats.wilcoxon(d_iae, zero_method="zsplit").pvalue)
+    over = [max(x["grip"]["overshoot_pct"] or 0.0, x["ungrip"]["overshoot_pct"] or 0.0) for x in a]
+    over_b = [
+        max(y["grip"]["overshoot_pct"] or 0.0, y["ungrip"]["overshoot_pct"] or 0.0) for y in b
+    ]
+    return {
+        "iae_difference": float(d_iae.mean()),
+        "iae_relative": float(d_iae.mean() / np.mean([y["iae"] for y in b])),
+        "cost_difference": float(diff("cost").mean()),
+        "worse_overshoot_difference_pct": float(np.mean(over) - np.mean(over_b)),
+        "stall_difference_s": float(diff("stall_s").mean()),
+        "iae_p_value": p,
+        "iae_better_on_seeds": int(np.sum(d_iae < 0)),
+    }
 
 
 def _plot(ideal: Trajectory, actual: Trajectory, seeds: np.ndarray, path: Path, title: str) -> None:

@@ -126,10 +126,10 @@ def test_controller_trains_and_scores_against_its_baselines(tmp_path, capsys, sm
     seeds = [100000, 100001, 100002]
     options = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
     pid = evaluate("test2", PIDGains(2.4, 39.0, 0.0, 100.0), options, seeds=seeds)
-    base = content["baselines"]["base"]["actual"]["mean"]
+    base = content["tuning"]["baselines"]["base"]["actual"]["mean"]
     assert base["iae"] == pytest.approx(pid.actual["mean"]["iae"], rel=1e-12)
     assert base["cost"] == pytest.approx(pid.actual["mean"]["cost"], rel=1e-12)
-    open_loop = content["baselines"]["command_equals_reference"]["actual"]["mean"]
+    open_loop = content["tuning"]["baselines"]["command_equals_reference"]["actual"]["mean"]
     assert open_loop["iae"] > 2 * base["iae"]  # the servo alone lags and sticks
     assert (tmp_path / "rl" / "controller-test2" / "best" / "model.zip").is_file()
     assert (tmp_path / "test2" / "rl-controller.png").is_file()
