@@ -131,8 +131,8 @@ def vector_sweep(ns: tuple[int, ...], repeats: int, quick: bool) -> list[dict[st
     for n in ns:
         native = gym.make_vec(SERVO, num_envs=n, vectorization_mode="vector_entry_point")
         sync = gym.make_vec(SERVO, num_envs=n, vectorization_mode="sync")
-        batch = native.unwrapped._batch
-        chosen = "parallel" if batch._kernel is kernels.step_parallel else "serial"
+        batch = native.unwrapped
+        chosen = "parallel" if batch._batch._kernel is kernels.step_parallel else "serial"
         n_native = max(20, (4_000 if quick else 40_000) // n)
         n_sync = max(3, (400 if quick else 4_000) // n)
         native_time = vector_step_time(native, n_native)

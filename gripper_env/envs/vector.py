@@ -247,6 +247,13 @@ class _ControlVectorEnv(_SeededVectorEnv):
             batch.truncated.copy(), infos,
         )  # fmt: skip
 
+    def set_parallel(self, parallel: bool | None) -> None:
+        """Step with the parallel kernel (``True``), the serial one (``False``), or choose by
+        batch size (``None``, the default: parallel from
+        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per step). The
+        trajectories are the same either way."""
+        self._batch.set_parallel(parallel)
+
     def render(self) -> tuple[np.ndarray, ...] | None:
         """``rgb_array``: one frame per environment of ``render_envs``; ``human``: draw them."""
         if not self._renderers:

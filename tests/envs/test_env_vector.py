@@ -71,7 +71,7 @@ def test_vector_parallel_batch_equals_serial():
     n = 37
     native = gym.make_vec(SERVO, num_envs=n, vectorization_mode="vector_entry_point",
                           max_episode_steps=8)  # fmt: skip
-    native.unwrapped._batch.set_parallel(True)
+    native.unwrapped.set_parallel(True)
     assert native.unwrapped._batch._kernel is kernels.step_parallel
     obs, _ = native.reset(seed=100)
     singles = [gym.make(SERVO, max_episode_steps=8) for _ in range(n)]
