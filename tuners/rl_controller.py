@@ -65,7 +65,7 @@ class ControllerSettings(BaseModel):
 
     residual: Literal["pid", "reference"] = "pid"
     residual_deg: float = Field(20.0, gt=0.0, le=180.0)
-    timesteps: int = Field(1_000_000, ge=1)
+    timesteps: int = Field(3_000_000, ge=1)
     quick_timesteps: int = Field(8192, ge=1)
     checkpoints: int = Field(10, ge=1, le=100)
     n_envs: int = Field(32, ge=1)
