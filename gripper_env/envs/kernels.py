@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange, set_num_threads
 
 from gripper_env import _schedule, friction, pid, simulation
 from gripper_env._numba_cache import renamed, stamp_caches
@@ -65,8 +65,9 @@ from gripper_env.simulation import (
     C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
     C_MAXSTEPS,  # truncate after this many steps (0: no limit; the vector envs' time limit)
     C_RESIDUAL,  # residual modes: correction (deg) at action +/-1
-) = range(22)
-N_CFG = 22
+    C_PARMIN,  # physics steps per call from which the parallel kernel uses every thread
+) = range(23)
+N_CFG = 23
 
 MODE_SERVO = 0  # action = servo command (open loop)
 MODE_GAINS = 1  # action = PID gains (closed loop)
@@ -325,12 +326,17 @@ def _step_impl(
     # compile-time open loop lets LLVM drop the PID from the physics loop (1.06x)
     closed = out_u is not None
     dt = cfg[C_DT]
-    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule)
+    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule); a
+    # small batch runs on the calling thread alone (no worker wakes up for it)
     chunk = rows_per_chunk(n_sub)
     n_chunks = (n_rows + chunk - 1) // chunk
     workers = n_workers(n_chunks)
     counter = np.zeros(1, np.int64)
     resetting = np.zeros(workers, np.int64)
+    threads = get_num_threads()
+    small = n_rows * n_sub < cfg[C_PARMIN]
+    if small and threads > 1:
+        set_num_threads(1)
     for w in prange(workers):
         c = fetch_add(counter, np.int64(1))
         while c < n_chunks:
@@ -350,25 +356,34 @@ def _step_impl(
                     _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
                           drive, out_u, out_y)  # fmt: skip
             c = fetch_add(counter, np.int64(1))
+    if small and threads > 1:
+        set_num_threads(threads)
     return -1, int(resetting.sum()), rewards[0], terminated[0], truncated[0]
 
+
+#: Physics steps per call (rows x steps per control period) from which the parallel kernel
+#: spreads a batch over the worker threads. Below it the batch runs on the calling thread alone:
+#: waking a worker costs ~5-20 us on an idle 2-core machine and far more on a loaded one, while
+#: a row's period costs ~0.2 us. Measured with ``python -m benchmarks.envs_speed`` (its
+#: one-thread and all-threads columns).
+PARALLEL_MIN_STEPS = 4096
 
 step_serial = njit(cache=True)(_step_impl)
 step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
 
-#: Physics steps per call (rows x steps per control period) from which a batch runs the parallel
-#: kernel. Below it the serial kernel runs: waking the worker threads costs ~5-20 us on an idle
-#: 2-core machine and far more on a loaded one, while a row's period costs ~0.2-0.5 us. Measured
-#: with ``python -m benchmarks.envs_speed`` (its serial/parallel columns): at 20 steps a period,
-#: serial wins at 64 environments and below, parallel from 256 up when a core is free.
-PARALLEL_MIN_STEPS = 4096
-
 
 def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None):  # type: ignore[no-untyped-def]
-    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call:
-    parallel from :data:`PARALLEL_MIN_STEPS` steps up (``parallel`` forces one or the other)."""
+    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
+
+    A single environment runs the serial kernel; a batch the parallel one, which runs on the
+    calling thread alone below ``cfg[C_PARMIN]`` (:data:`PARALLEL_MIN_STEPS`) physics steps per
+    call and on every numba thread from there (numba's parallel compilation makes the row loop
+    ~1.5-2.5x faster than the serial one even on one thread, measured at 32-1024 rows).
+    ``parallel`` forces the serial (``False``) or the parallel (``True``) kernel; the results
+    are the same.
+    """
     if parallel is None:
-        parallel = n_rows > 1 and n_rows * n_sub >= PARALLEL_MIN_STEPS
+        parallel = n_rows > 1
     return step_parallel if parallel else step_serial
 
 
