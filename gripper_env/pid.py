@@ -22,7 +22,8 @@ input, not the derivative term, so changing ``D`` rescales the current derivativ
 of kicking the output by ``N * dD * e``. Negative gains are legal (the paper uses them).
 
 The same equations are the PID of the simulation core (:mod:`gripper_env.simulation`) and of the
-firmware (``firmware/gripper_core.h``); :func:`pid_update` is the one implementation in Python.
+firmware (``firmware/gripper/gripper_pid.h``); :func:`pid_update` is the one implementation in
+Python.
 """
 
 from __future__ import annotations

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import control
 import numpy as np
-import scipy.linalg
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gripper_env.config import available, find_config, load_yaml, validate
+from gripper_env.state_space import observer_form, zoh_matrices
 
 __all__ = ["Plant", "PlantSpec", "available_plants", "load_plant"]
 
@@ -179,30 +179,15 @@ class Plant:
     def observable_form(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Continuous observable canonical form ``(A, B, D)`` with output ``y = x[0] + D u``.
 
-        The first state is the jaw angle itself, so a mechanical stop clamps one state.
+        The first state is the jaw angle itself, so a mechanical stop clamps one state
+        (:func:`gripper_env.state_space.observer_form`).
         """
-        den = np.asarray(self.den, dtype=float)
-        num = np.asarray(self.num, dtype=float) / den[0]
-        den = den / den[0]
-        n = len(den) - 1
-        num = np.concatenate([np.zeros(n + 1 - len(num)), num])
-        d = float(num[0])
-        b = num[1:] - d * den[1:]
-        a = np.zeros((n, n))
-        a[:, 0] = -den[1:]
-        a[: n - 1, 1:] += np.eye(n - 1)
+        a, b, _, d = observer_form(self.num, self.den)
         return a, b, d
 
     def zoh_matrices(self, dt_s: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """Discrete ``(Ad, Bd, D)`` of :meth:`observable_form` under a zero-order hold."""
-        dt = self.dt_s if dt_s is None else dt_s
-        a, b, d = self.observable_form()
-        n = a.shape[0]
-        m = np.zeros((n + 1, n + 1))
-        m[:n, :n] = a
-        m[:n, n] = b
-        e = scipy.linalg.expm(m * dt)
-        return e[:n, :n], e[:n, n], d
+        return zoh_matrices(self.num, self.den, self.dt_s if dt_s is None else dt_s)
 
     def rest_state(self, y0_deg: float, exact: bool = False) -> tuple[np.ndarray, float]:
         """State and constant input at which the plant rests with output ``y0_deg``.

@@ -53,6 +53,7 @@ from tuners import classical, cli, leaderboard, manual
 from tuners import optuna as optuna_tuner
 from tuners.evaluation import summarize_runs, with_cost
 from tuners.gains_file import provenance, write_atomic, write_json
+from tuners.search_space import SearchSpace, search_space
 from tuners.settings import (
     ClassicalSettings,
     EvaluationSettings,
@@ -363,6 +364,7 @@ def _rl_rows(
             "history": best["history"],
             "best_value_tuning": best["best_value_tuning"],
             "search_seeds": [bench.seed + i for i in range(seeds)],
+            "on_bound": _space(inputs, [inputs.plant.name]).on_bound(best["gains"]),
             "best_cost": {"min": float(np.min(costs)), "median": float(np.median(costs)),
                           "max": float(np.max(costs))},
             "per_seed": [
@@ -425,7 +427,12 @@ def _robust_tuners(
             "policy": (model, facts["env_kwargs"]),
             "episodes": (facts["episodes"] or 0) + facts["selection_episodes"],
             "wall": time.perf_counter() - t0,
-            "tuning": {"tuned_on": plants, "timesteps": steps, "history": facts["history"]},
+            "tuning": {
+                "tuned_on": plants,
+                "timesteps": steps,
+                "history": facts["history"],
+                "space": _space(inputs, plants),
+            },
         }
     return robust
 
@@ -505,6 +512,13 @@ def run_benchmark(
     return data
 
 
+def _space(inputs: cli.Inputs, plants: list[str]) -> SearchSpace:
+    """The search ranges of these plants (the RL tuner's action box spans the same gains)."""
+    return search_space(
+        [load_plant(p) for p in plants], inputs.disturbance, load_settings(OptunaSettings)
+    )
+
+
 def _rl_module(bench: BenchmarkSettings) -> tuple[Any, str | None]:
     if not bench.rl.enabled:
         return None, "RL tuner disabled in the benchmark config"
@@ -560,14 +574,16 @@ def _robust_rows(
     rl_module: Any,
 ) -> None:
     for name, r in robust.items():
+        tuning = dict(r["tuning"])
         if name == "rl-conditioned":
             model, kwargs = r["policy"]
             gains = rl_module.policy_gains(model, rl_module.ENV_IDS["pid-tune"], kwargs,
                                            inputs.plant.name)  # fmt: skip
+            tuning["on_bound"] = tuning.pop("space").on_bound(gains)
         else:
             gains = r["gains"]
         record(inputs, rows, name, "robust", gains, episodes=r["episodes"], wall=r["wall"],
-               tuning=r["tuning"])  # fmt: skip
+               tuning=tuning)  # fmt: skip
 
 
 def _pareto_front(

@@ -37,6 +37,7 @@
 #include <iostream>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 using namespace gripper;
@@ -216,9 +217,23 @@ std::string encode_from(uint8_t seq, Fields& f) {
     return to_hex(frame, len);
 }
 
-#define GRIPPER_FOR_EACH_MESSAGE(X)                                                              \
-    X(Hello) X(Configure) X(SetMode) X(Setpoint) X(ProfileChunk) X(Heartbeat) X(Estop) X(Info)   \
-        X(Telemetry) X(Status) X(Error)
+// Every message type, for dispatch on a type id (no macros: a type list and a generic lambda).
+template <typename... Msgs>
+struct MessageList {};
+typedef MessageList<Hello, Configure, SetMode, Setpoint, ProfileChunk, Heartbeat, Estop, Info,
+                    Telemetry, Status, Error>
+    AllMessages;
+
+// f(static_cast<Msg*>(nullptr)) for the message type whose TYPE is `type`, or `otherwise`.
+template <typename F>
+std::string dispatch(int, F, MessageList<>, const std::string& otherwise) {
+    return otherwise;
+}
+template <typename F, typename Msg, typename... Rest>
+std::string dispatch(int type, F f, MessageList<Msg, Rest...>, const std::string& otherwise) {
+    if (type == Msg::TYPE) return f(static_cast<Msg*>(nullptr));
+    return dispatch(type, f, MessageList<Rest...>(), otherwise);
+}
 
 std::string reencode(const Bytes& wire) {
     StreamDecoder dec;
@@ -234,21 +249,25 @@ std::string reencode(const Bytes& wire) {
         }
         if (r != StreamDecoder::FRAME) continue;
         if (++frames > 1) return "ERR two_frames";
-        answer = "ERR unknown_type";
-#define X(Msg)                                                                                   \
-    if (dec.type() == Msg::TYPE) answer = reencode_as<Msg>(dec.seq(), dec.payload(), dec.payload_len());
-        GRIPPER_FOR_EACH_MESSAGE(X)
-#undef X
+        answer = dispatch(
+            dec.type(),
+            [&](auto* tag) {
+                typedef typename std::remove_pointer<decltype(tag)>::type Msg;
+                return reencode_as<Msg>(dec.seq(), dec.payload(), dec.payload_len());
+            },
+            AllMessages(), "ERR unknown_type");
     }
     return answer;
 }
 
 std::string encode(int type, uint8_t seq, Fields& f) {
-#define X(Msg)                                                                                   \
-    if (type == Msg::TYPE) return encode_from<Msg>(seq, f);
-    GRIPPER_FOR_EACH_MESSAGE(X)
-#undef X
-    return "ERR unknown_type";
+    return dispatch(
+        type,
+        [&](auto* tag) {
+            typedef typename std::remove_pointer<decltype(tag)>::type Msg;
+            return encode_from<Msg>(seq, f);
+        },
+        AllMessages(), "ERR unknown_type");
 }
 
 std::string pid_run(std::istringstream& in) {

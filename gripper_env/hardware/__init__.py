@@ -1,14 +1,20 @@
 """Link to the real gripper: the binary serial protocol spoken with the Mega 2560 firmware.
 
-:mod:`gripper_env.hardware.protocol` is the Python twin of ``firmware/gripper_core.h``; the
-wire format is specified in ``firmware/PROTOCOL.md``. The rest, imported from its module:
+:mod:`gripper_env.hardware.protocol` is the Python twin of the firmware's protocol unit; the
+wire format is specified in ``firmware/PROTOCOL.md`` and its message layouts described once in
+``firmware/protocol.toml`` (:mod:`~gripper_env.hardware.layouts`). The rest, imported from its
+module:
 
 * :mod:`~gripper_env.hardware.device`: :class:`GripperDevice`, the host's session with a board;
 * :mod:`~gripper_env.hardware.calibration`: the two-point ADC calibration and its file;
 * :mod:`~gripper_env.hardware.experiment`: run a profile host-in-the-loop and record it;
 * :mod:`~gripper_env.hardware.firmware`: the board's state machine in Python;
 * :mod:`~gripper_env.hardware.virtual`: the virtual board on a pty
-  (``python -m gripper_env.hardware.virtual``).
+  (``python -m gripper_env.hardware.virtual``);
+* :mod:`~gripper_env.hardware.emulator`: the compiled firmware under simavr, on a pty too
+  (``python -m gripper_env.hardware.emulator``);
+* :mod:`~gripper_env.hardware.scripted`: a scripted host on emulated time, and the agreement of
+  the emulated board, the Python twin and the simulation core.
 """
 
 from gripper_env.hardware.protocol import (

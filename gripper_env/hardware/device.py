@@ -231,7 +231,11 @@ class GripperDevice:
         self.info: proto.Info | None = None
         self.last_status: proto.Status | None = None
         self.faults = 0
-        self.decoder = proto.FrameDecoder(synced=False)
+        # Synced: the port's input is flushed before the handshake, so the first byte most likely
+        # starts the answer to HELLO; bytes of a frame cut short glue to it and fail its CRC.
+        # (Unsynced, the decoder threw away that first answer, and every open waited out one
+        # timeout and sent HELLO again: found against the emulated board.)
+        self.decoder = proto.FrameDecoder()
         self.samples_missing = 0
         self._serial: Any = None
         self._seq = 0

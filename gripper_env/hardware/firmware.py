@@ -1,4 +1,4 @@
-"""The board's firmware logic in Python: the twin of ``Device`` in ``gripper_core.h``.
+"""The board's firmware logic in Python: the twin of ``Device`` in ``gripper_device.h``.
 
 :class:`Firmware` is the protocol session, mode state machine, PID, safety (jaw clamp, watchdog,
 ESTOP, sensor and numeric faults) and telemetry batching of the Arduino sketch, line for line,
@@ -405,9 +405,9 @@ class Firmware:
         """Servo pulse width (us, 0.5 us resolution) for the current command, hard-clamped."""
         cfg = self.cfg
         deg = clamp_jaw(self.command, 0.0, 180.0, JAW_OPEN_DEG)
-        us = cfg.servo_us_at_0 + deg * (cfg.servo_us_at_180 - cfg.servo_us_at_0) / 180.0
-        ticks = min(max(int(us * 2.0 + 0.5), 2 * SERVO_PULSE_MIN_US), 2 * SERVO_PULSE_MAX_US)
-        return ticks / 2.0
+        ticks_per_deg = 2.0 * (cfg.servo_us_at_180 - cfg.servo_us_at_0) / 180.0
+        ticks = int(2 * cfg.servo_us_at_0 + deg * ticks_per_deg + 0.5)
+        return min(max(ticks, 2 * SERVO_PULSE_MIN_US), 2 * SERVO_PULSE_MAX_US) / 2.0
 
     def take_tx(self) -> bytes:
         """All queued transmit bytes (the queue is emptied)."""

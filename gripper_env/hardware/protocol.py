@@ -1,4 +1,4 @@
-"""Host side of the gripper's binary serial protocol (the twin of ``firmware/gripper_core.h``).
+"""Host side of the gripper's binary serial protocol (the firmware's ``gripper_protocol.h``).
 
 A frame on the wire is ``COBS(seq | type | payload | crc16) + b"\\x00"``:
 

@@ -8,7 +8,7 @@ gripper behind it. Every host tool takes the printed path as its ``--port``.
 Inside, three parts mirror the real rig:
 
 * :class:`~gripper_env.hardware.firmware.Firmware`, the board's state machine (the Python twin
-  of ``gripper_core.h``, PID included), ticked every 1 ms of device time;
+  of ``firmware/gripper/gripper_device.h``, PID included), ticked every 1 ms of device time;
 * :class:`VirtualRig`, the servo, jaw and potentiometer: the project's one simulation core
   (:class:`~gripper_env.simulation.BatchSimulator`) in open loop, driven by the firmware's servo
   command one physics step per tick, whose measured angle is reported as 10-bit ADC counts;
@@ -47,6 +47,7 @@ import threading
 import time
 import tty
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -64,7 +65,10 @@ from gripper_env.pid import pid_update
 from gripper_env.plants import load_plant
 from gripper_env.simulation import BatchSimulator
 
-__all__ = ["VirtualDevice", "VirtualRig", "main", "parse_speed"]
+if TYPE_CHECKING:
+    from gripper_env.hardware.emulator import EmulatedBoard
+
+__all__ = ["TwinBoard", "VirtualDevice", "VirtualRig", "main", "parse_speed"]
 
 VIRTUAL_DEVICE_ID = 0x56495254  # "VIRT"
 _DEFAULT_ADC_RANGE_DEG = (0.0, 270.0)  # a 270-degree pot on the 10-bit ADC
@@ -86,13 +90,28 @@ class VirtualRig:
         Noise seed.
     y0_deg : float
         Jaw angle at power-on (deg).
+    pulse_train : bool
+        The servo is driven by a real pulse train (the emulated firmware's): the preset's command
+        quantisation and refresh are dropped, since the pulses carry their own resolution and
+        50 Hz timing. The command range, friction, stops and sensor stay.
     """
 
     def __init__(
-        self, plant: str = "test2", disturbance: str = "actual", seed: int = 0, y0_deg: float = 92.0
+        self,
+        plant: str = "test2",
+        disturbance: str = "actual",
+        seed: int = 0,
+        y0_deg: float = 92.0,
+        *,
+        pulse_train: bool = False,
     ) -> None:
         self.plant = load_plant(plant)
         self.disturbance = load_disturbance(disturbance)
+        self.pulse_train = pulse_train
+        if pulse_train:
+            self.disturbance = self.disturbance.with_overrides(
+                {"command": {"quantization": "none", "refresh_period_s": 0.0}}
+            )
         sensor = self.disturbance.sensor
         delay = max(1, round(sensor.delay_s / self.plant.dt_s))
         self.sim = BatchSimulator(self.plant, delay_capacity=delay)
@@ -131,6 +150,59 @@ class VirtualRig:
         return self.adc
 
 
+class TwinBoard:
+    """The Python twin of the firmware wired to a rig: the board :class:`VirtualDevice` runs by
+    default (the other is :class:`~gripper_env.hardware.emulator.EmulatedBoard`, the real image).
+
+    Parameters
+    ----------
+    rig : VirtualRig
+        The simulated gripper.
+    device_id : int
+        Board id reported in INFO.
+
+    Attributes
+    ----------
+    firmware : Firmware
+        The board's state machine.
+    """
+
+    def __init__(self, rig: VirtualRig, device_id: int = VIRTUAL_DEVICE_ID) -> None:
+        self.rig = rig
+        self.device_id = device_id
+        self.firmware = Firmware(device_id, 0)
+        self.firmware.tx += b"\x00"  # the sketch's boot delimiter (gripper.ino, setup)
+
+    @property
+    def active(self) -> bool:
+        """In an active mode (open or closed loop)."""
+        return self.firmware.mode != 0
+
+    @property
+    def last_rx_us(self) -> int:
+        """Device time (us) of the last valid host frame."""
+        return self.firmware.last_rx_us
+
+    def receive(self, data: bytes, now_us: int) -> None:
+        """Bytes from the host at device time ``now_us``."""
+        self.firmware.receive(data, now_us)
+
+    def step(self, now_us: int, overrun: bool = False) -> None:
+        """One control tick with the rig's reading, then one physics step with its command."""
+        fw = self.firmware
+        fw.tick(now_us, self.rig.adc, overrun)
+        self.rig.step(fw.command if fw.servo_on else None)
+
+    def uart_out(self, max_bytes: int) -> bytes:
+        """At most ``max_bytes`` of the transmit queue, as the UART sends them in one tick."""
+        return self.firmware.uart_drain(max_bytes) if self.firmware.tx and max_bytes else b""
+
+    def reset(self, now_us: int) -> None:
+        """The board restarts (no session, servo limp) and sends its boot delimiter."""
+        self.firmware.begin(self.device_id, now_us)
+        self.firmware.tx += b"\x00"
+
+
 class VirtualDevice:
     """The virtual board on a pseudo-terminal, run by a background thread.
 
@@ -142,19 +214,29 @@ class VirtualDevice:
         Device time per wall-clock time; ``0`` runs as fast as possible.
     seed : int
         Noise seed of the rig.
-    device_id : int
-        Board id reported in INFO.
+    device_id : int, optional
+        Board id reported in INFO (default ``"VIRT"``, or ``"EMUL"`` for an image).
     y0_deg : float
         Jaw angle at power-on (deg).
+    image : path, optional
+        Run this compiled firmware image under simavr
+        (:class:`~gripper_env.hardware.emulator.EmulatedBoard`) instead of the Python twin; its
+        INFO reports the EEPROM id ``device_id``.
+    harness : path, optional
+        The simavr harness library for ``image`` (default: see
+        :class:`~gripper_env.hardware.emulator.Mega2560`).
 
     Attributes
     ----------
-    firmware : Firmware
-        The board's state machine (inspect it in tests; it is driven by the thread).
+    board : TwinBoard or EmulatedBoard
+        What runs behind the pty.
+    firmware : Firmware or None
+        The twin's state machine (inspect it in tests; it is driven by the thread); ``None`` for
+        the emulated image.
     rig : VirtualRig
         The simulated gripper.
     ticks : int
-        Control ticks run so far.
+        Milliseconds of device time run so far.
     """
 
     def __init__(
@@ -164,15 +246,27 @@ class VirtualDevice:
         *,
         speed: float = 1.0,
         seed: int = 0,
-        device_id: int = VIRTUAL_DEVICE_ID,
+        device_id: int | None = None,
         y0_deg: float = 92.0,
+        image: str | os.PathLike[str] | None = None,
+        harness: str | os.PathLike[str] | None = None,
     ) -> None:
         if not speed >= 0:
             raise ValueError(f"speed must be >= 0 (0 = as fast as possible), got {speed}")
         self.speed = float(speed)
-        self.device_id = device_id
-        self.rig = VirtualRig(plant, disturbance, seed, y0_deg)
-        self.firmware = Firmware(device_id, 0)
+        self.board: TwinBoard | EmulatedBoard
+        if image is None:
+            self.device_id = VIRTUAL_DEVICE_ID if device_id is None else device_id
+            self.rig = VirtualRig(plant, disturbance, seed, y0_deg)
+            self.board = TwinBoard(self.rig, self.device_id)
+        else:
+            from gripper_env.hardware.emulator import EMULATED_DEVICE_ID, EmulatedBoard
+
+            self.device_id = EMULATED_DEVICE_ID if device_id is None else device_id
+            device_id = self.device_id
+            self.rig = VirtualRig(plant, disturbance, seed, y0_deg, pulse_train=True)
+            self.board = EmulatedBoard(self.rig, image=image, harness=harness, device_id=device_id)
+        self.firmware = self.board.firmware
         self.ticks = 0
         self.lock = threading.Lock()
         self._master: int | None = None
@@ -221,6 +315,9 @@ class VirtualDevice:
         if self._thread is not None:
             self._thread.join(timeout_s)
         self._close_fds()
+        close = getattr(self.board, "close", None)
+        if close is not None and not self.running:
+            close()
 
     def __enter__(self) -> VirtualDevice:
         return self.start() if self._thread is None else self
@@ -268,7 +365,7 @@ class VirtualDevice:
     def reset(self) -> None:
         """Reset the board mid-run: the firmware restarts (no session, servo limp)."""
         with self.lock:
-            self.firmware.begin(self.device_id, self._now_us())
+            self.board.reset(self._now_us())
             self._out.clear()
             self._frame.clear()
 
@@ -297,7 +394,7 @@ class VirtualDevice:
     def _loop(self) -> None:
         master = self._master
         assert master is not None
-        fw, rig = self.firmware, self.rig
+        board = self.board
         ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
         t0 = time.perf_counter()
         while not self._stop.is_set():
@@ -314,8 +411,8 @@ class VirtualDevice:
                 # As fast as possible, but paced by an active host: at most 200 ms of device
                 # time past its last frame, waiting up to 1 s of wall time for the next one
                 # (a host silent for longer still meets the watchdog).
-                ahead_us = (self._now_us() - fw.last_rx_us) & 0xFFFFFFFF
-                if fw.mode != 0 and ahead_us > _MAX_AHEAD_US:
+                ahead_us = (self._now_us() - board.last_rx_us) & 0xFFFFFFFF
+                if board.active and ahead_us > _MAX_AHEAD_US:
                     if time.perf_counter() - self._paced_since < 1.0:
                         self._read_input(master, 0.002)
                         continue
@@ -325,12 +422,13 @@ class VirtualDevice:
             with self.lock:
                 for k in range(n):
                     now = (self.ticks * TICK_PERIOD_US) & 0xFFFFFFFF
-                    # late by more than 250 us of device time: the board flags an overrun
-                    fw.tick(now, rig.adc, behind - k > 1.25)
-                    rig.step(fw.command if fw.servo_on else None)
+                    # late by more than 250 us of device time: the twin flags an overrun
+                    board.step(now, behind - k > 1.25)
                     self.ticks += 1
-                    if fw.tx and len(self._out) < _OUT_HIGH_WATER:
-                        self._emit(fw.uart_drain(UART_BYTES_PER_TICK))
+                    room = UART_BYTES_PER_TICK if len(self._out) < _OUT_HIGH_WATER else 0
+                    data = board.uart_out(room)
+                    if data:
+                        self._emit(data)
             self._write_output(master)
 
     def _read_input(self, master: int, timeout_s: float) -> None:
@@ -346,7 +444,7 @@ class VirtualDevice:
         if data:
             self.bytes_received += len(data)
             with self.lock:
-                self.firmware.receive(data, self._now_us())
+                self.board.receive(data, self._now_us())
 
     def _emit(self, data: bytes) -> None:
         """Pass bytes the UART sent through the armed faults to the line."""
@@ -382,19 +480,21 @@ class VirtualDevice:
             self._out += frame
 
     def _write_output(self, master: int) -> None:
-        if self._garbage:
-            with self.lock:
+        # Under the lock: reset() clears the output from another thread, and a bytearray cannot
+        # be resized while os.write holds it (BufferError), nor trimmed by what another wrote.
+        with self.lock:
+            if self._garbage:
                 if not self._silent:
                     self._out += self._garbage
                 self._garbage.clear()
-        if not self._out:
-            return
-        try:
-            written = os.write(master, self._out)
-        except BlockingIOError:
-            return
-        self.bytes_sent += written
-        del self._out[:written]
+            if not self._out:
+                return
+            try:
+                written = os.write(master, self._out)  # non-blocking: never waits
+            except BlockingIOError:
+                return
+            self.bytes_sent += written
+            del self._out[:written]
 
     # ---- introspection for tests ---------------------------------------------------------------
 
@@ -432,15 +532,24 @@ def parse_speed(text: str) -> float:
     return value
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m gripper_env.hardware.virtual",
-        description=(
+def _parser(emulated: bool = False) -> argparse.ArgumentParser:
+    if emulated:
+        prog = "python -m gripper_env.hardware.emulator"
+        what = (
+            "Run the compiled Mega 2560 firmware under simavr on a pseudo-terminal, over the "
+            "simulated actual gripper (the firmware's own servo pulses drive it, the ADC reads it)."
+            " Builds the image and the harness with the project's scripts when missing."
+        )
+    else:
+        prog = "python -m gripper_env.hardware.virtual"
+        what = (
             "Run a virtual gripper board on a pseudo-terminal: the firmware's protocol, modes and "
-            "watchdog over the simulated actual gripper. Prints the pty path; pass it as --port "
-            "to the host tools (with --boot-wait 0: the virtual board boots instantly). Stops on "
-            "Ctrl-C or SIGTERM."
-        ),
+            "watchdog (its Python twin) over the simulated actual gripper."
+        )
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description=what + " Prints the pty path; pass it as --port to the host tools (with "
+        "--boot-wait 0: the board boots at once). Stops on Ctrl-C or SIGTERM.",
     )
     parser.add_argument("--plant", default="test2", help="plant name or YAML file (default: test2)")
     parser.add_argument(
@@ -467,20 +576,48 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="also make a symbolic link to the pty at this path (removed on exit)",
     )
+    if emulated:
+        parser.add_argument(
+            "--image",
+            default=None,
+            metavar="ELF",
+            help="firmware image to run (default: firmware/build-mega/gripper.elf, built by "
+            "firmware/build.sh when missing)",
+        )
+        parser.add_argument(
+            "--rebuild",
+            action="store_true",
+            help="rebuild the default image and the harness before starting",
+        )
+    else:
+        parser.add_argument(
+            "--image",
+            default=None,
+            metavar="ELF",
+            help="run this compiled firmware image under simavr instead of the Python twin "
+            "(see python -m gripper_env.hardware.emulator)",
+        )
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m gripper_env.hardware.virtual``."""
-    parser = _parser()
+def main(argv: Sequence[str] | None = None, emulated: bool = False) -> int:
+    """Entry point of ``python -m gripper_env.hardware.virtual`` (and, with ``emulated``, of
+    ``python -m gripper_env.hardware.emulator``)."""
+    parser = _parser(emulated)
     args = parser.parse_args(argv)
     try:
         if not 0.0 <= args.y0 <= 180.0:
             raise ValueError(f"--y0 must be an angle in [0, 180] deg, got {args.y0}")
+        image = args.image
+        if emulated:
+            from gripper_env.hardware.emulator import ensure_built
+
+            image, _harness = ensure_built(args.image, rebuild=args.rebuild)
         device = VirtualDevice(
-            args.plant, args.disturbance, speed=args.speed, seed=args.seed, y0_deg=args.y0
-        )
-    except (ValueError, OSError) as exc:
+            args.plant, args.disturbance, speed=args.speed, seed=args.seed, y0_deg=args.y0,
+            image=image,
+        )  # fmt: skip
+    except (ValueError, OSError, RuntimeError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     stop = threading.Event()
 
@@ -498,11 +635,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 os.unlink(link)
             os.symlink(device.path, link)
         speed = "max" if args.speed == 0 else f"{args.speed:g}x"
+        board = f"firmware image {image}" if image else "the firmware's Python twin"
         print(device.path, flush=True)
         print(
-            f"virtual gripper: plant {args.plant}, disturbance {args.disturbance}, speed {speed}"
-            + (f", linked at {link}" if link else "")
-            + "; Ctrl-C to stop",
+            f"virtual gripper ({board}): plant {args.plant}, disturbance {args.disturbance}, "
+            f"speed {speed}" + (f", linked at {link}" if link else "") + "; Ctrl-C to stop",
             file=sys.stderr,
             flush=True,
         )

@@ -25,22 +25,34 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = [
+    "DEFAULT_MAX_GAP",
+    "DEFAULT_MAX_JITTER",
     "OFFSET_MODES",
+    "TIME_BASES",
     "IOData",
     "NonUniformSamplingWarning",
     "as_signal",
+    "fit_grid",
+    "held_average",
     "prepare_data",
 ]
 
 OFFSET_MODES = ("initial", "mean", "none")
 Offset = Literal["initial", "mean", "none"]
 
-# Relative spread of the sample intervals treated as float rounding of a uniform grid.
-_UNIFORM_RTOL = 1e-6
+#: Default tolerance of :func:`prepare_data`: time stamps within this fraction of a sample interval
+#: of a uniform grid are taken as that grid (snapped).
+DEFAULT_MAX_JITTER = 0.3
+#: Default refusal threshold: a sample interval this many times the median one is a gap.
+DEFAULT_MAX_GAP = 4.0
+# Deviations below this fraction of an interval are float rounding: "uniform", not "snapped".
+_ROUNDING = 1e-6
+
+TIME_BASES = ("uniform", "snapped", "resampled", "interval")
 
 
 class NonUniformSamplingWarning(UserWarning):
-    """The time stamps were mildly non-uniform and the data were resampled."""
+    """The time stamps were too irregular to be a grid and the data were resampled."""
 
 
 @dataclass(frozen=True)
@@ -59,8 +71,17 @@ class IOData:
         Operating point (deg): the absolute signals are ``u + u_op`` and ``y + y_op``.
     offset : str
         How the operating point was chosen (see the module docstring).
-    resampled : bool
-        True if the time stamps were mildly non-uniform and the data were resampled.
+    time_base : str
+        ``"interval"`` (only ``dt_s`` was given), ``"uniform"`` (stamps on a grid to float
+        rounding), ``"snapped"`` (stamps within ``max_jitter`` of a grid, taken as the grid) or
+        ``"resampled"`` (irregular stamps, resampled).
+    jitter : float
+        Largest deviation of a time stamp from the fitted uniform grid, as a fraction of ``dt_s``
+        (0 when only ``dt_s`` was given).
+    r : ndarray or None
+        Reference of a closed loop (deviation from ``r_op``, deg), when one was given.
+    r_op : float
+        Operating point of the reference (deg).
     """
 
     dt_s: float
@@ -70,7 +91,15 @@ class IOData:
     u_op: float
     y_op: float
     offset: str
-    resampled: bool = False
+    time_base: str = "interval"
+    jitter: float = 0.0
+    r: np.ndarray | None = None
+    r_op: float = 0.0
+
+    @property
+    def resampled(self) -> bool:
+        """True if irregular time stamps were resampled onto a uniform grid."""
+        return self.time_base == "resampled"
 
     @property
     def n_samples(self) -> int:
@@ -81,6 +110,11 @@ class IOData:
     def y_abs(self) -> np.ndarray:
         """Measured output in absolute units (deg)."""
         return self.y + self.y_op
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Time of each sample on the uniform grid (s)."""
+        return self.t0_s + self.dt_s * np.arange(self.n_samples)
 
 
 def as_signal(x: ArrayLike, name: str) -> np.ndarray:
@@ -103,9 +137,48 @@ def as_signal(x: ArrayLike, name: str) -> np.ndarray:
     return arr
 
 
-def _uniform_grid(
-    t: np.ndarray, u: np.ndarray, y: np.ndarray, max_jitter: float
-) -> tuple[float, float, np.ndarray, np.ndarray, bool]:
+def fit_grid(t: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares uniform grid through time stamps: ``t_k ~ t0 + k dt``.
+
+    Returns
+    -------
+    dt_s, t0_s : float
+        Interval and start of the grid (s).
+    jitter : float
+        Largest ``|t_k - (t0 + k dt)|`` as a fraction of ``dt``.
+    """
+    k = np.arange(t.size, dtype=float)
+    kc = k - k.mean()
+    tc = t - t[0]
+    dt = float(kc @ (tc - tc.mean()) / (kc @ kc))
+    t0 = float(t[0] + tc.mean() - dt * k.mean())
+    dev = t - (t0 + dt * k)
+    return dt, t0, float(np.max(np.abs(dev)) / dt) if dt > 0 else np.inf
+
+
+def held_average(t: np.ndarray, u: np.ndarray, grid: np.ndarray, dt_s: float) -> np.ndarray:
+    """Average over ``[g, g + dt)`` of the input held from each stamp to the next.
+
+    The zero-order-hold model of the resampled record then sees the same area of input as the
+    system did, with no shift: a uniform record comes back unchanged.
+    """
+    # integral of the held input from t[0]: piecewise linear with knots at the stamps
+    area = np.concatenate([[0.0], np.cumsum(u[:-1] * np.diff(t))])
+    last = t[-1] + dt_s
+    t_ext = np.append(t, last)
+    area_ext = np.append(area, area[-1] + u[-1] * dt_s)
+    lo = np.interp(grid, t_ext, area_ext)
+    hi = np.interp(np.minimum(grid + dt_s, last), t_ext, area_ext)
+    return (hi - lo) / dt_s
+
+
+def _time_base(
+    t: np.ndarray,
+    signals: list[np.ndarray],
+    max_jitter: float,
+    max_gap: float,
+) -> tuple[float, float, list[np.ndarray], str, float]:
+    """Put stamped samples on a uniform grid: snap, or resample (see :func:`prepare_data`)."""
     dts = np.diff(t)
     if np.any(dts <= 0):
         i = int(np.argmax(dts <= 0))
@@ -113,30 +186,32 @@ def _uniform_grid(
             f"time stamps must be strictly increasing (t_s[{i + 1}] = {t[i + 1]} <= "
             f"t_s[{i}] = {t[i]})"
         )
+    dt, t0, jitter = fit_grid(t)
+    if jitter <= max_jitter:
+        return dt, t0, signals, ("uniform" if jitter <= _ROUNDING else "snapped"), jitter
     dt = float(np.median(dts))
-    spread = float(np.max(np.abs(dts - dt)) / dt)
-    if spread <= _UNIFORM_RTOL:
-        return float((t[-1] - t[0]) / (t.size - 1)), float(t[0]), u, y, False
-    if spread > max_jitter:
-        i = int(np.argmax(np.abs(dts - dt)))
+    gap = dts > max_gap * dt * (1.0 + 1e-6)  # float rounding of the stamps is no gap
+    if gap.any():
+        i = int(np.argmax(dts))
         raise ValueError(
-            f"non-uniform time stamps: interval {dts[i]:.6g} s at index {i} differs from the "
-            f"median {dt:.6g} s by {100 * spread:.3g} % (more than max_jitter = "
-            f"{100 * max_jitter:.3g} %); resample the data or raise max_jitter"
+            f"gap in the time stamps: {dts[i]:.6g} s between t_s[{i}] = {t[i]:.6g} and "
+            f"t_s[{i + 1}] = {t[i + 1]:.6g}, {dts[i] / dt:.3g} times the median interval "
+            f"{dt:.6g} s (samples lost?); split the record there, or allow --max-gap "
+            f"{np.ceil(dts[i] / dt - 1e-6):g} (max_gap) to resample across it"
         )
     n = int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
     grid = t[0] + dt * np.arange(n)
-    # The input is a held command: take the last value at or before each grid instant.
-    idx = np.clip(np.searchsorted(t, grid + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
-    u_new = u[idx]
-    y_new = np.interp(grid, t, y)
+    u, y, *rest = signals
+    out = [held_average(t, u, grid, dt), np.interp(grid, t, y)]
+    out += [held_average(t, r, grid, dt) for r in rest]
     warnings.warn(
-        f"mildly non-uniform time stamps (max deviation {100 * spread:.3g} % of the median "
-        f"interval {dt:.6g} s): resampled to a uniform grid (input held, output interpolated)",
+        f"irregular time stamps (up to {jitter:.3g} of an interval from a uniform grid, more "
+        f"than --max-jitter {max_jitter:g}): resampled to a uniform grid of {dt:.6g} s (input "
+        "held without a shift, output interpolated)",
         NonUniformSamplingWarning,
         stacklevel=4,
     )
-    return dt, float(t[0]), u_new, y_new, True
+    return dt, float(t[0]), out, "resampled", jitter
 
 
 def prepare_data(
@@ -146,10 +221,23 @@ def prepare_data(
     *,
     min_samples: int = 1,
     offset: Offset = "initial",
-    max_jitter: float = 0.05,
+    max_jitter: float = DEFAULT_MAX_JITTER,
+    max_gap: float = DEFAULT_MAX_GAP,
     model: str = "",
+    r: ArrayLike | None = None,
 ) -> IOData:
     """Validate a record, put it on a uniform grid and remove the operating point.
+
+    Time stamps (when ``time_s`` is an array):
+
+    - within ``max_jitter`` of a sample interval of the least-squares uniform grid through
+      them: the samples are taken as that grid (*snapped*), exactly as recorded. This covers
+      float rounding of the stamps and the jitter of a logger that stamps samples taken on a
+      fixed clock; resampling such data would only blur them and shift the held input.
+    - otherwise (*irregular*): resampled onto a grid at the median interval, the input averaged
+      over each new interval as it was held (no shift), the output interpolated, with a
+      :class:`NonUniformSamplingWarning`;
+    - an interval longer than ``max_gap`` median intervals (lost samples) is refused.
 
     Parameters
     ----------
@@ -163,11 +251,16 @@ def prepare_data(
     offset : {"initial", "mean", "none"}
         Operating point to remove (see the module docstring).
     max_jitter : float
-        Largest relative deviation of a sample interval from the median interval that is
-        repaired by resampling (with a :class:`NonUniformSamplingWarning`); beyond it the data are
-        refused. Deviations below 1e-6 count as float rounding and are accepted silently.
+        Largest deviation of a time stamp from the uniform grid, as a fraction of the sample
+        interval, that is snapped to the grid (``0 <= max_jitter < 0.5``; command line
+        ``--max-jitter``).
+    max_gap : float
+        Longest sample interval, in median intervals, that irregular stamps may have
+        (command line ``--max-gap``).
     model : str
         Description of the model order for the "too short" message.
+    r : array_like, optional
+        Reference of a closed loop (deg), one value per sample; checked and put on the same grid.
 
     Returns
     -------
@@ -177,15 +270,29 @@ def prepare_data(
     ------
     ValueError
         Empty, non-numeric or non-finite data; lengths that differ; too few samples for the
-        model; a constant input or output; non-increasing or too non-uniform time stamps; a bad
-        ``dt_s`` or ``offset``.
+        model; a constant input or output; non-increasing time stamps or a gap; a bad
+        ``dt_s``, ``offset``, ``max_jitter`` or ``max_gap``.
     """
     if offset not in OFFSET_MODES:
         raise ValueError(f"offset must be one of {OFFSET_MODES}, got {offset!r}")
+    if not 0.0 <= max_jitter < 0.5:
+        raise ValueError(
+            f"max_jitter (--max-jitter) must be in [0, 0.5) of a sample interval, got {max_jitter}"
+        )
+    if not max_gap >= 1.0:
+        raise ValueError(f"max_gap (--max-gap) must be >= 1 sample interval, got {max_gap}")
     u_arr = as_signal(u, "u")
     y_arr = as_signal(y, "y")
     if u_arr.size != y_arr.size:
         raise ValueError(f"u and y have different lengths ({u_arr.size} and {y_arr.size} samples)")
+    signals = [u_arr, y_arr]
+    if r is not None:
+        r_arr = as_signal(r, "r")
+        if r_arr.size != u_arr.size:
+            raise ValueError(
+                f"r and u have different lengths ({r_arr.size} and {u_arr.size} samples)"
+            )
+        signals.append(r_arr)
     if np.ndim(time_s) == 0:
         try:
             dt = float(time_s)  # type: ignore[arg-type]
@@ -193,8 +300,7 @@ def prepare_data(
             raise ValueError(f"dt_s must be a number, got {time_s!r}") from None
         if not np.isfinite(dt) or dt <= 0:
             raise ValueError(f"dt_s must be a positive finite sample interval (s), got {dt}")
-        t0 = 0.0
-        resampled = False
+        t0, time_base, jitter = 0.0, "interval", 0.0
     else:
         t_arr = as_signal(time_s, "t_s")
         if t_arr.size != u_arr.size:
@@ -203,7 +309,9 @@ def prepare_data(
             )
         if t_arr.size < 2:
             raise ValueError("t_s needs at least two time stamps to define the sample interval")
-        dt, t0, u_arr, y_arr, resampled = _uniform_grid(t_arr, u_arr, y_arr, max_jitter)
+        dt, t0, signals, time_base, jitter = _time_base(t_arr, signals, max_jitter, max_gap)
+    u_arr, y_arr = signals[0], signals[1]
+    r_arr = signals[2] if r is not None else None
     if u_arr.size < min_samples:
         what = f" for {model}" if model else ""
         raise ValueError(
@@ -216,14 +324,19 @@ def prepare_data(
         )
     if np.ptp(y_arr) == 0:
         raise ValueError(f"y is constant ({y_arr[0]} for all samples): there is no response to fit")
+    if r_arr is not None and np.ptp(r_arr) == 0:
+        raise ValueError(f"r is constant ({r_arr[0]} for all samples): it excites nothing")
+    r_op = 0.0
     if offset == "initial":
         moved = np.flatnonzero(u_arr != u_arr[0])
         k = int(moved[0]) if moved.size else u_arr.size
         u_op = float(u_arr[0])
         y_op = float(np.mean(y_arr[: max(k, 1)]))
+        r_op = float(r_arr[0]) if r_arr is not None else 0.0
     elif offset == "mean":
         u_op = float(np.mean(u_arr))
         y_op = float(np.mean(y_arr))
+        r_op = float(np.mean(r_arr)) if r_arr is not None else 0.0
     else:
         u_op = y_op = 0.0
     return IOData(
@@ -234,5 +347,8 @@ def prepare_data(
         u_op=u_op,
         y_op=y_op,
         offset=offset,
-        resampled=resampled,
+        time_base=time_base,
+        jitter=jitter,
+        r=None if r_arr is None else r_arr - r_op,
+        r_op=r_op,
     )

@@ -30,7 +30,13 @@ from scipy.signal import lfilter
 from threadpoolctl import threadpool_limits
 
 from gripper_env.metrics import fit_percent
-from gripper_env.sysid.data import IOData, Offset, prepare_data
+from gripper_env.sysid.data import (
+    DEFAULT_MAX_GAP,
+    DEFAULT_MAX_JITTER,
+    IOData,
+    Offset,
+    prepare_data,
+)
 
 __all__ = ["DiscreteEstimate", "arx", "oe"]
 
@@ -243,6 +249,34 @@ def _estimate(
     )
 
 
+def _prepare(
+    time_s: float | ArrayLike,
+    u: ArrayLike,
+    y: ArrayLike,
+    orders: dict[str, int],
+    offset: Offset,
+    max_jitter: float,
+    max_gap: float,
+) -> IOData:
+    """Check the orders and the record, the same way for ARX and OE.
+
+    ``orders`` holds the denominator order first (``na`` or ``nf``), then ``nb`` and ``nk``.
+    """
+    _check_orders(**orders)
+    n_den, nb, nk = orders.values()
+    n_state = max(nk + nb, n_den + 1) - 1
+    return prepare_data(
+        time_s,
+        u,
+        y,
+        min_samples=2 * (n_den + nb + n_state) + 1 + max(n_den, nk + nb - 1),
+        offset=offset,
+        max_jitter=max_jitter,
+        max_gap=max_gap,
+        model=", ".join(f"{k}={v}" for k, v in orders.items()),
+    )
+
+
 def _arx_ls(data: IOData, na: int, nb: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
     y, u = data.y, data.u
     k0 = max(na, nk + nb - 1)
@@ -266,7 +300,8 @@ def arx(
     nk: int = 1,
     *,
     offset: Offset = "initial",
-    max_jitter: float = 0.05,
+    max_jitter: float = DEFAULT_MAX_JITTER,
+    max_gap: float = DEFAULT_MAX_GAP,
 ) -> DiscreteEstimate:
     """Least-squares ARX fit, like MATLAB's ``arx(data, [na nb nk])``.
 
@@ -280,24 +315,14 @@ def arx(
         Poles, numerator coefficients and input delay (samples).
     offset : {"initial", "mean", "none"}
         Operating point removed before fitting (:mod:`gripper_env.sysid.data`).
-    max_jitter : float
-        Largest relative sample-interval deviation that is resampled rather than refused.
+    max_jitter, max_gap : float
+        Time-stamp tolerances (:func:`gripper_env.sysid.data.prepare_data`).
 
     Returns
     -------
     DiscreteEstimate
     """
-    _check_orders(na=na, nb=nb, nk=nk)
-    n_state = max(nk + nb, na + 1) - 1
-    data = prepare_data(
-        time_s,
-        u,
-        y,
-        min_samples=2 * (na + nb + n_state) + 1 + max(na, nk + nb - 1),
-        offset=offset,
-        max_jitter=max_jitter,
-        model=f"na={na}, nb={nb}, nk={nk}",
-    )
+    data = _prepare(time_s, u, y, {"na": na, "nb": nb, "nk": nk}, offset, max_jitter, max_gap)
     theta, std = _arx_ls(data, na, nb, nk)
     num = np.concatenate([np.zeros(nk), theta[na:]])
     den = np.concatenate([[1.0], theta[:na]])
@@ -319,7 +344,8 @@ def oe(
     offset: Offset = "initial",
     max_nfev: int = 200,
     tol: float = 1e-10,
-    max_jitter: float = 0.05,
+    max_jitter: float = DEFAULT_MAX_JITTER,
+    max_gap: float = DEFAULT_MAX_GAP,
 ) -> DiscreteEstimate:
     """Output-error fit, like MATLAB's ``oe(data, [nb nf nk])``.
 
@@ -337,24 +363,15 @@ def oe(
         Most residual evaluations.
     tol : float
         ``ftol``/``xtol``/``gtol`` of :func:`scipy.optimize.least_squares`.
-    max_jitter : float
-        Largest relative sample-interval deviation that is resampled rather than refused.
+    max_jitter, max_gap : float
+        Time-stamp tolerances (:func:`gripper_env.sysid.data.prepare_data`).
 
     Returns
     -------
     DiscreteEstimate
     """
-    _check_orders(nb=nb, nf=nf, nk=nk)
+    data = _prepare(time_s, u, y, {"nf": nf, "nb": nb, "nk": nk}, offset, max_jitter, max_gap)
     n_state = max(nk + nb, nf + 1) - 1
-    data = prepare_data(
-        time_s,
-        u,
-        y,
-        min_samples=2 * (nb + nf + n_state) + 1 + max(nf, nk + nb - 1),
-        offset=offset,
-        max_jitter=max_jitter,
-        model=f"nb={nb}, nf={nf}, nk={nk}",
-    )
     theta_arx, _ = _arx_ls(data, nf, nb, nk)
     f0 = _stabilise_z(np.concatenate([[1.0], theta_arx[:nf]]))
     b0 = theta_arx[nf:]

@@ -1,7 +1,8 @@
 """Reading identification logs: CSV with a header row and columns ``t_s, desired_deg, actual_deg``.
 
-Other columns are ignored, column order is free, blank lines are skipped. Every problem is a
-``ValueError`` that names the file, and the line and column where it can be pinned down.
+Other columns are ignored (or read by name: a closed loop's ``reference_deg``), column order is
+free, blank lines are skipped. Every problem is a ``ValueError`` that names the file, and the
+line and column where it can be pinned down.
 """
 
 from __future__ import annotations
@@ -9,11 +10,12 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LOG_COLUMNS", "read_log"]
+__all__ = ["LOG_COLUMNS", "read_columns", "read_log"]
 
 LOG_COLUMNS = ("t_s", "desired_deg", "actual_deg")
 
@@ -37,6 +39,30 @@ def read_log(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.n
     ValueError
         Missing file or columns, no data rows, or a cell that is not a finite number.
     """
+    cols = read_columns(path, LOG_COLUMNS)
+    return cols[LOG_COLUMNS[0]], cols[LOG_COLUMNS[1]], cols[LOG_COLUMNS[2]]
+
+
+def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str, np.ndarray]:
+    """Read the named columns of a CSV log with a header row.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        CSV file.
+    names : sequence of str
+        Column names to read (each must be in the header).
+
+    Returns
+    -------
+    dict of str to ndarray
+        One array per name, one value per data row.
+
+    Raises
+    ------
+    ValueError
+        Missing file or columns, no data rows, or a cell that is not a finite number.
+    """
     p = Path(path)
     try:
         with p.open(newline="", encoding="utf-8-sig") as fh:
@@ -51,19 +77,19 @@ def read_log(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.n
         raise ValueError(f"{p}: cannot read: {exc}") from None
     numbered = [(i + 1, r) for i, r in enumerate(rows) if any(c.strip() for c in r)]
     if not numbered:
-        raise ValueError(f"{p}: empty file (expected a header row {', '.join(LOG_COLUMNS)})")
+        raise ValueError(f"{p}: empty file (expected a header row {', '.join(names)})")
     header_line, header = numbered[0]
-    names = [h.strip() for h in header]
-    missing = [c for c in LOG_COLUMNS if c not in names]
+    found = [h.strip() for h in header]
+    missing = [c for c in names if c not in found]
     if missing:
         raise ValueError(
             f"{p}: line {header_line}: missing column(s) {', '.join(missing)} in the header "
-            f"(found: {', '.join(names) or 'nothing'})"
+            f"(found: {', '.join(found) or 'nothing'})"
         )
-    idx = [names.index(c) for c in LOG_COLUMNS]
-    data = np.empty((len(numbered) - 1, 3))
+    idx = [found.index(c) for c in names]
+    data = np.empty((len(numbered) - 1, len(names)))
     for k, (line, row) in enumerate(numbered[1:]):
-        for j, (col, name) in enumerate(zip(idx, LOG_COLUMNS, strict=True)):
+        for j, (col, name) in enumerate(zip(idx, names, strict=True)):
             if col >= len(row):
                 raise ValueError(f"{p}: line {line}: no value for column {name}")
             cell = row[col].strip()
@@ -78,4 +104,4 @@ def read_log(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.n
             data[k, j] = val
     if data.shape[0] == 0:
         raise ValueError(f"{p}: no data rows after the header")
-    return data[:, 0].copy(), data[:, 1].copy(), data[:, 2].copy()
+    return {name: data[:, j].copy() for j, name in enumerate(names)}

@@ -30,9 +30,15 @@ __all__ = ["OutputErrorResult", "fit_initial_state", "refine_output_error"]
 
 
 def fit_initial_state(
-    data: IOData, num: np.ndarray, den: np.ndarray, *, with_offset: bool = False
+    data: IOData,
+    num: np.ndarray,
+    den: np.ndarray,
+    *,
+    with_offset: bool = False,
+    delay_s: float = 0.0,
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Least-squares initial state (and output-offset correction) for a fixed model.
+    """Least-squares initial state (and output-offset correction) for a fixed model with input
+    delay ``delay_s`` (s).
 
     Returns
     -------
@@ -44,7 +50,9 @@ def fit_initial_state(
         Simulated output with them (deviations, deg).
     """
     with np.errstate(all="ignore"):
-        sens = model_sensitivities(num, den, data.u, data.dt_s, with_initial_state=True)
+        sens = model_sensitivities(
+            num, den, data.u, data.dt_s, with_initial_state=True, delay_s=delay_s
+        )
     basis = sens.d_x0
     assert basis is not None
     if not (np.all(np.isfinite(sens.y_hat)) and np.all(np.isfinite(basis))):
@@ -57,41 +65,79 @@ def fit_initial_state(
 
 
 class _Problem:
-    """Residuals and Jacobian of the output-error fit."""
+    """Residuals and Jacobian of the output-error fit.
+
+    Parameter vector: ``[theta, x0 (if estimated), offset (if estimated), delay (if
+    estimated)]``. The derivative with respect to the delay is a one-sided difference (the
+    sampled response has kinks where the delay crosses a whole sample).
+    """
 
     def __init__(
-        self, data: IOData, n_poles: int, n_zeros: int, estimate_x0: bool, estimate_offset: bool
+        self,
+        data: IOData,
+        n_poles: int,
+        n_zeros: int,
+        estimate_x0: bool,
+        estimate_offset: bool,
+        delay_s: float | None,
+        u: np.ndarray,
+        max_delay_s: float,
     ) -> None:
         self.data = data
         self.n = n_poles
         self.m = n_zeros
         self.estimate_x0 = estimate_x0
         self.estimate_offset = estimate_offset
+        self.fixed_delay = delay_s
+        self.u = u
+        self.max_delay_s = max_delay_s
+        self.step_s = 1e-3 * data.dt_s
 
-    def _unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:
+    def _unpack(
+        self, p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
         n_theta = self.n + self.m + 1
         num, den = split_params(p[:n_theta], self.n)
-        x0 = p[n_theta : n_theta + self.n] if self.estimate_x0 else None
-        offset = float(p[-1]) if self.estimate_offset else 0.0
-        return num, den, x0, offset
+        k = n_theta
+        x0 = None
+        if self.estimate_x0:
+            x0 = p[k : k + self.n]
+            k += self.n
+        offset = 0.0
+        if self.estimate_offset:
+            offset = float(p[k])
+            k += 1
+        delay = float(p[k]) if self.fixed_delay is None else self.fixed_delay
+        return num, den, x0, offset, max(delay, 0.0)
 
     def residuals(self, p: np.ndarray) -> np.ndarray:
-        num, den, x0, offset = self._unpack(p)
+        num, den, x0, offset, delay = self._unpack(p)
         with np.errstate(all="ignore"):
-            y_hat = zoh_response(num, den, self.data.u, self.data.dt_s, x0)
+            y_hat = zoh_response(num, den, self.u, self.data.dt_s, x0, delay)
             return y_hat + offset - self.data.y
 
     def jacobian(self, p: np.ndarray) -> np.ndarray:
-        num, den, x0, _ = self._unpack(p)
+        num, den, x0, _, delay = self._unpack(p)
         with np.errstate(all="ignore"):
             sens = model_sensitivities(
-                num, den, self.data.u, self.data.dt_s, x0, with_initial_state=self.estimate_x0
+                num,
+                den,
+                self.u,
+                self.data.dt_s,
+                x0,
+                with_initial_state=self.estimate_x0,
+                delay_s=delay,
             )
         cols = [sens.d_a, sens.d_b]
         if sens.d_x0 is not None:
             cols.append(sens.d_x0)
         if self.estimate_offset:
             cols.append(np.ones((self.data.n_samples, 1)))
+        if self.fixed_delay is None:
+            h = self.step_s if delay + self.step_s <= self.max_delay_s else -self.step_s
+            with np.errstate(all="ignore"):
+                y_h = zoh_response(num, den, self.u, self.data.dt_s, x0, delay + h)
+            cols.append(((y_h - sens.y_hat) / h)[:, None])
         return np.column_stack(cols)
 
 
@@ -103,6 +149,8 @@ class OutputErrorResult:
     ----------
     theta : ndarray
         ``[a_{n-1}..a_0, b_m..b_0]``.
+    delay_s : float
+        Input delay (s): the estimate, or the fixed value.
     x0 : ndarray
         Observer-form initial state (zeros if it was not estimated).
     offset : float
@@ -110,7 +158,8 @@ class OutputErrorResult:
     residuals : ndarray
         ``y - yhat`` (deviations, deg).
     cov : ndarray
-        Covariance of ``[theta, x0, offset]`` (the estimated ones), ``sigma^2 (J^T J)^-1``.
+        Covariance of ``[theta, x0, offset, delay]`` (the estimated ones),
+        ``sigma^2 (J^T J)^-1``.
     n_iter : int
         Jacobian evaluations (trust-region iterations).
     converged : bool
@@ -120,6 +169,7 @@ class OutputErrorResult:
     """
 
     theta: np.ndarray
+    delay_s: float
     x0: np.ndarray
     offset: float
     residuals: np.ndarray
@@ -152,6 +202,9 @@ def refine_output_error(
     estimate_x0: bool = True,
     estimate_offset: bool = True,
     enforce_stability: bool = True,
+    delay_s: float = 0.0,
+    estimate_delay: bool = False,
+    max_delay_s: float = np.inf,
     max_nfev: int = 200,
     ftol: float = 1e-8,
     xtol: float = 1e-8,
@@ -173,6 +226,12 @@ def refine_output_error(
         Estimate a constant correction of the output operating point.
     enforce_stability : bool
         Keep the denominator coefficients >= 0.
+    delay_s : float
+        Input delay (s): fixed, or the start when ``estimate_delay``.
+    estimate_delay : bool
+        Estimate the delay too, within ``[0, max_delay_s]``.
+    max_delay_s : float
+        Upper bound of the estimated delay (s).
     max_nfev : int
         Most residual evaluations.
     ftol, xtol, gtol : float
@@ -183,20 +242,39 @@ def refine_output_error(
     OutputErrorResult
     """
     n, m = n_poles, n_zeros
-    problem = _Problem(data, n, m, estimate_x0, estimate_offset)
+    problem = _Problem(
+        data,
+        n,
+        m,
+        estimate_x0,
+        estimate_offset,
+        None if estimate_delay else float(delay_s),
+        data.u,
+        float(max_delay_s),
+    )
     theta0 = np.asarray(theta0, dtype=float).copy()
     num, den = split_params(theta0, n)
-    x0, offset, _ = fit_initial_state(data, num, den, with_offset=estimate_offset)
-    p0 = np.concatenate([theta0, x0 if estimate_x0 else [], [offset] if estimate_offset else []])
+    x0, offset, _ = fit_initial_state(data, num, den, with_offset=estimate_offset, delay_s=delay_s)
+    p0 = np.concatenate(
+        [
+            theta0,
+            x0 if estimate_x0 else [],
+            [offset] if estimate_offset else [],
+            [min(max(delay_s, 0.0), max_delay_s)] if estimate_delay else [],
+        ]
+    )
     lower = np.full(p0.size, -np.inf)
+    upper = np.full(p0.size, np.inf)
     if enforce_stability:
         lower[:n] = 0.0
         p0[:n] = np.maximum(p0[:n], 1e-12 * max(1.0, float(np.max(np.abs(p0[:n])))))
+    if estimate_delay:
+        lower[-1], upper[-1] = 0.0, max_delay_s
     res = least_squares(
         problem.residuals,
         p0,
         jac=problem.jacobian,
-        bounds=(lower, np.full(p0.size, np.inf)),
+        bounds=(lower, upper),
         method="trf",
         x_scale="jac",
         ftol=ftol,
@@ -205,10 +283,11 @@ def refine_output_error(
         max_nfev=max_nfev,
     )
     p = res.x
-    num, den, x0_fit, offset = problem._unpack(p)
+    num, den, x0_fit, offset, delay = problem._unpack(p)
     residuals = -res.fun
     return OutputErrorResult(
         theta=p[: n + m + 1].copy(),
+        delay_s=delay,
         x0=np.zeros(n) if x0_fit is None else np.array(x0_fit),
         offset=offset,
         residuals=residuals,

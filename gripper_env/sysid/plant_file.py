@@ -3,6 +3,10 @@
 Keys, exactly those of the plant schema (``gripper_env.plants.PlantSpec``): ``name``,
 ``description``, ``num`` and ``den`` (highest power of ``s`` first), ``fit_pct``, ``dt_s`` (the
 physics step, not the data's sample interval) and ``jaw_range_deg``.
+
+A plant file holds the transfer function only. An identified input delay is written in its
+description and in a comment at its top; the simulation core applies dead time through a
+disturbance preset's ``sensor.delay_s`` (``python -m gripper_env.sysid greybox`` writes one).
 """
 
 from __future__ import annotations
@@ -13,9 +17,10 @@ from typing import Any
 
 import yaml
 
+from gripper_env.files import write_atomic
 from gripper_env.sysid.tfest import TFEstimate
 
-__all__ = ["plant_dict", "save_plant_yaml"]
+__all__ = ["plant_dict", "plant_yaml", "save_plant_yaml"]
 
 
 def plant_dict(
@@ -51,12 +56,19 @@ def plant_dict(
     if not dt_s > 0:
         raise ValueError(f"dt_s must be positive, got {dt_s}")
     if description is None:
+        val = estimate.validation
+        fits = (
+            f"fit {val.fit_pct:.2f} % on validation data ({val.source}), "
+            if val is not None
+            else ""
+        )
         description = (
             f"Identified with gripper_env.sysid.tfest (SRIVC start, output-error refinement): "
-            f"{estimate.residuals.size} samples at {estimate.dt_s:g} s, fit "
-            f"{estimate.fit_pct:.2f} % (initial state estimated), "
-            f"{estimate.fit_pct_zero_ic:.2f} % (zero initial state). The model maps deviations "
-            f"from the operating point (offset={estimate.offset!r}, u_op={estimate.u_op:.4g} deg, "
+            f"{estimate.residuals.size} samples at {estimate.dt_s:g} s, {fits}fit "
+            f"{estimate.fit_pct:.2f} % on the estimation data (initial state estimated), "
+            f"{estimate.fit_pct_rest:.2f} % from rest; input delay "
+            f"{1e3 * estimate.input_delay_s:.3g} ms. The model maps deviations from the "
+            f"operating point (offset={estimate.offset!r}, u_op={estimate.u_op:.4g} deg, "
             f"y_op={estimate.y_op:.4g} deg)."
         )
     return {
@@ -64,7 +76,7 @@ def plant_dict(
         "description": description,
         "num": [float(c) for c in estimate.num],
         "den": [float(c) for c in estimate.den],
-        "fit_pct": round(float(estimate.fit_pct), 2),
+        "fit_pct": round(float(estimate.headline_fit_pct), 2),
         "dt_s": float(dt_s),
         "jaw_range_deg": [lo, hi],
     }
@@ -91,6 +103,15 @@ def save_plant_yaml(
         dt_s=dt_s,
         jaw_range_deg=jaw_range_deg,
     )
+    return write_atomic(p, plant_yaml(doc, estimate.input_delay_s))
+
+
+def plant_yaml(doc: dict[str, Any], input_delay_s: float = 0.0) -> str:
+    """YAML text of a plant-file mapping, with a comment line for an input delay."""
     text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
-    p.write_text(text, encoding="utf-8")
-    return p
+    if input_delay_s > 0:
+        text = (
+            f"# input delay {1e3 * input_delay_s:.3g} ms: not a plant-file key; the core "
+            "simulates it as a disturbance preset's sensor.delay_s\n" + text
+        )
+    return text

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from gripper_env.files import write_atomic
 from gripper_env.sysid.tfest import TFEstimate
 
 __all__ = ["plot_fit"]
@@ -48,29 +50,34 @@ def plot_fit(
     y = np.asarray(y, dtype=float)
     t = np.arange(u.size) * estimate.dt_s if t_s is None else np.asarray(t_s, dtype=float)
     y_hat = estimate.simulate(u)
-    y_hat0 = estimate.simulate(u, np.zeros_like(estimate.initial_state))
+    moved = np.flatnonzero(u != u[0])
+    y_rest = float(np.mean(y[: max(int(moved[0]) if moved.size else u.size, 1)]))
+    y_hat0 = estimate.simulate(u, estimate.rest_state(y_rest, float(u[0])))
     fig, (ax0, ax1) = plt.subplots(
         2, 1, sharex=True, figsize=(9, 6), gridspec_kw={"height_ratios": [3, 1]}
     )
     ax0.plot(t, u, color="0.6", lw=1, label="desired (input)")
     ax0.plot(t, y, color="C0", lw=1, label="measured")
-    ax0.plot(t, y_hat, color="C1", lw=1.2, label=f"model, fit {estimate.fit_pct:.2f} %")
+    ax0.plot(t, y_hat, color="C1", lw=1.2, label=f"model (estimation fit {estimate.fit_pct:.2f} %)")
     ax0.plot(
         t,
         y_hat0,
         color="C2",
         lw=1,
         ls="--",
-        label=f"model, zero initial state, fit {estimate.fit_pct_zero_ic:.2f} %",
+        label=f"model from rest, fit {estimate.fit_pct_rest:.2f} %",
     )
     ax0.set_ylabel("jaw angle (deg)")
-    ax0.set_title(f"G(s) = {estimate.paper_form()}")
+    title = f"G(s) = {estimate.paper_form()}  (input delay {1e3 * estimate.input_delay_s:.3g} ms)"
+    if estimate.validation is not None:
+        title += f"\nfit on validation data: {estimate.validation.fit_pct:.2f} %"
+    ax0.set_title(title, fontsize=10)
     ax0.legend(loc="best", fontsize="small")
     ax1.plot(t, y - y_hat, color="C3", lw=0.8)
     ax1.set_ylabel("residual (deg)")
     ax1.set_xlabel("time (s)")
     fig.tight_layout()
-    p = Path(path)
-    fig.savefig(p, dpi=120)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=120, format=Path(path).suffix.lstrip(".") or "png")
     plt.close(fig)
-    return p
+    return write_atomic(path, buf.getvalue())

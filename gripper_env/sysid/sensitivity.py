@@ -1,7 +1,7 @@
 """A candidate model's simulated output and its derivatives, in one exact simulation.
 
 For ``yhat`` = the ZOH-sampled output of ``B(s)/A(s)`` driven by the held input ``u`` from the
-observer-form initial state ``x0`` (:func:`gripper_env.sysid.zoh.observer_form`):
+observer-form initial state ``x0`` (:func:`gripper_env.state_space.observer_form`):
 
 .. code-block:: text
 
@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gripper_env.sysid.zoh import controllable_form, discretise, observer_form, run_states
+from gripper_env.state_space import controllable_form, discretise, observer_form
+from gripper_env.sysid.zoh import delayed_input, run_states
 
 __all__ = ["ModelSensitivities", "model_sensitivities"]
 
@@ -56,6 +57,7 @@ def model_sensitivities(
     x0: np.ndarray | None = None,
     *,
     with_initial_state: bool = False,
+    delay_s: float = 0.0,
 ) -> ModelSensitivities:
     """Simulate ``num/den`` on ``u`` and return the output with its parameter derivatives.
 
@@ -73,6 +75,9 @@ def model_sensitivities(
         Observer-form initial state (zero if omitted).
     with_initial_state : bool
         Also return the derivatives with respect to ``x0``.
+    delay_s : float
+        Input delay (s): every block sees ``u`` this late (as in
+        :func:`~gripper_env.sysid.zoh.zoh_response`).
 
     Returns
     -------
@@ -102,8 +107,11 @@ def model_sensitivities(
     if with_initial_state:
         big[q, q] = a_c
         z0[q.stop - 1] = 1.0  # impulse into 1/A: q_i = impulse response of s^i/A
-    phi, g0, g1 = discretise(big, g, dt_s, "zoh")
     u = np.ascontiguousarray(u, dtype=float)
+    frac = 0.0
+    if delay_s:
+        u, frac = delayed_input(u, delay_s, dt_s)
+    phi, g0, g1 = discretise(big, g, dt_s, "zoh", frac)
     states = run_states(phi, g0, g1, u, z0)
     y_hat = states[:, 0] + d * u
     d_a = -states[:, w][:, ::-1]

@@ -35,9 +35,11 @@ from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
 __all__ = [
     "SrivcResult",
     "initial_estimate",
+    "offset_cost",
     "split_params",
     "srivc",
     "stabilise",
+    "svf_candidates",
     "svf_least_squares",
 ]
 
@@ -81,17 +83,32 @@ def _solve(zeta: np.ndarray, phi: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def _regressors(
-    data: IOData, den: np.ndarray, n: int, m: int, uf: np.ndarray | None = None
+    data: IOData,
+    den: np.ndarray,
+    n: int,
+    m: int,
+    uf: np.ndarray | None = None,
+    delay_s: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Regressors ``[-y_f^(n-1) .. -y_f, u_f^(m) .. u_f]`` and target ``y_f^(n)``."""
+    """Regressors ``[-y_f^(n-1) .. -y_f, u_f^(m) .. u_f, c_f^(n) .. c_f]`` and target
+    ``y_f^(n)``; the input filters see ``u`` ``delay_s`` late.
+
+    The last ``n + 1`` columns are the filtered derivatives of a constant: an output offset
+    ``c`` (the operating point taken from a short rest, or a mean) enters the filtered equation
+    as ``c A(p)/F(p) 1``, linear in ``c a_i``. With them the estimate does not depend on how the
+    operating point was removed; their coefficients are dropped.
+    """
     yf = filtered_derivatives(den, data.y, data.dt_s, "foh")
     if uf is None:
-        uf = filtered_derivatives(den, data.u, data.dt_s, "zoh")[:, : m + 1]
-    phi = np.column_stack([-yf[:, n - 1 :: -1], uf[:, ::-1]])
+        uf = filtered_derivatives(den, data.u, data.dt_s, "zoh", delay_s)[:, : m + 1]
+    cf = filtered_derivatives(den, np.ones(data.n_samples), data.dt_s, "foh")
+    phi = np.column_stack([-yf[:, n - 1 :: -1], uf[:, ::-1], cf])
     return phi, yf[:, n]
 
 
-def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float) -> np.ndarray:
+def svf_least_squares(
+    data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float, delay_s: float = 0.0
+) -> np.ndarray:
     """Least-squares fit through the state-variable filter ``1/(s + lambda)^n``.
 
     Parameters
@@ -102,6 +119,8 @@ def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float
         Model order.
     lam_rad_s : float
         Filter pole ``lambda`` (rad/s); about the bandwidth of the system works best.
+    delay_s : float
+        Input delay of the model (s).
 
     Returns
     -------
@@ -109,25 +128,28 @@ def svf_least_squares(data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float
         ``theta = [a_{n-1}..a_0, b_m..b_0]``.
     """
     den = np.real(np.poly(np.full(n_poles, -float(lam_rad_s))))
-    phi, target = _regressors(data, den, n_poles, n_zeros)
-    return _solve(phi, phi, target)
+    phi, target = _regressors(data, den, n_poles, n_zeros, delay_s=delay_s)
+    return _solve(phi, phi, target)[: n_poles + n_zeros + 1]
 
 
-def initial_estimate(
-    data: IOData, n_poles: int, n_zeros: int, lam_rad_s: float | None = None
-) -> tuple[np.ndarray, float]:
-    """SVF least-squares start, with ``lambda`` chosen from the data unless given.
+def svf_candidates(
+    data: IOData,
+    n_poles: int,
+    n_zeros: int,
+    lam_rad_s: float | None = None,
+    delay_s: float = 0.0,
+) -> list[tuple[float, np.ndarray, float]]:
+    """SVF least-squares starts over a grid of filter poles, best first.
 
     The grid runs from the record's fundamental ``2 pi / T`` to a tenth of the Nyquist frequency,
-    three points per decade; each candidate is stabilised and simulated, and the one with the
-    smallest simulation error wins.
+    three points per decade (or is the one ``lam_rad_s`` given); each candidate is stabilised and
+    simulated, and scored by its simulation error with the best constant output offset (so
+    that how the operating point was removed does not decide the start).
 
     Returns
     -------
-    theta : ndarray
-        ``[a_{n-1}..a_0, b_m..b_0]`` (stabilised).
-    lam_rad_s : float
-        The filter pole used (rad/s).
+    list of (cost, theta, lam_rad_s)
+        Sorted by cost (deg^2); ``theta = [a_{n-1}..a_0, b_m..b_0]``, stabilised.
     """
     if lam_rad_s is not None:
         if not np.isfinite(lam_rad_s) or lam_rad_s <= 0:
@@ -137,19 +159,45 @@ def initial_estimate(
         t_rec = data.dt_s * data.n_samples
         lo, hi = 2 * np.pi / t_rec, 0.1 * np.pi / data.dt_s
         grid = np.logspace(np.log10(lo), np.log10(hi), max(2, int(3 * np.log10(hi / lo)) + 1))
-    best: tuple[float, np.ndarray, float] | None = None
+    out = []
     for lam in grid:
-        theta = svf_least_squares(data, n_poles, n_zeros, lam)
+        theta = svf_least_squares(data, n_poles, n_zeros, lam, delay_s)
         if not np.all(np.isfinite(theta)):
             continue
         num, den = split_params(theta, n_poles)
         den, _ = stabilise(den)
-        cost = float(np.sum((data.y - zoh_response(num, den, data.u, data.dt_s)) ** 2))
-        if np.isfinite(cost) and (best is None or cost < best[0]):
-            best = (cost, np.concatenate([den[1:], num]), float(lam))
-    if best is None:
+        cost = offset_cost(data.y, zoh_response(num, den, data.u, data.dt_s, delay_s=delay_s))
+        if np.isfinite(cost):
+            out.append((cost, np.concatenate([den[1:], num]), float(lam)))
+    if not out:
         raise ValueError("the state-variable-filter start failed for every filter bandwidth")
-    return best[1], best[2]
+    return sorted(out, key=lambda c: c[0])
+
+
+def offset_cost(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """Sum of squared errors after the best constant offset (deg^2)."""
+    r = y - y_hat
+    return float(r @ r - r.sum() ** 2 / r.size)
+
+
+def initial_estimate(
+    data: IOData,
+    n_poles: int,
+    n_zeros: int,
+    lam_rad_s: float | None = None,
+    delay_s: float = 0.0,
+) -> tuple[np.ndarray, float]:
+    """The best SVF least-squares start (:func:`svf_candidates`).
+
+    Returns
+    -------
+    theta : ndarray
+        ``[a_{n-1}..a_0, b_m..b_0]`` (stabilised).
+    lam_rad_s : float
+        The filter pole used (rad/s).
+    """
+    _, theta, lam = svf_candidates(data, n_poles, n_zeros, lam_rad_s, delay_s)[0]
+    return theta, lam
 
 
 @dataclass(frozen=True)
@@ -165,7 +213,8 @@ class SrivcResult:
     converged : bool
         Whether the relative parameter change fell below the tolerance.
     cost : float
-        Sum of squared simulation errors of ``theta`` from rest (deg^2).
+        Sum of squared simulation errors of ``theta`` from rest, after the best constant
+        offset (deg^2).
     """
 
     theta: np.ndarray
@@ -183,6 +232,7 @@ def srivc(
     max_iter: int = 30,
     tol: float = 1e-7,
     max_stall: int = 3,
+    delay_s: float = 0.0,
 ) -> SrivcResult:
     """Refine ``theta0`` with the SRIVC iterations (Young and Garnier).
 
@@ -201,7 +251,8 @@ def srivc(
     max_stall : int
         Also stop after this many iterations in a row without a smaller simulation error
         (not converged; the best iterate is returned).
-
+    delay_s : float
+        Input delay of the model (s).
     Returns
     -------
     SrivcResult
@@ -217,8 +268,8 @@ def srivc(
         den, _ = stabilise(den)
         theta = np.concatenate([den[1:], num])
         # Auxiliary model output x = B/A u, its filtered derivatives p^i/A x and p^k/A u.
-        sens = model_sensitivities(num, den, data.u, data.dt_s)
-        cost = float(np.sum((data.y - sens.y_hat) ** 2))
+        sens = model_sensitivities(num, den, data.u, data.dt_s, delay_s=delay_s)
+        cost = offset_cost(data.y, sens.y_hat)
         if cost < best[0] * (1 - 1e-9):
             best = (cost, theta)
             stalled = 0
@@ -230,9 +281,10 @@ def srivc(
                 # follows does not need more.
                 break
         # d_a = -[p^{n-1}/A x, ..., x/A]: exactly the noise-free regressors; d_b = [p^m/A u ..].
-        phi, target = _regressors(data, den, n, m, uf=sens.d_b[:, ::-1])
-        zeta = np.column_stack([sens.d_a, sens.d_b])
-        new = _solve(zeta, phi, target)
+        phi, target = _regressors(data, den, n, m, uf=sens.d_b[:, ::-1], delay_s=delay_s)
+        # the constant's columns are their own instruments
+        zeta = np.column_stack([sens.d_a, sens.d_b, phi[:, n + m + 1 :]])
+        new = _solve(zeta, phi, target)[: n + m + 1]
         if not np.all(np.isfinite(new)):
             break
         step = np.linalg.norm(new - theta) / max(np.linalg.norm(theta), 1e-300)
@@ -242,7 +294,7 @@ def srivc(
             break
     num, den = split_params(theta, n)
     den, _ = stabilise(den)
-    cost = float(np.sum((data.y - zoh_response(num, den, data.u, data.dt_s)) ** 2))
+    cost = offset_cost(data.y, zoh_response(num, den, data.u, data.dt_s, delay_s=delay_s))
     if cost <= best[0]:
         best = (cost, np.concatenate([den[1:], num]))
     return SrivcResult(theta=best[1], n_iter=it, converged=converged, cost=best[0])

@@ -2,22 +2,36 @@
 
 Pipeline (see :mod:`gripper_env.sysid.srivc` and :mod:`gripper_env.sysid.output_error`):
 
-1. validate the record and remove the operating point (:func:`gripper_env.sysid.data.prepare_data`);
-2. least-squares start through the state-variable filter ``1/(s + lambda)^n``;
-3. SRIVC iterations to convergence;
-4. output-error refinement of the coefficients *and the initial state* with
-   :func:`scipy.optimize.least_squares`, simulating every candidate by exact ZOH sampling.
+1. validate the record, put it on a uniform time grid and remove the operating point
+   (:func:`gripper_env.sysid.data.prepare_data`);
+2. least-squares start through the state-variable filter ``1/(s + lambda)^n`` (and, for a higher
+   order, starts built from lower-order estimates it contains: ``start_from``);
+3. SRIVC iterations to convergence; with ``input_delay_s="estimate"`` they alternate with a scan
+   of whole-sample delays (:mod:`gripper_env.sysid.delay`) until the delay stops moving;
+4. output-error refinement of the coefficients, the initial state, the output offset and the
+   delay (fractions of a sample included) with :func:`scipy.optimize.least_squares`, simulating
+   every candidate by exact sampling; the best start wins;
+5. diagnostics (:class:`IdentificationWarning`): poles beyond the Nyquist frequency,
+   near-cancelling pole/zero pairs, no convergence, and data that look like a feedback loop.
 
-The returned model maps **deviations**: ``y - y_op = G(s) (u - u_op)`` with the operating point of
-``offset`` (like MATLAB on detrended data). :meth:`TFEstimate.simulate` adds the operating point
-back. Fit figures follow MATLAB's ``compare`` (:func:`gripper_env.metrics.fit_percent`).
+With a closed loop's reference ``r``, step 4 fits the plant inside the simulated loop instead,
+driven by the reference, with the controller fitted from the log
+(:mod:`gripper_env.sysid.closed_loop`).
+
+The returned model maps **deviations**: ``y - y_op = G(s) e^{-s tau} (u - u_op)`` with the
+operating point of ``offset`` (like MATLAB on detrended data). :meth:`TFEstimate.simulate` adds
+the operating point back. Fit figures follow MATLAB's ``compare``
+(:func:`gripper_env.metrics.fit_percent`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass, field
-from typing import Any
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import control
 import numpy as np
@@ -25,39 +39,45 @@ from numpy.typing import ArrayLike
 from threadpoolctl import threadpool_limits
 
 from gripper_env.metrics import fit_percent
-from gripper_env.sysid.data import Offset, prepare_data
-from gripper_env.sysid.output_error import refine_output_error
-from gripper_env.sysid.srivc import initial_estimate, split_params, srivc, stabilise
+from gripper_env.sysid.closed_loop import ClosedLoopFit, feedback_test, fit_closed_loop
+from gripper_env.sysid.data import (
+    DEFAULT_MAX_GAP,
+    DEFAULT_MAX_JITTER,
+    IOData,
+    Offset,
+    prepare_data,
+)
+from gripper_env.sysid.delay import default_max_delay, scan_delay
+from gripper_env.sysid.diagnostics import IdentificationWarning, delay_hints, diagnose
+from gripper_env.sysid.estimate import (
+    FitOnData,
+    TFEstimate,
+    format_polynomial,
+    param_names,
+    rest_state,
+)
+from gripper_env.sysid.output_error import OutputErrorResult, fit_initial_state, refine_output_error
+from gripper_env.sysid.srivc import (
+    split_params,
+    srivc,
+    stabilise,
+)
+from gripper_env.sysid.starts import estimation_starts
 from gripper_env.sysid.zoh import zoh_response
 
-__all__ = ["TFEstimate", "format_polynomial", "min_samples", "tfest"]
+__all__ = [
+    "ESTIMATE",
+    "FitOnData",
+    "IdentificationWarning",
+    "TFEstimate",
+    "format_polynomial",
+    "min_samples",
+    "rest_state",
+    "tfest",
+]
 
-
-def format_polynomial(coeffs: ArrayLike, var: str = "s", precision: int = 4) -> str:
-    """Polynomial as text, highest power first: ``[1, 22, 200] -> "s^2 + 22 s + 200"``.
-
-    Zero coefficients are left out, a unit coefficient in front of a power of ``var`` is not
-    written, and numbers use ``precision`` significant digits.
-    """
-    c = np.asarray(coeffs, dtype=float)
-    deg = c.size - 1
-    terms: list[str] = []
-    for i, value in enumerate(c):
-        if value == 0:
-            continue
-        power = deg - i
-        mag = abs(value)
-        num = f"{mag:.{precision}g}"
-        if power == 0:
-            body = num
-        else:
-            v = var if power == 1 else f"{var}^{power}"
-            body = v if num == "1" else f"{num} {v}"
-        if not terms:
-            terms.append(f"-{body}" if value < 0 else body)
-        else:
-            terms.append(f"- {body}" if value < 0 else f"+ {body}")
-    return " ".join(terms) if terms else "0"
+#: ``input_delay_s=ESTIMATE``: estimate the input delay.
+ESTIMATE = "estimate"
 
 
 def min_samples(n_poles: int, n_zeros: int) -> int:
@@ -65,169 +85,80 @@ def min_samples(n_poles: int, n_zeros: int) -> int:
     return 2 * (n_poles + n_zeros + 1 + n_poles) + 1
 
 
-@dataclass(frozen=True)
-class TFEstimate:
-    """An identified continuous-time transfer function and how well it fits.
+# ----------------------------------------------------------------------------------------------
+# The estimator
 
-    Attributes
-    ----------
-    model : control.TransferFunction
-        ``G(s)`` from input deviation to output deviation (deg/deg, time in s), monic denominator.
-    fit_pct : float
-        MATLAB ``compare`` fit (%) with the estimated initial state:
-        ``100 * (1 - ||y - yhat|| / ||y - mean(y)||)``.
-    fit_pct_zero_ic : float
-        Same with a zero initial state (the system at rest at the operating point).
-    residuals : ndarray
-        ``y - yhat`` with the estimated initial state (deg), one per (resampled) sample.
-    params : ndarray
-        ``[a_{n-1}, ..., a_0, b_m, ..., b_0]`` of ``(b_m s^m + ... + b_0) / (s^n + ... + a_0)``.
-    params_std : ndarray
-        Standard errors of ``params`` from the output-error Jacobian, ``sigma^2 (J^T J)^-1``
-        (``inf`` where not identifiable). They assume white residuals and are optimistic when the
-        residuals are coloured.
-    param_names : tuple of str
-        ``("a1", "a0", "b1", "b0")`` style names of ``params``.
-    initial_state : ndarray
-        Estimated state at the first sample, observer canonical form
-        (:func:`gripper_env.sysid.zoh.observer_form`; ``initial_state[0]`` is the initial output
-        deviation minus the direct term), deviation units. Zeros if not estimated.
-    initial_state_std : ndarray
-        Standard errors of ``initial_state``.
-    stable : bool
-        All poles strictly in the left half plane.
-    dt_s : float
-        Sample interval of the data (s).
-    u_op, y_op : float
-        Operating point (deg): ``u_op`` as chosen by ``offset``; ``y_op`` likewise, then refined
-        jointly with the model when ``estimate_output_offset`` (the default).
-    y_op_std : float
-        Standard error of ``y_op`` (deg; 0 when it was not estimated).
-    offset : str
-        How the operating point was chosen (``"initial"``, ``"mean"`` or ``"none"``).
-    n_iter_srivc : int
-        SRIVC iterations.
-    n_iter_oe : int
-        Output-error (trust-region) iterations.
-    converged : bool
-        Whether the output-error search met its tolerance.
-    svf_lambda_rad_s : float
-        Pole of the state-variable filter used for the start (rad/s).
-    resampled : bool
-        Whether non-uniform time stamps were resampled.
-    message : str
-        The optimiser's stopping message.
-    """
 
-    model: control.TransferFunction
-    fit_pct: float
-    fit_pct_zero_ic: float
-    residuals: np.ndarray = field(repr=False)
-    params: np.ndarray
-    params_std: np.ndarray
-    param_names: tuple[str, ...]
-    initial_state: np.ndarray
-    initial_state_std: np.ndarray
-    stable: bool
-    dt_s: float
-    u_op: float
-    y_op: float
-    y_op_std: float
-    offset: str
+@dataclass
+class _Candidate:
+    oe: OutputErrorResult
+    cost: float
+    lam: float
     n_iter_srivc: int
-    n_iter_oe: int
-    converged: bool
-    svf_lambda_rad_s: float
-    resampled: bool = False
-    message: str = ""
-
-    @property
-    def num(self) -> np.ndarray:
-        """Numerator coefficients, highest power of ``s`` first."""
-        return np.asarray(self.model.num[0][0], dtype=float)
-
-    @property
-    def den(self) -> np.ndarray:
-        """Monic denominator coefficients, highest power of ``s`` first."""
-        return np.asarray(self.model.den[0][0], dtype=float)
-
-    @property
-    def poles(self) -> np.ndarray:
-        """Poles (rad/s)."""
-        return np.roots(self.den)
-
-    @property
-    def zeros(self) -> np.ndarray:
-        """Zeros (rad/s)."""
-        return np.roots(self.num) if self.num.size > 1 else np.array([], dtype=complex)
-
-    def paper_form(self, precision: int = 4) -> str:
-        """The transfer function as the paper prints it, e.g.
-        ``"(20 s + 200) / (s^2 + 22 s + 200)"``."""
-        num = format_polynomial(self.num, precision=precision)
-        den = format_polynomial(self.den, precision=precision)
-        if np.count_nonzero(self.num) > 1:
-            num = f"({num})"
-        return f"{num} / ({den})"
-
-    def simulate(self, u: ArrayLike, initial_state: ArrayLike | None = None) -> np.ndarray:
-        """Simulate the model on an absolute input, with the operating point restored.
-
-        Parameters
-        ----------
-        u : array_like
-            Input (deg), sampled every ``dt_s`` and held between samples.
-        initial_state : array_like, optional
-            State at the first sample (observer form, deviation units). Default: the estimated
-            :attr:`initial_state`, which belongs to the identification record; pass zeros for a
-            start at rest at the operating point.
-
-        Returns
-        -------
-        ndarray
-            Output (deg): ``y_op + G (u - u_op)`` plus the free response of the initial state.
-        """
-        u_arr = np.asarray(u, dtype=float)
-        x0 = self.initial_state if initial_state is None else np.asarray(initial_state, float)
-        return self.y_op + zoh_response(self.num, self.den, u_arr - self.u_op, self.dt_s, x0)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly summary (plain floats and lists)."""
-        return {
-            "num": [float(c) for c in self.num],
-            "den": [float(c) for c in self.den],
-            "fit_pct": float(self.fit_pct),
-            "fit_pct_zero_ic": float(self.fit_pct_zero_ic),
-            "paper_form": self.paper_form(),
-            "params": {k: float(v) for k, v in zip(self.param_names, self.params, strict=True)},
-            "params_std": {
-                k: _json_float(v) for k, v in zip(self.param_names, self.params_std, strict=True)
-            },
-            "poles": [[float(p.real), float(p.imag)] for p in self.poles],
-            "zeros": [[float(z.real), float(z.imag)] for z in self.zeros],
-            "stable": bool(self.stable),
-            "initial_state": [float(x) for x in self.initial_state],
-            "dt_s": float(self.dt_s),
-            "n_samples": int(self.residuals.size),
-            "u_op": float(self.u_op),
-            "y_op": float(self.y_op),
-            "y_op_std": float(self.y_op_std),
-            "offset": self.offset,
-            "residual_rms": float(np.sqrt(np.mean(self.residuals**2))),
-            "n_iter_srivc": int(self.n_iter_srivc),
-            "n_iter_oe": int(self.n_iter_oe),
-            "converged": bool(self.converged),
-            "svf_lambda_rad_s": float(self.svf_lambda_rad_s),
-            "resampled": bool(self.resampled),
-        }
 
 
-def _json_float(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
+def _check_orders(n_poles: int, n_zeros: int) -> None:
+    for name, val in (("n_poles", n_poles), ("n_zeros", n_zeros)):
+        if isinstance(val, bool) or not isinstance(val, int | np.integer):
+            raise ValueError(f"{name} must be an integer, got {val!r}")
+    if n_poles < 1:
+        raise ValueError(f"n_poles must be >= 1, got {n_poles}")
+    if not 0 <= n_zeros <= n_poles:
+        raise ValueError(
+            f"n_zeros must be between 0 and n_poles = {n_poles} (a proper model), got {n_zeros}"
+        )
 
 
-def _param_names(n: int, m: int) -> tuple[str, ...]:
-    return tuple(f"a{j}" for j in range(n - 1, -1, -1)) + tuple(f"b{k}" for k in range(m, -1, -1))
+def _delay_setting(input_delay_s: float | str, max_delay_s: float) -> float | None:
+    """``None`` to estimate, else the fixed delay (s)."""
+    if isinstance(input_delay_s, str):
+        if input_delay_s != ESTIMATE:
+            raise ValueError(
+                f"input_delay_s must be a number of seconds or {ESTIMATE!r}, got {input_delay_s!r}"
+            )
+        return None
+    tau = float(input_delay_s)
+    if not (math.isfinite(tau) and tau >= 0):
+        raise ValueError(f"the input delay must be a finite number of seconds >= 0, got {tau}")
+    if tau > max_delay_s:
+        raise ValueError(
+            f"the input delay {tau:g} s is longer than max_delay_s = {max_delay_s:g} s "
+            "(--max-delay)"
+        )
+    return tau
+
+
+def _srivc_with_delay(
+    data: IOData,
+    n: int,
+    m: int,
+    theta: np.ndarray,
+    delay: float | None,
+    max_delay_s: float,
+    max_iter: int,
+    tol: float,
+) -> tuple[np.ndarray, float, int]:
+    """SRIVC at a fixed delay, or alternating with the delay scan until the delay settles."""
+    if delay is not None:
+        iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=delay)
+        return iv.theta, delay, iv.n_iter
+    steps, seen, iters, move = 0, set(), 0, 0
+    for _ in range(8):
+        # a few iterations per delay: the output-error search that follows finishes the job
+        iv = srivc(data, n, m, theta, max_iter=min(max_iter, 2), tol=tol, delay_s=steps * data.dt_s)
+        theta, iters = iv.theta, iters + iv.n_iter
+        num, den = split_params(theta, n)
+        d, _ = scan_delay(num, den, data.u, data.y, data.dt_s, max_delay_s)
+        if d == steps or d in seen:
+            break
+        seen.add(steps)
+        step = d - steps
+        # a model refitted at too short a delay absorbs part of the rest into its poles, so the
+        # scan moves the delay only part of the way: twice the step when it keeps going
+        new = d + step if move and (step > 0) == (move > 0) else d
+        move, steps = step, int(min(max(new, 0), max_delay_s / data.dt_s))
+    tau = steps * data.dt_s
+    return theta, tau, iters
 
 
 @threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost
@@ -238,40 +169,53 @@ def tfest(
     n_poles: int = 2,
     n_zeros: int = 1,
     *,
+    input_delay_s: float | Literal["estimate"] = 0.0,
+    max_delay_s: float | None = None,
+    r: ArrayLike | None = None,
     offset: Offset = "initial",
     estimate_initial_state: bool = True,
     estimate_output_offset: bool = True,
     enforce_stability: bool = True,
-    svf_lambda_rad_s: float | None = None,
+    svf_lambda_rad_s: float | Sequence[float | None] | None = None,
+    start_from: Sequence[TFEstimate] = (),
     max_iter_srivc: int = 30,
     srivc_tol: float = 1e-7,
     max_nfev: int = 200,
     tol: float | None = None,
-    max_jitter: float = 0.05,
+    max_jitter: float = DEFAULT_MAX_JITTER,
+    max_gap: float = DEFAULT_MAX_GAP,
+    check_feedback: bool = True,
 ) -> TFEstimate:
-    """Estimate a continuous-time transfer function from sampled input/output data.
+    """Estimate a continuous-time transfer function with input delay from sampled data.
 
-    The model is ``G(s) = (b_m s^m + ... + b_0) / (s^n + a_{n-1} s^{n-1} + ... + a_0)`` with
-    ``n = n_poles``, ``m = n_zeros``, no delay, the input held between samples (ZOH) and white
-    output noise (an output-error model, like ``tfest``'s default ``Focus = 'simulation'``).
+    The model is ``G(s) e^{-s tau}`` with
+    ``G(s) = (b_m s^m + ... + b_0) / (s^n + a_{n-1} s^{n-1} + ... + a_0)``, ``n = n_poles``,
+    ``m = n_zeros``, the input held between samples (ZOH) and white output noise (an
+    output-error model, like ``tfest``'s default ``Focus = 'simulation'``).
 
     Parameters
     ----------
     time_s : float or array_like
-        Sample interval ``dt_s`` (s) or the time stamps ``t_s`` (s). Stamps must be strictly
-        increasing; mildly non-uniform ones (interval deviations up to ``max_jitter``) are
-        resampled with a :class:`~gripper_env.sysid.data.NonUniformSamplingWarning`.
+        Sample interval ``dt_s`` (s) or the time stamps ``t_s`` (s); see
+        :func:`gripper_env.sysid.data.prepare_data` for how stamps are put on a grid.
     u : array_like
-        Input: desired jaw angle (deg).
+        Input: desired jaw angle (deg); in a closed loop, the servo command.
     y : array_like
         Output: measured jaw angle (deg).
     n_poles : int
         Number of poles ``n >= 1``.
     n_zeros : int
         Number of zeros ``0 <= m <= n``.
+    input_delay_s : float or "estimate"
+        Input delay ``tau`` (s), fixed; or ``"estimate"`` to estimate it within
+        ``[0, max_delay_s]`` (MATLAB: ``InputDelay``, fixed at 0 by default, as here).
+    max_delay_s : float, optional
+        Longest delay considered (s); default :func:`gripper_env.sysid.delay.default_max_delay`.
+    r : array_like, optional
+        Reference of a closed loop (deg), one value per sample: the closed-loop estimator
+        (:mod:`gripper_env.sysid.closed_loop`) is used.
     offset : {"initial", "mean", "none"}
-        Operating point removed before fitting (:mod:`gripper_env.sysid.data`). Default: the
-        initial rest point.
+        Operating point removed before fitting (:mod:`gripper_env.sysid.data`).
     estimate_initial_state : bool
         Estimate the state at the first sample (MATLAB ``InitialCondition = 'estimate'``);
         otherwise the system starts at rest at the operating point.
@@ -283,10 +227,15 @@ def tfest(
     enforce_stability : bool
         Keep the estimate stable (unstable starts are reflected; the denominator coefficients
         are kept >= 0 during the search, which guarantees stability for ``n <= 2``).
-    svf_lambda_rad_s : float, optional
+    svf_lambda_rad_s : float, sequence or None
         Pole of the state-variable filter ``1/(s + lambda)^n`` for the least-squares start
         (rad/s). Default: chosen from the data (a grid from ``2 pi / T`` to a tenth of Nyquist;
-        the candidate that simulates best).
+        the candidate that simulates best). A sequence runs one start per entry (``None`` = the
+        data's choice) and keeps the best, like MATLAB's ``InitializeMethod = 'all'``.
+    start_from : sequence of TFEstimate
+        Lower-order estimates to start from as well
+        (:func:`gripper_env.sysid.starts.nested_theta`): the result then fits the estimation
+        data at least as well as any of them that this order contains.
     max_iter_srivc : int
         Most SRIVC iterations.
     srivc_tol : float
@@ -296,10 +245,11 @@ def tfest(
     tol : float, optional
         ``ftol`` of the output-error search (relative change of the cost). Default
         ``0.02 / N``: stop once an iteration lowers the cost by less than 1 % of one noise
-        variance, far below statistical significance, instead of crawling along the flat valley
-        of an almost-cancelling pole/zero pair. ``xtol`` and ``gtol`` are 1e-8.
-    max_jitter : float
-        Largest relative sample-interval deviation that is resampled rather than refused.
+        variance, far below statistical significance. ``xtol`` and ``gtol`` are 1e-8.
+    max_jitter, max_gap : float
+        Time-stamp tolerances (:func:`gripper_env.sysid.data.prepare_data`).
+    check_feedback : bool
+        Without ``r``, warn when the data look like a feedback loop.
 
     Returns
     -------
@@ -310,26 +260,24 @@ def tfest(
     ValueError
         Bad orders or options, or bad data (see :func:`gripper_env.sysid.data.prepare_data`).
 
+    Warns
+    -----
+    IdentificationWarning
+        Poles beyond the Nyquist frequency, near-cancelling pole/zero pairs, no convergence,
+        feedback without a reference (also kept in :attr:`TFEstimate.warnings`).
+
     Examples
     --------
     >>> import numpy as np
     >>> from gripper_env.sysid import tfest
     >>> from gripper_env.sysid.zoh import zoh_response
     >>> u = np.repeat([92.0, 21.0, 60.0, 92.0], 2000)
-    >>> y = 92.0 + zoh_response([20, 200], [1, 22, 200], u - 92.0, 1e-3)
-    >>> est = tfest(1e-3, u, y)
+    >>> y = 92.0 + zoh_response([20, 200], [1, 22, 200], u - 92.0, 1e-3, delay_s=0.015)
+    >>> est = tfest(1e-3, u, y, input_delay_s="estimate")
     >>> est.paper_form()
-    '(20 s + 200) / (s^2 + 22 s + 200)'
+    '(20 s + 200) / (s^2 + 22 s + 200) exp(-0.015 s)'
     """
-    for name, val in (("n_poles", n_poles), ("n_zeros", n_zeros)):
-        if isinstance(val, bool) or not isinstance(val, int | np.integer):
-            raise ValueError(f"{name} must be an integer, got {val!r}")
-    if n_poles < 1:
-        raise ValueError(f"n_poles must be >= 1, got {n_poles}")
-    if not 0 <= n_zeros <= n_poles:
-        raise ValueError(
-            f"n_zeros must be between 0 and n_poles = {n_poles} (a proper model), got {n_zeros}"
-        )
+    _check_orders(n_poles, n_zeros)
     n, m = int(n_poles), int(n_zeros)
     data = prepare_data(
         time_s,
@@ -338,72 +286,195 @@ def tfest(
         min_samples=min_samples(n, m),
         offset=offset,
         max_jitter=max_jitter,
+        max_gap=max_gap,
         model=f"n_poles={n}, n_zeros={m}",
+        r=r,
     )
+    max_delay = default_max_delay(data.dt_s, data.n_samples) if max_delay_s is None else max_delay_s
+    if not (math.isfinite(max_delay) and max_delay >= 0):
+        raise ValueError(f"max_delay_s (--max-delay) must be >= 0 seconds, got {max_delay_s}")
+    delay = _delay_setting(input_delay_s, max_delay)
+    notes: list[str] = []
+    if data.r is None and check_feedback:
+        fb = feedback_test(data)
+        if fb.feedback:
+            notes.append(
+                f"the input looks fed back from the output ({100 * fb.explained:.0f} % of its "
+                "changes follow the output): an output-error fit of closed-loop data is "
+                "biased; give the loop's reference (--reference COLUMN, r=) to use it as the "
+                "instrument"
+            )
     ftol = 0.02 / data.n_samples if tol is None else float(tol)
-    theta0, lam = initial_estimate(data, n, m, svf_lambda_rad_s)
-    iv = srivc(data, n, m, theta0, max_iter=max_iter_srivc, tol=srivc_tol)
-    theta = iv.theta
+    starts = estimation_starts(data, n, m, svf_lambda_rad_s, start_from, delay)
+    if data.r is not None:
+        est = _closed_loop_estimate(data, n, m, starts, delay, max_delay, max_nfev)
+    else:
+        best: _Candidate | None = None
+        for theta0, lam, tau0 in starts:
+            if tau0 is None:
+                theta, tau, n_iv = _srivc_with_delay(
+                    data, n, m, theta0, delay, max_delay, max_iter_srivc, srivc_tol
+                )
+            else:  # a start from another estimate keeps its delay as the start
+                theta, tau, n_iv = theta0, tau0, 0
+            cand = _refine(
+                data, n, m, theta, tau, delay is None, max_delay, enforce_stability,
+                estimate_initial_state, estimate_output_offset, max_nfev, ftol,
+            )  # fmt: skip
+            cand.lam, cand.n_iter_srivc = lam, n_iv
+            if best is None or cand.cost < best.cost:
+                best = cand
+        assert best is not None
+        est = _estimate(data, n, m, best, delay is None, None, estimate_initial_state,
+                        estimate_output_offset)  # fmt: skip
+    notes += diagnose(est)
+    if data.r is None:
+        notes += delay_hints(data, est, max_delay, fixed=delay is not None)
+    for note in notes:
+        warnings.warn(note, IdentificationWarning, stacklevel=3)
+    return dataclasses.replace(est, warnings=tuple(notes))
+
+
+def _refine(
+    data: IOData,
+    n: int,
+    m: int,
+    theta: np.ndarray,
+    tau: float,
+    estimate_delay: bool,
+    max_delay: float,
+    enforce_stability: bool,
+    estimate_x0: bool,
+    estimate_offset: bool,
+    max_nfev: int,
+    ftol: float,
+) -> _Candidate:
+    """Output-error refinement of one start (stabilised first; retried once if it left the
+    stable region, which bounds alone cannot prevent for n > 2)."""
     if enforce_stability:
         num, den = split_params(theta, n)
         den, _ = stabilise(den)
         theta = np.concatenate([den[1:], num])
-    oe = refine_output_error(
-        data,
-        n,
-        m,
-        theta,
-        estimate_x0=estimate_initial_state,
-        estimate_offset=estimate_output_offset,
+    kwargs = dict(
+        estimate_x0=estimate_x0,
+        estimate_offset=estimate_offset,
         enforce_stability=enforce_stability,
+        delay_s=tau,
+        estimate_delay=estimate_delay,
+        max_delay_s=max_delay,
         max_nfev=max_nfev,
         ftol=ftol,
     )
-    n_iter_oe = oe.n_iter
+    oe = refine_output_error(data, n, m, theta, **kwargs)  # type: ignore[arg-type]
+    n_iter = oe.n_iter
     num, den = split_params(oe.theta, n)
     if enforce_stability and np.any(np.roots(den).real >= 0):
-        # Only possible for n > 2 (bounds alone do not make a Hurwitz polynomial): retry once
-        # from the reflected estimate.
         den_s, _ = stabilise(den)
-        oe = refine_output_error(
-            data,
-            n,
-            m,
-            np.concatenate([den_s[1:], num]),
-            estimate_x0=estimate_initial_state,
-            estimate_offset=estimate_output_offset,
-            enforce_stability=True,
-            max_nfev=max_nfev,
-            ftol=ftol,
-        )
-        n_iter_oe += oe.n_iter
-        num, den = split_params(oe.theta, n)
+        kwargs["delay_s"] = oe.delay_s
+        oe = refine_output_error(data, n, m, np.concatenate([den_s[1:], num]), **kwargs)  # type: ignore[arg-type]
+        n_iter += oe.n_iter
+    oe = dataclasses.replace(oe, n_iter=n_iter)
+    return _Candidate(oe=oe, cost=float(oe.residuals @ oe.residuals), lam=math.nan, n_iter_srivc=0)
+
+
+def _closed_loop_estimate(
+    data: IOData,
+    n: int,
+    m: int,
+    starts: list[tuple[np.ndarray, float, float | None]],
+    delay: float | None,
+    max_delay: float,
+    max_nfev: int,
+) -> TFEstimate:
+    """The indirect closed-loop fit (:func:`gripper_env.sysid.closed_loop.fit_closed_loop`),
+    started from the open-loop SRIVC estimates (biased, but in the right region)."""
+    thetas = [srivc(data, n, m, theta).theta for theta, _, tau in starts if tau is None]
+    thetas += [theta for theta, _, tau in starts if tau is not None]
+    loop = fit_closed_loop(data, n, m, thetas, delay, max_delay, max_nfev=max_nfev)
+    cov = loop.cov
+    oe = OutputErrorResult(
+        theta=loop.theta,
+        delay_s=loop.delay_s,
+        x0=np.zeros(n),
+        offset=loop.offset,
+        residuals=np.zeros(data.n_samples),
+        cov=cov,
+        n_iter=loop.n_iter,
+        converged=loop.converged,
+        message=loop.message,
+    )
+    cand = _Candidate(oe=oe, cost=0.0, lam=math.nan, n_iter_srivc=0)
+    return _estimate(data, n, m, cand, delay is None, loop, False, True)
+
+
+def _loop_dict(loop: ClosedLoopFit) -> dict[str, Any]:
+    return {
+        "controller_num": [float(c) for c in loop.controller_num],
+        "controller_den": [float(c) for c in loop.controller_den],
+        "controller_fit_pct": float(loop.controller_fit_pct),
+        "loop_fit_pct": float(loop.loop_fit_pct),
+    }
+
+
+def _rest_output(data: IOData) -> float:
+    """Mean output (deviation) over the leading samples at which the input has not moved."""
+    moved = np.flatnonzero(data.u != data.u[0])
+    k = int(moved[0]) if moved.size else data.n_samples
+    return float(np.mean(data.y[: max(k, 1)]))
+
+
+def _estimate(
+    data: IOData,
+    n: int,
+    m: int,
+    cand: _Candidate,
+    delay_estimated: bool,
+    loop: ClosedLoopFit | None,
+    estimate_x0: bool,
+    estimate_offset: bool,
+) -> TFEstimate:
+    oe = cand.oe
+    num, den = split_params(oe.theta, n)
     std = np.sqrt(np.clip(np.diag(oe.cov), 0.0, None))
     n_theta = n + m + 1
+    k = n_theta + (n if estimate_x0 and loop is None else 0)
+    y_op_std = float(std[k]) if estimate_offset else 0.0
+    tau_std = float(std[-1]) if delay_estimated and loop is None else 0.0
     y_op = data.y_op + oe.offset
+    x0, residuals = oe.x0, oe.residuals
+    if loop is not None:
+        # report the fit to the measured input, as MATLAB's compare does (initial state refitted)
+        x0, _, _ = fit_initial_state(data, num, den, delay_s=oe.delay_s)
+        y_hat_dev = zoh_response(num, den, data.u, data.dt_s, x0, oe.delay_s) + oe.offset
+        residuals = data.y - y_hat_dev
     y_abs = data.y_abs
-    y_hat = y_abs - oe.residuals
-    y_hat0 = y_op + zoh_response(num, den, data.u, data.dt_s)
+    x_rest = rest_state(num, den, _rest_output(data) - oe.offset, float(data.u[0]))
+    y_rest = y_op + zoh_response(num, den, data.u, data.dt_s, x_rest, oe.delay_s)
     return TFEstimate(
         model=control.tf(num, den),
-        fit_pct=float(fit_percent(y_abs, y_hat)),
-        fit_pct_zero_ic=float(fit_percent(y_abs, y_hat0)),
-        residuals=oe.residuals,
+        fit_pct=float(fit_percent(y_abs, y_abs - residuals)),
+        fit_pct_rest=float(fit_percent(y_abs, y_rest)),
+        residuals=residuals,
         params=oe.theta.copy(),
         params_std=std[:n_theta],
-        param_names=_param_names(n, m),
-        initial_state=oe.x0,
-        initial_state_std=std[n_theta : n_theta + n] if estimate_initial_state else np.zeros(n),
+        param_names=param_names(n, m),
+        initial_state=x0,
+        initial_state_std=std[n_theta : n_theta + n] if estimate_x0 else np.zeros(n),
         stable=bool(np.all(np.roots(den).real < 0)),
         dt_s=data.dt_s,
         u_op=data.u_op,
         y_op=y_op,
-        y_op_std=float(std[-1]) if estimate_output_offset else 0.0,
+        y_op_std=y_op_std,
         offset=data.offset,
-        n_iter_srivc=iv.n_iter,
-        n_iter_oe=n_iter_oe,
+        input_delay_s=float(oe.delay_s),
+        input_delay_std_s=tau_std,
+        delay_estimated=delay_estimated,
+        n_iter_srivc=cand.n_iter_srivc,
+        n_iter_oe=oe.n_iter,
         converged=oe.converged,
-        svf_lambda_rad_s=lam,
-        resampled=data.resampled,
+        svf_lambda_rad_s=cand.lam,
+        time_base=data.time_base,
+        jitter=data.jitter,
+        closed_loop=None if loop is None else _loop_dict(loop),
         message=oe.message,
     )

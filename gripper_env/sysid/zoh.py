@@ -2,12 +2,14 @@
 
 Identification simulates many candidate models on tens of thousands of samples, so it never calls
 :func:`control.forced_response`. Every continuous-time LTI system it needs (the model, its
-parameter sensitivities, the state-variable filters) is written in state space, discretised
-*exactly* for the way its input behaves between samples, and run by a compiled loop
-(:func:`run_states`, about 1 ms per 60 000 samples for a few states):
+parameter sensitivities, the state-variable filters) is written in state space
+(:mod:`gripper_env.state_space`, shared with the simulation core), discretised *exactly* for the
+way its input behaves between samples, and run by a compiled loop (:func:`run_states`, about
+1 ms per 60 000 samples for a few states):
 
 - zero-order hold (``hold="zoh"``): the input is held between samples, which is exact for the
-  commanded angle;
+  commanded angle -- also when it reaches the system after an input delay that is not a whole
+  number of samples (:func:`delayed_input`);
 - first-order hold (``hold="foh"``): the input is linear between samples, accurate for smooth
   signals such as the measured angle.
 
@@ -15,79 +17,58 @@ State space rather than transfer-function filters (``lfilter``): at 1 ms samplin
 slow poles map to ``z = 1 - 1.5e-7``; a polynomial with such roots, let alone the double roots of
 the sensitivity filters ``B/A^2``, loses most of its digits, while the block-companion state
 matrices used here keep every block's eigenvalues well separated.
-
-Realisations (``den = s^n + a_{n-1} s^{n-1} + ... + a_0``):
-
-- :func:`observer_form` for the model: ``C (sI - A)^-1 = [s^{n-1}, ..., s, 1] / den``, so the
-  initial state ``x0`` gives the free response ``(x0[0] s^{n-1} + ... + x0[n-1]) / den`` and
-  ``x0[0]`` is the initial output (minus the direct term).
-- :func:`controllable_form` for filters: with input ``w`` its states are
-  ``[1, s, ..., s^{n-1}] / den * w``, i.e. all filtered derivatives at once.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
+from gripper_env.state_space import controllable_form, discretise, observer_form
+
 __all__ = [
-    "controllable_form",
-    "discretise",
-    "expm",
+    "delayed_input",
     "filtered_derivatives",
-    "observer_form",
     "run_states",
+    "split_delay",
     "zoh_response",
 ]
 
 
-@njit(cache=True)
-def expm(m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Matrix exponential of a small square matrix (scaling and squaring, Taylor degree 18).
+def split_delay(delay_s: float, dt_s: float) -> tuple[int, float]:
+    """``delay_s = (whole + fraction) * dt_s`` with ``whole >= 0`` and ``0 <= fraction < 1``.
 
-    Plain loops because ``scipy.linalg.expm`` goes through a threaded BLAS whose start-up costs
-    milliseconds per call on a busy machine, and identification calls this hundreds of times on
-    matrices of size 3 to 13. Exact zero blocks stay exactly zero (block-triangular structure is
-    kept). Accurate to rounding after scaling to ``||m|| 2^-s <= 0.5``.
+    A fraction within 1e-9 of a whole sample counts as that whole sample (float rounding).
     """
-    n = m.shape[0]
-    norm = 0.0
-    for j in range(n):
-        col = 0.0
-        for i in range(n):
-            col += abs(m[i, j])
-        norm = max(norm, col)
-    s = 0
-    while norm > 0.5:
-        norm *= 0.5
-        s += 1
-    a = m * 0.5**s
-    # Horner: e = I + a (I + a/2 (I + a/3 (...)))
-    e = np.eye(n)
-    for k in range(18, 0, -1):
-        t = np.zeros((n, n))
-        for i in range(n):
-            for q in range(n):
-                aiq = a[i, q]
-                if aiq != 0.0:
-                    for j in range(n):
-                        t[i, j] += aiq * e[q, j]
-        for i in range(n):
-            for j in range(n):
-                t[i, j] /= k
-            t[i, i] += 1.0
-        e = t
-    for _ in range(s):
-        t = np.zeros((n, n))
-        for i in range(n):
-            for q in range(n):
-                eiq = e[i, q]
-                if eiq != 0.0:
-                    for j in range(n):
-                        t[i, j] += eiq * e[q, j]
-        e = t
-    return e
+    if not (math.isfinite(delay_s) and delay_s >= 0.0):
+        raise ValueError(f"the input delay must be a finite number of seconds >= 0, got {delay_s}")
+    x = delay_s / dt_s
+    whole = math.floor(x + 1e-9)
+    frac = x - whole
+    return whole, (0.0 if frac < 1e-9 else frac)
+
+
+def delayed_input(u: np.ndarray, delay_s: float, dt_s: float) -> tuple[np.ndarray, float]:
+    """The held input as a delayed system sees it, and the delay's fractional part.
+
+    Returns ``(w, f)`` for :func:`gripper_env.state_space.discretise` with
+    ``delay_fraction = f``: ``w[k] = u[k - d]`` (``f = 0``) or ``u[k - d - 1]`` (``f > 0``) for the
+    whole-sample part ``d``; before the record the input is taken to have been ``u[0]``. At a
+    sample instant the system sees ``w[k]`` (the direct term of a biproper model uses it).
+    """
+    whole, frac = split_delay(delay_s, dt_s)
+    shift = whole + (1 if frac > 0.0 else 0)
+    u = np.ascontiguousarray(u, dtype=float)
+    if shift == 0:
+        return u, frac
+    w = np.empty_like(u)
+    k = min(shift, u.size)
+    w[:k] = u[0]
+    w[k:] = u[: u.size - k]
+    return w, frac
 
 
 @njit(cache=True)
@@ -125,112 +106,38 @@ def run_states(
     return out
 
 
-def _monic(num: ArrayLike, den: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    den = np.atleast_1d(np.asarray(den, dtype=float))
-    num = np.atleast_1d(np.asarray(num, dtype=float))
-    if den.size < 2:
-        raise ValueError("den must have degree >= 1")
-    if den[0] == 0:
-        raise ValueError("the leading coefficient of den must be nonzero")
-    if num.size > den.size:
-        raise ValueError("improper transfer function: deg num > deg den")
-    return num / den[0], den / den[0]
-
-
-def observer_form(
-    num: ArrayLike, den: ArrayLike
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Observer canonical realisation ``(A, B, C, D)`` of a proper transfer function.
-
-    .. code-block:: text
-
-        A = [[-a_{n-1}, 1, 0, ...],      B = coefficients of num(s) - D den(s) (length n)
-             [-a_{n-2}, 0, 1, ...],      C = [1, 0, ..., 0]
-             ...                         D = direct term (nonzero only if deg num = deg den)
-             [-a_0,     0, 0, ...]]
-
-    Observable for any numerator. ``den`` is made monic.
-    """
-    num, den = _monic(num, den)
-    n = den.size - 1
-    num = np.concatenate([np.zeros(den.size - num.size), num])
-    d = float(num[0])
-    b = num[1:] - d * den[1:]
-    a_mat = np.zeros((n, n))
-    a_mat[:, 0] = -den[1:]
-    a_mat[np.arange(n - 1), np.arange(1, n)] = 1.0
-    c = np.zeros(n)
-    c[0] = 1.0
-    return a_mat, b, c, d
-
-
-def controllable_form(den: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """Controllable canonical ``(A, B)`` of ``1/den``: states ``[1, s, ..., s^{n-1}] / den``."""
-    _, den = _monic([1.0], den)
-    n = den.size - 1
-    a_mat = np.zeros((n, n))
-    a_mat[np.arange(n - 1), np.arange(1, n)] = 1.0
-    a_mat[-1, :] = -den[:0:-1]
-    b = np.zeros(n)
-    b[-1] = 1.0
-    return a_mat, b
-
-
-def discretise(
-    m: np.ndarray, g: np.ndarray, dt_s: float, hold: str = "zoh"
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact sampling of ``dz/dt = m z + g w`` for a held or linearly interpolated input.
-
-    Parameters
-    ----------
-    m : ndarray, shape (nz, nz)
-        State matrix (1/s).
-    g : ndarray, shape (nz,)
-        Input vector.
-    dt_s : float
-        Sample interval (s).
-    hold : {"zoh", "foh"}
-        ``"zoh"``: ``w`` constant on ``[t_k, t_{k+1})``; ``"foh"``: linear between samples.
-
-    Returns
-    -------
-    phi, g0, g1 : ndarray
-        ``z[k+1] = phi z[k] + g0 w[k] + g1 w[k+1]`` (``g1 = 0`` for ``"zoh"``).
-    """
-    nz = m.shape[0]
-    if hold == "zoh":
-        big = np.zeros((nz + 1, nz + 1))
-        big[:nz, :nz] = m * dt_s
-        big[:nz, nz] = g * dt_s
-        e = expm(big)
-        return e[:nz, :nz], e[:nz, nz].copy(), np.zeros(nz)
-    if hold != "foh":
-        raise ValueError(f"hold must be 'zoh' or 'foh', got {hold!r}")
-    big = np.zeros((nz + 2, nz + 2))
-    big[:nz, :nz] = m * dt_s
-    big[:nz, nz] = g * dt_s
-    big[nz, nz + 1] = 1.0
-    e = expm(big)
-    # w(t_k + tau) = w_k + (w_{k+1} - w_k) tau/dt:  g_int = int e^{m(dt-tau)} g dtau,
-    # g_ramp = int e^{m(dt-tau)} g tau/dt dtau.
-    g_int = e[:nz, nz]
-    g_ramp = e[:nz, nz + 1]
-    return e[:nz, :nz], g_int - g_ramp, g_ramp.copy()
-
-
 def filtered_derivatives(
-    den: ArrayLike, w: np.ndarray, dt_s: float, hold: str = "zoh"
+    den: ArrayLike, w: np.ndarray, dt_s: float, hold: str = "zoh", delay_s: float = 0.0
 ) -> np.ndarray:
     """``s^i / den(s) * w`` for ``i = 0 .. n``, sampled, from rest.
 
-    Returns an array of shape ``(len(w), n + 1)``; column ``n`` (``s^n/den``, biproper) is
-    ``w - a_{n-1} col_{n-1} - ... - a_0 col_0``.
+    Parameters
+    ----------
+    den : array_like
+        Filter denominator, highest power of ``s`` first.
+    w : ndarray
+        Filter input, one value per sample.
+    dt_s : float
+        Sample interval (s).
+    hold : {"zoh", "foh"}
+        How ``w`` behaves between samples.
+    delay_s : float
+        Input delay (s; ``"zoh"`` only): the filters see ``w`` this late.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(len(w), n + 1)``; column ``n`` (``s^n/den``, biproper) is
+        ``w - a_{n-1} col_{n-1} - ... - a_0 col_0`` (with the delayed ``w``).
     """
     den = np.atleast_1d(np.asarray(den, dtype=float))
     a_mat, b = controllable_form(den)
     n = a_mat.shape[0]
-    phi, g0, g1 = discretise(a_mat, b, dt_s, hold)
     w = np.ascontiguousarray(w, dtype=float)
+    frac = 0.0
+    if delay_s:
+        w, frac = delayed_input(w, delay_s, dt_s)
+    phi, g0, g1 = discretise(a_mat, b, dt_s, hold, frac)
     states = run_states(phi, g0, g1, w, np.zeros(n))
     top = w - states @ (den[:0:-1] / den[0])
     return np.column_stack([states, top]) / den[0]
@@ -242,6 +149,7 @@ def zoh_response(
     u: ArrayLike,
     dt_s: float,
     x0: ArrayLike | None = None,
+    delay_s: float = 0.0,
 ) -> np.ndarray:
     """Response of ``num/den`` to the held input ``u`` from the observer-form state ``x0``.
 
@@ -254,7 +162,11 @@ def zoh_response(
     dt_s : float
         Sample interval (s).
     x0 : array_like, optional
-        State at the first sample (:func:`observer_form`); zero if omitted.
+        State at the first sample (:func:`gripper_env.state_space.observer_form`); zero if
+        omitted. Its free response is not delayed.
+    delay_s : float
+        Input delay (s), any value >= 0: ``y = G(s) e^{-s delay} u``, sampled exactly; before
+        the record the input is taken to have been ``u[0]``.
 
     Returns
     -------
@@ -263,9 +175,12 @@ def zoh_response(
     """
     a_mat, b, _, d = observer_form(num, den)
     n = a_mat.shape[0]
-    phi, g0, g1 = discretise(a_mat, b, dt_s, "zoh")
-    u_arr = np.ascontiguousarray(u, dtype=float)
+    w = np.ascontiguousarray(u, dtype=float)
+    frac = 0.0
+    if delay_s:
+        w, frac = delayed_input(w, delay_s, dt_s)
+    phi, g0, g1 = discretise(a_mat, b, dt_s, "zoh", frac)
     z0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).copy()
     if z0.shape != (n,):
         raise ValueError(f"x0 must have {n} elements, got shape {z0.shape}")
-    return run_states(phi, g0, g1, u_arr, z0)[:, 0] + d * u_arr
+    return run_states(phi, g0, g1, w, z0)[:, 0] + d * w

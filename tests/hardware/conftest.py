@@ -81,3 +81,16 @@ def harness_f32(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Harness]:
     h = Harness(_build(tmp_path_factory.mktemp("harness_f32"), "float"))
     yield h
     h.close()
+
+
+@pytest.fixture(scope="session")
+def emulator_build(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The firmware image and the simavr harness, built by the project's scripts into this
+    session's own directory (parallel workers do not share a build tree)."""
+    from gripper_env.hardware.emulator import build_harness, build_image, emulator_missing
+
+    why = emulator_missing()
+    if why:
+        pytest.skip(f"the firmware-in-the-loop tests need simavr and the AVR toolchain: {why}")
+    out = tmp_path_factory.mktemp("emulator")
+    return build_image(out / "image"), build_harness(out / "harness")

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from virtual_support import run_cli
+from virtual_support import gains_file, run_cli, short_step_csv
 
 from gripper_env.hardware.calibration import load_calibration
 from gripper_env.hardware.virtual import VirtualDevice
@@ -37,31 +37,6 @@ def calibration_file(virtual, tmp_path_factory) -> str:
     return str(path)
 
 
-def _gains_file(path, p: float, i: float, d: float) -> str:
-    content = {
-        "format": "gripper-gains",
-        "format_version": 1,
-        "plant": "test2",
-        "tuner": "manual",
-        "P": p,
-        "I": i,
-        "D": d,
-        "N": 100.0,
-        "sign": 1,
-        "limits": {"output_deg": [21.0, 92.0], "anti_windup": "clamping", "kb": 1.0},
-    }
-    path.write_text(json.dumps(content))
-    return str(path)
-
-
-def _short_step_csv(path) -> str:
-    t = np.arange(0, 4.0, 0.01)
-    r = np.where((t >= 0.5) & (t < 2.5), 21.0, 92.0)
-    np.savetxt(path, np.column_stack([t, r]), delimiter=",", header="t_s,reference_deg",
-               comments="")  # fmt: skip
-    return str(path)
-
-
 def test_calibrate_measures_both_ends(virtual, calibration_file) -> None:
     cal = load_calibration(calibration_file)
     lo, hi = virtual.rig.true_calibration
@@ -87,10 +62,10 @@ def test_record_writes_the_identification_csv(virtual, calibration_file, tmp_pat
 def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
     virtual, calibration_file, tmp_path
 ) -> None:
-    gains = _gains_file(tmp_path / "tuned.json", 1.0, 9.0, -0.001)
+    gains = gains_file(tmp_path / "tuned.json", 1.0, 9.0, -0.001)
     result = run_cli(
         "tuners.deploy", "--gains", gains, "--port", virtual.path, *SPEED,
-        "--calibration", calibration_file, "--profile", _short_step_csv(tmp_path / "step.csv"),
+        "--calibration", calibration_file, "--profile", short_step_csv(tmp_path / "step.csv"),
         "--output-dir", str(tmp_path / "out"),
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
@@ -105,7 +80,7 @@ def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
 def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
     virtual, calibration_file, tmp_path
 ) -> None:
-    gains = _gains_file(tmp_path / "hw.json", -0.5, -3.6, 0.000186)  # paper's hardware gains
+    gains = gains_file(tmp_path / "hw.json", -0.5, -3.6, 0.000186)  # paper's hardware gains
     args = ("--gains", gains, "--port", virtual.path, *SPEED, "--calibration", calibration_file)
     out = ("--output-dir", str(tmp_path / "out"), "--no-plot")
     refused = run_cli("tuners.deploy", *args, *out)
@@ -113,7 +88,7 @@ def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
     assert "unstable closed loop on plant test2" in refused.stderr
     assert "Traceback" not in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
-    short = ("--profile", _short_step_csv(tmp_path / "step.csv"))
+    short = ("--profile", short_step_csv(tmp_path / "step.csv"))
     forced = run_cli("tuners.deploy", *args, *out, *short, "--allow-unstable")
     assert forced.returncode == 0, forced.stderr
     # the jaw clamp held whatever the PID asked

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.device import GripperDevice
@@ -45,3 +48,33 @@ def run_cli(module: str, *args: str, timeout_s: float = 60.0) -> subprocess.Comp
         timeout=timeout_s,
         check=False,
     )
+
+
+def gains_file(path: Path, p: float, i: float, d: float) -> str:
+    """A gains file for test2 (clamping, the jaw range as output limits); returns its path."""
+    content = {
+        "format": "gripper-gains",
+        "format_version": 1,
+        "plant": "test2",
+        "tuner": "manual",
+        "P": p,
+        "I": i,
+        "D": d,
+        "N": 100.0,
+        "sign": 1,
+        "limits": {"output_deg": [21.0, 92.0], "anti_windup": "clamping", "kb": 1.0},
+    }
+    path.write_text(json.dumps(content))
+    return str(path)
+
+
+def short_step_csv(
+    path: Path, grip_s: float = 0.5, ungrip_s: float = 2.5, end_s: float = 4.0
+) -> str:
+    """A step profile as a CSV (t_s, reference_deg, 10 ms apart): 92 deg, 21 from ``grip_s`` to
+    ``ungrip_s``, 92 again until ``end_s``; returns its path."""
+    t = np.arange(0, end_s, 0.01)
+    r = np.where((t >= grip_s) & (t < ungrip_s), 21.0, 92.0)
+    np.savetxt(path, np.column_stack([t, r]), delimiter=",", header="t_s,reference_deg",
+               comments="")  # fmt: skip
+    return str(path)

@@ -71,18 +71,30 @@ def test_time_stamps(record):
         tfest(t[:-1], u, y)
     gap = t.copy()
     gap[1000:] += 5 * DT_S  # a dropped stretch: refused, not papered over
-    with pytest.raises(ValueError, match="non-uniform time stamps"):
+    with pytest.raises(ValueError, match=r"gap in the time stamps.*--max-gap 6"):
         tfest(gap, u, y)
+    est = tfest(gap, u, y, max_gap=6.0)  # or resampled across, when allowed
+    assert est.resampled
 
 
-def test_mild_jitter_is_resampled_with_a_warning(record):
+def test_mild_jitter_is_snapped_without_a_warning(record):
     u, y = record
     rng = np.random.default_rng(3)
     t = np.arange(u.size) * DT_S + rng.uniform(-0.01, 0.01, u.size) * DT_S
-    with pytest.warns(NonUniformSamplingWarning, match="resampled"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         est = tfest(t, u, y)
-    assert est.resampled
-    np.testing.assert_allclose(est.den, DEN, rtol=0.05)
+    assert est.time_base == "snapped" and not est.resampled
+    np.testing.assert_allclose(est.den, DEN, rtol=1e-3)
+
+
+def test_irregular_stamps_are_resampled_with_a_warning(record):
+    u, y = record
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.4, 1.6, u.size)) * DT_S  # a logger without a clock
+    with pytest.warns(NonUniformSamplingWarning, match="resampled"):
+        data = prepare_data(t, u, y)
+    assert data.resampled and data.dt_s == pytest.approx(DT_S, rel=0.02)
 
 
 def test_uniform_data_do_not_warn(record):

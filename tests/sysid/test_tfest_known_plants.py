@@ -41,7 +41,8 @@ def test_fit_and_stability(identified):
     # The reported fit is the one of the reported residuals and of simulate().
     assert est.fit_pct == pytest.approx(fit_pct(y, y - est.residuals), abs=1e-9)
     assert est.fit_pct == pytest.approx(fit_pct(y, est.simulate(u)), abs=1e-6)
-    assert est.fit_pct_zero_ic == pytest.approx(fit_pct(y, est.simulate(u, np.zeros(2))), abs=1e-6)
+    rest = est.rest_state(float(np.mean(y[:500])), float(u[0]))  # at rest for 0.5 s
+    assert est.fit_pct_rest == pytest.approx(fit_pct(y, est.simulate(u, rest)), abs=1e-6)
     # Against the noise-free output the model is far better than against the noisy data.
     assert fit_pct(y_clean, est.simulate(u)) > 99.5
     # Residuals are the measurement noise (0.3 deg plus quantisation, ~0.31 deg RMS).

@@ -8,8 +8,9 @@ import pytest
 import scipy.linalg
 from scipy import signal
 
+from gripper_env.state_space import expm, observer_form
 from gripper_env.sysid.sensitivity import model_sensitivities
-from gripper_env.sysid.zoh import expm, filtered_derivatives, observer_form, zoh_response
+from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
 
 from .signals import PAPER_TFS, lsim_zoh
 

@@ -1,1 +1,0 @@
-gripper/gripper_core.h

@@ -1,0 +1,70 @@
+"""The README's recipe end to end, through the command lines, against the virtual device:
+calibrate -> record -> identify (transfer function, friction, sensor, delay) -> tune -> deploy.
+
+Each step is the command a user types (``main(argv)`` of its module, in-process for speed), so
+the test keeps working while the commands' insides change. Budgets are small (a 20 s slope,
+16 Optuna trials). The identified plant and preset go where the README puts them
+(``configs/plants/mine.yaml``, ``configs/disturbances/mine.yaml``) in a copy of the
+configuration tree, so the tuner and the deploy gate find them by name.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+import gripper_env.config
+from gripper_env.disturbances import load_disturbance
+from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.plants import load_plant
+from gripper_env.sysid.__main__ import main as sysid
+
+
+@pytest.fixture
+def configs(tmp_path, monkeypatch):
+    folder = tmp_path / "configs"
+    shutil.copytree(gripper_env.config.CONFIG_DIR, folder)
+    monkeypatch.setattr(gripper_env.config, "CONFIG_DIR", folder)
+    return folder
+
+
+def test_record_identify_tune_deploy(configs, tmp_path, capsys):
+    from tuners import calibrate, deploy, record
+    from tuners import optuna as optuna_tuner
+
+    truth = load_disturbance("actual")
+    cal, log = tmp_path / "calibration.json", tmp_path / "mine_slope20.csv"
+    board = ["--boot-wait", "0"]
+    with VirtualDevice("test2", "actual", speed=0, seed=3) as vd:
+        assert calibrate.main(["--port", vd.path, *board, "--output", str(cal)]) == 0
+        assert record.main(["--port", vd.path, *board, "--calibration", str(cal),
+                            "--profile", "slope20", "--output", str(log)]) == 0  # fmt: skip
+    capsys.readouterr()
+    plant, preset = configs / "plants" / "mine.yaml", configs / "disturbances" / "mine.yaml"
+    assert sysid(["greybox", str(log), "--name", "mine", "--json", "--save-plant", str(plant),
+                  "--save-disturbance", str(preset)]) == 0  # fmt: skip
+    found = json.loads(capsys.readouterr().out)
+    # the virtual rig is test2 behind the actual preset (its board reads the sensor 1 ms late)
+    assert found["friction"]["S_deg"] == pytest.approx(truth.friction.S_deg, rel=0.15)
+    assert found["friction"]["J_deg"] == pytest.approx(truth.friction.J_deg, rel=0.15)
+    assert found["sensor"]["noise_std_deg"] == pytest.approx(truth.sensor.noise_std_deg, rel=0.15)
+    assert found["delay_s"] <= 5e-3  # 1 ms, known to a few ms from a slope
+    assert load_plant("mine").is_stable and load_disturbance("mine").friction.model == "choudhury"
+
+    results = tmp_path / "results"
+    assert optuna_tuner.main(["--plant", "mine", "--disturbance", "mine", "--trials", "16",
+                              "--out", str(results), "--no-progress"]) == 0  # fmt: skip
+    gains = results / "mine" / "optuna.json"
+    assert json.loads(gains.read_text())["plant"] == "mine"
+
+    out = tmp_path / "deploy"
+    with VirtualDevice("test2", "actual", speed=0, seed=4) as vd:
+        assert deploy.main(["--gains", str(gains), "--port", vd.path, *board, "--calibration",
+                            str(cal), "--disturbance", "mine", "--output-dir", str(out),
+                            "--no-plot"]) == 0  # fmt: skip
+    report = json.loads((out / "report.json").read_text())
+    assert report["stability"]["stable"]
+    # the board's response is the one the identified model predicted
+    assert report["fit_pct"] > 90.0
