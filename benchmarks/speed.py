@@ -10,8 +10,9 @@
 * a batch of 1024 such episodes (parallel over the machine's cores), with and without recording
   the trajectories;
 * then the Gymnasium environments (:mod:`benchmarks.envs_speed`): ``GripperServo-v0`` against
-  ``CartPole-v1``, the native vector env against ``SyncVectorEnv`` at N = 1024, and
-  ``GripperPIDTune-v0`` episodes per second;
+  ``CartPole-v1``, the native vector env against ``SyncVectorEnv`` at N = 1, 8, 32, 64, 256 and
+  1024 (the N sweep), the cost of an ``rgb_array`` frame, and ``GripperPIDTune-v0`` episodes per
+  second;
 
 and writes ``results/speed.md`` and ``results/speed.json``. The machine is shared and noisy:
 figures are medians and the ratios are measured in the same run.

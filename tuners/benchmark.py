@@ -78,6 +78,7 @@ class _RLPart(BaseModel):
     algo: str = "ppo"
     timesteps: int = Field(800, ge=1)
     search_seeds: int = Field(3, ge=1)
+    controller: bool = True  # the RL controller row (configs/tuners/rl_controller.yaml)
 
 
 class _RobustPart(BaseModel):
@@ -149,9 +150,14 @@ def grip_scenario(
         randomize=s.randomize,
         pid_options=actual,
     )
+    return grip_summary(traj, inputs, preset)
+
+
+def grip_summary(traj: Any, inputs: cli.Inputs, preset: str) -> dict[str, Any]:
+    """:func:`grip_scenario`'s figures from the scenario's trajectory (any controller's)."""
     ungrip = [seg for seg in inputs.reference.segments if seg.kind == "ungrip"]
     release = []
-    for b in range(len(seeds)):
+    for b in range(traj.y_true.shape[0]):
         y = traj.y_true[b]
         if not ungrip or not traj.stable[b]:
             release.append(np.inf)
@@ -493,6 +499,8 @@ def run_benchmark(
             )
         if robust is not None:
             _robust_rows(inputs, rows, record, robust, rl_module)
+        if rl_module is not None and bench.rl.controller:
+            _controller_row(inputs, rows, rl_module, bench, quick, out, log, command)
         front = _pareto_front(inputs, bench, cls, quick)
         data["plants"][plant] = {
             "feasible": True,
@@ -521,6 +529,41 @@ def _rl_module(bench: BenchmarkSettings) -> tuple[Any, str | None]:
             f"RL tuner not run: it needs the Gymnasium environments and stable-baselines3 ({exc})"
         )
     return rl_module, None
+
+
+def _controller_row(
+    inputs: cli.Inputs,
+    rows: dict[str, Any],
+    rl_module: Any,
+    bench: BenchmarkSettings,
+    quick: bool,
+    out: Path,
+    log: Callable[..., None],
+    command: str | None,
+) -> None:
+    """The RL controller (a PPO residual policy): trained to correct this plant's best
+    deployable PID (the ranked row of lowest cost so far), scored on the same seeds."""
+    pids = [
+        n for n, r in rows.items()
+        if r["P"] is not None and r["sign"] == 1 and leaderboard.why_not_ranked(r) is None
+    ]  # fmt: skip
+    if not pids:
+        log(f"  {inputs.plant.name}: no deployable PID to base the RL controller on; skipped")
+        return
+    best = min(pids, key=lambda n: rows[n]["metrics"]["actual"]["mean"]["cost"])
+    r = rows[best]
+    base = PIDGains(r["P"], r["I"], r["D"], r["N"])
+    row = rl_module.controller_row(
+        inputs, base, out=out, quick=quick, grip_preset=bench.grip_scenario,
+        log=log, command=command,
+    )  # fmt: skip
+    row["tuning"]["base_tuner"] = best
+    rows["rl-controller"] = row
+    a, b = row["metrics"]["actual"]["mean"], r["metrics"]["actual"]["mean"]
+    log(
+        f"  {inputs.plant.name:6s} {'rl-controller':24s} IAE {a['iae']:8.3f}  (its base "
+        f"{best}: {b['iae']:.3f}; trained {row['tuning']['timesteps']} steps)"
+    )
 
 
 def _robust_rows(

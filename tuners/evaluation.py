@@ -49,6 +49,7 @@ __all__ = [
     "robustness_block",
     "summarize_runs",
     "with_cost",
+    "worst_case",
 ]
 
 #: The paper's four identifications of the one gripper (cross-model evaluation).
@@ -213,6 +214,12 @@ def cross_model(
             "stall_s": float(np.mean(m.run["stall_s"])),
             "profile_feasible": reach.feasible,
         }
+    return worst_case(per)
+
+
+def worst_case(per: dict[str, Any]) -> dict[str, Any]:
+    """:func:`cross_model`'s result from its per-plant entries: the worst case over the plants
+    whose profile is feasible (also used for policies, :mod:`tuners.rl_controller`)."""
     counted = {k: v for k, v in per.items() if v["profile_feasible"]}
     if not counted:
         return {"plants": per, "worst": {}} if per else {}

@@ -8,6 +8,7 @@ Usage::
     python -m tuners.rl train --plant test1,test2,test3            # plant-conditioned policy
     python -m tuners.rl export --plant test4 --run pid-tune-ppo-test1+test2+test3
     python -m tuners.rl train --plant test2 --env gain-schedule     # or servo: metrics only
+    python -m tuners.rl controller --plant test2                   # the RL controller
     tensorboard --logdir results/rl
 
 ``pid-tune`` is a contextual bandit: one step chooses P, I, D for a whole 20 s episode, the reward
@@ -34,16 +35,18 @@ from typing import Any
 import numpy as np
 
 from gripper_env.config import ConfigError
+from gripper_env.disturbances import load_disturbance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
 from gripper_env.scoring import GainScorer, Task, score_trajectory
 from tuners import cli
 from tuners.gains_file import write_json
+from tuners.rl_controller import controller_row  # the benchmark's RL-controller row
 from tuners.search_space import search_space
 from tuners.settings import OptunaSettings, load_settings
 
-__all__ = ["ENV_IDS", "benchmark_tune", "main", "policy_gains", "train"]
+__all__ = ["ENV_IDS", "benchmark_tune", "controller_row", "main", "policy_gains", "train"]
 
 ENV_IDS = {
     "pid-tune": "gripper_env/GripperPIDTune-v0",
@@ -107,85 +110,17 @@ def env_kwargs(inputs: cli.Inputs, plants: list[str], env: str) -> dict[str, Any
 
 
 def make_vec_env(env: str, kwargs: dict[str, Any], n_envs: int, seed: int):
-    """A stable-baselines3 VecEnv of ``n_envs`` environments.
-
-    ``pid-tune`` uses the native vector environment (one core call per step); its episodes all
-    end at every step, so each step is followed by the autoreset step of Gymnasium's
-    ``NEXT_STEP`` mode. The others are a ``DummyVecEnv`` of single environments.
-    """
-    gym = _require_envs()
-    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
-
-    if env != "pid-tune":
-        return sb3_make_vec_env(ENV_IDS[env], n_envs=n_envs, seed=seed, env_kwargs=kwargs)
+    """A stable-baselines3 VecEnv of ``n_envs`` environments: the native vector environment
+    (one core call per step) through :class:`gripper_env.sb3.NativeVecEnv`, under ``VecMonitor``
+    (episode returns for the logs and the evaluation callback)."""
+    _require_envs()
     from stable_baselines3.common.vec_env import VecMonitor
 
-    vec = gym.make_vec(
-        ENV_IDS[env], num_envs=n_envs, vectorization_mode="vector_entry_point", **kwargs
-    )
-    return VecMonitor(_BanditVecEnv(vec, seed))  # episode returns for logs and evaluation
+    from gripper_env.sb3 import NativeVecEnv
 
-
-def _bandit_vec_env_class():
-    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-
-    class BanditVecEnv(VecEnv):
-        """SB3 view of a Gymnasium vector env whose episodes are one step long."""
-
-        def __init__(self, vec: Any, seed: int) -> None:
-            self.vec = vec
-            super().__init__(vec.num_envs, vec.single_observation_space, vec.single_action_space)
-            self._seed = seed
-            self._actions: np.ndarray | None = None
-            self._obs: np.ndarray | None = None
-
-        def reset(self):
-            obs, _ = self.vec.reset(seed=self._seed)
-            self._seed = None
-            self._obs = obs
-            return obs
-
-        def step_async(self, actions: np.ndarray) -> None:
-            self._actions = np.asarray(actions, dtype=np.float32)
-
-        def step_wait(self):
-            obs, rew, term, trunc, info = self.vec.step(self._actions)
-            done = np.logical_or(term, trunc)
-            costs = np.asarray(info.get("cost", -rew), dtype=float)
-            infos = [
-                {"terminal_observation": obs[i], "cost": float(costs[i])}
-                for i in range(self.num_envs)
-            ]
-            if done.all():  # NEXT_STEP autoreset: this step only starts the next episodes
-                obs, *_ = self.vec.step(self._actions)
-            self._obs = obs
-            return obs, rew.astype(np.float32), done, infos
-
-        def close(self) -> None:
-            self.vec.close()
-
-        def get_attr(self, attr_name, indices=None):
-            return [getattr(self.vec, attr_name, None)] * len(self._idx(indices))
-
-        def set_attr(self, attr_name, value, indices=None) -> None:
-            setattr(self.vec, attr_name, value)
-
-        def env_method(self, method_name, *args, indices=None, **kwargs):
-            return [getattr(self.vec, method_name)(*args, **kwargs)]
-
-        def env_is_wrapped(self, wrapper_class, indices=None):
-            return [False] * len(self._idx(indices))
-
-        def _idx(self, indices):
-            if indices is None:
-                return range(self.num_envs)
-            return [indices] if isinstance(indices, int) else list(indices)
-
-    return BanditVecEnv
-
-
-def _BanditVecEnv(vec: Any, seed: int):  # a class made on first use (lazy import)
-    return _bandit_vec_env_class()(vec, seed)
+    vec = VecMonitor(NativeVecEnv(ENV_IDS[env], num_envs=n_envs, **kwargs))
+    vec.seed(seed)
+    return vec
 
 
 def policy_gains(model: Any, env_id: str, kwargs: dict[str, Any], plant: str) -> PIDGains:
@@ -206,47 +141,34 @@ def policy_gains(model: Any, env_id: str, kwargs: dict[str, Any], plant: str) ->
 
 
 def evaluate_controller(
-    model: Any, env_id: str, kwargs: dict[str, Any], plant: str, seeds: list[int], profile: str
+    model: Any,
+    env_id: str,
+    kwargs: dict[str, Any],
+    plant: str,
+    seeds: list[int],
+    profile: str,
+    objective: Any = None,
 ) -> dict[str, Any]:
     """Metrics of a ``gain-schedule`` or ``servo`` policy over held-out episodes.
 
-    Each seed runs one episode (deterministic policy) with ``render_mode="rgb_array"`` so the
-    environment keeps its reference, measured position and command; those become a trajectory
-    for :func:`gripper_env.metrics.compute_metrics` and the shared objective, summarised like a
+    The deterministic policy runs one episode per seed (:func:`gripper_env.envs.rollout.
+    policy_trajectory`: the episodes :func:`~gripper_env.simulation.simulate` runs for those
+    seeds) and the trajectories are scored through the one scoring path
+    (:func:`gripper_env.scoring.score_trajectory`, the objective's signal), summarised like a
     gains file's ``actual`` block.
     """
-    gym = _require_envs()
-    from gripper_env.references import load_reference
-    from gripper_env.simulation import Trajectory
+    _require_envs()
+    from gripper_env.envs.rollout import policy_trajectory
     from tuners.evaluation import summarize_runs, with_cost
 
-    objective = load_objective()
-    rows = []
-    for seed in seeds:
-        env = gym.make(env_id, render_mode="rgb_array", **dict(kwargs, plant=plant))
-        obs, _ = env.reset(seed=int(seed))
-        done = False
-        while not done:
-            action, _ = model.predict(obs, deterministic=True)
-            obs, _, term, trunc, _ = env.step(action)
-            done = term or trunc
-        t, series, _ = env.unwrapped._series()  # the episode the env recorded for rendering
-        env.close()
-        ref = load_reference(profile, float(t[1] - t[0]))
-        n = min(len(t), len(ref))
-        traj = Trajectory(
-            t=t[:n],
-            r=series["reference"][None, :n],
-            u=series["command"][None, :n],
-            y=series["position"][None, :n],
-            y_true=series["position"][None, :n],
-            stable=np.array([np.isfinite(series["position"][:n]).all()]),
-            saturated_s=np.zeros(1),
-            reference=ref,
-            closed_loop=True,
-        )
-        metrics, costs = score_trajectory(traj, objective, env.unwrapped.settings.disturbance)
-        rows += with_cost(metrics, costs)
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return model.predict(obs, deterministic=True)[0]
+
+    one = dict(kwargs, plant=plant, reference=profile)
+    traj = policy_trajectory(policy, seeds, env_id=env_id, **one)
+    disturbance = load_disturbance(kwargs.get("disturbance", "actual"))
+    metrics, costs = score_trajectory(traj, objective or load_objective(), disturbance)
+    rows = with_cost(metrics, costs)
     return summarize_runs(rows)
 
 
@@ -471,11 +393,131 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument(
         "--run", default=None, help="run folder name under OUT/rl (default: <env>-<algo>-<plant>)"
     )
+    co = sub.add_parser(
+        "controller",
+        help="train the RL controller (a residual policy) and score it against its baselines",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    co.add_argument("--plant", required=True, help="plant")
+    co.add_argument("--disturbance", default="actual", help="actual-gripper preset")
+    co.add_argument("--profile", default="step", help="reference profile of the evaluation")
+    co.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    co.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    co.add_argument("--eval-config", type=Path, default=None, help="evaluation settings")
+    co.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="controller settings (default configs/tuners/rl_controller.yaml)",
+    )
+    co.add_argument(
+        "--residual",
+        choices=("pid", "reference"),
+        default=None,
+        help="what the policy corrects (default: the config's)",
+    )
+    co.add_argument(
+        "--base",
+        default=None,
+        help="the PID it corrects: a gains file, or P,I,D[,N] (default: OUT/<plant>/optuna.json)",
+    )
+    co.add_argument("--timesteps", type=int, default=None, help="training steps (default: config)")
+    co.add_argument("--quick", action="store_true", help="the config's quick_timesteps")
+    co.add_argument("--seed", type=int, default=None, help="training seed (default: config)")
     return parser
+
+
+def _base_gains(spec: str | None, out: Path, plant: str) -> PIDGains:
+    """The PID a residual controller corrects: ``P,I,D[,N]`` or a gains file (sign +1)."""
+    from tuners.gains_file import load_gains_file
+
+    if spec is not None and "," in spec and not Path(spec).exists():
+        try:
+            values = [float(x) for x in spec.split(",")]
+        except ValueError:
+            values = []
+        if len(values) not in (3, 4) or not all(np.isfinite(values)):
+            raise ValueError(f"--base: expected P,I,D[,N] or a gains file, got {spec!r}")
+        return PIDGains(*values[:3], values[3] if len(values) == 4 else 100.0)
+    path = Path(spec) if spec is not None else out / plant / "optuna.json"
+    if spec is None and not path.is_file():
+        raise ValueError(
+            f"no base PID: {path} does not exist; run 'python -m tuners.optuna --plant {plant}' "
+            "first, or give --base P,I,D or --base <gains file>"
+        )
+    loaded = load_gains_file(path)
+    if loaded.options.sign != 1:
+        raise ValueError(f"--base: {path} uses the error sign -1; the residual PID takes +1")
+    return loaded.gains
+
+
+def _controller(args: argparse.Namespace, inputs: cli.Inputs) -> int:
+    from tuners.rl_controller import load_controller_settings
+
+    s = load_controller_settings(args.config)
+    updates: dict[str, Any] = {}
+    if args.residual is not None:
+        updates["residual"] = args.residual
+    if args.timesteps is not None:
+        if args.timesteps < 1:
+            raise ValueError("--timesteps must be at least 1")
+        updates["timesteps"] = args.timesteps
+    if args.seed is not None:
+        updates["seed"] = args.seed
+    s = s.model_copy(update=updates)
+    base = _base_gains(args.base, args.out, inputs.plant.name) if s.residual == "pid" else None
+    row = controller_row(
+        inputs, base, settings=s, out=args.out, quick=args.quick,
+        log=(lambda m: None) if args.json else print, command=args.command,
+    )  # fmt: skip
+    path = args.out / inputs.plant.name / "rl-controller.json"
+    if args.json:
+        print(path.read_text())
+        return 0
+    base_name = "the base PID" if s.residual == "pid" else "command = reference"
+    columns = [
+        ("RL controller", row["metrics"]["actual"]),
+        (base_name, row["tuning"]["baselines"]["base"]["actual"]),
+        ("command = reference", row["tuning"]["baselines"]["command_equals_reference"]["actual"]),
+    ]
+    if s.residual == "reference":
+        columns.pop(1)
+    print(
+        f"{inputs.plant.name}, actual model, mean of {len(inputs.settings.seeds.seeds())} "
+        f"held-out seeds ({load_objective().signal} angle); trained "
+        f"{row['tuning']['timesteps']} steps in {row['tuning']['train_wall_time_s']:.0f} s"
+    )
+    print(f"{'':22s}" + "".join(f"{name:>22s}" for name, _ in columns))
+    for label, path_ in (("IAE deg*s", ("iae",)), ("grip overshoot %", ("grip", "overshoot_pct")),
+                         ("un-grip overshoot %", ("ungrip", "overshoot_pct")),
+                         ("stall s", ("stall_s",)), ("servo effort deg", ("servo_effort_deg",)),
+                         ("cost", ("cost",))):  # fmt: skip
+        cells = []
+        for _, metrics in columns:
+            value: Any = metrics["mean"]
+            for key in path_:
+                value = value.get(key) if isinstance(value, dict) else None
+            cells.append("-" if value is None else f"{value:.4g}")
+        print(f"{label:22s}" + "".join(f"{c:>22s}" for c in cells))
+    for label, key in (("the base PID", "vs_base"),
+                       ("command = reference", "vs_command_equals_reference")):  # fmt: skip
+        d = row["tuning"][key]
+        if key == "vs_base" and s.residual != "pid":
+            continue
+        print(f"RL controller vs {label}: IAE {d['iae_difference']:+.3g} deg*s "
+              f"({100 * d['iae_relative']:+.1f} %, lower on {d['iae_better_on_seeds']} of "
+              f"{len(row['per_seed_iae'])} seeds, Wilcoxon p = {d['iae_p_value']:.3g}), worse "
+              f"overshoot {d['worse_overshoot_difference_pct']:+.3g} %, stall "
+              f"{d['stall_difference_s']:+.3g} s")  # fmt: skip
+    print(f"wrote {path}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
+    if args.command_name == "controller":
+        _require_envs()
+        return _controller(args, cli.resolve(args))
     plants = [p.strip() for p in args.plant.split(",") if p.strip()]
     for p in plants:
         load_plant(p)
@@ -533,7 +575,7 @@ def main(argv: list[str] | None = None) -> int:
             "train_wall_time_s": facts["train_wall_time_s"],
             "seeds": seeds,
             "metrics": {"actual": actual},
-            "note": "metrics of the measured angle (the environment records what the agent sees)",
+            "signal": load_objective().signal,
         }
         path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
         if args.json:

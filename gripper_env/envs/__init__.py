@@ -14,8 +14,19 @@ one), host in the loop at 50 Hz; it needs ``port=...`` at ``gym.make`` and is no
 
 ``gym.make("gripper_env:gripper_env/GripperServo-v0")`` works without importing the package
 first; ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` gives the
-native vector environment (:mod:`gripper_env.envs.vector`). The classes are imported lazily, so
-importing :mod:`gripper_env` does not compile the environments' kernels.
+native vector environment (:mod:`gripper_env.envs.vector`; stable-baselines3 steps it through
+:class:`gripper_env.sb3.NativeVecEnv`). The step-by-step ids are registered with a ``TimeLimit``
+of 1000 steps; ``GripperPIDTune-v0`` without one (its one step ends the episode, terminated).
+The classes are imported lazily, so importing :mod:`gripper_env` does not compile the
+environments' kernels.
+
+Modules: one per environment (``servo``, ``gain_schedule``, ``pid_tune``, ``servo_hardware``)
+and their native vector forms (``vector``); ``control_env`` (the base of the step-by-step ones),
+``control_batch`` (a batch of them on one core simulator), ``kernels`` (its compiled step),
+``plant_slots`` (the core simulator whose rows may each draw their plant), ``settings`` (the
+validated arguments), ``episode`` (one episode's random draws), ``spaces`` (observations,
+actions, context features), ``rendering``, ``rollout`` (a policy's whole episodes as a
+``Trajectory``).
 """
 
 from __future__ import annotations
@@ -35,8 +46,8 @@ __all__ = [
     "register_envs",
 ]
 
-#: id -> (entry point, vector entry point, max_episode_steps)
-_SPECS: dict[str, tuple[str, str, int]] = {
+#: id -> (entry point, vector entry point, max_episode_steps or None for no TimeLimit)
+_SPECS: dict[str, tuple[str, str, int | None]] = {
     "gripper_env/GripperServo-v0": (
         "gripper_env.envs.servo:GripperServoEnv",
         "gripper_env.envs.vector:GripperServoVectorEnv",
@@ -45,7 +56,9 @@ _SPECS: dict[str, tuple[str, str, int]] = {
     "gripper_env/GripperPIDTune-v0": (
         "gripper_env.envs.pid_tune:GripperPIDTuneEnv",
         "gripper_env.envs.vector:GripperPIDTuneVectorEnv",
-        1,  # one step is one whole episode
+        # one step is one whole episode, which ends terminated; a TimeLimit of 1 step would
+        # also truncate it (terminated and truncated at once, which Gymnasium's checker refuses)
+        None,
     ),
     "gripper_env/GripperGainSchedule-v0": (
         "gripper_env.envs.gain_schedule:GripperGainScheduleEnv",

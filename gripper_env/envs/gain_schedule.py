@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.base import ControlEnv
+from gripper_env.envs.control_env import ControlEnv
 
 __all__ = ["GripperGainScheduleEnv"]
 
@@ -55,7 +55,8 @@ class GripperGainScheduleEnv(ControlEnv):
     ## Rewards
 
     The formula of ``GripperServo-v0`` (tracking error, overshoot past the reference in the
-    direction it moved, and the total variation of the PID's output over the period, capped):
+    direction it moved, and the total variation of the command the servo received over the
+    period, capped: the PID's output as the servo latches it every 20 ms in whole degrees):
 
     ``reward = -( mean_k |r_k - y_k| / w
     + overshoot_weight * mean_k max(0, d_k (y_k - r_k)) / w

@@ -1,10 +1,11 @@
 """Compiled step of a batch of step-by-step environments around the simulation core.
 
-One call maps every environment's action to its drive (a held servo command, or PID gains and the
-reference), advances the core's kernel (:mod:`gripper_env.simulation`) by one control period of
-physics steps for the whole batch, then computes each environment's reward and observation from
-the recorded physics steps. A single environment is a batch of one; the native vector
-environment calls the same functions, so both play identical trajectories.
+One call maps every environment's action to its drive (a held servo command; PID gains and the
+reference; or a bounded correction added to the reference or to the PID's output), advances the
+core's kernel (:mod:`gripper_env.simulation`) by one control period of physics steps for the
+whole batch, then computes each environment's reward and observation from the recorded physics
+steps. A single environment is a batch of one; the native vector environment calls the same
+functions, so both play identical trajectories.
 
 Layouts (columns):
 
@@ -14,9 +15,9 @@ Layouts (columns):
   context features (written at reset, never touched here).
 * ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
 * ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's controller output and measured
-  angle, recorded by the core. ``out_u`` is ``None`` in the servo mode, where the output is the
-  drive itself; ``out_r`` and ``out_yt`` are ``None`` in the environments (the core then compiles
-  their recording away) or (B, n_sub) arrays.
+  angle, recorded by the core. ``out_u`` is ``None`` in the open-loop modes (servo, residual on
+  the reference), where the output is the drive itself; ``out_r`` and ``out_yt`` are ``None`` in
+  the environments (the core then compiles their recording away) or (B, n_sub) arrays.
 
 The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
 array arguments, and the array views it would take, cost more than a control period's physics.
@@ -27,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange, set_num_threads
 
 from gripper_env import _schedule, friction, pid, simulation
 from gripper_env._numba_cache import renamed, stamp_caches
@@ -35,6 +36,8 @@ from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.simulation import (
     P_P,
     S_DIVERGED,
+    S_SERVO_TV,
+    S_XI,
     _advance_row,
 )
 
@@ -61,11 +64,15 @@ from gripper_env.simulation import (
     C_DMAX,  # |D| at action 1
     C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
     C_MAXSTEPS,  # truncate after this many steps (0: no limit; the vector envs' time limit)
-) = range(21)
-N_CFG = 21
+    C_RESIDUAL,  # residual modes: correction (deg) at action +/-1
+    C_PARMIN,  # physics steps per call from which the parallel kernel uses every thread
+) = range(23)
+N_CFG = 23
 
-MODE_SERVO = 0
-MODE_GAINS = 1
+MODE_SERVO = 0  # action = servo command (open loop)
+MODE_GAINS = 1  # action = PID gains (closed loop)
+MODE_RESIDUAL_REFERENCE = 2  # action = correction added to the reference fed to the servo
+MODE_RESIDUAL_PID = 3  # action = correction added to the output of a fixed PID (closed loop)
 
 # env entries
 (
@@ -78,8 +85,9 @@ MODE_GAINS = 1
     E_DIR,  # direction of the latest reference move: -1, 0, +1
     E_STEPS,  # steps (control periods) since reset
     E_DONE,  # DONE_RUNNING, DONE_ENDED (reset on the next step) or DONE_RESETTING (in this step)
+    E_TV,  # the core's servo-command variation counter at the previous step (deg)
     E_A0,  # previous (clipped) action, E_A0 + j
-) = range(10)
+) = range(11)
 
 DONE_RUNNING = 0.0
 DONE_ENDED = 1.0
@@ -96,30 +104,43 @@ def _clip(x: float, bound: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _pre(b, actions, cfg, ref, env, params, drive):
-    """Action of row ``b`` -> its drive for this period (servo command, or gains + reference)."""
+def _pre(b, actions, cfg, ref, env, params, state, drive):
+    """Action of row ``b`` -> its drive for this period.
+
+    Servo mode: the held servo command. Gains mode: the PID's gains, and the reference. Residual
+    modes: the reference plus the correction (``reference``), or the reference with the
+    correction added to the PID's output for the period (``pid``: added to the PID's integrator
+    state, which enters its output one to one, and taken off again in :func:`_post`).
+    """
     n_sub = int(cfg[C_NSUB])
-    if cfg[C_MODE] == MODE_SERVO:
+    mode = cfg[C_MODE]
+    if mode == MODE_SERVO:
         cmd = cfg[C_CC] + cfg[C_CH] * _clip(actions[b, 0], 1.0)
         for k in range(n_sub):
             drive[b, k] = cmd
         return
-    for j in range(3):
-        a = _clip(actions[b, j], 1.0)
-        gmax = cfg[C_PMAX + j]
-        if cfg[C_GLOG] != 0.0:
-            dec = cfg[C_GDEC]
-            g = gmax * math.expm1(dec * math.log(10.0) * abs(a)) / (10.0**dec - 1.0)
-            if a < 0.0:
-                g = -g
-        else:
-            g = gmax * a
-        params[b, P_P + j] = g
+    delta = 0.0
+    if mode == MODE_GAINS:
+        for j in range(3):
+            a = _clip(actions[b, j], 1.0)
+            gmax = cfg[C_PMAX + j]
+            if cfg[C_GLOG] != 0.0:
+                dec = cfg[C_GDEC]
+                g = gmax * math.expm1(dec * math.log(10.0) * abs(a)) / (10.0**dec - 1.0)
+                if a < 0.0:
+                    g = -g
+            else:
+                g = gmax * a
+            params[b, P_P + j] = g
+    elif mode == MODE_RESIDUAL_PID:
+        state[b, S_XI] += cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
+    else:
+        delta = cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
     t = int(env[b, E_T])
     last = int(env[b, E_REFLEN]) - 1
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)  # one shared row for a fixed reference
     for k in range(n_sub):
-        drive[b, k] = ref[rb, min(t + k, last)]
+        drive[b, k] = ref[rb, min(t + k, last)] + delta
 
 
 @njit(cache=True, inline="always")
@@ -142,7 +163,7 @@ def period_reward(ref_row, t, last, y, direction, variation, jh, ch, w_over, w_v
     direction : float
         +1/-1 for the direction of the latest reference move before the period, 0 before any.
     variation : float
-        Command variation over the period (deg): ``sum_k |u_k - u_{k-1}|``.
+        Variation of the servo's command over the period (deg): ``sum_k |u_k - u_{k-1}|``.
     jh, ch : float
         Half-widths of the jaw range and of the command range (deg).
     w_over, w_var, var_cap : float
@@ -225,6 +246,8 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
           out_y):  # fmt: skip
     """Reward, flags and observation of row ``b`` from the period's recorded physics steps."""
     n_sub = int(cfg[C_NSUB])
+    if cfg[C_MODE] == MODE_RESIDUAL_PID:  # the correction held for this period only
+        state[b, S_XI] -= cfg[C_RESIDUAL] * _clip(actions[b, 0], 1.0)
     t = int(env[b, E_T])
     t_new = t + n_sub
     last = int(env[b, E_REFLEN]) - 1
@@ -242,16 +265,13 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     terminated[b] = False
     env[b, E_DONE] = DONE_ENDED if trunc else DONE_RUNNING
     rb = np.int64(b) if ref.shape[0] > 1 else np.int64(0)
-    u_prev = env[b, E_UPREV]
-    variation = 0.0
-    if out_u is None:  # the servo mode: the action's command, held over the period
-        variation = abs(drive[b, 0] - u_prev)
-        u_prev = drive[b, n_sub - 1]
-    else:
-        for k in range(n_sub):
-            u = out_u[b, k]
-            variation += abs(u - u_prev)
-            u_prev = u
+    # chatter: the variation of the command the servo received (its 50 Hz, quantised command,
+    # counted by the core), not of the controller's 1 kHz output, whose sensor noise the servo
+    # never sees between its refresh ticks
+    tv = state[b, S_SERVO_TV]
+    variation = tv - env[b, E_TV]
+    env[b, E_TV] = tv
+    u_prev = drive[b, n_sub - 1] if out_u is None else out_u[b, n_sub - 1]
     reward, direction = period_reward(
         ref[rb], t, last, out_y[b], env[b, E_DIR], variation,
         cfg[C_JH], cfg[C_CH], cfg[C_WOS], cfg[C_WU], cfg[C_UCAP],
@@ -266,7 +286,7 @@ def _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
     )  # fmt: skip
     env[b, E_EPREV] = e
     env[b, E_INT] = integral
-    if cfg[C_MODE] == MODE_GAINS:
+    if out_u is not None:  # closed loop: the controller's output
         obs[b, 5] = _clip((u_prev - cfg[C_CC]) / cfg[C_CH], cfg[C_BOUND])
     oa0 = int(cfg[C_OA0])
     for j in range(int(cfg[C_NA])):
@@ -306,12 +326,17 @@ def _step_impl(
     # compile-time open loop lets LLVM drop the PID from the physics loop (1.06x)
     closed = out_u is not None
     dt = cfg[C_DT]
-    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule)
+    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule); a
+    # small batch runs on the calling thread alone (no worker wakes up for it)
     chunk = rows_per_chunk(n_sub)
     n_chunks = (n_rows + chunk - 1) // chunk
     workers = n_workers(n_chunks)
     counter = np.zeros(1, np.int64)
     resetting = np.zeros(workers, np.int64)
+    threads = get_num_threads()
+    small = n_rows * n_sub < cfg[C_PARMIN]
+    if small and threads > 1:
+        set_num_threads(1)
     for w in prange(workers):
         c = fetch_add(counter, np.int64(1))
         while c < n_chunks:
@@ -323,7 +348,7 @@ def _step_impl(
                     truncated[b] = False
                     resetting[w] += 1
                 else:
-                    _pre(b, actions, cfg, ref, env, params, drive)
+                    _pre(b, actions, cfg, ref, env, params, state, drive)
                     _advance_row(
                         b, n_sub, closed, dt, drive, np.int64(0), params, plant_a, plant_b,
                         plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
@@ -331,16 +356,45 @@ def _step_impl(
                     _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
                           drive, out_u, out_y)  # fmt: skip
             c = fetch_add(counter, np.int64(1))
+    if small and threads > 1:
+        set_num_threads(threads)
     return -1, int(resetting.sum()), rewards[0], terminated[0], truncated[0]
 
+
+#: Physics steps per call (rows x steps per control period) from which the parallel kernel
+#: spreads a batch over the worker threads. Below it the batch runs on the calling thread alone:
+#: waking a worker costs ~5-20 us on an idle 2-core machine and far more on a loaded one, while
+#: a row's period costs ~0.2 us. Measured with ``python -m benchmarks.envs_speed`` (its
+#: one-thread and all-threads columns).
+PARALLEL_MIN_STEPS = 4096
 
 step_serial = njit(cache=True)(_step_impl)
 step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
 
 
+def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None):  # type: ignore[no-untyped-def]
+    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
+
+    A single environment runs the serial kernel; a batch the parallel one, which runs on the
+    calling thread alone below ``cfg[C_PARMIN]`` (:data:`PARALLEL_MIN_STEPS`) physics steps per
+    call and on every numba thread from there (numba's parallel compilation makes the row loop
+    ~1.5-2.5x faster than the serial one even on one thread, measured at 32-1024 rows).
+    ``parallel`` forces the serial (``False``) or the parallel (``True``) kernel; the results
+    are the same.
+    """
+    if parallel is None:
+        parallel = n_rows > 1
+    return step_parallel if parallel else step_serial
+
+
+def closed_loop(mode: int) -> bool:
+    """Whether ``mode`` runs the PID (and records and observes its output)."""
+    return mode in (MODE_GAINS, MODE_RESIDUAL_PID)
+
+
 def observation_size(mode: int, n_actions: int, n_context: int) -> int:
     """Length of the observation vector."""
-    return (5 if mode == MODE_SERVO else 6) + n_actions + n_context
+    return (6 if closed_loop(mode) else 5) + n_actions + n_context
 
 
 def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:

@@ -11,19 +11,14 @@ import gymnasium as gym
 import numpy as np
 
 from gripper_env.config import ConfigError
-from gripper_env.envs.base import check_actions
-from gripper_env.envs.batch import PlantSlots
-from gripper_env.envs.common import (
-    RENDER_MODES,
-    Episode,
-    Settings,
-    draw_episode,
-    parse_settings,
-)
-from gripper_env.envs.rendering import EpisodeViewer, render_rgb
+from gripper_env.envs.episode import Episode, draw_episode
+from gripper_env.envs.plant_slots import PlantSlots
+from gripper_env.envs.rendering import RENDER_MODES, EpisodePlot, envelope, ylim_deg
+from gripper_env.envs.settings import Settings, parse_settings
 from gripper_env.envs.spaces import (
     OBS_BOUND,
     action_to_gains,
+    check_actions,
     disturbance_features,
     reference_features,
 )
@@ -32,7 +27,7 @@ from gripper_env.objective import Objective, load_objective
 from gripper_env.scoring import robustness, score_trajectory
 from gripper_env.simulation import Trajectory
 
-__all__ = ["EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
+__all__ = ["EpisodeRenderer", "EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
 
 #: Largest number of whole episodes the core advances in one call (memory: 4 x rows x samples).
 MAX_ROWS_PER_CALL = 128
@@ -288,8 +283,9 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Episode End
 
-    Every episode terminates after its one step (``terminated=True``); the registered
-    ``TimeLimit`` is 1 step.
+    Every episode terminates after its one step (``terminated=True``, ``truncated=False``). The
+    id is registered without a ``TimeLimit`` (one of 1 step would truncate the step that
+    terminates); a step after the end raises until ``reset()``.
 
     ## Arguments
 
@@ -354,9 +350,9 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
         self._episode: Episode | None = None
         self._obs = np.zeros(n_ctx, dtype=np.float32)
         self._done = True
-        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._last_title = self._name
-        self._viewer: EpisodeViewer | None = None
+        self._renderer = (
+            None if render_mode is None else EpisodeRenderer(self.settings, render_mode)
+        )
 
     def context(self, episode: Episode) -> np.ndarray:
         """The observation of an episode (float32)."""
@@ -381,52 +377,108 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
         self._episode = draw_episode(self.settings, self.np_random)
         self._obs = self.context(self._episode)
         self._done = False
-        self._last = None
-        ep = self._episode
-        return self._obs.copy(), {
-            "plant": self.settings.plants[ep.plant_index].name,
-            "reference": ep.reference.name,
-            "noise_seed": ep.noise_seed,
+        if self._renderer is not None:
+            self._renderer.start(self._episode)
+        return self._obs.copy(), self.episode_info(self._episode)
+
+    def episode_info(self, episode: Episode) -> dict[str, Any]:
+        """The reset ``info`` of an episode: plant and reference names, noise seed."""
+        return {
+            "plant": self.settings.plants[episode.plant_index].name,
+            "reference": episode.reference.name,
+            "noise_seed": episode.noise_seed,
         }
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._done or self._episode is None:
             raise RuntimeError(f"{self._name}: call reset() before step() (the episode has ended)")
         act = check_actions(action, (3,))[None, :]
-        keep = self.render_mode is not None
+        keep = self._renderer is not None
         res = run_episodes(self.settings, self.slots, [self._episode], act, self.objective, keep)
         self._done = True
         info = res.infos[0]
-        if keep:
-            self._last = res.trajectories[0]
-            g = info["gains"]
-            self._last_title = (
-                f"{self.settings.plants[self._episode.plant_index].name}: P={g['P']:.3g} "
-                f"I={g['I']:.3g} D={g['D']:.3g}, cost {info['cost']:.4g}"
-            )
-            if self.render_mode == "human":
-                self.render()
+        if self._renderer is not None:
+            self._renderer.finish(res.trajectories[0], info)
         return self._obs.copy(), -float(res.costs[0]), True, False, info
 
     def render(self) -> np.ndarray | None:
         """Plot the last episode's reference, position and command (``rgb_array``: an image)."""
-        if self._last is None:
-            ep = self._episode
-            r = np.array([]) if ep is None else ep.reference.values_deg
-            series = {"reference": r}
+        if self._renderer is None:
+            gym.logger.warn(f"{self._name}: render() without a render_mode; pass render_mode=...")
+            return None
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+
+
+class EpisodeRenderer:
+    """Frames of ``GripperPIDTune-v0`` episodes: the reference to follow after ``reset``, the
+    whole run (reference, position, PID output) after the step.
+
+    Parameters
+    ----------
+    settings : Settings
+        The environment's validated arguments.
+    mode : {"rgb_array", "human"}
+        The render mode.
+    """
+
+    def __init__(self, settings: Settings, mode: str) -> None:
+        self.settings, self.mode = settings, mode
+        self.plot: EpisodePlot | None = None
+        self.episode: Episode | None = None
+        self.run: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.title = ""
+
+    def start(self, episode: Episode) -> None:
+        """A new episode, not run yet."""
+        self.episode, self.run = episode, None
+        self.title = f"{self.settings.plants[episode.plant_index].name}, {episode.reference.name}"
+
+    def finish(self, trajectory: tuple[np.ndarray, np.ndarray, np.ndarray], info: dict) -> None:
+        """The episode ran: its ``(r, y, u)`` and its ``info`` (gains and cost for the title)."""
+        assert self.episode is not None
+        self.run = trajectory
+        g = info["gains"]
+        self.title = (
+            f"{self.settings.plants[self.episode.plant_index].name}: P={g['P']:.3g} "
+            f"I={g['I']:.3g} D={g['D']:.3g}, cost {info['cost']:.4g}"
+        )
+        if self.mode == "human":
+            self.render()
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: the frame; ``human``: draw it in the window."""
+        if self.episode is None:
+            raise RuntimeError("GripperPIDTune-v0: call reset() before render()")
+        reference = self.episode.reference.values_deg
+        if self.run is None:
+            runs = {"reference": reference}
         else:
-            r, y, u = self._last
-            series = {"reference": r, "position": y, "command": u}
-        t = np.arange(len(series["reference"])) * self.settings.dt_s
-        if self.render_mode == "rgb_array":
-            return render_rgb(t, series, self._last_title)
-        if self.render_mode == "human":
-            if self._viewer is None:
-                self._viewer = EpisodeViewer()
-            self._viewer.show(t, series, self._last_title)
+            r, y, u = self.run
+            runs = {"reference": r, "position": y, "command": u}
+        dt = self.settings.dt_s
+        n_sub = max(1, round(0.020 / dt))  # two points per 20 ms
+        series = {}
+        for name, values in runs.items():
+            t_s, series[name] = envelope(values, n_sub, dt)
+        if self.plot is None:
+            self.plot = EpisodePlot(human=self.mode == "human")
+        ylim = ylim_deg(self.settings.jaw_range_deg, reference)
+        self.plot.start(self.title, len(reference) * dt, ylim)  # a new title: a full draw
+        if self.mode == "rgb_array":
+            return self.plot.rgb(t_s, series)
+        self.plot.show(t_s, series)
         return None
 
     def close(self) -> None:
-        if self._viewer is not None:
-            self._viewer.close()
-            self._viewer = None
+        if self.plot is not None:
+            self.plot.close()
+            self.plot = None
+
+    def __getstate__(self) -> dict[str, Any]:  # a copy starts without a figure
+        state = self.__dict__.copy()
+        state["plot"] = None
+        return state

@@ -1,8 +1,16 @@
 """Rendering of an episode: reference, jaw position and servo command against time (matplotlib).
 
+:class:`EpisodePlot` keeps one figure for its environment's lifetime. Axes, ticks, legend and
+title are drawn once per episode (:meth:`EpisodePlot.start`; the time axis spans the whole
+episode), and a frame draws only the lines' new segments, those since the previous frame, onto
+the canvas (matplotlib's ``draw_artist``), so a frame costs about the same at the end of an
+episode as at its start, and far less than a full figure draw. The lines hold at most two points
+per control period (:class:`EpisodeRecorder`: the period's lowest and highest sample, at their own
+times), so the drawn envelope is the full 1 ms trace's at this resolution.
+
 ``rgb_array`` draws on an off-screen Agg canvas and returns an (H, W, 3) uint8 image; ``human``
-draws in a pyplot window (only if the backend is interactive; with a non-interactive backend
-such as Agg the figure is drawn but not shown, without a warning).
+draws in a pyplot window (shown only if the backend is interactive; under a non-interactive
+backend such as Agg the figure is drawn but not shown, without a warning).
 """
 
 from __future__ import annotations
@@ -11,10 +19,16 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EpisodeViewer", "render_rgb"]
+__all__ = ["RENDER_MODES", "EpisodePlot", "EpisodeRecorder", "RowRenderer", "envelope", "ylim_deg"]
+
+#: The render modes every simulated environment offers.
+RENDER_MODES = ("human", "rgb_array")
 
 _FIGSIZE_IN = (6.4, 4.0)
 _DPI = 80
+SERIES = ("reference", "position", "command")
+_STYLES = {"reference": ("k--", 1.2), "position": ("C0-", 1.5), "command": ("C1-", 0.8)}
+_NON_INTERACTIVE = ("agg", "pdf", "ps", "svg", "cairo", "template")
 
 
 def _matplotlib() -> Any:
@@ -27,55 +41,237 @@ def _matplotlib() -> Any:
     return matplotlib
 
 
-def _draw(fig: Any, t_s: np.ndarray, series: dict[str, np.ndarray], title: str) -> None:
-    fig.clear()
-    ax = fig.add_subplot(1, 1, 1)
-    styles = {"reference": ("k--", 1.2), "position": ("C0-", 1.5), "command": ("C1-", 0.8)}
-    for name, values in series.items():
-        style, width = styles.get(name, ("-", 1.0))
-        ax.plot(t_s[: len(values)], values, style, lw=width, label=f"{name} (deg)")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("jaw angle (deg)")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+def envelope(values: np.ndarray, n_per_bin: int, dt_s: float, t0_s: float = 0.0):
+    """Decimate ``values`` (one sample per ``dt_s``) to the lowest and highest sample of each bin
+    of ``n_per_bin`` samples, at their own times, in time order.
+
+    Returns ``(t_s, values)``, two points per bin (one for a bin of one sample); a plot of them
+    has the same envelope as the full trace when a bin is narrower than a pixel.
+    """
+    values = np.asarray(values, dtype=float)
+    n = len(values) // n_per_bin * n_per_bin
+    bins = values[:n].reshape(-1, n_per_bin)
+    lo, hi = bins.argmin(axis=1), bins.argmax(axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    start = np.arange(bins.shape[0]) * n_per_bin
+    idx = np.stack([start + first, start + second], axis=1).ravel()
+    if n < len(values):  # a partial last bin: its samples as they are
+        idx = np.concatenate([idx, np.arange(n, len(values))])
+    return t0_s + idx * dt_s, values[idx]
 
 
-def render_rgb(t_s: np.ndarray, series: dict[str, np.ndarray], title: str) -> np.ndarray:
-    """Plot ``series`` (name -> deg) against ``t_s`` (s) off screen; an (H, W, 3) uint8 image."""
-    _matplotlib()
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+class EpisodeRecorder:
+    """The series of one episode for rendering, two points per control period.
 
-    fig = Figure(figsize=_FIGSIZE_IN, dpi=_DPI)
-    canvas = FigureCanvasAgg(fig)
-    _draw(fig, t_s, series, title)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+    Parameters
+    ----------
+    dt_s : float
+        Physics step (s).
+    """
+
+    def __init__(self, dt_s: float) -> None:
+        self.dt_s = dt_s
+        self.t = np.zeros(0)
+        self.values = np.zeros((len(SERIES), 0))
+        self.n = 0
+        self.steps = 0
+
+    def start(self, n_periods: int, reference_deg: float, position_deg: float,
+              command_deg: float) -> None:  # fmt: skip
+        """A new episode of at most ``n_periods`` periods, from its first sample (t = 0)."""
+        size = 2 * n_periods + 1
+        if self.t.shape[0] < size:
+            self.t = np.zeros(size)
+            self.values = np.zeros((len(SERIES), size))
+        self.t[0] = 0.0
+        self.values[:, 0] = (reference_deg, position_deg, command_deg)
+        self.n = 1
+        self.steps = 0
+
+    def record(self, reference: np.ndarray, position: np.ndarray, command: np.ndarray) -> None:
+        """Add one period: the samples (deg) of each series at its physics steps."""
+        n_sub = len(position)
+        t0 = self.steps * self.dt_s  # sample k of the period is taken at physics step k
+        for j, x in enumerate((reference, position, command)):
+            lo, hi = int(np.argmin(x)), int(np.argmax(x))
+            first, second = min(lo, hi), max(lo, hi)
+            self.values[j, self.n] = x[first]
+            self.values[j, self.n + 1] = x[second]
+            if j == 0:
+                self.t[self.n] = t0 + first * self.dt_s
+                self.t[self.n + 1] = t0 + second * self.dt_s
+        self.n += 2
+        self.steps += n_sub
+
+    def series(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Times (s) and the series (deg) so far (views, valid until the next call)."""
+        n = self.n
+        return self.t[:n], {name: self.values[j, :n] for j, name in enumerate(SERIES)}
 
 
-class EpisodeViewer:
-    """A pyplot window that redraws the episode (``render_mode="human"``)."""
+class EpisodePlot:
+    """One figure that plots episodes frame by frame (see the module docstring).
 
-    def __init__(self) -> None:
+    Parameters
+    ----------
+    human : bool
+        Draw in a pyplot window (``render_mode="human"``) rather than off screen.
+    """
+
+    def __init__(self, human: bool = False) -> None:
         matplotlib = _matplotlib()
-        import matplotlib.pyplot as plt
+        if human:
+            import matplotlib.pyplot as plt
 
-        self._plt = plt
-        backend = matplotlib.get_backend().lower()
-        self.interactive = not any(
-            backend.endswith(name) for name in ("agg", "pdf", "ps", "svg", "cairo", "template")
-        )
-        self.fig = plt.figure(figsize=_FIGSIZE_IN, dpi=_DPI)
-
-    def show(self, t_s: np.ndarray, series: dict[str, np.ndarray], title: str) -> None:
-        _draw(self.fig, t_s, series, title)
-        if self.interactive:
-            self._plt.show(block=False)
-            self._plt.pause(0.001)
+            self._plt = plt
+            backend = matplotlib.get_backend().lower()
+            self.interactive = not any(backend.endswith(name) for name in _NON_INTERACTIVE)
+            self.fig = plt.figure(figsize=_FIGSIZE_IN, dpi=_DPI)
         else:
-            self.fig.canvas.draw()
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+
+            self._plt = None
+            self.interactive = False
+            self.fig = Figure(figsize=_FIGSIZE_IN, dpi=_DPI)
+            FigureCanvasAgg(self.fig)
+        self.human = human
+        ax = self.fig.add_subplot(1, 1, 1)
+        self.lines = {}
+        for name in SERIES:
+            style, width = _STYLES[name]
+            (line,) = ax.plot([], [], style, lw=width, label=f"{name} (deg)", animated=True)
+            self.lines[name] = line
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("jaw angle (deg)")
+        ax.grid(True, alpha=0.3)
+        # the legend sits outside the axes: the frames' segments are drawn over what is there
+        self.fig.legend(
+            handles=list(self.lines.values()), loc="lower center", ncol=3, fontsize=8,
+            frameon=False,
+        )  # fmt: skip
+        self._title = ax.set_title("", fontsize=10)
+        self.ax = ax
+        self._drawn = 0  # points of the series already on the canvas
+        self._started = False
+        self._shown = False
+        self._laid_out = False
+
+    def start(self, title: str, duration_s: float, ylim_deg: tuple[float, float]) -> None:
+        """A new episode: fixed axes for its whole duration, drawn once without lines."""
+        self._title.set_text(title)
+        self.ax.set_xlim(0.0, max(duration_s, 1e-3))
+        self.ax.set_ylim(*ylim_deg)
+        if self.human and self.interactive and not self._shown:
+            self._plt.show(block=False)
+            self._shown = True
+        if not self._laid_out:  # once: the layout does not change between episodes
+            self.fig.tight_layout(rect=(0.0, 0.06, 1.0, 1.0))
+            self._laid_out = True
+        self.fig.canvas.draw()  # the lines are animated: not drawn here
+        self._drawn = 0
+        self._started = True
+
+    def _draw_lines(self, t_s: np.ndarray, series: dict[str, np.ndarray]) -> None:
+        if not self._started:
+            raise RuntimeError("EpisodePlot: call start() before drawing a frame")
+        n = len(t_s)
+        if n < self._drawn:
+            raise ValueError("EpisodePlot: the series got shorter; call start() for a new episode")
+        first = max(self._drawn - 1, 0)  # the new segments start at the last point drawn
+        for name, line in self.lines.items():
+            values = series.get(name)
+            if values is None or n - first < 2:
+                continue
+            line.set_data(t_s[first:n], values[first:n])
+            self.ax.draw_artist(line)
+        self._drawn = n
+
+    def rgb(self, t_s: np.ndarray, series: dict[str, np.ndarray]) -> np.ndarray:
+        """The frame: ``series`` (name -> deg) against ``t_s`` (s), an (H, W, 3) uint8 image.
+
+        The series extend those of the previous frame of this episode (only the new points are
+        drawn).
+        """
+        self._draw_lines(t_s, series)
+        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+
+    def show(self, t_s: np.ndarray, series: dict[str, np.ndarray]) -> None:
+        """Draw the frame in the window (``human``)."""
+        self._draw_lines(t_s, series)
+        if self.interactive:
+            self.fig.canvas.blit(self.fig.bbox)
+            self.fig.canvas.flush_events()
 
     def close(self) -> None:
-        self._plt.close(self.fig)
+        if self._plt is not None:
+            self._plt.close(self.fig)
+
+
+def ylim_deg(jaw_range_deg: tuple[float, float], reference: np.ndarray) -> tuple[float, float]:
+    """Vertical range of the plot: the jaw range and the reference with a quarter range of room
+    (commands beyond it are drawn clipped at its edge)."""
+    lo = min(jaw_range_deg[0], float(np.min(reference)))
+    hi = max(jaw_range_deg[1], float(np.max(reference)))
+    pad = 0.25 * (hi - lo)
+    return lo - pad, hi + pad
+
+
+class RowRenderer:
+    """Rendering of one row of a :class:`~gripper_env.envs.control_batch.ControlBatch`: records
+    each period of the row's episode and draws it on an :class:`EpisodePlot` made on first use.
+
+    Parameters
+    ----------
+    batch : ControlBatch
+        The batch (its :meth:`episode_start` and :meth:`period_series`).
+    row : int
+        The row to render.
+    name : str
+        Environment name, for the title.
+    mode : {"rgb_array", "human"}
+        The render mode.
+    """
+
+    def __init__(self, batch: Any, row: int, name: str, mode: str) -> None:
+        self.batch, self.row, self.name, self.mode = batch, row, name, mode
+        self.recorder = EpisodeRecorder(batch.settings.dt_s)
+        self.plot: EpisodePlot | None = None
+        self.started = False
+
+    def start(self) -> None:
+        """The row was reset: a new episode, a new background."""
+        n_periods, r0, y0, u0, title, values = self.batch.episode_start(self.row)
+        self.recorder.start(n_periods, r0, y0, u0)
+        if self.plot is None:
+            self.plot = EpisodePlot(human=self.mode == "human")
+        s = self.batch.settings
+        duration = n_periods * s.n_sub * s.dt_s
+        self.plot.start(f"{self.name}: {title}", duration, ylim_deg(s.jaw_range_deg, values))
+        self.started = True
+
+    def record(self) -> None:
+        """The row stepped one period."""
+        self.recorder.record(*self.batch.period_series(self.row))
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: the frame; ``human``: draw it in the window."""
+        if not self.started:
+            raise RuntimeError(f"{self.name}: call reset() before render()")
+        assert self.plot is not None
+        t_s, series = self.recorder.series()
+        if self.mode == "rgb_array":
+            return self.plot.rgb(t_s, series)
+        self.plot.show(t_s, series)
+        return None
+
+    def close(self) -> None:
+        if self.plot is not None:
+            self.plot.close()
+            self.plot = None
+            self.started = False
+
+    def __getstate__(self) -> dict[str, Any]:  # a copy starts without a figure
+        state = self.__dict__.copy()
+        state["plot"], state["started"] = None, False
+        return state

@@ -21,10 +21,10 @@ import numpy as np
 
 from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
-from gripper_env.envs.base import check_actions, check_reward_weights
-from gripper_env.envs.batch import DIVERGED_PENALTY, VARIATION_CAP
-from gripper_env.envs.common import draw_episode, parse_settings
-from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S
+from gripper_env.envs.control_batch import DIVERGED_PENALTY, VARIATION_CAP
+from gripper_env.envs.episode import draw_episode
+from gripper_env.envs.settings import check_reward_weights, parse_settings
+from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S, check_actions
 from gripper_env.hardware.calibration import Calibration, load_calibration
 from gripper_env.hardware.device import (
     DeviceError,

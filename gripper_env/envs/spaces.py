@@ -1,4 +1,4 @@
-"""Observation layouts, action scaling and context features shared by the environments.
+"""Observation layouts, action checks and scaling, and context features shared by the environments.
 
 Everything an agent sees is normalised so that a policy trained on one plant or preset has a
 chance on another: angles by the jaw's half-range, commands by the command half-range, gains by a
@@ -10,6 +10,7 @@ clipped to ``[-OBS_BOUND, OBS_BOUND]`` so that it always lies in the observation
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -28,6 +29,7 @@ __all__ = [
     "REFERENCE_FEATURES",
     "TRACKING_NAMES",
     "action_to_gains",
+    "check_actions",
     "context_features",
     "disturbance_features",
     "gains_to_action",
@@ -201,3 +203,19 @@ def gains_to_action(
     return (
         np.sign(g) * np.log1p(frac * (10.0**GAIN_DECADES - 1.0)) / (GAIN_DECADES * math.log(10.0))
     )
+
+
+def check_actions(actions: Any, shape: tuple[int, ...], what: str = "action") -> np.ndarray:
+    """``actions`` as float64 of ``shape``; a clear ``ValueError`` if malformed or not finite."""
+    try:
+        arr = np.asarray(actions, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what} must be numbers of shape {shape}, got {actions!r}") from exc
+    if arr.shape != shape:
+        if arr.size == math.prod(shape):
+            arr = arr.reshape(shape)
+        else:
+            raise ValueError(f"{what} must have shape {shape}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be finite, got {actions!r} (NaN or infinite)")
+    return arr

@@ -6,7 +6,16 @@ after an environment terminated or truncated resets it (its action is ignored, i
 its observation is the new episode's first) and the ``max_episode_steps`` of the registration is
 applied per environment, as ``TimeLimit`` does. Each sub-environment keeps its own seeded
 generator (``reset(seed=s)`` seeds environment ``i`` with ``s + i``, like ``SyncVectorEnv``), so
-the trajectories equal those of ``N`` single environments with the same seeds.
+the trajectories equal those of ``N`` single environments with the same seeds, and ``info``
+carries what ``SyncVectorEnv`` puts there (each started episode's ``plant``, ``reference`` and
+``noise_seed``, GripperPIDTune's metrics), batched by Gymnasium's own ``VectorEnv._add_info``.
+
+``render_mode`` (``"rgb_array"`` or ``"human"``) renders the environments listed in
+``render_envs`` (default ``(0,)``, the first): ``render()`` returns a tuple with one frame per
+listed environment, in that order, where ``SyncVectorEnv`` returns one per environment (pass
+``render_envs=range(num_envs)`` for that; each rendered environment keeps a figure).
+
+stable-baselines3 steps these through :class:`gripper_env.sb3.NativeVecEnv`.
 """
 
 from __future__ import annotations
@@ -20,12 +29,13 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.base import check_actions
-from gripper_env.envs.batch import ControlBatch
-from gripper_env.envs.common import draw_episode
+from gripper_env.envs.control_batch import ControlBatch
+from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
-from gripper_env.envs.pid_tune import GripperPIDTuneEnv, run_episodes
+from gripper_env.envs.pid_tune import EpisodeRenderer, GripperPIDTuneEnv, run_episodes
+from gripper_env.envs.rendering import RENDER_MODES, RowRenderer
 from gripper_env.envs.servo import GripperServoEnv
+from gripper_env.envs.spaces import check_actions
 
 __all__ = [
     "GripperGainScheduleVectorEnv",
@@ -39,11 +49,13 @@ class _SeededVectorEnv(VectorEnv):
 
     metadata: ClassVar[dict[str, Any]] = {
         "autoreset_mode": AutoresetMode.NEXT_STEP,
-        "render_modes": [],
+        "render_modes": list(RENDER_MODES),
     }
     _name = "VectorEnv"
 
-    def _setup(self, num_envs: int, max_episode_steps: int | None, render_mode: Any) -> None:
+    def _setup(
+        self, num_envs: int, max_episode_steps: int | None, render_mode: Any, render_envs: Any
+    ) -> None:
         if not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"{self._name}: argument 'num_envs': expected an int >= 1, got "
                              f"{num_envs!r}")  # fmt: skip
@@ -54,15 +66,26 @@ class _SeededVectorEnv(VectorEnv):
                 f"{self._name}: argument 'max_episode_steps': expected an int >= 1 or None, got "
                 f"{max_episode_steps!r}"
             )
-        if render_mode is not None:
+        if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(
-                f"{self._name}: argument 'render_mode': the vector environment does not render; "
-                "render a single environment instead"
+                f"{self._name}: argument 'render_mode': expected None or one of {RENDER_MODES}, "
+                f"got {render_mode!r}"
+            )
+        try:
+            rendered = [int(i) for i in ((0,) if render_envs is None else render_envs)]
+        except (TypeError, ValueError):
+            rendered = [-1]
+        if not rendered or any(not 0 <= i < num_envs for i in rendered):
+            raise ValueError(
+                f"{self._name}: argument 'render_envs': expected indices in [0, {num_envs}), got "
+                f"{render_envs!r}"
             )
         self.num_envs = int(num_envs)
         self.max_episode_steps = max_episode_steps
-        self.render_mode = None
+        self.render_mode = render_mode
+        self.render_envs = tuple(rendered)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._infos: dict[int, dict[str, Any]] = {}
 
     def _seed_rows(self, seed: int | list[int | None] | None, mask: np.ndarray) -> list[int]:
         n = self.num_envs
@@ -96,6 +119,21 @@ class _SeededVectorEnv(VectorEnv):
             return mask
         return np.ones(self.num_envs, dtype=bool)
 
+    @property
+    def env_infos(self) -> list[dict[str, Any]]:
+        """Each environment's ``info`` of the last ``reset`` or ``step``, unbatched: what the
+        batched ``info`` was built from (Gymnasium's batching turns a ``None`` that follows a
+        number into NaN; :class:`gripper_env.sb3.NativeVecEnv` hands these to SB3 instead)."""
+        return [self._infos.get(i, {}) for i in range(self.num_envs)]
+
+    def _batched(self, infos: dict[int, dict[str, Any]]) -> dict[str, Any]:
+        """Remember the environments' infos; return them batched, as ``SyncVectorEnv`` does."""
+        self._infos = infos
+        out: dict[str, Any] = {}
+        for i in sorted(infos):
+            out = self._add_info(out, infos[i], i)
+        return out
+
     def _draw(self, rows: list[int]) -> list[Any]:
         episodes = []
         for i in rows:
@@ -119,27 +157,43 @@ class _ControlVectorEnv(_SeededVectorEnv):
         overshoot_weight: float = 1.0,
         chatter_weight: float = 0.1,
         render_mode: str | None = None,
+        render_envs: Any = None,
         **kwargs: Any,
     ) -> None:
-        self._setup(num_envs, max_episode_steps, render_mode)
+        self._setup(num_envs, max_episode_steps, render_mode, render_envs)
         # the single environment validates the arguments the same way
         single = _SINGLE[self._mode](
             observe_context=observe_context, overshoot_weight=overshoot_weight,
             chatter_weight=chatter_weight, **kwargs,
         )  # fmt: skip
         self.settings = single.settings
+        self.metadata = {**self.metadata, "render_fps": single.metadata["render_fps"]}
         self.single_action_space = single.action_space
         self.single_observation_space = single.observation_space
         single.close()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._batch = ControlBatch(
-            self.settings, self.num_envs, self._mode, bool(observe_context),
-            overshoot_weight, chatter_weight,
+            self.settings, self.num_envs, single._mode, bool(observe_context),
+            overshoot_weight, chatter_weight, single._residual,
         )  # fmt: skip
         self._batch.set_time_limit(max_episode_steps)
         self._act_shape = (self.num_envs, self._batch.n_actions)
         self._started = False
+        self._renderers = (
+            []
+            if render_mode is None
+            else [RowRenderer(self._batch, i, single._name, render_mode) for i in self.render_envs]
+        )
+
+    def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
+        """Reset ``rows`` (new episodes from their generators); their reset ``info``."""
+        batch = self._batch
+        batch.reset_rows(rows, self._draw(rows))
+        for renderer in self._renderers:
+            if renderer.row in rows:
+                renderer.start()
+        return {i: batch.episode_info(i) for i in rows}
 
     def reset(
         self,
@@ -149,9 +203,11 @@ class _ControlVectorEnv(_SeededVectorEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         mask = self._reset_mask(options)
         rows = self._seed_rows(seed, mask)
-        self._batch.reset_rows(rows, self._draw(rows))
+        infos = self._batched(self._start(rows))
         self._started = True
-        return self._batch.obs.copy(), {}
+        if self.render_mode == "human":
+            self.render()
+        return self._batch.obs.copy(), infos
 
     def step(
         self, actions: Any
@@ -175,13 +231,40 @@ class _ControlVectorEnv(_SeededVectorEnv):
                 f"actions must be finite, got {np.asarray(actions)[bad]!r} (NaN or infinite) for "
                 f"environment {bad}"
             )
-        if n_resetting:  # next-step autoreset of the environments whose episode ended
-            rows = batch.resetting_rows()
-            batch.reset_rows(rows, self._draw(rows))
+        rows = batch.resetting_rows() if n_resetting else []
+        for renderer in self._renderers:
+            if renderer.row not in rows:
+                renderer.record()
+        # next-step autoreset of the environments whose episode ended
+        if rows:
+            infos = self._batched(self._start(rows))
+        else:
+            infos, self._infos = {}, {}
+        if self.render_mode == "human":
+            self.render()
         return (
             batch.obs.copy(), batch.rewards.copy(), batch.terminated.copy(),
-            batch.truncated.copy(), {},
+            batch.truncated.copy(), infos,
         )  # fmt: skip
+
+    def set_parallel(self, parallel: bool | None) -> None:
+        """Step with the parallel kernel (``True``), the serial one (``False``), or choose by
+        batch size (``None``, the default: parallel from
+        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per step). The
+        trajectories are the same either way."""
+        self._batch.set_parallel(parallel)
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """``rgb_array``: one frame per environment of ``render_envs``; ``human``: draw them."""
+        if not self._renderers:
+            gym.logger.warn(f"{self._name}: render() without a render_mode; pass render_mode=...")
+            return None
+        frames = tuple(r.render() for r in self._renderers)
+        return frames if self.render_mode == "rgb_array" else None  # type: ignore[return-value]
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for renderer in self._renderers:
+            renderer.close()
 
 
 class GripperServoVectorEnv(_ControlVectorEnv):
@@ -231,12 +314,14 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         *,
         max_episode_steps: int | None = None,
         render_mode: str | None = None,
+        render_envs: Any = None,
         **kwargs: Any,
     ) -> None:
-        self._setup(num_envs, max_episode_steps, render_mode)
+        self._setup(num_envs, max_episode_steps, render_mode, render_envs)
         self._single = GripperPIDTuneEnv(**kwargs)
         self.settings = self._single.settings
         self.objective = self._single.objective
+        self.metadata = {**self.metadata, "render_fps": self._single.metadata["render_fps"]}
         self.single_action_space = self._single.action_space
         self.single_observation_space = self._single.observation_space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -248,12 +333,22 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._started = False
+        self._renderers = (
+            {}
+            if render_mode is None
+            else {i: EpisodeRenderer(self.settings, render_mode) for i in self.render_envs}
+        )
 
-    def _start(self, rows: list[int]) -> None:
+    def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
+        infos = {}
         for i, ep in zip(rows, self._draw(rows), strict=True):
             self._episodes[i] = ep
             self._obs[i] = self._single.context(ep)
+            infos[i] = self._single.episode_info(ep)
+            if i in self._renderers:
+                self._renderers[i].start(ep)
         self._elapsed[rows] = 0
+        return infos
 
     def reset(
         self,
@@ -263,10 +358,10 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         mask = self._reset_mask(options)
         rows = self._seed_rows(seed, mask)
-        self._start(rows)
+        infos = self._batched(self._start(rows))
         self._autoreset[mask] = False
         self._started = True
-        return self._obs.copy(), {}
+        return self._obs.copy(), infos
 
     def step(
         self, actions: Any
@@ -278,40 +373,38 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         restart = [int(i) for i in np.flatnonzero(self._autoreset)]
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
-        infos: dict[str, Any] = {}
+        infos: dict[int, dict[str, Any]] = {}
         if run:
             res = run_episodes(
                 self.settings, self._slots, [self._episodes[i] for i in run], acts[run],
-                self.objective,
+                self.objective, keep_trajectories=bool(self._renderers),
             )  # fmt: skip
             rewards[run] = -res.costs
             terminated[run] = True
             self._elapsed[run] += 1
-            infos = _batch_infos(res.infos, run, self.num_envs)
+            for k, i in enumerate(run):
+                infos[i] = res.infos[k]
+                if i in self._renderers:
+                    self._renderers[i].finish(res.trajectories[k], res.infos[k])
         if restart:
-            self._start(restart)
+            infos.update(self._start(restart))
         truncated = np.zeros(self.num_envs, dtype=bool)
         if self.max_episode_steps is not None:
             truncated[run] = self._elapsed[run] >= self.max_episode_steps
         self._autoreset = terminated | truncated
-        return self._obs.copy(), rewards, terminated, truncated, infos
+        return self._obs.copy(), rewards, terminated, truncated, self._batched(infos)
 
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """``rgb_array``: one frame per environment of ``render_envs``; ``human``: draw them."""
+        if not self._renderers:
+            gym.logger.warn(f"{self._name}: render() without a render_mode; pass render_mode=...")
+            return None
+        frames = tuple(self._renderers[i].render() for i in self.render_envs)
+        return frames if self.render_mode == "rgb_array" else None  # type: ignore[return-value]
 
-def _batch_infos(infos: list[dict[str, Any]], rows: list[int], n: int) -> dict[str, Any]:
-    """Per-environment info dicts as Gymnasium's vector infos: arrays plus ``_key`` masks."""
-    out: dict[str, Any] = {}
-    mask = np.zeros(n, dtype=bool)
-    mask[rows] = True
-    for key in infos[0]:
-        if isinstance(infos[0][key], dict):
-            out[key] = _batch_infos([d[key] for d in infos], rows, n)
-        else:
-            kind = bool if isinstance(infos[0][key], bool) else float
-            values = np.zeros(n, dtype=kind)
-            values[rows] = [np.nan if d[key] is None else d[key] for d in infos]
-            out[key] = values
-        out[f"_{key}"] = mask.copy()
-    return out
+    def close_extras(self, **kwargs: Any) -> None:
+        for renderer in self._renderers.values():
+            renderer.close()
 
 
 _SINGLE: dict[int, type[gym.Env]] = {

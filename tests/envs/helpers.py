@@ -20,3 +20,21 @@ def signed_log_gains(action, gain_max=(10.0, 50.0, 0.1)):
     """The documented action -> gain map, written out independently of the library."""
     a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
     return np.sign(a) * np.asarray(gain_max) * (10.0 ** (3.0 * np.abs(a)) - 1.0) / 999.0
+
+
+def assert_same_info(a, b, path="info"):
+    """Two (batched or single) info dicts are equal: same keys, equal values, NaN equal to NaN
+    (Gymnasium's ``data_equivalence`` treats NaN as unequal to itself)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), (path, sorted(a), sorted(b))
+        for key in a:
+            assert_same_info(a[key], b[key], f"{path}[{key!r}]")
+        return
+    x, y = np.asarray(a), np.asarray(b)
+    assert x.dtype == y.dtype and x.shape == y.shape, (path, x, y)
+    if x.dtype == object:
+        for p, q in zip(x.ravel(), y.ravel(), strict=True):
+            same = p is q or p == q or (isinstance(p, float) and p != p and q != q)
+            assert same, (path, p, q)
+    else:
+        np.testing.assert_array_equal(x, y, err_msg=path)

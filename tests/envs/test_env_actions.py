@@ -115,7 +115,7 @@ def test_vector_bad_kwargs_name_the_argument():
         gym.make_vec(SERVO, num_envs=2, vectorization_mode="vector_entry_point", plant="x")
     with pytest.raises(ValueError, match="'render_mode'"):
         gym.make_vec(SERVO, num_envs=2, vectorization_mode="vector_entry_point",
-                     render_mode="rgb_array")  # fmt: skip
+                     render_mode="ascii")  # fmt: skip
     with pytest.raises(ValueError, match="'num_envs'"):
         gym.make_vec(PID_TUNE, num_envs=0, vectorization_mode="vector_entry_point")
 

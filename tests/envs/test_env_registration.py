@@ -16,14 +16,26 @@ WORKTREE = Path(__file__).resolve().parents[2]
 
 def test_ids_registered_with_time_limits():
     assert set(gripper_env.ENV_IDS) == set(ENV_IDS)
-    limits = {SERVO: 1000, PID_TUNE: 1, GAIN_SCHEDULE: 1000}
+    limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == limit
         assert spec.vector_entry_point is not None
         env = gym.make(env_id)
-        assert isinstance(env, gym.wrappers.TimeLimit)
+        assert isinstance(env, gym.wrappers.TimeLimit) == (limit is not None)
         env.close()
+
+
+def test_pid_tune_episode_ends_terminated_not_truncated():
+    """One step is a whole episode: terminated, never truncated (single and vector)."""
+    env = gym.make(PID_TUNE)
+    env.reset(seed=0)
+    _, _, terminated, truncated, _ = env.step(np.zeros(3, np.float32))
+    assert terminated is True and truncated is False
+    envs = gym.make_vec(PID_TUNE, num_envs=2, vectorization_mode="vector_entry_point")
+    envs.reset(seed=0)
+    _, _, terminated, truncated, _ = envs.step(np.zeros((2, 3), np.float32))
+    assert terminated.all() and not truncated.any()
 
 
 def test_make_without_prior_import_in_fresh_interpreter():
@@ -41,7 +53,7 @@ def test_make_without_prior_import_in_fresh_interpreter():
         [sys.executable, "-c", code], cwd=WORKTREE, capture_output=True, text=True, check=True
     )
     assert "gripper_env/GripperServo-v0 1000" in out.stdout
-    assert "gripper_env/GripperPIDTune-v0 1" in out.stdout
+    assert "gripper_env/GripperPIDTune-v0 None" in out.stdout
     assert "GripperServoVectorEnv" in out.stdout
 
 

@@ -3,9 +3,10 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO
+from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO, assert_same_info
 
 import gripper_env  # noqa: F401
+from gripper_env.envs import kernels
 
 
 def compare(env_id, n_envs, n_steps, seed, **kwargs):
@@ -16,9 +17,12 @@ def compare(env_id, n_envs, n_steps, seed, **kwargs):
     assert not isinstance(native, gym.vector.SyncVectorEnv)
     assert native.observation_space == sync.observation_space
     assert native.action_space == sync.action_space
-    obs_n, _ = native.reset(seed=seed)
-    obs_s, _ = sync.reset(seed=seed)
+    obs_n, info_n = native.reset(seed=seed)
+    obs_s, info_s = sync.reset(seed=seed)
     np.testing.assert_array_equal(obs_n, obs_s)
+    assert set(info_n) == {"plant", "_plant", "reference", "_reference", "noise_seed",
+                           "_noise_seed"}  # fmt: skip
+    assert_same_info(info_n, info_s)
     rng = np.random.default_rng(seed)
     resets = 0
     for _ in range(n_steps):
@@ -27,16 +31,25 @@ def compare(env_id, n_envs, n_steps, seed, **kwargs):
         out_s = sync.step(actions)
         for a, b in zip(out_n[:4], out_s[:4], strict=True):
             np.testing.assert_array_equal(a, b)
+        assert_same_info(out_n[4], out_s[4])
         resets += int(np.sum(out_n[2] | out_n[3]))
     native.close()
     sync.close()
     return resets
 
 
-@pytest.mark.parametrize("env_id", [SERVO, GAIN_SCHEDULE])
-def test_vector_equals_single_envs_across_autoreset(env_id):
+@pytest.mark.parametrize(
+    ("env_id", "kwargs"),
+    [
+        (SERVO, {}),
+        (GAIN_SCHEDULE, {}),
+        (SERVO, {"residual": "reference"}),
+        (SERVO, {"residual": "pid", "pid_gains": (1.0, 9.0, -0.001)}),
+    ],
+)
+def test_vector_equals_single_envs_across_autoreset(env_id, kwargs):
     # a 30-step time limit forces every environment through an autoreset
-    resets = compare(env_id, 5, 75, seed=11, max_episode_steps=30)
+    resets = compare(env_id, 5, 75, seed=11, max_episode_steps=30, **kwargs)
     assert resets >= 10
 
 
@@ -53,11 +66,13 @@ def test_vector_pid_tune_equals_single_envs():
 
 
 def test_vector_parallel_batch_equals_serial():
-    """A batch large enough for the parallel kernel (three chunks of rows, the last partial)
-    gives the same rows as single envs."""
+    """The parallel kernel (forced on a batch of three chunks of rows, the last partial) gives
+    the same rows as single envs."""
     n = 37
     native = gym.make_vec(SERVO, num_envs=n, vectorization_mode="vector_entry_point",
                           max_episode_steps=8)  # fmt: skip
+    native.unwrapped.set_parallel(True)
+    assert native.unwrapped._batch._kernel is kernels.step_parallel
     obs, _ = native.reset(seed=100)
     singles = [gym.make(SERVO, max_episode_steps=8) for _ in range(n)]
     single_obs = [e.reset(seed=100 + i)[0] for i, e in enumerate(singles)]
@@ -103,3 +118,49 @@ def test_vector_bad_actions():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="shape"):
         envs.step(np.zeros((3, 1), np.float32))
+
+
+@pytest.mark.parametrize("env_id", [SERVO, PID_TUNE])
+def test_vector_renders_the_chosen_envs(env_id):
+    """render() gives the frames of render_envs, equal to the single environments' frames."""
+    kwargs = {"reference": "random", "episode_s": 1.0}
+    native = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point",
+                          render_mode="rgb_array", render_envs=[2, 0], **kwargs)  # fmt: skip
+    singles = [gym.make(env_id, render_mode="rgb_array", **kwargs) for _ in range(3)]
+    assert native.metadata["render_fps"] == singles[0].metadata["render_fps"]
+    native.reset(seed=4)
+    for i, env in enumerate(singles):
+        env.reset(seed=4 + i)
+    rng = np.random.default_rng(0)
+    for step in range(4):
+        actions = rng.uniform(-1, 1, native.action_space.shape).astype(np.float32)
+        native.step(actions)
+        if env_id == PID_TUNE and step % 2:  # the vector env's autoreset step
+            for env in singles:
+                env.reset()
+        else:
+            for i, env in enumerate(singles):
+                env.step(actions[i])
+        frames = native.render()
+        assert len(frames) == 2
+        np.testing.assert_array_equal(frames[0], singles[2].render())
+        np.testing.assert_array_equal(frames[1], singles[0].render())
+    native.close()
+    with pytest.raises(ValueError, match="'render_envs'"):
+        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
+                     render_mode="rgb_array", render_envs=[2])  # fmt: skip
+
+
+def test_kernel_by_batch_size():
+    """A single environment runs the serial kernel; a batch the parallel one, which wakes the
+    worker threads only from PARALLEL_MIN_STEPS physics steps per call (the kernel's check)."""
+    assert kernels.step_kernel(1, 20) is kernels.step_serial
+    assert kernels.step_kernel(8, 20) is kernels.step_parallel
+    assert kernels.step_kernel(1024, 20, parallel=False) is kernels.step_serial
+    envs = gym.make_vec(SERVO, num_envs=8, vectorization_mode="vector_entry_point")
+    batch = envs.unwrapped._batch
+    assert batch.cfg[kernels.C_PARMIN] == kernels.PARALLEL_MIN_STEPS > 8 * 20
+    envs.unwrapped.set_parallel(True)
+    assert batch.cfg[kernels.C_PARMIN] == 0 and batch._kernel is kernels.step_parallel
+    envs.unwrapped.set_parallel(False)
+    assert batch._kernel is kernels.step_serial

@@ -79,3 +79,18 @@ def test_bad_benchmark_config(tmp_path, capsys):
     code = cli.run(benchmark.main, ["--config", str(bad), "--out", str(tmp_path / "r")])
     assert code == 2 and "unknown classical method 'zn'" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_rl_controller_row_corrects_the_best_deployable_pid(quick):
+    """The RL controller's row: a residual on the best ranked PID of its plant, scored on the
+    same held-out seeds, its baselines beside it (quick budget: no claim on who wins)."""
+    _, data = quick
+    rows = data["plants"]["test2"]["tuners"]
+    row = rows["rl-controller"]
+    assert row["kind"] == "rl-controller" and row["tuning"]["residual"] == "pid"
+    base = row["tuning"]["base_tuner"]
+    assert leaderboard.why_not_ranked(rows[base]) is None and rows[base]["P"] == row["P"]
+    assert row["tuning"]["baselines"]["base"]["actual"]["mean"]["iae"] == pytest.approx(
+        rows[base]["metrics"]["actual"]["mean"]["iae"], rel=1e-12
+    )
+    assert len(row["per_seed_iae"]) == 10 and row["tuning"]["timesteps"] > 0

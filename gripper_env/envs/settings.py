@@ -1,11 +1,9 @@
-"""Keyword arguments shared by the environments, validated once, and the per-episode draw.
+"""Keyword arguments shared by the environments, validated once at construction.
 
 Every environment takes ``plant``, ``disturbance``, ``reference``, ``randomize`` and
-``render_mode``; :func:`parse_settings` checks them at construction and raises a
-:class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message names the argument.
-:func:`draw_episode` makes every random choice of an episode from the environment's seeded
-generator, always in the same order, so that a single environment and a vector environment with
-the same seeds play identical episodes.
+``render_mode``; :func:`parse_settings` checks them and :func:`check_reward_weights` the reward
+weights, each raising a :class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message
+names the argument. The result is a frozen :class:`Settings`.
 """
 
 from __future__ import annotations
@@ -20,24 +18,27 @@ import numpy as np
 
 from gripper_env.config import ConfigError, validate
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.envs.rendering import RENDER_MODES
 from gripper_env.envs.spaces import GAIN_MAX
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference, random_profile
+from gripper_env.references import Reference, load_reference
 
 __all__ = [
     "RANDOM_REFERENCE",
-    "RENDER_MODES",
-    "Episode",
+    "RESIDUAL_ON",
+    "Residual",
     "Settings",
-    "draw_episode",
+    "check_reward_weights",
+    "parse_residual",
     "parse_settings",
 ]
 
 #: Reference name that draws a new seeded random grip/un-grip profile every episode.
 RANDOM_REFERENCE = "random"
-RENDER_MODES = ("human", "rgb_array")
-_NOISE_SEED_BOUND = 2**63 - 1
+#: What a residual policy's correction is added to: the reference fed straight to the servo, or
+#: the output of a fixed PID running at the physics step.
+RESIDUAL_ON = ("reference", "pid")
 
 
 @dataclass(frozen=True)
@@ -66,16 +67,6 @@ class Settings:
         if self.reference is not None:
             return len(self.reference)
         return round(self.episode_s / self.dt_s)
-
-
-@dataclass(frozen=True)
-class Episode:
-    """The random choices of one episode."""
-
-    plant_index: int
-    disturbance: Disturbance
-    reference: Reference
-    noise_seed: int
 
 
 def _fail(env_name: str, arg: str, message: str) -> ConfigError:
@@ -270,21 +261,65 @@ def parse_settings(
     )
 
 
-def draw_episode(settings: Settings, rng: np.random.Generator) -> Episode:
-    """Draw one episode's plant, disturbance parameters, reference and noise seed.
+def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:
+    """Raise a :class:`~gripper_env.config.ConfigError` naming a reward weight that is not >= 0."""
+    weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
+    for arg, value in weights.items():
+        if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            raise ConfigError(
+                f"{env_name}: argument {arg!r}: expected a number >= 0, got {value!r}"
+            )
 
-    The draws happen in this order, each only when it is random: plant index (several plants),
-    disturbance parameters (``randomize``), reference (``"random"``); the noise seed of the
-    simulation core always comes last.
+
+@dataclass(frozen=True)
+class Residual:
+    """A residual controller: the action is a bounded correction (see :func:`parse_residual`)."""
+
+    on: str  # one of RESIDUAL_ON
+    bound_deg: float  # correction at action +/-1 (deg)
+    pid_gains: tuple[float, float, float]  # P, I, D of the PID (``on="pid"``)
+
+
+def parse_residual(
+    env_name: str, residual: Any, residual_deg: Any, pid_gains: Any
+) -> Residual | None:
+    """Validate the residual-mode arguments of ``GripperServo-v0``.
+
+    Parameters
+    ----------
+    env_name : str
+        Environment name, for messages.
+    residual : {None, "reference", "pid"}
+        ``None``: the action is the servo command itself. ``"reference"``: the servo is
+        commanded ``r + residual_deg * a`` (the reference as feed-forward; ``a = 0`` is the
+        policy "command = reference"). ``"pid"``: a PID with ``pid_gains`` closes the loop at
+        the physics step and ``residual_deg * a`` is added to its output.
+    residual_deg : float
+        Largest correction (deg), at ``|a| = 1``.
+    pid_gains : (float, float, float) or None
+        ``(P, I, D)`` of the PID of ``residual="pid"`` (deg/deg, 1/s, s); required there.
     """
-    n_plants = len(settings.plants)
-    plant_index = int(rng.integers(n_plants)) if n_plants > 1 else 0
-    dist = settings.disturbance.sample(rng) if settings.randomize else settings.disturbance
-    if settings.reference is None:
-        ref = random_profile(
-            rng, settings.episode_s, settings.dt_s, settings.plants[plant_index].jaw_range_deg
-        )
-    else:
-        ref = settings.reference
-    noise_seed = int(rng.integers(_NOISE_SEED_BOUND))
-    return Episode(plant_index, dist, ref, noise_seed)
+    if residual is None:
+        return None
+    if residual not in RESIDUAL_ON:
+        raise _fail(env_name, "residual", f"expected None or one of {RESIDUAL_ON}, got "
+                    f"{residual!r}")  # fmt: skip
+    if not (
+        isinstance(residual_deg, int | float) and math.isfinite(residual_deg) and residual_deg > 0
+    ):
+        raise _fail(env_name, "residual_deg", f"expected a positive angle (deg), got "
+                    f"{residual_deg!r}")  # fmt: skip
+    gains = (0.0, 0.0, 0.0)
+    if residual == "pid":
+        try:
+            gains = tuple(float(g) for g in pid_gains)  # type: ignore[assignment]
+        except (TypeError, ValueError):
+            gains = ()  # type: ignore[assignment]
+        if len(gains) != 3 or not all(math.isfinite(g) for g in gains):
+            raise _fail(
+                env_name, "pid_gains", f"residual='pid' needs three finite gains (P, I, D), "
+                f"got {pid_gains!r}"
+            )  # fmt: skip
+    elif pid_gains is not None:
+        raise _fail(env_name, "pid_gains", "only residual='pid' runs a PID")
+    return Residual(str(residual), float(residual_deg), gains)

@@ -10,55 +10,31 @@ of ``num_envs``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from gripper_env.envs import kernels as K
-from gripper_env.envs.common import Episode, Settings
+from gripper_env.envs.episode import Episode
+from gripper_env.envs.plant_slots import PlantSlots
+from gripper_env.envs.settings import Residual, Settings
 from gripper_env.envs.spaces import (
     GAIN_DECADES,
     OBS_BOUND,
     RATE_TIME_S,
     context_features,
     disturbance_features,
-    plant_features,
     reference_features,
 )
 from gripper_env.references import Reference, step_profile
-from gripper_env.simulation import P_DELAY, PARALLEL_MIN_BATCH, BatchSimulator, build_params
+from gripper_env.simulation import P_DELAY, build_params
 
-__all__ = ["DIVERGED_PENALTY", "ControlBatch", "PlantSlots"]
+__all__ = ["DIVERGED_PENALTY", "VARIATION_CAP", "ControlBatch"]
 
 #: Reward of a step on which the closed loop diverged (the episode then terminates), negated.
 DIVERGED_PENALTY = 100.0
 #: Cap of the command-variation term of one step.
 VARIATION_CAP = 10.0
-
-
-class PlantSlots:
-    """A core simulator of ``n_rows`` runs whose plant each episode may choose among several.
-
-    With one plant all rows share it; with several, every row has its own plant matrices, sized
-    for the largest candidate, and :meth:`install` swaps a candidate's in.
-    """
-
-    def __init__(self, settings: Settings, n_rows: int) -> None:
-        s = settings
-        self.plants = s.plants
-        self.features = [plant_features(p) for p in s.plants]
-        self.shared = len(s.plants) == 1
-        # one row per environment; with several candidates the core keeps a plant per row
-        plants = s.plants[0] if self.shared else [s.plants[0]] * n_rows
-        self.sim = BatchSimulator(plants, s.dt_s, delay_capacity=delay_capacity(s))
-        if not self.shared:
-            widest = max(s.plants, key=lambda p: p.order)
-            self.sim.set_plant(0, widest)  # size the state for the largest candidate
-            self.sim.set_plant(0, s.plants[0])
-
-    def install(self, row: int, index: int) -> None:
-        """Give ``row`` the candidate plant ``index`` (before resetting that row)."""
-        if not self.shared:
-            self.sim.set_plant(row, self.plants[index])
 
 
 class ControlBatch:
@@ -71,12 +47,18 @@ class ControlBatch:
     n_rows : int
         Number of environments.
     mode : int
-        :data:`~gripper_env.envs.kernels.MODE_SERVO` (action = servo command) or
-        :data:`~gripper_env.envs.kernels.MODE_GAINS` (action = PID gains).
+        :data:`~gripper_env.envs.kernels.MODE_SERVO` (action = servo command),
+        :data:`~gripper_env.envs.kernels.MODE_GAINS` (action = PID gains), or a residual mode
+        (action = a correction to the reference or to a fixed PID's output; needs ``residual``).
     observe_context : bool
         Append the context features to the observation.
     overshoot_weight, chatter_weight : float
         Reward weights (see the environments' docstrings).
+    residual : Residual, optional
+        Size of the correction and the PID's gains of the residual modes.
+    record_true : bool
+        Also record the true jaw angle of each period in :attr:`out_yt` (for whole-episode
+        trajectories, :mod:`gripper_env.envs.rollout`; the environments leave it out).
     """
 
     def __init__(
@@ -87,18 +69,27 @@ class ControlBatch:
         observe_context: bool,
         overshoot_weight: float,
         chatter_weight: float,
+        residual: Residual | None = None,
+        record_true: bool = False,
     ) -> None:
         self.settings = settings
         self.n_rows = n_rows
         self.mode = mode
-        self.n_actions = 1 if mode == K.MODE_SERVO else 3
+        self.n_actions = 3 if mode == K.MODE_GAINS else 1
         self.observe_context = observe_context
+        residual_modes = (K.MODE_RESIDUAL_REFERENCE, K.MODE_RESIDUAL_PID)
+        if (mode in residual_modes) != (residual is not None):
+            raise ValueError("the residual modes, and only they, need a Residual")
+        self.residual = residual
         s = settings
         self.plant_slots = PlantSlots(s, n_rows)
         self.sim = self.plant_slots.sim
         self.gains0 = None
-        if mode == K.MODE_GAINS:
-            self.gains0 = np.zeros((1, 4))
+        if K.closed_loop(mode):
+            self.gains0 = np.zeros((1, 4))  # gains mode: set by every action
+            if mode == K.MODE_RESIDUAL_PID:
+                assert residual is not None
+                self.gains0[0, :3] = residual.pid_gains
             self.gains0[0, 3] = s.derivative_filter
         self.sim.configure(
             None if self.gains0 is None else np.repeat(self.gains0, n_rows, axis=0),
@@ -127,12 +118,14 @@ class ControlBatch:
         cfg[K.C_BOUND] = OBS_BOUND
         cfg[K.C_MODE] = mode
         cfg[K.C_NA] = self.n_actions
-        cfg[K.C_OA0] = 5 if mode == K.MODE_SERVO else 6
+        cfg[K.C_OA0] = 6 if K.closed_loop(mode) else 5
         cfg[K.C_GLOG] = 1.0 if s.gain_scaling == "log" else 0.0
         cfg[K.C_GDEC] = GAIN_DECADES
         cfg[K.C_PMAX], cfg[K.C_IMAX], cfg[K.C_DMAX] = s.gain_max
         cfg[K.C_DIVPEN] = DIVERGED_PENALTY
         cfg[K.C_MAXSTEPS] = 0.0  # no limit: see set_time_limit
+        cfg[K.C_RESIDUAL] = 0.0 if residual is None else residual.bound_deg
+        cfg[K.C_PARMIN] = K.PARALLEL_MIN_STEPS
         self.cfg = cfg
         self.n_context = len(context_features(s.plants[0], s.disturbance, _any_reference(s)))
         self.n_obs = K.observation_size(mode, self.n_actions, self.n_context * observe_context)
@@ -145,22 +138,48 @@ class ControlBatch:
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
         # the period's recorded controller output and measured angle (the kernels leave the
-        # reference and the true angle unrecorded: nothing here needs them; in the servo mode the
-        # output is the drive itself)
-        self.out_u = np.zeros((n_rows, s.n_sub)) if mode == K.MODE_GAINS else None
+        # reference and the true angle unrecorded: nothing here needs them; in the open-loop
+        # modes the output is the drive itself)
+        self.out_u = np.zeros((n_rows, s.n_sub)) if K.closed_loop(mode) else None
         self.out_y = np.zeros((n_rows, s.n_sub))
+        self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
         self.episodes: list[Episode | None] = [None] * n_rows
-        self._kernel = K.step_parallel if n_rows >= PARALLEL_MIN_BATCH else K.step_serial
+        #: None: the serial or the parallel kernel by batch size (kernels.step_kernel); True or
+        #: False forces one (set_parallel).
+        self.parallel: bool | None = None
+        self._bind()
+
+    def set_parallel(self, parallel: bool | None) -> None:
+        """``None`` (the default): by batch size (:func:`~gripper_env.envs.kernels.step_kernel`:
+        the parallel kernel for several rows, on every thread from
+        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per call, else on the
+        calling thread); ``True``: the parallel kernel on every thread whatever the size;
+        ``False``: the serial kernel. The results are the same; only the speed differs."""
+        self.parallel = parallel
+        self.cfg[K.C_PARMIN] = 0.0 if parallel else K.PARALLEL_MIN_STEPS
+        self._bind()
+
+    # Copies (pickle, deepcopy, a spawned worker) rebuild the derived references: the compiled
+    # kernel is looked up again rather than serialised, and the argument tuple is rebound to the
+    # copy's own arrays.
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["_kernel"], state["_args"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
         self._bind()
 
     def _bind(self) -> None:
         """Collect the kernel's arguments once (the simulator's arrays are updated in place)."""
+        self._kernel = K.step_kernel(self.n_rows, self.settings.n_sub, self.parallel)
         sim, cfg = self.sim, self.cfg
         self._args = (
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
             self.rewards, self.terminated, self.truncated,
             sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
-            None, self.out_u, self.out_y, None,
+            None, self.out_u, self.out_y, self.out_yt,
         )  # fmt: skip
 
     # ------------------------------------------------------------------------------------------
@@ -213,7 +232,7 @@ class ControlBatch:
         rows[:, 0] = (y - cfg[K.C_JC]) / cfg[K.C_JH]
         rows[:, 1] = (r0 - cfg[K.C_JC]) / cfg[K.C_JH]
         rows[:, 2] = e
-        if self.mode == K.MODE_GAINS:
+        if K.closed_loop(self.mode):
             rows[:, 5] = (u0 - cfg[K.C_CC]) / cfg[K.C_CH]
         oa0 = int(cfg[K.C_OA0])
         rows[:, oa0 : oa0 + self.n_actions] = env[idx, K.E_A0 : K.E_A0 + self.n_actions]
@@ -254,6 +273,39 @@ class ControlBatch:
         """Controller output (deg) at each physics step of row ``row``'s last period."""
         return (self.drive if self.out_u is None else self.out_u)[row]
 
+    def period_series(self, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference, measured angle and controller output (deg) of ``row``'s last period."""
+        n_sub = self.settings.n_sub
+        t = int(self.env[row, K.E_T]) - n_sub
+        last = int(self.env[row, K.E_REFLEN]) - 1
+        ref_row = self.ref[row if self.ref.shape[0] > 1 else 0]
+        ref = ref_row[np.minimum(np.arange(t, t + n_sub), last)]
+        return ref, self.out_y[row], self.period_command(row)
+
+    def episode_start(self, row: int) -> tuple[int, float, float, float, str, np.ndarray]:
+        """What a plot of ``row``'s new episode needs: its periods, its first reference, measured
+        angle and controller output (deg), a title and the reference's values."""
+        ep = self.episodes[row]
+        assert ep is not None
+        title = (
+            f"{self.settings.plants[ep.plant_index].name}, {ep.disturbance.name}, "
+            f"{ep.reference.name}"
+        )
+        n_periods = int(self.env[row, K.E_LEN]) // self.settings.n_sub
+        values = ep.reference.values_deg
+        y0 = float(self.sim.measured_deg[row])
+        return n_periods, float(values[0]), y0, float(self.env[row, K.E_UPREV]), title, values
+
+    def episode_info(self, row: int) -> dict[str, Any]:
+        """The reset ``info`` of ``row``'s episode: plant and reference names, noise seed."""
+        ep = self.episodes[row]
+        assert ep is not None
+        return {
+            "plant": self.settings.plants[ep.plant_index].name,
+            "reference": ep.reference.name,
+            "noise_seed": ep.noise_seed,
+        }
+
     def resetting_rows(self) -> list[int]:
         """Rows the last :meth:`step` marked ``DONE_RESETTING``."""
         return [int(i) for i in np.flatnonzero(self.env[:, K.E_DONE] == K.DONE_RESETTING)]
@@ -261,11 +313,3 @@ class ControlBatch:
 
 def _any_reference(s: Settings) -> Reference:
     return s.reference if s.reference is not None else step_profile(s.dt_s)
-
-
-def delay_capacity(s: Settings) -> int:
-    """Delay-line length that holds the preset's delay and any randomised one."""
-    delays = [s.disturbance.sensor.delay_s]
-    if s.randomize and "sensor.delay_s" in s.disturbance.randomize:
-        delays.append(s.disturbance.randomize["sensor.delay_s"][1])
-    return max(64, max(round(d / s.dt_s) for d in delays) + 1)
