@@ -1,25 +1,53 @@
 """Loading and validating configuration files (YAML) with errors that name the file and the key.
 
-Configuration is data in the top-level ``configs/`` folder (plants, disturbance presets, tuner and
-benchmark settings). Every file is validated once, on load, by a pydantic model; a problem is
-reported as a :class:`ConfigError` that names the file and the offending key.
+Configuration is data: plants, disturbance presets, tuner and benchmark settings. The files that
+ship with the project live in the top-level ``configs/`` folder of the source tree, installed as
+the package ``gripper_env.configs`` and read through :mod:`importlib.resources`, so a wheel
+finds them wherever it is installed. A name (``"test2"``) resolves there, or in the folder named
+by the ``GRIPPER_CONFIG_DIR`` environment variable (same layout: ``plants/``,
+``disturbances/``, ``tuners/``, ``objective.yaml``, ``benchmark.yaml``); a path
+(``my/plant.yaml``) is read as it is. Every file is validated once, on load, by a pydantic
+model; a problem is reported as a :class:`ConfigError` that names the file and the offending
+key.
 """
 
 from __future__ import annotations
 
 import os
+from importlib.resources import files
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
 from pydantic import BaseModel, ValidationError
 
-__all__ = ["CONFIG_DIR", "ConfigError", "available", "find_config", "load_yaml", "validate"]
+__all__ = [
+    "CONFIG_DIR",
+    "ConfigError",
+    "available",
+    "config_file",
+    "find_config",
+    "load_yaml",
+    "validate",
+]
 
-#: Root of the configuration tree; override with the ``GRIPPER_CONFIG_DIR`` environment variable.
-CONFIG_DIR = Path(
-    os.environ.get("GRIPPER_CONFIG_DIR", Path(__file__).resolve().parent.parent / "configs")
-)
+
+def _config_dir() -> Traversable:
+    folder = os.environ.get("GRIPPER_CONFIG_DIR")
+    if folder:
+        return Path(folder)
+    try:
+        return files("gripper_env.configs")
+    except ModuleNotFoundError:
+        # a source tree used without installing it (PYTHONPATH=.), or an editable install made
+        # before configs/ became a package: the folder beside the package
+        return Path(__file__).resolve().parent.parent / "configs"
+
+
+#: Root of the configuration tree: the configurations shipped in the package
+#: (``gripper_env.configs``), or the folder in the ``GRIPPER_CONFIG_DIR`` environment variable.
+CONFIG_DIR: Traversable = _config_dir()
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -28,15 +56,15 @@ class ConfigError(ValueError):
     """A configuration file or value is missing, malformed or out of range."""
 
 
-def load_yaml(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a YAML mapping from ``path``.
+def load_yaml(path: str | os.PathLike[str] | Traversable) -> dict[str, Any]:
+    """Read a YAML mapping from ``path`` (a file path, or a file of :data:`CONFIG_DIR`).
 
     Raises
     ------
     ConfigError
         If the file does not exist, is not valid YAML, or does not hold a mapping.
     """
-    p = Path(path)
+    p = path if isinstance(path, Traversable) else Path(path)
     if not p.is_file():
         raise ConfigError(f"{p}: no such configuration file")
     try:
@@ -71,14 +99,26 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
         raise ConfigError(f"{source}: " + "; ".join(problems)) from None
 
 
+def config_file(*parts: str) -> Traversable:
+    """A file of the configuration tree, e.g. ``config_file("tuners", "optuna.yaml")``.
+
+    Read at call time, so a test or a tool that points :data:`CONFIG_DIR` elsewhere is followed.
+    """
+    return CONFIG_DIR.joinpath(*parts)
+
+
 def available(kind: str) -> list[str]:
     """Names of the configuration files of one kind (``"plants"``, ``"disturbances"``, ...)."""
     folder = CONFIG_DIR / kind
-    return sorted(p.stem for p in folder.glob("*.yaml"))
+    if not folder.is_dir():
+        return []
+    return sorted(
+        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
+    )
 
 
-def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Path:
-    """Resolve a configuration by name (``configs/<kind>/<name>.yaml``) or by file path.
+def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Traversable:
+    """Resolve a configuration by name (``<kind>/<name>.yaml`` of :data:`CONFIG_DIR`) or by path.
 
     Raises
     ------

@@ -38,3 +38,9 @@ def test_write_json_makes_numpy_plain_and_non_finite_null(tmp_path):
     assert json.loads(p.read_text()) == {"a": 1.5, "b": [0, 1, 2], "c": None, "d": [2, None]}
     assert p.read_text().endswith("\n")
     assert json_ready({1: np.bool_(True)}) == {"1": True}
+
+
+def test_json_ready_turns_inf_and_nan_into_null():
+    out = json_ready({"a": math.inf, "b": [np.float64("nan"), np.int64(3)], "c": np.bool_(True)})
+    assert out == {"a": None, "b": [None, 3], "c": True}
+    json.dumps(out, allow_nan=False)

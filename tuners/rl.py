@@ -34,12 +34,12 @@ from typing import Any
 import numpy as np
 
 from gripper_env.config import ConfigError
+from gripper_env.files import write_json
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
 from gripper_env.scoring import GainScorer, Task, score_trajectory
 from tuners import cli
-from tuners.gains_file import write_json
 from tuners.search_space import search_space
 from tuners.settings import OptunaSettings, load_settings
 
