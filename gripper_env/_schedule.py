@@ -45,7 +45,7 @@ MAX_WORKERS = 64
 CHUNK_STEPS = 320
 
 
-def fetch_add(counter: np.ndarray, increment: int) -> int:
+def fetch_add(counter: np.ndarray, increment: int | np.integer) -> int:
     """Atomically add ``increment`` to ``counter[0]`` and return its previous value.
 
     Compiled, this is one ``lock xadd`` (:func:`_atomic_fetch_add`); run as plain Python (the
@@ -70,14 +70,14 @@ def fetch_add(counter: np.ndarray, increment: int) -> int:
 
 
 @intrinsic
-def _atomic_fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped-def]
+def _atomic_fetch_add(typingctx, counter, increment):
     if not (
         isinstance(counter, types.Array) and counter.dtype == types.int64 and counter.ndim == 1
     ):
         return None
     sig = types.int64(counter, types.int64)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         arr_type = signature.args[0]
         arr = context.make_array(arr_type)(context, builder, args[0])
         ptr = cgutils.get_item_pointer(
@@ -89,8 +89,8 @@ def _atomic_fetch_add(typingctx, counter, increment):  # type: ignore[no-untyped
 
 
 @overload(fetch_add, inline="always")
-def _fetch_add_compiled(counter, increment):  # type: ignore[no-untyped-def]
-    def impl(counter, increment):  # type: ignore[no-untyped-def]
+def _fetch_add_compiled(counter, increment):
+    def impl(counter, increment):
         return _atomic_fetch_add(counter, np.int64(increment))
 
     return impl

@@ -169,7 +169,12 @@ class Sensor(BaseModel):
         return (self.adc_range_deg[1] - self.adc_range_deg[0]) / (2**self.adc_bits - 1)
 
 
-_BLOCKS = {"command": CommandPath, "friction": Friction, "mechanics": Mechanics, "sensor": Sensor}
+_BLOCKS: dict[str, type[BaseModel]] = {
+    "command": CommandPath,
+    "friction": Friction,
+    "mechanics": Mechanics,
+    "sensor": Sensor,
+}
 
 
 class Disturbance(BaseModel):

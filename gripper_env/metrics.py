@@ -397,7 +397,7 @@ def compute_metrics(
     if not math.isfinite(settling_band_deg) or settling_band_deg < 0:
         raise ValueError(f"settling_band_deg must be >= 0, got {settling_band_deg!r}")
     _metrics_kernel(t, r, ys, us, bounds, values, float(settling_band_deg), run_out, seg_out)
-    parts = {"grip": [], "ungrip": []}
+    parts: dict[str, list[dict[str, np.ndarray]]] = {"grip": [], "ungrip": []}
     for i, s in enumerate(segs):
         parts[s.kind].append({name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)})
     grip = _aggregate(parts["grip"], n_runs)

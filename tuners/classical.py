@@ -57,6 +57,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import control
 import numpy as np
@@ -244,7 +245,7 @@ def design(
     disturbance: Disturbance,
     settings: ClassicalSettings,
     n: float = 100.0,
-) -> tuple[PIDGains, dict[str, object]]:
+) -> tuple[PIDGains, dict[str, Any]]:
     """Gains of one textbook ``method`` for ``plant`` on ``disturbance``'s loop.
 
     Returns

@@ -372,13 +372,14 @@ def run_study(
                 cons = _constraints(
                     scores.ms[i], scores.gm_db[i], bool(scores.stable[i]), objective
                 )
-                for key, value in cons.items():
-                    stored.set_constraint(key, value)
+                for key, limit in cons.items():
+                    stored.set_constraint(key, limit)
                     if mine is not None and not is_cmaes:
-                        mine.set_constraint(key, value)
+                        mine.set_constraint(key, limit)
                 stored.set_user_attr("cost", float(scores.cost[i]))
+                value: float | list[float]
                 if multi:
-                    value: Any = [float(scores.terms[name][i]) for name in terms]
+                    value = [float(scores.terms[name][i]) for name in terms]
                     value = [v if math.isfinite(v) else objective.unstable_cost for v in value]
                 else:
                     value = float(scores.penalised[i] if is_cmaes else scores.cost[i])

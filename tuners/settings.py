@@ -63,7 +63,7 @@ class PIDSettings(BaseModel):
     def options(self, sign: int = 1) -> PIDOptions:
         """The :class:`PIDOptions` with error sign ``sign``."""
         return PIDOptions(
-            output_limits=tuple(self.output_limits_deg),
+            output_limits=(self.output_limits_deg[0], self.output_limits_deg[1]),
             anti_windup=self.anti_windup,
             kb=self.kb,
             derivative_on=self.derivative_on,
