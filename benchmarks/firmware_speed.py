@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.files import write_atomic
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.device import GripperDevice
@@ -466,9 +467,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     result["speed_x"] = float(np.median(speeds))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "firmware_speed.json").write_text(json.dumps(result, indent=2, default=float) + "\n")
+    write_atomic(out / "firmware_speed.json", json.dumps(result, indent=2, default=float) + "\n")
     text = report(result)
-    (out / "firmware_speed.md").write_text(text)
+    write_atomic(out / "firmware_speed.md", text)
     print(text)
     return 0
 

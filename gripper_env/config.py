@@ -3,12 +3,14 @@
 Configuration is data: plants, disturbance presets, tuner and benchmark settings. The files that
 ship with the project live in the top-level ``configs/`` folder of the source tree, installed as
 the package ``gripper_env.configs`` and read through :mod:`importlib.resources`, so a wheel
-finds them wherever it is installed. A name (``"test2"``) resolves there, or in the folder named
-by the ``GRIPPER_CONFIG_DIR`` environment variable (same layout: ``plants/``,
-``disturbances/``, ``tuners/``, ``objective.yaml``, ``benchmark.yaml``); a path
-(``my/plant.yaml``) is read as it is. Every file is validated once, on load, by a pydantic
-model; a problem is reported as a :class:`ConfigError` that names the file and the offending
-key.
+finds them wherever it is installed (:data:`SHIPPED`).
+
+A name (``"test2"``, ``"mine"``) is looked up first in the folder the ``GRIPPER_CONFIG_DIR``
+environment variable names, if it is set (same layout: ``plants/``, ``disturbances/``,
+``tuners/``, ``objective.yaml``, ``benchmark.yaml``; any of them may be missing), then in the
+shipped configurations. A path (``my/plant.yaml``) is read as it is. Every file is validated
+once, on load, by a pydantic model; a problem is reported as a :class:`ConfigError` that names
+the file and the offending key.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pydantic import BaseModel, ValidationError
 
 __all__ = [
     "CONFIG_DIR",
+    "SHIPPED",
     "ConfigError",
     "available",
     "config_file",
@@ -33,10 +36,7 @@ __all__ = [
 ]
 
 
-def _config_dir() -> Traversable:
-    folder = os.environ.get("GRIPPER_CONFIG_DIR")
-    if folder:
-        return Path(folder)
+def _shipped() -> Traversable:
     try:
         return files("gripper_env.configs")
     except ModuleNotFoundError:
@@ -45,9 +45,12 @@ def _config_dir() -> Traversable:
         return Path(__file__).resolve().parent.parent / "configs"
 
 
-#: Root of the configuration tree: the configurations shipped in the package
-#: (``gripper_env.configs``), or the folder in the ``GRIPPER_CONFIG_DIR`` environment variable.
-CONFIG_DIR: Traversable = _config_dir()
+#: The configurations shipped in the package (``gripper_env.configs``).
+SHIPPED: Traversable = _shipped()
+#: Where names are looked up first: the folder in ``GRIPPER_CONFIG_DIR``, else :data:`SHIPPED`.
+CONFIG_DIR: Traversable = (
+    Path(os.environ["GRIPPER_CONFIG_DIR"]) if os.environ.get("GRIPPER_CONFIG_DIR") else SHIPPED
+)
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -99,26 +102,35 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
         raise ConfigError(f"{source}: " + "; ".join(problems)) from None
 
 
-def config_file(*parts: str) -> Traversable:
-    """A file of the configuration tree, e.g. ``config_file("tuners", "optuna.yaml")``.
+def _roots() -> list[Traversable]:
+    """Folders searched for a name, in order (read at call time: tests may move CONFIG_DIR)."""
+    return [CONFIG_DIR] if CONFIG_DIR == SHIPPED else [CONFIG_DIR, SHIPPED]
 
-    Read at call time, so a test or a tool that points :data:`CONFIG_DIR` elsewhere is followed.
-    """
-    return CONFIG_DIR.joinpath(*parts)
+
+def config_file(*parts: str) -> Traversable:
+    """A file of the configuration tree, e.g. ``config_file("tuners", "optuna.yaml")``: the first
+    of :data:`CONFIG_DIR` and :data:`SHIPPED` that has it."""
+    for root in _roots():
+        if root.joinpath(*parts).is_file():
+            return root.joinpath(*parts)
+    return CONFIG_DIR.joinpath(*parts)  # missing: the error names where it was expected
 
 
 def available(kind: str) -> list[str]:
     """Names of the configuration files of one kind (``"plants"``, ``"disturbances"``, ...)."""
-    folder = CONFIG_DIR / kind
-    if not folder.is_dir():
-        return []
-    return sorted(
-        p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml")
-    )
+    names: set[str] = set()
+    for root in _roots():
+        folder = root / kind
+        if folder.is_dir():
+            names.update(
+                f.name[: -len(".yaml")] for f in folder.iterdir() if f.name.endswith(".yaml")
+            )
+    return sorted(names)
 
 
 def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Traversable:
-    """Resolve a configuration by name (``<kind>/<name>.yaml`` of :data:`CONFIG_DIR`) or by path.
+    """Resolve a configuration by name (``<kind>/<name>.yaml``, see the module docstring) or by
+    path.
 
     Raises
     ------
@@ -132,8 +144,9 @@ def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Traversable:
         if candidate.is_file():
             return candidate
         raise ConfigError(f"{kind[:-1]} file {text!r} does not exist")
-    named = CONFIG_DIR / kind / f"{text}.yaml"
-    if named.is_file():
-        return named
+    for root in _roots():
+        named = root / kind / f"{text}.yaml"
+        if named.is_file():
+            return named
     names = ", ".join(available(kind)) or "(none)"
     raise ConfigError(f"unknown {kind[:-1]} {text!r}; available: {names}")

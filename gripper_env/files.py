@@ -24,7 +24,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["json_ready", "save_figure", "write_atomic", "write_csv", "write_json"]
+__all__ = [
+    "json_ready",
+    "read_format_json",
+    "save_figure",
+    "write_atomic",
+    "write_csv",
+    "write_json",
+]
 
 
 def json_ready(obj: Any) -> Any:
@@ -87,6 +94,35 @@ def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
         ``obj`` holds something JSON cannot represent.
     """
     return write_atomic(path, json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n")
+
+
+def read_format_json(
+    path: str | os.PathLike[str], fmt: str, what: str, error: type[Exception] = ValueError
+) -> dict[str, Any]:
+    """Read a JSON object that declares ``"format": fmt`` (a gains file, a calibration).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file.
+    fmt : str
+        The value its ``format`` key must have (``"gripper-gains"``).
+    what : str
+        What the file is, for the messages (``"gains file"``).
+    error : exception class
+        Raised, with a one-line message that names the file, when the file cannot be read, is
+        not JSON, or is not of that format.
+    """
+    p = Path(path)
+    try:
+        content = json.loads(p.read_text())
+    except OSError as exc:
+        raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(content, dict) or content.get("format") != fmt:
+        raise error(f'{p}: not a {what} (expected "format": "{fmt}")')
+    return content
 
 
 def write_csv(

@@ -37,7 +37,6 @@ never sees half a file.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import os
 import subprocess
@@ -47,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from gripper_env import __version__
-from gripper_env.files import json_ready
+from gripper_env.files import json_ready, read_format_json
 from gripper_env.pid import PIDGains, PIDOptions
 
 __all__ = [
@@ -191,14 +190,7 @@ def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
         not read, or gains/limits that are not valid numbers.
     """
     p = Path(path)
-    try:
-        content = json.loads(p.read_text())
-    except OSError as exc:
-        raise GainsFileError(f"cannot read gains file {p}: {exc.strerror or exc}") from None
-    except json.JSONDecodeError as exc:
-        raise GainsFileError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(content, dict) or content.get("format") != FORMAT:
-        raise GainsFileError(f'{p}: not a gains file (expected "format": "{FORMAT}")')
+    content = read_format_json(p, FORMAT, "gains file", GainsFileError)
     version = content.get("format_version")
     if version not in READABLE_VERSIONS:
         raise GainsFileError(

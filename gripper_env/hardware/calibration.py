@@ -24,7 +24,6 @@ The counts are averages (fractional); the device gets them rounded to whole coun
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -33,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import write_json
+from gripper_env.files import read_format_json, write_json
 from gripper_env.hardware.firmware import ADC_MAX_COUNT, CAL_ANGLE_HI_DEG, CAL_ANGLE_LO_DEG
 
 __all__ = [
@@ -159,18 +158,11 @@ def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
         The file is missing, not JSON, not a calibration file, or holds unusable points.
     """
     p = Path(path).expanduser() if path is not None else default_calibration_path()
-    try:
-        content = json.loads(p.read_text())
-    except FileNotFoundError:
+    if not p.exists():
         raise CalibrationError(
             f"no calibration file at {p}: run 'python -m rig.calibrate --port PORT' first"
-        ) from None
-    except OSError as exc:
-        raise CalibrationError(f"cannot read calibration file {p}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(content, dict) or content.get("format") != FORMAT:
-        raise CalibrationError(f'{p}: not a calibration file (expected "format": "{FORMAT}")')
+        )
+    content = read_format_json(p, FORMAT, "calibration file", CalibrationError)
     if content.get("format_version") != FORMAT_VERSION:
         raise CalibrationError(
             f"{p}: calibration format version {content.get('format_version')!r} is not "
