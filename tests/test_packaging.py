@@ -120,16 +120,23 @@ def test_the_wheel_installs_and_tunes_outside_the_source_tree(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "GRIPPER_CONFIG_DIR")}
     env["MPLBACKEND"] = "Agg"
     check = (
-        "import importlib.metadata as md, gripper_env, gripper_env.config as c, sys\n"
+        "import importlib.metadata as md, gripper_env, gripper_env.config as c\n"
+        "from gripper_env.hardware.emulator import EmulatorUnavailable, ensure_built\n"
         "from gripper_env.plants import available_plants\n"
-        "print(gripper_env.__file__, c.CONFIG_DIR, available_plants(), sep='|')\n"
         "for ep in md.entry_points(group='console_scripts'):\n"
         "    if ep.dist.name == 'gripper-env': ep.load()\n"
+        "try:\n"
+        "    ensure_built()\n"
+        "except EmulatorUnavailable as exc:\n"
+        "    why = str(exc)\n"
+        "print(gripper_env.__file__, c.CONFIG_DIR, available_plants(), why, sep='|')\n"
     )
-    where, config_dir, plants = _run([python, "-c", check], cwd=work, env=env).stdout.split("|")
+    out = _run([python, "-c", check], cwd=work, env=env).stdout
+    where, config_dir, plants, why = out.strip().split("|")
+    assert "not installed with the package" in why  # the emulator says what it needs
     for path in (where, config_dir):  # the package and its configs come from the wheel
         assert Path(path).resolve().is_relative_to(venv.resolve()), path
-    assert plants.strip() == "['test1', 'test2', 'test3', 'test4']"
+    assert plants == "['test1', 'test2', 'test3', 'test4']"
     assert all((venv / "bin" / name).is_file() for name in PYPROJECT["project"]["scripts"])
 
     cmd = [python, "-m", "tuners.optuna", "--plant", "test2", "--trials", "16"]
