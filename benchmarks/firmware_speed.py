@@ -8,7 +8,7 @@ in emulated cycles or microseconds, counted by the firmware-in-the-loop harness
 * flash and static RAM (``avr-size``), the stack's high-water mark, the RAM left;
 * a closed-loop run of ``--duration`` s (tuned paper gains on test2, the actual gripper, the
   paper's step profile repeated, 1 kHz telemetry in batches of 10, the host traffic of
-  ``tuners.deploy``: the reference every 20 ms, a heartbeat every 200 ms), scripted on emulated
+  ``rig.deploy``: the reference every 20 ms, a heartbeat every 200 ms), scripted on emulated
   time: cycles of the control path (ADC, safety, PID, servo update: pin 13 high) and of a
   telemetry frame (pin 12 high), the worst tick, the headroom at 1 kHz, the CPU's busy share
   (it sleeps when idle), the start jitter of the ticks, overruns, telemetry frames lost;
@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.files import write_atomic
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.device import GripperDevice
@@ -350,7 +351,7 @@ def report(result: dict[str, Any]) -> str:
         f"{cl['samples_missing']} |",
         "",
         "Through the pseudo-terminal with the host's own stack (`GripperDevice`, `run_profile`, "
-        "as `tuners.deploy`), the board as fast as the emulation goes:",
+        "as `rig.deploy`), the board as fast as the emulation goes:",
         "",
         "| run | samples | frames lost | samples missing | board overruns | missed host "
         "deadlines |",
@@ -398,7 +399,7 @@ def report(result: dict[str, Any]) -> str:
         "## Agreement: emulated board, Python twin, simulation core",
         "",
         "The paper's step profile (92 -> 21 deg at 1 s, -> 92 at 10 s, 20 s) deployed with "
-        "`tuners.deploy`'s traffic on each, the rig without friction and noise "
+        "`rig.deploy`'s traffic on each, the rig without friction and noise "
         "(`gripper_env.hardware.scripted.AGREEMENT_DISTURBANCE`: whole-degree servo commands at "
         "50 Hz, 10-bit ADC). Largest difference of the measured jaw angle, allowing "
         f"{AGREEMENT_SHIFT_MS} ms of phase (one servo frame, the pulse, one step), and at the "
@@ -466,9 +467,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     result["speed_x"] = float(np.median(speeds))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "firmware_speed.json").write_text(json.dumps(result, indent=2, default=float) + "\n")
+    write_atomic(out / "firmware_speed.json", json.dumps(result, indent=2, default=float) + "\n")
     text = report(result)
-    (out / "firmware_speed.md").write_text(text)
+    write_atomic(out / "firmware_speed.md", text)
     print(text)
     return 0
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gripper_env.files import write_atomic
 from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.experiment import run_profile
@@ -122,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "hardware_speed.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_atomic(out / "hardware_speed.json", json.dumps(result, indent=2) + "\n")
     rt, tk = result["round_trip"], result["tick"]
     lines = [
         "# Host <-> board link speed over the virtual device",
@@ -153,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{r['device_frames_lost']} | {r['missing_samples']} | {r['board_overruns']} | "
             f"{r['missed_deadlines']} / {r['host_periods']} |"
         )
-    (out / "hardware_speed.md").write_text("\n".join(lines) + "\n")
+    write_atomic(out / "hardware_speed.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 

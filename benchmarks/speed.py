@@ -38,6 +38,7 @@ import numpy as np
 from benchmarks import envs_speed
 from gripper_env import friction, pid, simulation
 from gripper_env.disturbances import load_disturbance
+from gripper_env.files import write_atomic
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference
@@ -206,11 +207,11 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_envs:
         figures["envs"] = envs_speed.measure(args.envs_repeats)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "speed.json").write_text(json.dumps(figures, indent=2) + "\n")
+    write_atomic(args.out / "speed.json", json.dumps(figures, indent=2) + "\n")
     text = _markdown(figures)
     if "envs" in figures:
         text += "\n" + envs_speed.markdown(figures["envs"])
-    (args.out / "speed.md").write_text(text)
+    write_atomic(args.out / "speed.md", text)
     print(text)
     return 0
 

@@ -1,24 +1,37 @@
 """Writing files so that a reader never sees half of one: the project's one atomic writer.
 
-Every command that leaves a result behind (gains files, logs, reports, plant files, presets)
-writes through :func:`write_atomic`: a temporary file in the same folder, then
+Every command that leaves a result behind (gains files, logs, reports, plant files, presets,
+figures) writes through :func:`write_atomic`: a temporary file in the same folder, then
 :func:`os.replace`, which is atomic on the same file system. An interrupted write leaves the old
-file (or none), never a truncated one. :func:`write_json` is the one JSON flavour: indented,
-numpy values made plain, non-finite numbers as ``null``.
+file (or none), never a truncated one. On top of it, one of each flavour: :func:`write_json`
+(indented, numpy values made plain, non-finite numbers as ``null``), :func:`write_csv` (numeric
+columns under a header line, 6 decimals) and :func:`save_figure` (a matplotlib figure).
+
+Logs that grow while a run goes (the rig's telemetry) are the exception: they are written under
+a ``.partial`` name and renamed when complete (:class:`gripper_env.hardware.experiment.CsvLog`).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["json_ready", "write_atomic", "write_json"]
+__all__ = [
+    "json_ready",
+    "read_format_json",
+    "save_figure",
+    "write_atomic",
+    "write_csv",
+    "write_json",
+]
 
 
 def json_ready(obj: Any) -> Any:
@@ -81,3 +94,86 @@ def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
         ``obj`` holds something JSON cannot represent.
     """
     return write_atomic(path, json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n")
+
+
+def read_format_json(
+    path: str | os.PathLike[str], fmt: str, what: str, error: type[Exception] = ValueError
+) -> dict[str, Any]:
+    """Read a JSON object that declares ``"format": fmt`` (a gains file, a calibration).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file.
+    fmt : str
+        The value its ``format`` key must have (``"gripper-gains"``).
+    what : str
+        What the file is, for the messages (``"gains file"``).
+    error : exception class
+        Raised, with a one-line message that names the file, when the file cannot be read, is
+        not JSON, or is not of that format.
+    """
+    p = Path(path)
+    try:
+        content = json.loads(p.read_text())
+    except OSError as exc:
+        raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(content, dict) or content.get("format") != fmt:
+        raise error(f'{p}: not a {what} (expected "format": "{fmt}")')
+    return content
+
+
+def write_csv(
+    path: str | os.PathLike[str],
+    columns: Sequence[str],
+    data: np.ndarray,
+    fmt: str = "%.6f",
+) -> Path:
+    """Write numeric columns as CSV under a header line, atomically.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination.
+    columns : sequence of str
+        Header (column names, with their units: ``t_s``, ``position_deg``).
+    data : ndarray (n, len(columns))
+        Rows; NaN is written as ``nan``.
+    fmt : str
+        ``printf`` format of every value (default 6 decimals: 1 us, 1e-6 deg).
+    """
+    data = np.asarray(data, dtype=float)
+    if data.ndim != 2 or data.shape[1] != len(columns):
+        raise ValueError(f"{path}: {len(columns)} columns named, data of shape {data.shape}")
+    buf = io.StringIO()
+    np.savetxt(buf, data, delimiter=",", header=",".join(columns), comments="", fmt=fmt)
+    return write_atomic(path, buf.getvalue())
+
+
+def save_figure(
+    fig: Any, path: str | os.PathLike[str], dpi: float = 110, **savefig_kwargs: Any
+) -> Path:
+    """Render a matplotlib figure to ``path`` atomically, then close it.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    path : str or PathLike
+        Destination; its suffix is the format (``.png`` when it has none).
+    dpi : float
+        Resolution (dots per inch).
+    **savefig_kwargs
+        More options of :meth:`~matplotlib.figure.Figure.savefig` (``bbox_inches="tight"``).
+    """
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fmt = Path(path).suffix.lstrip(".") or "png"
+    try:
+        fig.savefig(buf, dpi=dpi, format=fmt, **savefig_kwargs)
+    finally:
+        plt.close(fig)
+    return write_atomic(path, buf.getvalue())

@@ -47,7 +47,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from gripper_env.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.config import config_file, load_yaml, validate
 from gripper_env.disturbances import Disturbance
 from gripper_env.metrics import Metrics
 
@@ -208,5 +208,5 @@ def load_objective(
         return objective
     if isinstance(objective, Mapping):
         return validate(Objective, dict(objective), "objective dict")
-    path = CONFIG_DIR / "objective.yaml" if objective is None else objective
+    path = config_file("objective.yaml") if objective is None else objective
     return validate(Objective, load_yaml(path), str(path))

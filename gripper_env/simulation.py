@@ -36,7 +36,8 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 from numba import njit, prange
@@ -46,6 +47,7 @@ from gripper_env import pid as _pid_module
 from gripper_env._numba_cache import renamed, stamp_caches
 from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.files import write_csv
 from gripper_env.friction import (
     F_DIR,
     F_OUT,
@@ -974,6 +976,9 @@ class Trajectory:
     force_proxy: np.ndarray | None = None
     servo_effort_deg: np.ndarray | None = None
 
+    #: Columns of :meth:`to_csv` (and of the rig's deploy log).
+    CSV_COLUMNS: ClassVar[tuple[str, ...]] = ("t_s", "reference_deg", "command_deg", "position_deg")
+
     @classmethod
     def from_simulator(
         cls,
@@ -1010,17 +1015,10 @@ class Trajectory:
     def __len__(self) -> int:
         return self.r.shape[0]
 
-    def to_csv(self, path: str | os.PathLike[str], run: int = 0) -> None:
-        """Write one run as CSV: ``t_s, reference_deg, command_deg, position_deg`` (measured)."""
+    def to_csv(self, path: str | os.PathLike[str], run: int = 0) -> Path:
+        """Write one run as CSV :attr:`CSV_COLUMNS` (the measured angle), atomically."""
         data = np.column_stack([self.t, self.r[run], self.u[run], self.y[run]])
-        np.savetxt(
-            path,
-            data,
-            delimiter=",",
-            header="t_s,reference_deg,command_deg,position_deg",
-            comments="",
-            fmt="%.6f",
-        )
+        return write_csv(path, self.CSV_COLUMNS, data)
 
 
 def simulate(

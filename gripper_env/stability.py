@@ -38,7 +38,7 @@ loop with more than 2.1 dB of gain margin (with the hold) predicts no quantisati
 the robustness constraint of the tuners (6 dB, ``configs/objective.yaml``) covers it.
 
 Used by the tuners (constraints, gains files) and as the safety gate before gains reach the
-hardware (``tuners.deploy``).
+hardware (``rig.deploy``).
 """
 
 from __future__ import annotations

@@ -40,8 +40,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gripper_env.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.config import config_file, load_yaml, validate
 from gripper_env.disturbances import load_disturbance
+from gripper_env.files import write_atomic, write_json
+from gripper_env.gains_file import provenance
 from gripper_env.metrics import compute_metrics
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
@@ -52,7 +54,6 @@ from gripper_env.simulation import simulate
 from tuners import classical, cli, leaderboard, manual
 from tuners import optuna as optuna_tuner
 from tuners.evaluation import summarize_runs, with_cost
-from tuners.gains_file import provenance, write_atomic, write_json
 from tuners.search_space import SearchSpace, search_space
 from tuners.settings import (
     ClassicalSettings,
@@ -634,7 +635,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "--config", type=Path, default=CONFIG_DIR / "benchmark.yaml", help="benchmark settings"
+        "--config", type=Path, default=config_file("benchmark.yaml"), help="benchmark settings"
     )
     parser.add_argument(
         "--quick",

@@ -11,7 +11,6 @@ bad input into a one-line ``error: ...`` on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import shlex
@@ -21,22 +20,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from gripper_env.config import ConfigError
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.files import write_json
+from gripper_env.gains_file import GainsFileError, build_gains_file, provenance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
 from tuners.evaluation import PAPER_PLANTS, Evaluation, evaluate, metric_rows
-from tuners.gains_file import (
-    GainsFileError,
-    build_gains_file,
-    provenance,
-    write_atomic,
-    write_json,
-)
 from tuners.plotting import response_plot
 from tuners.settings import EvaluationSettings, load_settings
 
@@ -236,21 +228,6 @@ def publish(
         print(format_table(content, ev))
         print(f"wrote {path} and {path.with_suffix('.png')}")
     return content, ev
-
-
-def write_trajectory_csv(traj: Any, path: str | Path, run: int = 0) -> Path:
-    """One run as CSV ``t_s, reference_deg, command_deg, position_deg`` (measured), atomically."""
-    buf = io.StringIO()
-    data = np.column_stack([traj.t, traj.r[run], traj.u[run], traj.y[run]])
-    np.savetxt(
-        buf,
-        data,
-        delimiter=",",
-        header="t_s,reference_deg,command_deg,position_deg",
-        comments="",
-        fmt="%.6f",
-    )
-    return write_atomic(path, buf.getvalue())
 
 
 def _fmt(x: float) -> str:

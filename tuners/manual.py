@@ -19,9 +19,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from gripper_env import paper
+from gripper_env.gains_file import load_gains_file
 from gripper_env.pid import PIDGains
 from tuners import cli
-from tuners.gains_file import load_gains_file
 
 __all__ = ["PAPER_GAINS", "ManualGains", "main", "parse_gains"]
 
@@ -36,21 +37,18 @@ class ManualGains:
     note: str = ""
 
 
-#: The paper's Table 3. The hardware gains are unstable with e = r - y and stable with e = y - r.
+_HW_NOTE = "note: the paper's hardware gains are unstable with e = r - y; using e = y - r (sign -1)"
+
+#: The paper's Table 3 (:data:`gripper_env.paper.PID_GAINS`). The hardware gains are unstable
+#: with e = r - y and stable with e = y - r.
 PAPER_GAINS: dict[str, ManualGains] = {
-    "paper-untuned": ManualGains(PIDGains(-0.4, 7.0, -0.045), 1, "paper-untuned"),
-    "paper-tuned": ManualGains(PIDGains(1.0, 9.0, -0.001), 1, "paper-tuned"),
+    "paper-untuned": ManualGains(PIDGains(*paper.PID_GAINS["untuned_tf"]), 1, "paper-untuned"),
+    "paper-tuned": ManualGains(PIDGains(*paper.PID_GAINS["tuned_tf"]), 1, "paper-tuned"),
     "paper-hw-untuned": ManualGains(
-        PIDGains(-0.3, -5.0, -0.0005),
-        -1,
-        "paper-hw-untuned",
-        "note: the paper's hardware gains are unstable with e = r - y; using e = y - r (sign -1)",
+        PIDGains(*paper.PID_GAINS["untuned_hw"]), -1, "paper-hw-untuned", _HW_NOTE
     ),
     "paper-hw-tuned": ManualGains(
-        PIDGains(-0.5, -3.6, 0.000186),
-        -1,
-        "paper-hw-tuned",
-        "note: the paper's hardware gains are unstable with e = r - y; using e = y - r (sign -1)",
+        PIDGains(*paper.PID_GAINS["tuned_hw"]), -1, "paper-hw-tuned", _HW_NOTE
     ),
 }
 
@@ -132,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         notes=notes,
     )
     if args.save_trajectory is not None:
-        cli.write_trajectory_csv(ev.actual_trajectory, args.save_trajectory)
+        ev.actual_trajectory.to_csv(args.save_trajectory)
         if not args.json:
             print(f"wrote {args.save_trajectory} (actual model, seed {ev.seeds[0]})")
     return 0

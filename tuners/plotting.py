@@ -1,12 +1,12 @@
 """Figures: a controller's response (like the paper's Figure 11) and the benchmark's plots.
 
-matplotlib with the Agg backend (no display needed); every figure is written atomically.
+matplotlib with the Agg backend (no display needed); every figure is written atomically
+(:func:`gripper_env.files.save_figure`).
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,24 +18,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-__all__ = ["budget_plot", "pareto_plot", "response_plot", "save_figure"]
+from gripper_env.files import save_figure
 
-
-def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> Path:
-    """Save ``fig`` to ``path`` atomically (temporary file in the same folder, then replace)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    finally:
-        plt.close(fig)
-    return p
+__all__ = ["budget_plot", "pareto_plot", "response_plot"]
 
 
 def response_plot(evaluation: Any, title: str, path: str | os.PathLike[str]) -> Path:
@@ -83,7 +68,7 @@ def response_plot(evaluation: Any, title: str, path: str | os.PathLike[str]) -> 
         axu.set_ylim(lo[0] - pad, lo[1] + pad)
     axu.grid(alpha=0.3)
     axu.legend(loc="best", fontsize=7)
-    return save_figure(fig, path)
+    return save_figure(fig, path, bbox_inches="tight")
 
 
 def budget_plot(
@@ -111,7 +96,7 @@ def budget_plot(
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    return save_figure(fig, path)
+    return save_figure(fig, path, bbox_inches="tight")
 
 
 _KIND_STYLE = {
@@ -181,4 +166,4 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    return save_figure(fig, path)
+    return save_figure(fig, path, bbox_inches="tight")

@@ -36,12 +36,12 @@ import numpy as np
 
 from gripper_env.config import ConfigError
 from gripper_env.disturbances import load_disturbance
+from gripper_env.files import write_json
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
 from gripper_env.scoring import GainScorer, Task, score_trajectory
 from tuners import cli
-from tuners.gains_file import write_json
 from tuners.rl_controller import controller_row  # the benchmark's RL-controller row
 from tuners.search_space import search_space
 from tuners.settings import OptunaSettings, load_settings
@@ -429,7 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _base_gains(spec: str | None, out: Path, plant: str) -> PIDGains:
     """The PID a residual controller corrects: ``P,I,D[,N]`` or a gains file (sign +1)."""
-    from tuners.gains_file import load_gains_file
+    from gripper_env.gains_file import load_gains_file
 
     if spec is not None and "," in spec and not Path(spec).exists():
         try:

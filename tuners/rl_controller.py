@@ -34,13 +34,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from gripper_env.config import CONFIG_DIR, load_yaml, validate
 from gripper_env.disturbances import Disturbance, load_disturbance
+from gripper_env.files import json_ready, write_json
+from gripper_env.gains_file import provenance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.scoring import score_trajectory
 from gripper_env.simulation import Trajectory, simulate
 from tuners import cli
 from tuners.evaluation import summarize_runs, with_cost
-from tuners.gains_file import json_ready, provenance, write_json
 from tuners.settings import OptunaSettings, load_settings
 
 __all__ = [

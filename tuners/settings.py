@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from gripper_env.config import CONFIG_DIR, ConfigError, load_yaml, validate
+from gripper_env.config import ConfigError, config_file, load_yaml, validate
 from gripper_env.pid import PIDOptions
 
 __all__ = [
@@ -226,7 +226,7 @@ def load_settings(kind: type[BaseModel], path: str | os.PathLike[str] | None = N
     ConfigError
         Missing file, invalid YAML, unknown key or value out of range (names file and key).
     """
-    p = CONFIG_DIR / "tuners" / _DEFAULT_FILES[kind] if path is None else path
+    p = config_file("tuners", _DEFAULT_FILES[kind]) if path is None else path
     return validate(kind, load_yaml(p), str(p))
 
 

@@ -5,7 +5,7 @@ two points measured with the jaw at 21 deg (closed) and 92 deg (open):
 
 ``angle_deg = 21 + (adc - adc_at_21) * (92 - 21) / (adc_at_92 - adc_at_21)``
 
-``python -m tuners.calibrate --port P`` measures the points and writes them to a small JSON file;
+``python -m rig.calibrate --port P`` measures the points and writes them to a small JSON file;
 the device (CONFIGURE's ``adc_at_lo``/``adc_at_hi``) and the host (counts -> deg) both use it.
 
 File format (JSON), default location :data:`DEFAULT_PATH` (``~/.config/gripper_env/
@@ -24,16 +24,15 @@ The counts are averages (fractional); the device gets them rounded to whole coun
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gripper_env.files import read_format_json, write_json
 from gripper_env.hardware.firmware import ADC_MAX_COUNT, CAL_ANGLE_HI_DEG, CAL_ANGLE_LO_DEG
 
 __all__ = [
@@ -145,19 +144,9 @@ class Calibration:
 
 
 def save_calibration(cal: Calibration, path: str | os.PathLike[str] | None = None) -> Path:
-    """Write ``cal`` as JSON, atomically (temporary file, then rename); return the path."""
+    """Write ``cal`` as JSON, atomically (:func:`gripper_env.files.write_json`); return the path."""
     p = Path(path).expanduser() if path is not None else default_calibration_path()
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(cal.to_dict(), f, indent=2)
-            f.write("\n")
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
+    return write_json(p, cal.to_dict())
 
 
 def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
@@ -169,18 +158,11 @@ def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
         The file is missing, not JSON, not a calibration file, or holds unusable points.
     """
     p = Path(path).expanduser() if path is not None else default_calibration_path()
-    try:
-        content = json.loads(p.read_text())
-    except FileNotFoundError:
+    if not p.exists():
         raise CalibrationError(
-            f"no calibration file at {p}: run 'python -m tuners.calibrate --port PORT' first"
-        ) from None
-    except OSError as exc:
-        raise CalibrationError(f"cannot read calibration file {p}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(content, dict) or content.get("format") != FORMAT:
-        raise CalibrationError(f'{p}: not a calibration file (expected "format": "{FORMAT}")')
+            f"no calibration file at {p}: run 'python -m rig.calibrate --port PORT' first"
+        )
+    content = read_format_json(p, FORMAT, "calibration file", CalibrationError)
     if content.get("format_version") != FORMAT_VERSION:
         raise CalibrationError(
             f"{p}: calibration format version {content.get('format_version')!r} is not "

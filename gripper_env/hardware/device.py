@@ -351,7 +351,7 @@ class GripperDevice:
         if calibration is not None:
             self.calibration = calibration
         if self.calibration is None:
-            raise ValueError("configure needs a calibration (python -m tuners.calibrate)")
+            raise ValueError("configure needs a calibration (python -m rig.calibrate)")
         lo_counts, hi_counts = self.calibration.device_counts
         msg = proto.Configure(
             p=float(gains.P),

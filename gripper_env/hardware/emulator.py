@@ -211,6 +211,13 @@ def ensure_built(
         raise EmulatorUnavailable(f"no firmware image at {image}")
     need_image = image is None and (rebuild or not DEFAULT_IMAGE.exists())
     need_harness = rebuild or not harness.exists()
+    if (need_image or need_harness) and not FIRMWARE_DIR.is_dir():
+        # an installed wheel carries no firmware sources
+        raise EmulatorUnavailable(
+            f"cannot build the emulator: no firmware sources at {FIRMWARE_DIR} (they are not "
+            "installed with the package); run it from a source checkout, or pass --image with "
+            "a built image and set GRIPPER_EMULATOR_LIB to a built harness"
+        )
     if need_image or need_harness:
         why = emulator_missing()
         if why:

@@ -242,7 +242,8 @@ def run_profile(
     -------
     Recording
         Raises on any :class:`~gripper_env.hardware.device.DeviceError`; the log written so far
-        stays at its ``.partial.csv`` name.
+        stays at its ``.partial.csv`` name, which a note on the exception gives
+        (``exc.__notes__``).
     """
     values = reference.values_deg
     dt = reference.dt_s
@@ -307,6 +308,10 @@ def run_profile(
             if now_us >= next_beat_us:
                 device.send_heartbeat()
                 next_beat_us = now_us + int(heartbeat_period_s * 1e6)
+    except BaseException as exc:
+        if log is not None:
+            exc.add_note(f"{log.rows} samples so far kept in {log.partial}")
+        raise
     finally:
         where = log.finish(complete) if log is not None else None
         samples = TelemetryBlock.concatenate(blocks)

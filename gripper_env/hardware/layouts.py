@@ -30,6 +30,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from gripper_env.files import write_atomic
+
 __all__ = [
     "DESCRIPTION",
     "Description",
@@ -575,7 +577,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(line)
         return 1 if stale or problems else 0
     for p in stale:
-        p.write_text(outputs[p])
+        write_atomic(p, outputs[p])
         print(f"wrote {p.relative_to(FIRMWARE.parent)}")
     for line in problems:
         print(f"protocol.py: {line}", file=sys.stderr)

@@ -15,7 +15,7 @@ tests and the agreement need and a host racing a pty cannot give.
 3. in the simulation core, :func:`gripper_env.simulation.simulate`, closed loop with the same
    PID, command path and sensor;
 
-with the same host traffic as ``tuners.deploy`` (the profile's value every 20 ms, a heartbeat
+with the same host traffic as ``rig.deploy`` (the profile's value every 20 ms, a heartbeat
 every 200 ms) and compares the measured jaw angles. The models differ by the quantisation of
 the command (whole degrees at 50 Hz, or the pulse's 0.05 deg at the timer's 50 Hz phase) and of
 the 10-bit ADC, so the largest difference is judged against those: an angle may differ by the
@@ -61,7 +61,7 @@ SERVO_FRAME_MS = 20
 # A response may lag another by one servo frame, plus the pulse (the servo has a command when its
 # pulse ends: 1.5 ms at 92 deg, rounded up) and the 1 ms physics step that then takes it in.
 AGREEMENT_SHIFT_MS = SERVO_FRAME_MS + 2 + 1
-HOST_PERIOD_MS = 20  # tuners.deploy sends the profile's value every 20 ms...
+HOST_PERIOD_MS = 20  # rig.deploy sends the profile's value every 20 ms...
 HEARTBEAT_MS = 200  # ...and a heartbeat every 200 ms
 
 
@@ -160,7 +160,7 @@ class ScriptedHost:
         return Samples(a[:, 0], ref, cmd, a[:, 3], a[:, 4].astype(np.uint8))
 
     def deploy(self, values: np.ndarray) -> int:
-        """``tuners.deploy``'s traffic on an open, configured session: the profile's first value,
+        """``rig.deploy``'s traffic on an open, configured session: the profile's first value,
         closed loop, then the value every 20 ms and a heartbeat every 200 ms, one sample of
         ``values`` (deg) per millisecond. Returns the device ms at which closed loop was asked."""
         self.send(proto.Setpoint(float(values[0])))

@@ -89,7 +89,7 @@ class Validation:
         Our identified models, in Table-1 order.
     paper_rows : tuple of ValidationRow
         The paper's four transfer functions on the same run (absolute angles, ``ideal`` preset,
-        as ``tuners.reproduce`` drives them).
+        as ``gripper_env.paper`` drives them).
     """
 
     log_path: Path

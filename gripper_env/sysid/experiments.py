@@ -25,18 +25,17 @@ The session (validation as the paper's stage 1, the grey-box fit of the actual g
 from __future__ import annotations
 
 import dataclasses
-import io
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gripper_env.disturbances import Disturbance, describe, load_disturbance
-from gripper_env.files import write_atomic
+from gripper_env.files import write_csv
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, step_profile
 from gripper_env.simulation import simulate
@@ -44,6 +43,9 @@ from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.logfile import LOG_COLUMNS, read_log
 from gripper_env.sysid.tfest import TFEstimate, tfest
 from gripper_env.sysid.zoh import zoh_response
+
+if TYPE_CHECKING:
+    from gripper_env.hardware.experiment import Recording
 
 __all__ = [
     "EXPERIMENTS",
@@ -117,7 +119,7 @@ def validation_reference(hold_s: float = 60.0, dt_s: float = 1e-3) -> Reference:
 
     1 s at 92 deg (open), grip step to 21 deg, ``hold_s`` at 21, un-grip step to 92, ``hold_s``
     at 92. The paper does not publish its profile; 60 s holds bring TF test1's SD near the
-    paper's (``tuners.reproduce``, section 2).
+    paper's (``gripper_env.paper``, section 2).
 
     Parameters
     ----------
@@ -150,16 +152,7 @@ def write_log(
 
     Values are written with 6 decimals (1 us, 1e-6 deg), far below the sensor's resolution.
     """
-    buf = io.StringIO()
-    np.savetxt(
-        buf,
-        np.column_stack([t_s, desired_deg, actual_deg]),
-        delimiter=",",
-        header=",".join(LOG_COLUMNS),
-        comments="",
-        fmt="%.6f",
-    )
-    return write_atomic(path, buf.getvalue())
+    return write_csv(path, LOG_COLUMNS, np.column_stack([t_s, desired_deg, actual_deg]))
 
 
 @dataclass
@@ -212,7 +205,12 @@ class SimulatedRecorder:
 class DeviceRecorder:
     """The board as a :data:`Recorder`: each run streams the profile open loop through
     :func:`gripper_env.hardware.experiment.run_profile` and logs ``t_s, desired_deg,
-    actual_deg`` at 1 kHz (what ``python -m tuners.record`` does, one run per experiment).
+    actual_deg`` at 1 kHz (``python -m rig.record`` is one run of it).
+
+    The log is written as it goes under ``LOG.partial.csv`` and renamed to ``LOG.csv`` when the
+    profile completes; a run that fails keeps its partial log and says where in a note on the
+    exception. ``desired_deg`` is the command the board applied (the host's setpoint as the
+    board saw it), ``actual_deg`` the potentiometer through the calibration.
 
     Parameters
     ----------
@@ -233,16 +231,23 @@ class DeviceRecorder:
     progress: Callable[[str], None] | None = None
 
     def __call__(self, reference: Reference, path: Path, run: int = 0) -> Path:
+        self.record(reference, path)
+        return Path(path)
+
+    def record(self, reference: Reference, path: str | os.PathLike[str]) -> Recording:
+        """Run ``reference`` open loop on the board, logging to ``path``.
+
+        Returns
+        -------
+        Recording
+            The samples, frames lost and where the log is (``extra["log"]``).
+        """
         from gripper_env.hardware.calibration import load_calibration
         from gripper_env.hardware.device import GripperDevice
         from gripper_env.hardware.experiment import CsvLog, run_profile
         from gripper_env.hardware.protocol import Mode
 
-        def rows(block: Any, t0_us: int) -> np.ndarray:
-            t = (block.t_us - t0_us) / 1e6
-            return np.column_stack([t, block.reference_deg, block.position_deg])
-
-        log = CsvLog(path, LOG_COLUMNS, rows)
+        log = CsvLog(path, LOG_COLUMNS, _log_rows)
         with GripperDevice(
             self.port,
             calibration=load_calibration(self.calibration),
@@ -256,11 +261,16 @@ class DeviceRecorder:
                 f"recorded {reference.name} on {self.port}: {len(rec.samples)} samples, "
                 f"{rec.frames_lost} frames lost"
             )
-        return Path(path)
+        return rec
 
     def describe(self) -> str:
         """What is recorded, for reports."""
         return f"the board at {self.port}"
+
+
+def _log_rows(block: Any, t0_us: int) -> np.ndarray:
+    """Log rows ``t_s, desired_deg, actual_deg`` of a telemetry block."""
+    return np.column_stack([(block.t_us - t0_us) / 1e6, block.reference_deg, block.position_deg])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -411,5 +421,4 @@ def write_reference_csv(reference: Reference, path: str | os.PathLike[str]) -> P
     """Write a profile as CSV ``t_s, desired_deg`` (what ``load_reference`` and the board's
     recorder read), atomically."""
     data = np.column_stack([reference.t_s, reference.values_deg])
-    lines = ["t_s,desired_deg", *(f"{t:.6f},{v:.6f}" for t, v in data)]
-    return write_atomic(path, "\n".join(lines) + "\n")
+    return write_csv(path, ("t_s", "desired_deg"), data)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gripper_env.files import write_atomic
+from gripper_env.files import save_figure
 from gripper_env.sysid.tfest import TFEstimate
 
 __all__ = ["plot_fit"]
@@ -77,7 +76,4 @@ def plot_fit(
     ax1.set_ylabel("residual (deg)")
     ax1.set_xlabel("time (s)")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=120, format=Path(path).suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return write_atomic(path, buf.getvalue())
+    return save_figure(fig, path, dpi=120)

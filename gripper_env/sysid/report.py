@@ -8,17 +8,15 @@ beside the truth when the gripper was simulated).
 
 from __future__ import annotations
 
-import io
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from gripper_env import __version__, paper
 from gripper_env.disturbances import Disturbance
-from gripper_env.files import write_atomic
+from gripper_env.files import save_figure
 from gripper_env.plants import Plant
 from gripper_env.sysid.experiments import IdentifiedExperiment, step_t63
 from gripper_env.sysid.greybox import response_on
@@ -28,18 +26,6 @@ from gripper_env.sysid.session import IdentificationRun
 from gripper_env.sysid.tfest import format_polynomial
 
 __all__ = ["actual_figure", "experiment_figure", "render_report", "validation_figure"]
-
-
-def _save_figure(fig: Any, path: Path) -> Path:
-    """Save a PNG atomically and close the figure."""
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    try:
-        fig.savefig(buf, dpi=90, format="png")
-    finally:
-        plt.close(fig)
-    return write_atomic(path, buf.getvalue())
 
 
 def _moves(desired: np.ndarray, gap: int = 1000) -> list[tuple[int, int]]:
@@ -100,7 +86,7 @@ def experiment_figure(item: IdentifiedExperiment, path: Path) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    return _save_figure(fig, path)
+    return save_figure(fig, path, dpi=90)
 
 
 def validation_figure(run: IdentificationRun, path: Path) -> Path:
@@ -124,7 +110,7 @@ def validation_figure(run: IdentificationRun, path: Path) -> Path:
     axes[1].legend(fontsize=8)
     fig.suptitle("Validation stage 1: direct response (the paper's Figure 9)", fontsize=10)
     fig.tight_layout()
-    return _save_figure(fig, path)
+    return save_figure(fig, path, dpi=90)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -179,7 +165,7 @@ def actual_figure(run: IdentificationRun, path: Path) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    return _save_figure(fig, path)
+    return save_figure(fig, path, dpi=90)
 
 
 def _num(x: float, digits: int = 3) -> str:
@@ -409,7 +395,7 @@ def render_report(
         "by sample.",
         "",
         "The paper's four transfer functions on the same validation run (absolute angles, the TF",
-        "alone, as `tuners.reproduce` drives them):",
+        "alone, as `gripper_env.paper` drives them):",
         "",
         "| paper TF | SD | SD_Actual - SD_Test | fit % to actual |",
         "|---|---|---|---|",

@@ -13,7 +13,7 @@ from virtual_support import gains_file, run_cli, short_step_csv
 from gripper_env.hardware.calibration import load_calibration
 from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.hardware.virtual import _parser as virtual_parser
-from tuners import calibrate, deploy, record
+from rig import calibrate, deploy, record
 
 SPEED = "--boot-wait", "0"
 
@@ -30,7 +30,7 @@ def virtual() -> Iterator[VirtualDevice]:
 def calibration_file(virtual, tmp_path_factory) -> str:
     path = tmp_path_factory.mktemp("cal") / "calibration.json"
     result = run_cli(
-        "tuners.calibrate", "--port", virtual.path, *SPEED, "--output", str(path),
+        "rig.calibrate", "--port", virtual.path, *SPEED, "--output", str(path),
         "--settle", "1.0", "--average", "0.3",
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
@@ -48,7 +48,7 @@ def test_calibrate_measures_both_ends(virtual, calibration_file) -> None:
 def test_record_writes_the_identification_csv(virtual, calibration_file, tmp_path) -> None:
     out = tmp_path / "ramp.csv"
     result = run_cli(
-        "tuners.record", "--port", virtual.path, *SPEED, "--calibration", calibration_file,
+        "rig.record", "--port", virtual.path, *SPEED, "--calibration", calibration_file,
         "--profile", "ramp3", "--output", str(out),
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
@@ -64,7 +64,7 @@ def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
 ) -> None:
     gains = gains_file(tmp_path / "tuned.json", 1.0, 9.0, -0.001)
     result = run_cli(
-        "tuners.deploy", "--gains", gains, "--port", virtual.path, *SPEED,
+        "rig.deploy", "--gains", gains, "--port", virtual.path, *SPEED,
         "--calibration", calibration_file, "--profile", short_step_csv(tmp_path / "step.csv"),
         "--output-dir", str(tmp_path / "out"),
     )  # fmt: skip
@@ -83,13 +83,13 @@ def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
     gains = gains_file(tmp_path / "hw.json", -0.5, -3.6, 0.000186)  # paper's hardware gains
     args = ("--gains", gains, "--port", virtual.path, *SPEED, "--calibration", calibration_file)
     out = ("--output-dir", str(tmp_path / "out"), "--no-plot")
-    refused = run_cli("tuners.deploy", *args, *out)
+    refused = run_cli("rig.deploy", *args, *out)
     assert refused.returncode == 2
     assert "unstable closed loop on plant test2" in refused.stderr
     assert "Traceback" not in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
     short = ("--profile", short_step_csv(tmp_path / "step.csv"))
-    forced = run_cli("tuners.deploy", *args, *out, *short, "--allow-unstable")
+    forced = run_cli("rig.deploy", *args, *out, *short, "--allow-unstable")
     assert forced.returncode == 0, forced.stderr
     # the jaw clamp held whatever the PID asked
     data = np.genfromtxt(tmp_path / "out" / "response.csv", delimiter=",", names=True)
@@ -97,10 +97,10 @@ def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
 
 
 def test_bad_input_is_one_line_and_status_2(tmp_path) -> None:
-    result = run_cli("tuners.deploy", "--gains", str(tmp_path / "none.json"), "--port", "x")
+    result = run_cli("rig.deploy", "--gains", str(tmp_path / "none.json"), "--port", "x")
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        f"python -m tuners.deploy: error: cannot read gains file {tmp_path / 'none.json'}: "
+        f"python -m rig.deploy: error: cannot read gains file {tmp_path / 'none.json'}: "
         "No such file or directory"
     ]
 

@@ -1,5 +1,5 @@
 """The host tools, unchanged, against the compiled firmware under simavr on a pseudo-terminal:
-the launcher, tuners.calibrate/record/deploy, the device library through line noise and a
+the launcher, rig.calibrate/record/deploy, the device library through line noise and a
 reset, and GripperServoHardware-v0."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import step_profile
 from gripper_env.simulation import simulate
-from tuners import calibrate, deploy, record
+from rig import calibrate, deploy, record
 
 GAINS = PIDGains(1.0, 9.0, -0.001)
 OPTIONS = PIDOptions(output_limits=(21.0, 92.0))

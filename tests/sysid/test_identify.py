@@ -233,7 +233,7 @@ def test_identified_actual_gripper_is_a_plant_and_a_preset(actual_run, tmp_path)
 
 
 def test_device_session_on_virtual_board(tmp_path, capsys):
-    """The same session through tuners.record on a virtual board (as fast as the host goes):
+    """The same session through rig.record on a virtual board (as fast as the host goes):
     the step experiment and a short validation."""
     from gripper_env.hardware.calibration import Calibration, save_calibration
     from gripper_env.hardware.virtual import VirtualDevice

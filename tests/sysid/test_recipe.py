@@ -31,7 +31,7 @@ def configs(tmp_path, monkeypatch):
 
 
 def test_record_identify_tune_deploy(configs, tmp_path, capsys):
-    from tuners import calibrate, deploy, record
+    from rig import calibrate, deploy, record
     from tuners import optuna as optuna_tuner
 
     truth = load_disturbance("actual")

@@ -60,7 +60,7 @@ def add_column_arguments(p: argparse.ArgumentParser, reference: bool = True) -> 
             default=None,
             metavar="NAME",
             help="closed-loop data: the column of the loop's reference (e.g. reference_deg in "
-            "a log of tuners.deploy), used as the instrument; without it, data that look like "
+            "a log of rig.deploy), used as the instrument; without it, data that look like "
             "a feedback loop get a warning",
         )
 

@@ -37,7 +37,7 @@ from gripper_env.sysid.experiments import (
 __all__ = ["add_parser", "run"]
 
 PROG = "python -m gripper_env.sysid experiments"
-RESULTS = Path(__file__).resolve().parents[3] / "results"
+RESULTS = Path("results")  # of the working directory, like every command's
 VALIDATION_HOLD_S = 60.0
 QUICK_VALIDATION_HOLD_S = 10.0
 
@@ -68,7 +68,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     where.add_argument("--port", default=None, help="record on the board at this serial port")
     dev = p.add_argument_group("device options (with --port)")
     for flag, kind, metavar, text in (
-        ("--calibration", str, "FILE", "calibration file from 'python -m tuners.calibrate'"),
+        ("--calibration", str, "FILE", "calibration file from 'python -m rig.calibrate'"),
         ("--boot-wait", float, "S", "seconds to let the board boot after opening the port (2)"),
         ("--timeout", float, "S", "seconds to wait for each answer from the board (0.5)"),
     ):
@@ -189,7 +189,7 @@ def _session(args: argparse.Namespace, started: float) -> dict[str, Any]:
         validation_text=(
             f"Validation profile: 1 s at 92 deg (open), grip step to 21 deg, {hold:g} s hold, "
             f"un-grip step to 92 deg, {hold:g} s hold ({1 + 2 * hold:g} s; the profile of "
-            "`tuners.reproduce` section 2). The paper does not publish its validation profile."
+            "`gripper_env.paper` section 2). The paper does not publish its validation profile."
         ),
         figures={k: os.path.relpath(v, report_path.parent) for k, v in figures.items()},
         elapsed_s=time.perf_counter() - started,

@@ -47,11 +47,11 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         help="the actual gripper (dynamics, friction, sensor, delay) from an open-loop log",
         description=(
             "Identify the actual gripper from an open-loop log (t_s, desired_deg, actual_deg: "
-            "what tuners.record writes) by simulating the project's core: the servo's transfer "
+            "what rig.record writes) by simulating the project's core: the servo's transfer "
             "function, the friction (S, J), the sensor noise and ADC grid, and the delay; the "
             "servo's command path and the stops are kept from --base. Writes a plant file and "
             "a disturbance preset that tuners take as --plant and --disturbance. A slow slope "
-            "(tuners.record --profile slope60) shows the friction best."
+            "(rig.record --profile slope60) shows the friction best."
         ),
         epilog="Exit status: 0 on success, 2 on bad input (one line on stderr).",
     )
@@ -189,14 +189,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _plot(est: ActualEstimate, record: Any, path: str) -> Path:
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gripper_env.files import write_atomic
+    from gripper_env.files import save_figure
     from gripper_env.sysid.greybox import response_on
 
     y, y_model = response_on(est, record)
@@ -216,7 +214,4 @@ def _plot(est: ActualEstimate, record: Any, path: str) -> Path:
     ax1.plot(t, y - y_model, color="C3", lw=0.6)
     ax1.set(xlabel="time (s)", ylabel="residual (deg)")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
-    plt.close(fig)
-    return write_atomic(path, buf.getvalue())
+    return save_figure(fig, path, dpi=110)

@@ -1,10 +1,10 @@
 """Deploy tuned gains to the board's PID and compare the measured response with the prediction.
 
-``python -m tuners.deploy --gains results/test2/optuna.json --port P [--profile step]``
+``python -m rig.deploy --gains results/test2/optuna.json --port P [--profile step]``
 
 Recipe:
 
-1. read the gains file (plant, P, I, D, N, sign, limits);
+1. read the gains file (:mod:`gripper_env.gains_file`: plant, P, I, D, N, sign, limits);
 2. **stability gate**: refuse (exit 2) gains whose closed loop is unstable on the gains file's
    plant as the board runs it, with the servo's 20 ms command hold
    (:func:`gripper_env.stability.stability_report`), unless ``--allow-unstable``; warn when
@@ -22,70 +22,30 @@ Recipe:
 from __future__ import annotations
 
 import argparse
-import json
-import math
-import os
 import sys
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gripper_env.files import save_figure, write_json
+from gripper_env.gains_file import load_gains_file
 from gripper_env.hardware.calibration import load_calibration
 from gripper_env.hardware.device import GripperDevice, TelemetryBlock
 from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.metrics import compute_metrics, fit_percent
 from gripper_env.objective import load_objective
-from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import PROFILES, load_reference
-from gripper_env.simulation import simulate
+from gripper_env.simulation import Trajectory, simulate
 from gripper_env.stability import stability_report
-from tuners.hardware_common import add_device_arguments, run_cli
+from rig.cli import add_device_arguments, run_cli
 
-__all__ = ["DEPLOY_COLUMNS", "load_gains", "main"]
+__all__ = ["DEPLOY_COLUMNS", "main"]
 
-DEPLOY_COLUMNS = ("t_s", "reference_deg", "command_deg", "position_deg")
-
-
-def load_gains(path: str | os.PathLike[str]) -> tuple[str, str, PIDGains, PIDOptions]:
-    """``(plant, tuner, gains, options)`` from a gains file (format ``gripper-gains``).
-
-    Uses ``tuners.gains_file.load_gains_file`` when it is available; otherwise reads the same
-    keys (``plant``, ``tuner``, ``P``, ``I``, ``D``, ``N``, ``sign``, ``limits``).
-    """
-    try:
-        from tuners.gains_file import load_gains_file  # the tuners' own loader
-    except ImportError:
-        load_gains_file = None
-    if load_gains_file is not None:
-        g = load_gains_file(path)
-        return g.plant, g.tuner, g.gains, g.options
-    p = Path(path)
-    try:
-        content = json.loads(p.read_text())
-    except OSError as exc:
-        raise ValueError(f"cannot read gains file {p}: {exc.strerror or exc}") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(content, dict) or content.get("format") != "gripper-gains":
-        raise ValueError(f'{p}: not a gains file (expected "format": "gripper-gains")')
-    try:
-        gains = PIDGains(*(float(content[k]) for k in ("P", "I", "D", "N")))
-        limits = content.get("limits") or {}
-        lo, hi = limits.get("output_deg") or [None, None]
-        options = PIDOptions(
-            output_limits=(-math.inf if lo is None else lo, math.inf if hi is None else hi),
-            anti_windup=limits.get("anti_windup", "clamping"),
-            kb=float(limits.get("kb", 1.0)),
-            derivative_on=limits.get("derivative_on", "error"),
-            sign=content.get("sign", 1),
-        )
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{p}: bad gains ({exc})") from None
-    return str(content.get("plant", "")), str(content.get("tuner", "")), gains, options
+#: The log's columns: a :class:`~gripper_env.simulation.Trajectory`'s CSV columns.
+DEPLOY_COLUMNS = Trajectory.CSV_COLUMNS
 
 
 def deploy_rows(block: TelemetryBlock, t0_us: int) -> np.ndarray:
@@ -93,26 +53,6 @@ def deploy_rows(block: TelemetryBlock, t0_us: int) -> np.ndarray:
     return np.column_stack(
         [(block.t_us - t0_us) / 1e6, block.reference_deg, block.command_deg, block.position_deg]
     )
-
-
-def _json_ready(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json_ready(v) for v in obj]
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer | np.bool_):
-        return obj.item()
-    return obj
-
-
-def _write_json(path: Path, content: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(_json_ready(content), f, indent=2, allow_nan=False)
-        f.write("\n")
-    os.replace(tmp, path)
 
 
 def _plot(path: Path, measured: RecordedTrajectory, predicted: Any, title: str) -> None:
@@ -131,16 +71,12 @@ def _plot(path: Path, measured: RecordedTrajectory, predicted: Any, title: str) 
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=110)
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m tuners.deploy",
+        prog="python -m rig.deploy",
         description="Run tuned gains on the board's PID behind a stability gate, log the "
         "response, and compare it with the simulation's prediction.",
     )
@@ -174,7 +110,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    plant, tuner, gains, options = load_gains(args.gains)
+    loaded = load_gains_file(args.gains)
+    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
     if not plant:
         raise ValueError(f"{args.gains}: the gains file names no plant (needed for the gate)")
     # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
@@ -208,11 +145,7 @@ def _run(args: argparse.Namespace) -> int:
         args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
     ) as device:
         device.configure(gains, options)
-        try:
-            rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
-        except BaseException:
-            print(f"{log.rows} samples so far kept in {log.partial}", file=sys.stderr)
-            raise
+        rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
     predicted = simulate(
         plant,
@@ -247,7 +180,7 @@ def _run(args: argparse.Namespace) -> int:
         "port": args.port,
         "log": rec.extra.get("log"),
     }
-    _write_json(out_dir / "report.json", content)
+    write_json(out_dir / "report.json", content)
     if not args.no_plot:
         _plot(
             out_dir / "response.png",
@@ -265,7 +198,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m tuners.deploy``."""
+    """Entry point of ``python -m rig.deploy``."""
     return run_cli(_parser(), _run, argv)
 
 

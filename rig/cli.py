@@ -1,10 +1,11 @@
-"""What the hardware command lines share: port arguments, opening the device, error handling.
+"""What the rig's command lines share: port arguments, opening the device, error handling.
 
-Every hardware command (``tuners.calibrate``, ``tuners.record``, ``tuners.deploy``) takes
+Every rig command (``rig.calibrate``, ``rig.record``, ``rig.deploy``) takes
 ``--port`` (a serial device, a pyserial URL, or the path printed by
 ``python -m gripper_env.hardware.virtual``), ``--boot-wait`` and ``--timeout``, and turns every
-expected failure into one line on stderr and exit status 2 (no traceback). ``--port list``
-prints the serial ports that look like a gripper board.
+expected failure into one line on stderr and exit status 2 (no traceback); the
+notes an error carries (where a failed run's partial log is) follow on their own lines.
+``--port list`` prints the serial ports that look like a gripper board.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def add_device_arguments(parser: argparse.ArgumentParser, calibration: bool = Tr
             "--calibration",
             default=None,
             metavar="FILE",
-            help="calibration file from 'python -m tuners.calibrate' (default: "
+            help="calibration file from 'python -m rig.calibrate' (default: "
             f"$GRIPPER_CALIBRATION or {default_calibration_path()})",
         )
 
@@ -82,9 +83,16 @@ def run_cli(
         return 0
     try:
         return body(args)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        _print_notes(exc)
         print(f"{parser.prog}: interrupted; the board was stopped", file=sys.stderr)
         return 130
     except (DeviceError, CalibrationError, ConfigError, ValueError, OSError) as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        _print_notes(exc)
         return EXIT_ERROR
+
+
+def _print_notes(exc: BaseException) -> None:
+    for note in getattr(exc, "__notes__", ()):
+        print(note, file=sys.stderr)

@@ -1,12 +1,12 @@
 """Two-point ADC-to-angle calibration of the gripper's potentiometer.
 
-``python -m tuners.calibrate --port P [--output FILE]``
+``python -m rig.calibrate --port P [--output FILE]``
 
 Recipe: open the board, drive the jaw open loop to 92 deg, then to 21 deg (closed), then back
 to 92 deg, let it settle at each end (``--settle``) and average the ADC readings over
 ``--average`` seconds. The counts at 21 and 92 deg, the date and the port are written to the
 calibration file (default ``$GRIPPER_CALIBRATION`` or ``~/.config/gripper_env/calibration.json``),
-which ``tuners.record``, ``tuners.deploy`` and the hardware environment read. The jaw must be
+which ``rig.record``, ``rig.deploy`` and the hardware environment read. The jaw must be
 free to reach both ends (nothing between the jaws).
 """
 
@@ -25,7 +25,7 @@ from gripper_env.hardware.calibration import (
 )
 from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.protocol import Mode
-from tuners.hardware_common import add_device_arguments, positive_float, run_cli
+from rig.cli import add_device_arguments, positive_float, run_cli
 
 __all__ = ["main", "measure_counts"]
 
@@ -56,7 +56,7 @@ def measure_counts(
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m tuners.calibrate",
+        prog="python -m rig.calibrate",
         description="Measure the ADC counts with the jaw at 21 and 92 deg and save them.",
     )
     add_device_arguments(parser, calibration=False)
@@ -111,7 +111,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m tuners.calibrate``."""
+    """Entry point of ``python -m rig.calibrate``."""
     return run_cli(_parser(), _run, argv)
 
 

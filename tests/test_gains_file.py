@@ -1,36 +1,13 @@
-import json
-import math
+"""The gains file format (``gripper_env.gains_file``): round trip, nulls, refusals, old versions."""
 
-import numpy as np
+import json
+
 import pytest
 
+from gripper_env.files import write_json
+from gripper_env.gains_file import FORMAT_VERSION, GainsFileError, build_gains_file, load_gains_file
 from gripper_env.pid import PIDGains, PIDOptions
-from tuners.evaluation import evaluate, summarize_runs
-from tuners.gains_file import (
-    FORMAT_VERSION,
-    GainsFileError,
-    build_gains_file,
-    json_ready,
-    load_gains_file,
-    write_json,
-)
-
-
-def test_json_ready_turns_inf_and_nan_into_null():
-    out = json_ready({"a": math.inf, "b": [np.float64("nan"), np.int64(3)], "c": np.bool_(True)})
-    assert out == {"a": None, "b": [None, 3], "c": True}
-    json.dumps(out, allow_nan=False)
-
-
-def test_summary_mean_std_and_interval_by_hand():
-    rows = [{"iae": v, "stable": True, "grip": {"x": v}} for v in (1.0, 2.0, 3.0)]
-    s = summarize_runs(rows)
-    assert s["mean"]["iae"] == 2.0 and s["std"]["iae"] == 1.0
-    # t(0.975, 2) = 4.303: half-width 4.303 * 1 / sqrt(3)
-    assert s["ci95_high"]["iae"] - 2.0 == pytest.approx(4.302653 / math.sqrt(3), rel=1e-5)
-    assert s["mean"]["grip"]["x"] == 2.0 and s["stable_fraction"] == 1.0
-    rows[0]["iae"] = math.inf
-    assert summarize_runs(rows)["mean"]["iae"] == math.inf
+from tuners.evaluation import evaluate
 
 
 def _content(plant="test2", gains=None, sign=1):

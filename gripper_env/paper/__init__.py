@@ -1,7 +1,9 @@
-"""The paper's published numbers, as data (``shared/paper/``): the reference every reproduction
-and test compares against.
+"""The paper (``shared/paper/``): its published numbers, and their reproduction.
 
-Transcribed from the paper's Figure 7 and Tables 2-4; test2's denominator keeps its leading 2.
+The constants here are the reference every reproduction and test compares against, transcribed
+from the paper's Figure 7 and Tables 2-4 (test2's denominator keeps its leading 2).
+``python -m gripper_env.paper`` (:mod:`gripper_env.paper.reproduce`) reproduces the tables and
+figures into ``results/paper_reproduction.md``.
 """
 
 from __future__ import annotations

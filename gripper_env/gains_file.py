@@ -1,4 +1,5 @@
-"""The one gains file format (JSON), written by every tuner and read by ``manual`` and deploy.
+"""The one gains file format (JSON), written by every tuner and read by ``tuners.manual`` and
+``rig.deploy``.
 
 ``results/<plant>/<tuner>.json``, format ``gripper-gains`` version :data:`FORMAT_VERSION`:
 
@@ -23,32 +24,29 @@
                                 refresh_period_s; loop_1ms {...} (the 1 ms loop alone);
                                 constraints, meets_constraints (gripper_env.stability)
     cross_model                 the gains on the other identifications: plants {name: {...}}
-                                and the worst case (tuners.evaluation.cross_model)
+                                and the worst case (``tuners.evaluation.cross_model``)
     tuning                      what the tuner wants to record (trials, best cost, study, search
                                 ranges, on_bound: gains within 2 % of a search bound, ...)
     provenance                  command, config, seed, version, git_commit, date, wall_time_s
 
 Infinite or undefined numbers (a run that never settles, an unstable run) are written as
-``null``. Files are written atomically (temporary file, then :func:`os.replace`), so a reader
+``null``. Files are written atomically (:func:`gripper_env.files.write_json`), so a reader
 never sees half a file.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import os
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from gripper_env import __version__
+from gripper_env.files import json_ready, read_format_json
 from gripper_env.pid import PIDGains, PIDOptions
 
 __all__ = [
@@ -57,11 +55,8 @@ __all__ = [
     "GainsFile",
     "GainsFileError",
     "build_gains_file",
-    "json_ready",
     "load_gains_file",
     "provenance",
-    "write_atomic",
-    "write_json",
 ]
 
 FORMAT = "gripper-gains"
@@ -72,46 +67,6 @@ READABLE_VERSIONS = (1, 2)
 
 class GainsFileError(ValueError):
     """A gains file is missing, malformed, or from an incompatible format version."""
-
-
-def json_ready(obj: Any) -> Any:
-    """Plain JSON values: numpy scalars and arrays to Python, non-finite floats to ``None``."""
-    if isinstance(obj, dict):
-        return {str(k): json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [json_ready(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_ready(obj.tolist())
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    mode = "wb" if isinstance(data, bytes) else "w"
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, mode) as f:
-            f.write(data)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
-
-
-def write_json(path: str | os.PathLike[str], content: dict[str, Any]) -> Path:
-    """Write ``content`` (made :func:`json_ready`) as indented JSON, atomically."""
-    return write_atomic(path, json.dumps(json_ready(content), indent=2, allow_nan=False) + "\n")
 
 
 def _git_commit() -> str | None:
@@ -167,8 +122,9 @@ def build_gains_file(
 
     Parameters
     ----------
-    evaluation : tuners.evaluation.Evaluation
-        Metrics on the ideal and actual models.
+    evaluation : object
+        Metrics on the ideal and actual models: ``ideal``, ``actual``, ``sim_to_real_gap``,
+        ``robustness`` and ``cross_model`` (a ``tuners.evaluation.Evaluation``).
     evaluation_settings : dict
         Profile, disturbance, seeds, randomize, signal, ideal-model limits.
     """
@@ -234,14 +190,7 @@ def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
         not read, or gains/limits that are not valid numbers.
     """
     p = Path(path)
-    try:
-        content = json.loads(p.read_text())
-    except OSError as exc:
-        raise GainsFileError(f"cannot read gains file {p}: {exc.strerror or exc}") from None
-    except json.JSONDecodeError as exc:
-        raise GainsFileError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    if not isinstance(content, dict) or content.get("format") != FORMAT:
-        raise GainsFileError(f'{p}: not a gains file (expected "format": "{FORMAT}")')
+    content = read_format_json(p, FORMAT, "gains file", GainsFileError)
     version = content.get("format_version")
     if version not in READABLE_VERSIONS:
         raise GainsFileError(

@@ -1,6 +1,7 @@
-"""Reproduce the paper's tables and figures: ``python -m tuners.reproduce``.
+"""Reproduce the paper's tables and figures: ``python -m gripper_env.paper``.
 
-Writes ``results/paper_reproduction.md`` and PNG figures under ``results/figures/``:
+Writes ``results/paper_reproduction.md`` and PNG figures under ``results/figures/`` (``--out``
+chooses another folder than ``results/`` of the working directory):
 
 1. the four identified plants (Table 1, Figure 7): poles, DC gain, and their open-loop response to
    the grip/un-grip step, with step metrics;
@@ -27,6 +28,7 @@ import numpy as np
 
 from gripper_env import __version__, paper
 from gripper_env.disturbances import describe, load_disturbance
+from gripper_env.files import save_figure, write_atomic
 from gripper_env.metrics import compute_metrics, fit_percent, sample_sd
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import load_plant
@@ -44,7 +46,6 @@ PAPER_GAINS = {
     "tuned (hardware)": paper.PID_GAINS["tuned_hw"],
 }
 PAPER_TABLE4 = paper.TABLE4_SD
-RESULTS = Path(__file__).resolve().parent.parent / "results"
 
 
 def _fmt(x: float, digits: int = 3) -> str:
@@ -87,8 +88,7 @@ def _plants_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
     ax.legend(loc="center right", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(fig_dir / "plants_step.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, fig_dir / "plants_step.png", dpi=110)
     lines += [
         "",
         "test1's slow complex poles (time constant about 20 s) barely move within the 9 s hold:",
@@ -157,8 +157,7 @@ def _table2_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(fig_dir / "figure9_direct_response.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, fig_dir / "figure9_direct_response.png", dpi=110)
     best = min(gaps, key=lambda k: abs(gaps[k]))
     fast = [gaps[k] for k in PLANTS[1:]]
     lines += [
@@ -254,8 +253,7 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
     axes[0].set_ylabel("jaw angle (deg)")
     axes[1].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(fig_dir / "figure11_pid.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, fig_dir / "figure11_pid.png", dpi=110)
     untuned, untuned_act = findings[("untuned (TF test2)", 1)]
     tuned, tuned_act = findings[("tuned (TF test2)", 1)]
     lines += [
@@ -314,10 +312,12 @@ def _sign_section(lines: list[str]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m tuners.reproduce",
+        prog="python -m gripper_env.paper",
         description="Reproduce the paper's tables and figures into results/.",
     )
-    parser.add_argument("--out", type=Path, default=RESULTS, help="output folder (results/)")
+    parser.add_argument(
+        "--out", type=Path, default=Path("results"), help="output folder (default: results)"
+    )
     parser.add_argument(
         "--seeds", type=int, default=10, help="disturbance seeds of the actual gripper (10)"
     )
@@ -333,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Reproducing the paper",
         "",
-        f"Written by `python -m tuners.reproduce` (gripper-env {__version__}, "
+        f"Written by `python -m gripper_env.paper` (gripper-env {__version__}, "
         f"{datetime.now(UTC).strftime('%Y-%m-%d')}). Paper: `shared/paper/`.",
         "",
         "The simulated actual gripper (`actual` preset, nominal values; randomised per seed):",
@@ -347,10 +347,7 @@ def main(argv: list[str] | None = None) -> int:
     _table2_section(lines, fig_dir, seeds)
     _table34_section(lines, fig_dir, seeds)
     _sign_section(lines)
-    path = args.out / "paper_reproduction.md"
-    tmp = path.with_suffix(".md.tmp")
-    tmp.write_text("\n".join(lines))
-    tmp.replace(path)
+    path = write_atomic(args.out / "paper_reproduction.md", "\n".join(lines))
     print(f"wrote {path} and figures in {fig_dir}")
     return 0
 

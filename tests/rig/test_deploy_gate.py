@@ -27,7 +27,7 @@ def test_gains_stable_at_1ms_but_not_with_the_hold_are_refused(tmp_path):
     assert not report.stable
     out = tmp_path / "out"
     proc = run_cli(
-        "tuners.deploy", "--gains", _gains_file(tmp_path / "g.json", FRAGILE),
+        "rig.deploy", "--gains", _gains_file(tmp_path / "g.json", FRAGILE),
         "--port", str(tmp_path / "no-such-port"), "--output-dir", str(out),
     )  # fmt: skip
     assert proc.returncode == 2
