@@ -179,7 +179,7 @@ def cross_model(
     plants: Sequence[str | Plant],
     reference: str | Reference,
     disturbance: Disturbance,
-    seeds: Sequence[int],
+    seeds: Sequence[int] | np.ndarray,
     randomize: bool,
     objective: Objective,
 ) -> dict[str, Any]:
@@ -253,7 +253,7 @@ def evaluate(
     *,
     profile: str | Reference = "step",
     disturbance: str | Disturbance = "actual",
-    seeds: np.ndarray | list[int] = (100000,),
+    seeds: Sequence[int] | np.ndarray = (100000,),
     randomize: bool = True,
     objective: Objective | None = None,
     ideal_options: PIDOptions | None = None,
@@ -297,6 +297,7 @@ def evaluate(
     actual = GainScorer(
         Task.build(p, ref, dist, seed_arr, randomize=randomize, options=options, objective=obj)
     ).score(row, keep_trajectory=True)
+    assert ideal.trajectory is not None and actual.trajectory is not None  # keep_trajectory
     ideal_row = with_cost(ideal.metrics, ideal.run_cost.ravel())[0]
     runs = with_cost(actual.metrics, actual.run_cost.ravel())
     summary = summarize_runs(runs)

@@ -438,7 +438,8 @@ def _base_gains(spec: str | None, out: Path, plant: str) -> PIDGains:
             values = []
         if len(values) not in (3, 4) or not all(np.isfinite(values)):
             raise ValueError(f"--base: expected P,I,D[,N] or a gains file, got {spec!r}")
-        return PIDGains(*values[:3], values[3] if len(values) == 4 else 100.0)
+        n_filter = values[3] if len(values) == 4 else 100.0
+        return PIDGains(values[0], values[1], values[2], n_filter)
     path = Path(spec) if spec is not None else out / plant / "optuna.json"
     if spec is None and not path.is_file():
         raise ValueError(

@@ -154,10 +154,9 @@ def evaluate_policy(
     """
     from gripper_env.envs.rollout import policy_trajectory
 
-    ref = {"reference": inputs.reference}
-    ideal = policy_trajectory(policy, [0], **dict(kwargs, disturbance="ideal", randomize=False),
-                              **ref)  # fmt: skip
-    actual = policy_trajectory(policy, seeds, **kwargs, **ref)
+    ideal_kwargs: dict[str, Any] = {**kwargs, "disturbance": "ideal", "randomize": False}
+    ideal = policy_trajectory(policy, [0], reference=inputs.reference, **ideal_kwargs)
+    actual = policy_trajectory(policy, seeds, reference=inputs.reference, **kwargs)
     return _score(ideal, _IDEAL)[0], _score(actual, inputs.disturbance), ideal, actual
 
 
