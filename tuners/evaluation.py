@@ -200,21 +200,29 @@ def cross_model(
         s = GainScorer(task).score(gains.as_array()[None, :])
         rb = robustness_block(plant, gains, sign, disturbance, objective)
         reach = reachability(plant, task.reference, disturbance)
-        m = s.metrics
-        overshoot = np.maximum(m.grip["overshoot_pct"], m.ungrip["overshoot_pct"])
-        per[plant.name] = {
-            "stable": rb["stable"],
-            "ms": rb["ms"],
-            "gain_margin_db": rb["gain_margin_db"],
-            "phase_margin_deg": rb["phase_margin_deg"],
-            "meets_constraints": rb["meets_constraints"],
-            "stable_runs": float(np.mean(m.stable)),
-            "overshoot_pct": float(np.mean(overshoot)),
-            "iae": float(np.mean(m.run["iae"])),
-            "stall_s": float(np.mean(m.run["stall_s"])),
-            "profile_feasible": reach.feasible,
-        }
+        per[plant.name] = cross_model_entry(rb, s.metrics, reach.feasible)
     return worst_case(per)
+
+
+def cross_model_entry(
+    robustness: dict[str, Any], metrics: Metrics, profile_feasible: bool
+) -> dict[str, Any]:
+    """One plant's entry of :func:`cross_model`: the loop's margins (``robustness``, a
+    :func:`robustness_block`) and the means over the runs on the actual model (``metrics``)."""
+    m = metrics
+    overshoot = np.maximum(m.grip["overshoot_pct"], m.ungrip["overshoot_pct"])
+    return {
+        "stable": robustness["stable"],
+        "ms": robustness["ms"],
+        "gain_margin_db": robustness["gain_margin_db"],
+        "phase_margin_deg": robustness["phase_margin_deg"],
+        "meets_constraints": robustness["meets_constraints"],
+        "stable_runs": float(np.mean(m.stable)),
+        "overshoot_pct": float(np.mean(overshoot)),
+        "iae": float(np.mean(m.run["iae"])),
+        "stall_s": float(np.mean(m.run["stall_s"])),
+        "profile_feasible": profile_feasible,
+    }
 
 
 def worst_case(per: dict[str, Any]) -> dict[str, Any]:
