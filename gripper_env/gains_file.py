@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from gripper_env import __version__
+from gripper_env.config import SHIPPED
 from gripper_env.files import json_ready, read_format_json
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, PlantSpec, load_plant
@@ -144,7 +145,7 @@ def build_gains_file(
             "dt_s": plant_model.dt_s,
             "jaw_range_deg": list(plant_model.jaw_range_deg),
             "fit_pct": plant_model.fit_pct,
-            "source": plant_model.source,
+            "source": _portable_source(plant_model.source),
         }
     return json_ready(
         {
@@ -179,6 +180,18 @@ def build_gains_file(
             "provenance": prov or provenance(),
         }
     )
+
+
+def _portable_source(source: str) -> str:
+    """A shipped plant by its package path (``gripper_env.configs/plants/test2.yaml``), so that
+    no machine's folder ends up in a committed gains file; a user's own file as given."""
+    if not source:
+        return source
+    try:
+        rel = Path(source).resolve().relative_to(Path(str(SHIPPED)).resolve())
+    except (ValueError, OSError):
+        return source
+    return f"gripper_env.configs/{rel.as_posix()}"
 
 
 @dataclass(frozen=True)
