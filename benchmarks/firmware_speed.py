@@ -302,10 +302,25 @@ def _fmt_cycles(d: dict[str, float]) -> str:
 
 
 def report(result: dict[str, Any]) -> str:
-    size, cl, pty = result["image"], result["closed_loop"], result["pty"]
-    lat, wd, noise, agree = (result[k] for k in ("latency", "watchdog", "line_noise", "agreement"))
-    stack = cl["stack_peak_bytes"]
-    lines = [
+    """The markdown of ``results/firmware_speed.md`` from the measurements (its JSON)."""
+    lines = _memory_section(result)
+    lines += _loop_section(result["closed_loop"], result["pty"])
+    lines += _latency_section(result["latency"])
+    lines += _safety_section(result["watchdog"], result["line_noise"])
+    lines += _agreement_section(result["agreement"])
+    lines += [
+        "## Emulation speed",
+        "",
+        f"{result['speed_x']:.1f}x real time (median of the runs above, emulated seconds per wall "
+        f"second) on {result['machine']}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _memory_section(result: dict[str, Any]) -> list[str]:
+    """Title, provenance and memory."""
+    size, stack = result["image"], result["closed_loop"]["stack_peak_bytes"]
+    return [
         "# Firmware speed on the emulated Mega 2560",
         "",
         f"`python -m benchmarks.firmware_speed --duration {result['duration_s']:g}`: the compiled "
@@ -323,6 +338,12 @@ def report(result: dict[str, Any]) -> str:
         f"| stack high-water (closed loop, host traffic, boot included) | {stack} bytes |",
         f"| RAM never touched | {8192 - size['static_ram'] - stack} bytes |",
         "",
+    ]
+
+
+def _loop_section(cl: dict[str, Any], pty: dict[str, Any]) -> list[str]:
+    """The 1 kHz loop: cycles, headroom, jitter, and the run through the pseudo-terminal."""
+    return [
         f"## The 1 kHz loop over {cl['emulated_s']:.0f} s of closed loop",
         "",
         "Tuned paper gains on test2, actual gripper, the paper's step profile repeated, telemetry "
@@ -360,6 +381,12 @@ def report(result: dict[str, Any]) -> str:
         f"{pty['missing_samples']} | {pty['overruns']} | {pty['missed_deadlines']} / "
         f"{pty['host_periods']} |",
         "",
+    ]
+
+
+def _latency_section(lat: dict[str, Any]) -> list[str]:
+    """From a host command's last byte to the register, the pulse's start and its end."""
+    lines = [
         "## Latency from a host command to the servo",
         "",
         f"{lat['register']['n']} SETPOINTs in open loop at random phases of the tick and of the "
@@ -378,12 +405,19 @@ def report(result: dict[str, Any]) -> str:
             f"| {what} | {d['min'] / 1000:.2f} ms | {d['median'] / 1000:.2f} ms | "
             f"{d['max'] / 1000:.2f} ms |"
         )
-    w = wd["safe_pulse_ms"]
     lines += [
         "",
         "The firmware's share is at most one tick (1 ms); the rest is the servo's 50 Hz frame: "
         "a new width waits for the next 20 ms period of Timer1 (OCR1A is double-buffered).",
         "",
+    ]
+    return lines
+
+
+def _safety_section(wd: dict[str, Any], noise: dict[str, Any]) -> list[str]:
+    """The watchdog's safe pulse after host silence, and random bytes on the line."""
+    w = wd["safe_pulse_ms"]
+    return [
         "## Safety timing",
         "",
         "| quantity | value |",
@@ -396,6 +430,12 @@ def report(result: dict[str, Any]) -> str:
         f"latest {noise['worst_lateness_us']:.0f} us late; {noise['rejected_frames']} frames "
         f"rejected; faults {noise['faults']} |",
         "",
+    ]
+
+
+def _agreement_section(agree: dict[str, Any]) -> list[str]:
+    """The emulated board, the Python twin and the simulation core on one profile."""
+    lines = [
         "## Agreement: emulated board, Python twin, simulation core",
         "",
         "The paper's step profile (92 -> 21 deg at 1 s, -> 92 at 10 s, 20 s) deployed with "
@@ -422,12 +462,8 @@ def report(result: dict[str, Any]) -> str:
         "motion during the fast grip: the firmware's Timer1 frames fall at another phase than the "
         "simulation's 20 ms refresh, and the servo acts at the end of a pulse.",
         "",
-        "## Emulation speed",
-        "",
-        f"{result['speed_x']:.1f}x real time (median of the runs above, emulated seconds per wall "
-        f"second) on {result['machine']}.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -22,7 +22,6 @@ import math
 import os
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 
 import control
 import numpy as np
@@ -129,7 +128,7 @@ class Plant:
             den=tuple(_strip(spec.den)),
             fit_pct=spec.fit_pct,
             dt_s=spec.dt_s,
-            jaw_range_deg=tuple(spec.jaw_range_deg),
+            jaw_range_deg=spec.jaw_range_deg,
             description=spec.description,
             source=source,
         )
@@ -247,4 +246,4 @@ def load_plant(plant: str | os.PathLike[str] | Plant) -> Plant:
         return plant
     path = find_config("plants", plant)
     spec = validate(PlantSpec, load_yaml(path), str(path))
-    return Plant.from_spec(spec, source=str(Path(path)))
+    return Plant.from_spec(spec, source=str(path))

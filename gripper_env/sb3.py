@@ -131,7 +131,8 @@ class NativeVecEnv(VecEnv):
     def reset(self) -> np.ndarray:
         seeds = self._seeds if any(s is not None for s in self._seeds) else None
         options = self._options[0] if self._options and self._options[0] else None
-        obs, infos = self.vector_env.reset(seed=seeds, options=options)
+        # gymnasium's VectorEnv.reset declares one int; vector envs (its own too) take one per env
+        obs, infos = self.vector_env.reset(seed=seeds, options=options)  # type: ignore[arg-type]
         self.reset_infos = self._unbatched(infos)
         self._reset_seeds()
         self._reset_options()
@@ -149,7 +150,7 @@ class NativeVecEnv(VecEnv):
         if dones.any():
             # SB3 resets on the step that ends an episode: start the ended ones now (the vector
             # env would do it on its next step), keep their last observation in the infos
-            for i in np.flatnonzero(dones):
+            for i in np.flatnonzero(dones).tolist():
                 out[i]["terminal_observation"] = obs[i]
             obs, reset_infos = self.vector_env.reset(options={"reset_mask": dones})
             for i, info in enumerate(self._unbatched(reset_infos)):
@@ -171,9 +172,10 @@ class NativeVecEnv(VecEnv):
 
     # ------------------------------------------------------------------------------------------
     def get_images(self) -> Sequence[np.ndarray | None]:
-        if self.vector_env.render_mode != "rgb_array":
+        frames = self.vector_env.render() if self.vector_env.render_mode == "rgb_array" else None
+        if frames is None:
             return [None]
-        return list(self.vector_env.render())
+        return [np.asarray(frame) for frame in frames]
 
     def _indices(self, indices: Any) -> list[int]:
         return list(self._get_indices(indices))

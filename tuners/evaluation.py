@@ -179,7 +179,7 @@ def cross_model(
     plants: Sequence[str | Plant],
     reference: str | Reference,
     disturbance: Disturbance,
-    seeds: Sequence[int],
+    seeds: Sequence[int] | np.ndarray,
     randomize: bool,
     objective: Objective,
 ) -> dict[str, Any]:
@@ -200,21 +200,29 @@ def cross_model(
         s = GainScorer(task).score(gains.as_array()[None, :])
         rb = robustness_block(plant, gains, sign, disturbance, objective)
         reach = reachability(plant, task.reference, disturbance)
-        m = s.metrics
-        overshoot = np.maximum(m.grip["overshoot_pct"], m.ungrip["overshoot_pct"])
-        per[plant.name] = {
-            "stable": rb["stable"],
-            "ms": rb["ms"],
-            "gain_margin_db": rb["gain_margin_db"],
-            "phase_margin_deg": rb["phase_margin_deg"],
-            "meets_constraints": rb["meets_constraints"],
-            "stable_runs": float(np.mean(m.stable)),
-            "overshoot_pct": float(np.mean(overshoot)),
-            "iae": float(np.mean(m.run["iae"])),
-            "stall_s": float(np.mean(m.run["stall_s"])),
-            "profile_feasible": reach.feasible,
-        }
+        per[plant.name] = cross_model_entry(rb, s.metrics, reach.feasible)
     return worst_case(per)
+
+
+def cross_model_entry(
+    robustness: dict[str, Any], metrics: Metrics, profile_feasible: bool
+) -> dict[str, Any]:
+    """One plant's entry of :func:`cross_model`: the loop's margins (``robustness``, a
+    :func:`robustness_block`) and the means over the runs on the actual model (``metrics``)."""
+    m = metrics
+    overshoot = np.maximum(m.grip["overshoot_pct"], m.ungrip["overshoot_pct"])
+    return {
+        "stable": robustness["stable"],
+        "ms": robustness["ms"],
+        "gain_margin_db": robustness["gain_margin_db"],
+        "phase_margin_deg": robustness["phase_margin_deg"],
+        "meets_constraints": robustness["meets_constraints"],
+        "stable_runs": float(np.mean(m.stable)),
+        "overshoot_pct": float(np.mean(overshoot)),
+        "iae": float(np.mean(m.run["iae"])),
+        "stall_s": float(np.mean(m.run["stall_s"])),
+        "profile_feasible": profile_feasible,
+    }
 
 
 def worst_case(per: dict[str, Any]) -> dict[str, Any]:
@@ -253,7 +261,7 @@ def evaluate(
     *,
     profile: str | Reference = "step",
     disturbance: str | Disturbance = "actual",
-    seeds: np.ndarray | list[int] = (100000,),
+    seeds: Sequence[int] | np.ndarray = (100000,),
     randomize: bool = True,
     objective: Objective | None = None,
     ideal_options: PIDOptions | None = None,
@@ -297,6 +305,7 @@ def evaluate(
     actual = GainScorer(
         Task.build(p, ref, dist, seed_arr, randomize=randomize, options=options, objective=obj)
     ).score(row, keep_trajectory=True)
+    assert ideal.trajectory is not None and actual.trajectory is not None  # keep_trajectory
     ideal_row = with_cost(ideal.metrics, ideal.run_cost.ravel())[0]
     runs = with_cost(actual.metrics, actual.run_cost.ravel())
     summary = summarize_runs(runs)

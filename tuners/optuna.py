@@ -652,12 +652,22 @@ def _plants_arg(args: Any) -> list[str]:
     return plants
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = cli.parse(build_parser(), argv)
-    start = time.perf_counter()
-    # 1. check every input before anything is written
-    inputs = cli.resolve(args)
-    plants = _plants_arg(args)
+@dataclass(frozen=True)
+class _Plan:
+    """What a run searches: the checked command-line choices over the config's defaults."""
+
+    settings: OptunaSettings
+    sampler: str
+    multi: bool
+    terms: list[str]
+    n_trials: int
+    n_seeds: int
+    base_name: str
+    url: str
+
+
+def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
+    """Check the trials, search seeds and sampler; name the studies and their storage."""
     settings = load_settings(OptunaSettings, args.config)
     check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
     n_trials = settings.trials if args.trials is None else args.trials
@@ -669,7 +679,6 @@ def main(argv: list[str] | None = None) -> int:
     sampler_name = args.sampler or settings.sampler
     multi = args.multi_objective
     make_sampler(sampler_name, args.seed, settings, multi)  # checks the combination
-    terms = settings.multi_objective.objectives if multi else []
     base = args.study_name or (
         f"{'+'.join(plants) or inputs.plant.name}-{Path(inputs.disturbance_name).stem}-"
         f"{Path(inputs.profile_name).stem}-{sampler_name}{'-mo' if multi else ''}"
@@ -679,21 +688,31 @@ def main(argv: list[str] | None = None) -> int:
         url = f"sqlite:///{Path(args.out) / 'optuna.db'}"
     else:
         url = args.storage
-    storage = open_storage(url, settings)
-    scorer = make_scorer(inputs, settings, plants)
-    space = search_space(scorer.task.plants, inputs.disturbance, settings)
-    # 2. search: one study per search seed
+    terms = list(settings.multi_objective.objectives) if multi else []
+    return _Plan(settings, sampler_name, multi, terms, n_trials, n_seeds, base, url)
+
+
+def _search(
+    args: Any,
+    inputs: cli.Inputs,
+    plan: _Plan,
+    storage: Any,
+    scorer: GainScorer,
+    space: SearchSpace,
+) -> tuple[list[StudyResult], list[str]]:
+    """One study per search seed (stopping at an interruption): their results and names."""
+    n_objectives = len(plan.terms) if plan.multi else 1
     results, names = [], []
-    for i in range(n_seeds):
-        name = base if n_seeds == 1 else f"{base}-s{i}"
+    for i in range(plan.n_seeds):
+        name = plan.base_name if plan.n_seeds == 1 else f"{plan.base_name}-s{i}"
         study = optuna.create_study(
             storage=storage,
             study_name=name,
             sampler=optuna.samplers.RandomSampler(seed=args.seed + i),
             load_if_exists=True,
-            directions=["minimize"] * (len(terms) if multi else 1),
+            directions=["minimize"] * n_objectives,
         )
-        if len(study.directions) != (len(terms) if multi else 1):
+        if len(study.directions) != n_objectives:
             raise ConfigError(
                 f"study {name!r} has {len(study.directions)} objectives; use another --study-name"
             )
@@ -704,39 +723,49 @@ def main(argv: list[str] | None = None) -> int:
                 "disturbance": inputs.disturbance_name,
                 "profile": inputs.profile_name,
                 "search": space.as_dict()["ranges"],
-                "tuning_seeds": settings.tuning_seeds.model_dump(),
-                "objectives": terms or ["cost"],
+                "tuning_seeds": plan.settings.tuning_seeds.model_dump(),
+                "objectives": plan.terms or ["cost"],
                 "objective": scorer.task.objective.model_dump(),
             },
         )
         result = run_study(
-            study, scorer, space, settings, n_trials, inputs.settings.pid.N,
-            sampler=make_sampler(sampler_name, args.seed + i, settings, multi),
-            progress=not args.no_progress, terms=terms, storage=storage,
+            study, scorer, space, plan.settings, plan.n_trials, inputs.settings.pid.N,
+            sampler=make_sampler(plan.sampler, args.seed + i, plan.settings, plan.multi),
+            progress=not args.no_progress, terms=plan.terms, storage=storage,
         )  # fmt: skip
         results.append(result)
         names.append(name)
         if result.interrupted:
             break
-    chosen = best_of(results)
-    wall = time.perf_counter() - start
-    # 3. report
+    return results, names
+
+
+def _tuning_record(
+    plan: _Plan,
+    results: list[StudyResult],
+    names: list[str],
+    chosen: int,
+    scorer: GainScorer,
+    space: SearchSpace,
+    wall_s: float,
+) -> dict[str, Any]:
+    """The gains file's ``tuning`` block: the studies, the kept seed's best trial, the spread."""
     best = results[chosen]
-    tuning = {
+    return {
         "study_names": names,
-        "storage": redact(url),
-        "sampler": sampler_name,
-        "multi_objective": multi,
-        "objectives": terms or ["cost"],
+        "storage": redact(plan.url),
+        "sampler": plan.sampler,
+        "multi_objective": plan.multi,
+        "objectives": plan.terms or ["cost"],
         "tuned_on": [p.name for p in scorer.task.plants],
-        "trials_per_seed": n_trials,
+        "trials_per_seed": plan.n_trials,
         "trials_in_study": best.n_complete,
         "trials_this_run": sum(r.n_run_here for r in results),
         "chosen_seed": chosen,
         "best_trial": best.best_trial,
         "best_value_tuning": best.best_value,
         "feasible": best.feasible,
-        "tuning_seeds": settings.tuning_seeds.seeds().tolist(),
+        "tuning_seeds": plan.settings.tuning_seeds.seeds().tolist(),
         "episodes_per_trial": best.episodes_per_trial,
         "episodes_this_run": scorer.episodes,
         "history": [list(p) for p in best.history],
@@ -744,8 +773,16 @@ def main(argv: list[str] | None = None) -> int:
         "search_space": space.as_dict(),
         "on_bound": space.on_bound(best.gains),
         **seed_summary(results, list(range(len(results)))),
-        "search_wall_time_s": wall,
+        "search_wall_time_s": wall_s,
     }
+
+
+def _notes(
+    plan: _Plan, results: list[StudyResult], chosen: int, tuning: dict[str, Any]
+) -> list[str]:
+    """What the report says beside the gains: seed spread, infeasibility, Pareto knee, and
+    (last) an interruption."""
+    best = results[chosen]
     notes = []
     if len(results) > 1:
         c = tuning["best_cost"]
@@ -758,28 +795,53 @@ def main(argv: list[str] | None = None) -> int:
             "warning: no trial met the robustness constraints; these are the least infeasible "
             "gains (raise --trials, or widen the search in the config)"
         )
-    if multi:
+    if plan.multi:
         notes.append(
             f"Pareto front: {len(best.pareto)} trials; knee point = trial {best.best_trial}"
         )
-    if best.interrupted or len(results) < n_seeds:
+    if _interrupted(plan, results):
         notes.append(
-            f"interrupted: finished trials are in {redact(url)}; rerun the same command to "
+            f"interrupted: finished trials are in {redact(plan.url)}; rerun the same command to "
             "resume (reporting the best so far)"
         )
+    return notes
+
+
+def _interrupted(plan: _Plan, results: list[StudyResult]) -> bool:
+    """A study stopped early (Ctrl-C), so some search seeds did not run."""
+    return results[-1].interrupted or len(results) < plan.n_seeds
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = cli.parse(build_parser(), argv)
+    start = time.perf_counter()
+    # 1. check every input before anything is written
+    inputs = cli.resolve(args)
+    plants = _plants_arg(args)
+    plan = _plan(args, inputs, plants)
+    storage = open_storage(plan.url, plan.settings)
+    scorer = make_scorer(inputs, plan.settings, plants)
+    space = search_space(scorer.task.plants, inputs.disturbance, plan.settings)
+    # 2. search: one study per search seed
+    results, names = _search(args, inputs, plan, storage, scorer, space)
+    chosen = best_of(results)
+    wall = time.perf_counter() - start
+    # 3. report
+    tuning = _tuning_record(plan, results, names, chosen, scorer, space, wall)
+    notes = _notes(plan, results, chosen, tuning)
     cli.publish(
         args,
         inputs,
-        tuner=tuner_name(sampler_name, multi, robust=bool(plants)),
-        gains=best.gains,
+        tuner=tuner_name(plan.sampler, plan.multi, robust=bool(plants)),
+        gains=results[chosen].gains,
         sign=1,
         tuning=tuning,
-        config={"optuna": settings.model_dump()},
+        config={"optuna": plan.settings.model_dump()},
         wall_time_s=time.perf_counter() - start,
         notes=notes,
         label=names[chosen],
     )
-    if best.interrupted or len(results) < n_seeds:
+    if _interrupted(plan, results):
         print(notes[-1], file=sys.stderr)
         return cli.EXIT_INTERRUPTED
     return 0

@@ -40,7 +40,7 @@ from gripper_env.files import write_json
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
-from gripper_env.scoring import GainScorer, Task, score_trajectory
+from gripper_env.scoring import score_trajectory
 from tuners import cli
 from tuners.rl_controller import controller_row  # the benchmark's RL-controller row
 from tuners.search_space import search_space
@@ -218,13 +218,6 @@ def train(
 ) -> dict[str, Any]:
     """Train a policy; return the history (episodes, best cost) and the run's facts."""
     _require_envs()
-    from stable_baselines3.common.callbacks import (
-        BaseCallback,
-        CallbackList,
-        CheckpointCallback,
-        EvalCallback,
-    )
-
     kwargs = env_kwargs(inputs, plants, env)
     vec = make_vec_env(env, kwargs, n_envs, seed)
     eval_env = make_vec_env(env, kwargs, 1 if env != "pid-tune" else 8, seed + 10_000)
@@ -241,56 +234,9 @@ def train(
     opt = optuna_settings or load_settings(OptunaSettings)
     history: list[tuple[int, float]] = []
     start = time.perf_counter()
-
-    class BudgetCurve(BaseCallback):
-        """Score the policy's gains on the tuning seeds, like an Optuna trial."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.next_at = 0
-            self.best = float("inf")
-            self.best_gains: PIDGains | None = None
-            _, actual = inputs.settings.options(1)
-            self.scorer = GainScorer(
-                Task.build(
-                    plants[0], inputs.reference, inputs.disturbance, opt.tuning_seeds.seeds(),
-                    randomize=inputs.settings.randomize, options=actual,
-                )
-            )  # fmt: skip
-
-        def _on_step(self) -> bool:
-            if env == "pid-tune" and self.num_timesteps >= self.next_at:
-                self.next_at = self.num_timesteps + eval_every
-                g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
-                scores = self.scorer.score(g.as_array()[None, :])
-                cost = float(scores.cost[0])
-                if scores.feasible[0] and cost < self.best:  # like Optuna's best trial
-                    self.best, self.best_gains = cost, g
-                if np.isfinite(self.best):
-                    history.append((int(self.num_timesteps), self.best))
-                self.logger.record("tuning/policy_cost", cost)
-                self.logger.record("tuning/policy_feasible", float(scores.feasible[0]))
-            return True
-
-    curve = BudgetCurve()
-    callbacks = [
-        curve,
-        CheckpointCallback(
-            save_freq=max(1, 10 * eval_every // n_envs),
-            save_path=str(run_dir / "checkpoints"),
-            name_prefix=algo,
-        ),
-        EvalCallback(
-            eval_env,
-            n_eval_episodes=8,
-            eval_freq=max(1, 4 * eval_every // n_envs),
-            best_model_save_path=str(run_dir / "best"),
-            log_path=str(run_dir / "eval"),
-            deterministic=True,
-            verbose=0,
-        ),
-    ]
-    model.learn(total_timesteps=timesteps, callback=CallbackList(callbacks), progress_bar=progress)
+    curve = _budget_curve(inputs, plants, env, kwargs, eval_every, opt, history)
+    callbacks = _callbacks(curve, eval_env, run_dir, algo, eval_every, n_envs)
+    model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=progress)
     wall = time.perf_counter() - start
     run_dir.mkdir(parents=True, exist_ok=True)
     model.save(run_dir / "model.zip")
@@ -313,6 +259,75 @@ def train(
     vec.close()
     eval_env.close()
     return {"model": model, **facts}
+
+
+def _budget_curve(
+    inputs: cli.Inputs,
+    plants: list[str],
+    env: str,
+    kwargs: dict[str, Any],
+    eval_every: int,
+    opt: OptunaSettings,
+    history: list[tuple[int, float]],
+) -> Any:
+    """A callback that scores the policy's gains on the tuning seeds every ``eval_every`` steps,
+    like an Optuna trial, appending ``(steps, best feasible cost)`` to ``history``."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from tuners.optuna import make_scorer
+
+    class BudgetCurve(BaseCallback):
+        """Score the policy's gains on the tuning seeds, like an Optuna trial."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_at = 0
+            self.best = float("inf")
+            self.best_gains: PIDGains | None = None
+            self.scorer = make_scorer(inputs, opt, plants[:1])  # an Optuna trial's scorer
+
+        def _on_step(self) -> bool:
+            if env == "pid-tune" and self.num_timesteps >= self.next_at:
+                self.next_at = self.num_timesteps + eval_every
+                g = policy_gains(self.model, ENV_IDS[env], kwargs, plants[0])
+                scores = self.scorer.score(g.as_array()[None, :])
+                cost = float(scores.cost[0])
+                if scores.feasible[0] and cost < self.best:  # like Optuna's best trial
+                    self.best, self.best_gains = cost, g
+                if np.isfinite(self.best):
+                    history.append((int(self.num_timesteps), self.best))
+                self.logger.record("tuning/policy_cost", cost)
+                self.logger.record("tuning/policy_feasible", float(scores.feasible[0]))
+            return True
+
+    return BudgetCurve()
+
+
+def _callbacks(
+    curve: Any, eval_env: Any, run_dir: Path, algo: str, eval_every: int, n_envs: int
+) -> Any:
+    """The budget curve, checkpoints every ten and evaluations every four of its periods."""
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+
+    return CallbackList(
+        [
+            curve,
+            CheckpointCallback(
+                save_freq=max(1, 10 * eval_every // n_envs),
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix=algo,
+            ),
+            EvalCallback(
+                eval_env,
+                n_eval_episodes=8,
+                eval_freq=max(1, 4 * eval_every // n_envs),
+                best_model_save_path=str(run_dir / "best"),
+                log_path=str(run_dir / "eval"),
+                deterministic=True,
+                verbose=0,
+            ),
+        ]
+    )
 
 
 def benchmark_tune(inputs: cli.Inputs, *, timesteps: int, seed: int, algo: str, out: Path):
@@ -438,7 +453,8 @@ def _base_gains(spec: str | None, out: Path, plant: str) -> PIDGains:
             values = []
         if len(values) not in (3, 4) or not all(np.isfinite(values)):
             raise ValueError(f"--base: expected P,I,D[,N] or a gains file, got {spec!r}")
-        return PIDGains(*values[:3], values[3] if len(values) == 4 else 100.0)
+        n_filter = values[3] if len(values) == 4 else 100.0
+        return PIDGains(values[0], values[1], values[2], n_filter)
     path = Path(spec) if spec is not None else out / plant / "optuna.json"
     if spec is None and not path.is_file():
         raise ValueError(
@@ -525,33 +541,43 @@ def main(argv: list[str] | None = None) -> int:
     inputs = cli.resolve(args)
     _require_envs()
     if args.command_name == "train":
-        if args.timesteps < 1 or args.n_envs < 1:
-            raise ValueError("--timesteps and --n-envs must be at least 1")
-        run = f"{args.env}-{args.algo}-{'+'.join(plants)}"
-        facts = train(
-            inputs,
-            plants,
-            env=args.env,
-            algo=args.algo,
-            timesteps=args.timesteps,
-            n_envs=args.n_envs,
-            seed=args.seed,
-            run_dir=args.out / "rl" / run,
-            eval_every=args.eval_every,
-            progress=not args.json,
+        return _train_command(args, inputs, plants)
+    return _export(args, inputs)
+
+
+def _train_command(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]) -> int:
+    """``train``: train a policy and say where it went."""
+    if args.timesteps < 1 or args.n_envs < 1:
+        raise ValueError("--timesteps and --n-envs must be at least 1")
+    run = f"{args.env}-{args.algo}-{'+'.join(plants)}"
+    facts = train(
+        inputs,
+        plants,
+        env=args.env,
+        algo=args.algo,
+        timesteps=args.timesteps,
+        n_envs=args.n_envs,
+        seed=args.seed,
+        run_dir=args.out / "rl" / run,
+        eval_every=args.eval_every,
+        progress=not args.json,
+    )
+    facts.pop("model")
+    if args.json:
+        print(json.dumps(json.loads((args.out / "rl" / run / "history.json").read_text())))
+    else:
+        best = facts["history"][-1][1] if facts["history"] else None
+        print(
+            f"trained {run}: {facts['timesteps']} steps in "
+            f"{facts['train_wall_time_s']:.0f} s; best policy cost on the tuning seeds "
+            f"{best}; wrote {args.out / 'rl' / run}"
         )
-        facts.pop("model")
-        if args.json:
-            print(json.dumps(json.loads((args.out / "rl" / run / "history.json").read_text())))
-        else:
-            best = facts["history"][-1][1] if facts["history"] else None
-            print(
-                f"trained {run}: {facts['timesteps']} steps in "
-                f"{facts['train_wall_time_s']:.0f} s; best policy cost on the tuning seeds "
-                f"{best}; wrote {args.out / 'rl' / run}"
-            )
-        return 0
-    # export
+    return 0
+
+
+def _export(args: argparse.Namespace, inputs: cli.Inputs) -> int:
+    """``export``: a trained run's gains as a gains file (``pid-tune``), or a controller's
+    metrics (the other environments)."""
     run = args.run or f"{args.env}-{args.algo}-{args.plant}"
     path = args.out / "rl" / run / "model.zip"
     if not path.is_file():
@@ -559,35 +585,7 @@ def main(argv: list[str] | None = None) -> int:
     facts = json.loads((args.out / "rl" / run / "history.json").read_text())
     model = _algo(facts["algo"]).load(path, device="cpu")
     if facts["env"] != "pid-tune":  # a controller, not gains: report its metrics
-        kwargs = env_kwargs(inputs, facts["plants"], facts["env"])
-        seeds = [int(s) for s in inputs.settings.seeds.seeds()]
-        actual = evaluate_controller(
-            model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name
-        )
-        content = {
-            "format": "gripper-policy-metrics",
-            "plant": args.plant,
-            "tuner": f"rl-{facts['env']}",
-            "run": run,
-            "trained_on": facts["plants"],
-            "algo": facts["algo"],
-            "timesteps": facts["timesteps"],
-            "train_wall_time_s": facts["train_wall_time_s"],
-            "seeds": seeds,
-            "metrics": {"actual": actual},
-            "signal": load_objective().signal,
-        }
-        path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
-        if args.json:
-            print(json.dumps(json.loads(path.read_text()), indent=2))
-        else:
-            m = actual["mean"]
-            print(
-                f"{run} on {args.plant}: cost {m['cost']}, IAE {m['iae']}, SD gap "
-                f"{m['sd_gap_deg']}, effort {m['control_effort']} (mean of {len(seeds)} "
-                f"held-out seeds); wrote {path}"
-            )
-        return 0
+        return _export_controller_metrics(args, inputs, run, model, facts)
     kwargs = env_kwargs(inputs, facts["plants"], "pid-tune")
     gains = policy_gains(model, ENV_IDS["pid-tune"], kwargs, args.plant)
     held_out = args.plant not in facts["plants"]
@@ -608,6 +606,41 @@ def main(argv: list[str] | None = None) -> int:
             "history": facts["history"],
         },
     )
+    return 0
+
+
+def _export_controller_metrics(
+    args: argparse.Namespace, inputs: cli.Inputs, run: str, model: Any, facts: dict[str, Any]
+) -> int:
+    """A trained controller's metrics on the held-out seeds, written and printed."""
+    kwargs = env_kwargs(inputs, facts["plants"], facts["env"])
+    seeds = [int(s) for s in inputs.settings.seeds.seeds()]
+    actual = evaluate_controller(
+        model, ENV_IDS[facts["env"]], kwargs, args.plant, seeds, inputs.profile_name
+    )
+    content = {
+        "format": "gripper-policy-metrics",
+        "plant": args.plant,
+        "tuner": f"rl-{facts['env']}",
+        "run": run,
+        "trained_on": facts["plants"],
+        "algo": facts["algo"],
+        "timesteps": facts["timesteps"],
+        "train_wall_time_s": facts["train_wall_time_s"],
+        "seeds": seeds,
+        "metrics": {"actual": actual},
+        "signal": load_objective().signal,
+    }
+    path = write_json(args.out / args.plant / f"rl-{facts['env']}.json", content)
+    if args.json:
+        print(json.dumps(json.loads(path.read_text()), indent=2))
+    else:
+        m = actual["mean"]
+        print(
+            f"{run} on {args.plant}: cost {m['cost']}, IAE {m['iae']}, SD gap "
+            f"{m['sd_gap_deg']}, effort {m['control_effort']} (mean of {len(seeds)} "
+            f"held-out seeds); wrote {path}"
+        )
     return 0
 
 

@@ -154,10 +154,9 @@ def evaluate_policy(
     """
     from gripper_env.envs.rollout import policy_trajectory
 
-    ref = {"reference": inputs.reference}
-    ideal = policy_trajectory(policy, [0], **dict(kwargs, disturbance="ideal", randomize=False),
-                              **ref)  # fmt: skip
-    actual = policy_trajectory(policy, seeds, **kwargs, **ref)
+    ideal_kwargs: dict[str, Any] = {**kwargs, "disturbance": "ideal", "randomize": False}
+    ideal = policy_trajectory(policy, [0], reference=inputs.reference, **ideal_kwargs)
+    actual = policy_trajectory(policy, seeds, reference=inputs.reference, **kwargs)
     return _score(ideal, _IDEAL)[0], _score(actual, inputs.disturbance), ideal, actual
 
 
@@ -174,7 +173,7 @@ def cross_model(
     from gripper_env.envs.rollout import policy_trajectory
     from gripper_env.plants import load_plant
     from gripper_env.scoring import reachability
-    from tuners.evaluation import PAPER_PLANTS, worst_case
+    from tuners.evaluation import PAPER_PLANTS, cross_model_entry, worst_case
 
     if inputs.plant.name not in PAPER_PLANTS:
         return {}
@@ -188,19 +187,8 @@ def cross_model(
                                  reference=inputs.reference)  # fmt: skip
         m, _ = score_trajectory(traj, obj, inputs.disturbance)
         rb = _robustness(plant, base, inputs.disturbance, m.stable)
-        per[name] = {
-            "stable": rb["stable"],
-            "ms": rb["ms"],
-            "gain_margin_db": rb["gain_margin_db"],
-            "phase_margin_deg": rb["phase_margin_deg"],
-            "meets_constraints": rb["meets_constraints"],
-            "stable_runs": float(np.mean(m.stable)),
-            "overshoot_pct": float(np.mean(np.maximum(m.grip["overshoot_pct"],
-                                                      m.ungrip["overshoot_pct"]))),
-            "iae": float(np.mean(m.run["iae"])),
-            "stall_s": float(np.mean(m.run["stall_s"])),
-            "profile_feasible": reachability(plant, inputs.reference, inputs.disturbance).feasible,
-        }  # fmt: skip
+        feasible = reachability(plant, inputs.reference, inputs.disturbance).feasible
+        per[name] = cross_model_entry(rb, m, feasible)
     return worst_case(per)
 
 

@@ -6,7 +6,7 @@ the Gymnasium interface: seeding, action checks, episode bookkeeping and renderi
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -25,7 +25,8 @@ __all__ = ["ControlEnv"]
 class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
     """Base of :class:`GripperServoEnv` and :class:`GripperGainScheduleEnv` (not registered)."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 50}
+    # gymnasium declares metadata per instance (Env.metadata); this is the class default
+    metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 50}  # noqa: RUF012
     _mode = K.MODE_SERVO
     _name = "ControlEnv"
     _residual: Residual | None = None  # a subclass's __init__ sets it with the residual mode

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -161,8 +161,10 @@ def _run_chunk(
     if keep:
         r_out, u_out, y_out, _ = out
         for b, r in enumerate(refs):
-            m = len(r)
-            trajectories.append((r_out[b, :m].copy(), y_out[b, :m].copy(), u_out[b, :m].copy()))
+            n_r = len(r)
+            trajectories.append(
+                (r_out[b, :n_r].copy(), y_out[b, :n_r].copy(), u_out[b, :n_r].copy())
+            )
     return penalised, infos, trajectories
 
 
@@ -180,11 +182,16 @@ def _episode_slice(whole: Trajectory, b: int, ref: Any) -> Trajectory:
         saturated_s=whole.saturated_s[one],
         reference=ref,
         closed_loop=True,
-        contact_s=whole.contact_s[one],
-        stall_s=whole.stall_s[one],
-        force_proxy=whole.force_proxy[one],
-        servo_effort_deg=whole.servo_effort_deg[one],
+        contact_s=_run_of(whole.contact_s, one),
+        stall_s=_run_of(whole.stall_s, one),
+        force_proxy=_run_of(whole.force_proxy, one),
+        servo_effort_deg=_run_of(whole.servo_effort_deg, one),
     )
+
+
+def _run_of(values: np.ndarray | None, one: slice) -> np.ndarray | None:
+    """The rows ``one`` of an optional per-run array."""
+    return None if values is None else values[one]
 
 
 def _info(
@@ -309,7 +316,8 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     * v0: initial version.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 1}
+    # gymnasium declares metadata per instance (Env.metadata); this is the class default
+    metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 1}  # noqa: RUF012
     _name = "GripperPIDTune-v0"
 
     def __init__(

@@ -15,6 +15,7 @@ backend such as Agg the figure is drawn but not shown, without a warning).
 
 from __future__ import annotations
 
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -120,6 +121,7 @@ class EpisodePlot:
 
     def __init__(self, human: bool = False) -> None:
         matplotlib = _matplotlib()
+        self._plt: ModuleType | None  # pyplot, for the window (``human`` only)
         if human:
             import matplotlib.pyplot as plt
 
@@ -162,7 +164,7 @@ class EpisodePlot:
         self._title.set_text(title)
         self.ax.set_xlim(0.0, max(duration_s, 1e-3))
         self.ax.set_ylim(*ylim_deg)
-        if self.human and self.interactive and not self._shown:
+        if self._plt is not None and self.interactive and not self._shown:
             self._plt.show(block=False)
             self._shown = True
         if not self._laid_out:  # once: the layout does not change between episodes
@@ -193,8 +195,13 @@ class EpisodePlot:
         The series extend those of the previous frame of this episode (only the new points are
         drawn).
         """
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
         self._draw_lines(t_s, series)
-        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+        canvas = self.fig.canvas
+        if not isinstance(canvas, FigureCanvasAgg):  # human figures draw to a window instead
+            raise RuntimeError(f"rgb frames need an Agg canvas, not {type(canvas).__name__}")
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
     def show(self, t_s: np.ndarray, series: dict[str, np.ndarray]) -> None:
         """Draw the frame in the window (``human``)."""

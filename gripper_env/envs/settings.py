@@ -134,7 +134,37 @@ def parse_settings(
     derivative_filter : float
         PID derivative filter coefficient ``N`` (1/s).
     """
-    # plant(s)
+    plants = _parse_plants(env_name, plant)
+    dt = plants[0].dt_s
+    dist, do_randomize = _parse_disturbance(env_name, disturbance, randomize)
+    n_sub = _parse_timing(env_name, control_period_s, episode_s, dt)
+    ref = _parse_reference(env_name, reference, dt, n_sub)
+    jaw = plants[0].jaw_range_deg
+    cmd = _parse_command_range(env_name, command_range_deg, dist, jaw)
+    opts = _parse_pid_options(env_name, pid_options)
+    gmax = _parse_gain_max(env_name, gain_max)
+    _check_structure(env_name, gain_scaling, derivative_filter, dt, render_mode)
+    return Settings(
+        plants=plants,
+        disturbance=dist,
+        randomize=do_randomize,
+        reference=ref,
+        episode_s=float(episode_s),
+        dt_s=dt,
+        control_period_s=n_sub * dt,
+        n_sub=n_sub,
+        command_range_deg=cmd,
+        jaw_range_deg=(float(jaw[0]), float(jaw[1])),
+        pid_options=opts,
+        gain_max=gmax,
+        gain_scaling=gain_scaling,
+        derivative_filter=float(derivative_filter),
+        render_mode=render_mode,
+    )
+
+
+def _parse_plants(env_name: str, plant: Any) -> tuple[Plant, ...]:
+    """One plant or several, all with the same physics step."""
     items = (
         list(plant)
         if isinstance(plant, Sequence) and not isinstance(plant, str | bytes)
@@ -149,7 +179,11 @@ def parse_settings(
     dt = plants[0].dt_s
     if any(p.dt_s != dt for p in plants):
         raise _fail(env_name, "plant", "all plants must have the same physics step dt_s")
-    # disturbance and randomisation
+    return plants
+
+
+def _parse_disturbance(env_name: str, disturbance: Any, randomize: Any) -> tuple[Disturbance, bool]:
+    """The actual-gripper preset, with the randomisation ranges given (if any); randomise?"""
     if not isinstance(disturbance, str | os.PathLike | Mapping | Disturbance):
         raise _fail(env_name, "disturbance", f"expected a name, path or dict, got {disturbance!r}")
     try:
@@ -160,17 +194,16 @@ def parse_settings(
         data = dist.model_dump()
         data["randomize"] = dict(randomize)
         try:
-            dist = validate(Disturbance, data, "ranges")
+            return validate(Disturbance, data, "ranges"), True
         except ValueError as exc:
             raise _fail(env_name, "randomize", str(exc)) from None
-        do_randomize = True
-    elif isinstance(randomize, bool | np.bool_):
-        do_randomize = bool(randomize)
-    else:
-        raise _fail(
-            env_name, "randomize", f"expected a bool or a dict of ranges, got {randomize!r}"
-        )
-    # timing
+    if isinstance(randomize, bool | np.bool_):
+        return dist, bool(randomize)
+    raise _fail(env_name, "randomize", f"expected a bool or a dict of ranges, got {randomize!r}")
+
+
+def _parse_timing(env_name: str, control_period_s: Any, episode_s: Any, dt: float) -> int:
+    """Physics steps per agent step; checks the random profile's length too."""
     if not isinstance(control_period_s, int | float) or not math.isfinite(control_period_s):
         raise _fail(env_name, "control_period_s", f"expected seconds, got {control_period_s!r}")
     n_sub = round(control_period_s / dt)
@@ -182,51 +215,71 @@ def parse_settings(
         )
     if not (isinstance(episode_s, int | float) and math.isfinite(episode_s) and episode_s > 0):
         raise _fail(env_name, "episode_s", f"expected a positive duration (s), got {episode_s!r}")
-    # reference
-    ref: Reference | None
+    return n_sub
+
+
+def _parse_reference(env_name: str, reference: Any, dt: float, n_sub: int) -> Reference | None:
+    """The fixed reference profile, or None for a new random one every episode."""
     if isinstance(reference, str) and reference == RANDOM_REFERENCE:
-        ref = None
-    else:
-        if not isinstance(reference, str | os.PathLike | Reference):
-            raise _fail(env_name, "reference", f"expected a profile name or CSV path, got "
-                        f"{reference!r}")  # fmt: skip
-        try:
-            ref = load_reference(reference, dt)
-        except (ValueError, TypeError) as exc:
-            raise _fail(env_name, "reference", str(exc)) from None
-        if not np.all(np.isfinite(ref.values_deg)):
-            raise _fail(env_name, "reference", "holds non-finite values")
-        if len(ref) < n_sub:
-            raise _fail(env_name, "reference", "is shorter than one control period")
-    # ranges
-    jaw = plants[0].jaw_range_deg
+        return None
+    if not isinstance(reference, str | os.PathLike | Reference):
+        raise _fail(env_name, "reference", f"expected a profile name or CSV path, got "
+                    f"{reference!r}")  # fmt: skip
+    try:
+        ref = load_reference(reference, dt)
+    except (ValueError, TypeError) as exc:
+        raise _fail(env_name, "reference", str(exc)) from None
+    if not np.all(np.isfinite(ref.values_deg)):
+        raise _fail(env_name, "reference", "holds non-finite values")
+    if len(ref) < n_sub:
+        raise _fail(env_name, "reference", "is shorter than one control period")
+    return ref
+
+
+def _parse_command_range(
+    env_name: str, command_range_deg: Any, dist: Disturbance, jaw: tuple[float, float]
+) -> tuple[float, float]:
+    """The command range actions are normalised over (deg)."""
     if command_range_deg is None:
-        cmd = _finite_pair(dist.command.range_deg) or tuple(jaw)
-    else:
-        cmd = _finite_pair(command_range_deg)
-        if cmd is None:
-            raise _fail(
-                env_name, "command_range_deg", f"expected (low, high) in deg, got "
-                f"{command_range_deg!r}"
-            )  # fmt: skip
-    # controller structure
+        return _finite_pair(dist.command.range_deg) or (float(jaw[0]), float(jaw[1]))
+    cmd = _finite_pair(command_range_deg)
+    if cmd is None:
+        raise _fail(
+            env_name, "command_range_deg", f"expected (low, high) in deg, got "
+            f"{command_range_deg!r}"
+        )  # fmt: skip
+    return cmd
+
+
+def _parse_pid_options(env_name: str, pid_options: Any) -> PIDOptions:
+    """The PID structure: given, from a dict, or the default."""
     if pid_options is None:
-        opts = PIDOptions()
-    elif isinstance(pid_options, PIDOptions):
-        opts = pid_options
-    elif isinstance(pid_options, Mapping):
+        return PIDOptions()
+    if isinstance(pid_options, PIDOptions):
+        return pid_options
+    if isinstance(pid_options, Mapping):
         try:
-            opts = PIDOptions(**pid_options)
+            return PIDOptions(**pid_options)
         except (TypeError, ValueError) as exc:
             raise _fail(env_name, "pid_options", str(exc)) from None
-    else:
-        raise _fail(env_name, "pid_options", f"expected PIDOptions or a dict, got {pid_options!r}")
+    raise _fail(env_name, "pid_options", f"expected PIDOptions or a dict, got {pid_options!r}")
+
+
+def _parse_gain_max(env_name: str, gain_max: Any) -> tuple[float, float, float]:
+    """Largest ``|P|``, ``|I|``, ``|D|``: three positive numbers."""
     try:
         gmax = tuple(float(g) for g in gain_max)
     except (TypeError, ValueError):
         gmax = ()
     if len(gmax) != 3 or not all(math.isfinite(g) and g > 0 for g in gmax):
         raise _fail(env_name, "gain_max", f"expected three positive numbers, got {gain_max!r}")
+    return gmax[0], gmax[1], gmax[2]
+
+
+def _check_structure(
+    env_name: str, gain_scaling: str, derivative_filter: Any, dt: float, render_mode: str | None
+) -> None:
+    """The gain map, the derivative filter (``N*dt < 2``) and the render mode."""
     if gain_scaling not in ("log", "linear"):
         raise _fail(env_name, "gain_scaling", f"expected 'log' or 'linear', got {gain_scaling!r}")
     if not (
@@ -242,23 +295,6 @@ def parse_settings(
     if render_mode is not None and render_mode not in RENDER_MODES:
         raise _fail(env_name, "render_mode", f"expected None or one of {RENDER_MODES}, got "
                     f"{render_mode!r}")  # fmt: skip
-    return Settings(
-        plants=plants,
-        disturbance=dist,
-        randomize=do_randomize,
-        reference=ref,
-        episode_s=float(episode_s),
-        dt_s=dt,
-        control_period_s=n_sub * dt,
-        n_sub=n_sub,
-        command_range_deg=(float(cmd[0]), float(cmd[1])),
-        jaw_range_deg=(float(jaw[0]), float(jaw[1])),
-        pid_options=opts,
-        gain_max=gmax,  # type: ignore[arg-type]
-        gain_scaling=gain_scaling,
-        derivative_filter=float(derivative_filter),
-        render_mode=render_mode,
-    )
 
 
 def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -29,11 +30,11 @@ import numpy as np
 from gripper_env import __version__, paper
 from gripper_env.disturbances import describe, load_disturbance
 from gripper_env.files import save_figure, write_atomic
-from gripper_env.metrics import compute_metrics, fit_percent, sample_sd
+from gripper_env.metrics import Metrics, compute_metrics, fit_percent, sample_sd
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import load_plant
-from gripper_env.references import load_reference, step_profile
-from gripper_env.simulation import simulate
+from gripper_env.references import Reference, load_reference, step_profile
+from gripper_env.simulation import Trajectory, simulate
 from gripper_env.stability import stability_report
 
 PLANTS = ("test1", "test2", "test3", "test4")
@@ -199,50 +200,15 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    actual_opts = {
-        1: PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping"),
-        -1: PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping", sign=-1),
-    }
     findings = {}
     for label, gains in PAPER_GAINS.items():
         hardware = "hardware" in label
         for sign in (1, -1) if hardware else (1,):
-            model = simulate("test2", ref, gains=[gains], disturbance="ideal",
-                             pid_options=PIDOptions(sign=sign))  # fmt: skip
-            mm = compute_metrics(model)
-            act = simulate("test2", ref, gains=np.tile(gains, (len(seeds), 1)),
-                           disturbance="actual", seeds=seeds, randomize=True,
-                           pid_options=actual_opts[sign])  # fmt: skip
-            am = compute_metrics(act)
-            at = compute_metrics(act, "true")
-            kind = "untuned" if label.startswith("untuned") else "tuned"
-            paper = PAPER_TABLE4[kind]
-            paper_txt = f"{paper[0]} / {paper[1]}" if not hardware else f"- / {paper[1]}"
-            if not mm.stable[0]:
-                model_txt, model_sd = "unstable (diverges)", "-"
-            else:
-                model_txt = (f"{mm.grip['overshoot_pct'][0]:.1f} / "
-                             f"{mm.ungrip['overshoot_pct'][0]:.1f}")  # fmt: skip
-                model_sd = f"{mm.run['sd_deg'][0]:.3f}"
-            sd_act = am.run["sd_deg"]
-            act_txt = f"{np.mean(sd_act):.3f} +/- {np.std(sd_act, ddof=1):.3f}"
-            rep = stability_report("test2", PIDGains(*gains), sign)
-            if not rep.stable:
-                # limits keep the actual loop bounded: it runs into a stop and stays there
-                act_txt += " (unstable loop: pinned at a stop)"
-                margin_txt = "unstable"
-            else:
-                gm = "inf" if rep.gain_margin_db is None else f"{rep.gain_margin_db:.1f}"
-                margin_txt = f"{gm} / {rep.ms:.2f}"
-            os_txt = (f"{np.mean(at.grip['overshoot_pct']):.1f} / "
-                      f"{np.mean(at.ungrip['overshoot_pct']):.1f}")  # fmt: skip
-            sign_txt = "e = r - y" if sign == 1 else "e = y - r"
-            lines.append(
-                f"| {label} | {gains[0]} | {gains[1]} | {gains[2]} | {sign_txt} | {model_txt} | "
-                f"{os_txt} | {margin_txt} | {model_sd} | {act_txt} | {paper_txt} |"
-            )
+            row, model, act, mm, at = _table34_row(label, gains, sign, ref, seeds)
+            lines.append(row)
             findings[(label, sign)] = (mm, at)
             if not hardware:
+                kind = "untuned" if label.startswith("untuned") else "tuned"
                 ax = axes[0] if kind == "untuned" else axes[1]
                 ax.plot(ref.t_s, ref.values_deg, "k--", lw=1, label="desired")
                 ax.plot(model.t, model.y_true[0], lw=1.2, label="model (TF test2)")
@@ -270,6 +236,53 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
         "![Figure 11](figures/figure11_pid.png)",
         "",
     ]
+
+
+def _table34_row(
+    label: str, gains: Sequence[float], sign: int, ref: Reference, seeds: np.ndarray
+) -> tuple[str, Trajectory, Trajectory, Metrics, Metrics]:
+    """One row of Tables 3-4: the gains on TF test2 alone and on the actual gripper.
+
+    Returns the table row, the model's and the actual gripper's trajectories, the model's
+    metrics and the actual gripper's metrics of the true jaw angle.
+    """
+    hardware = "hardware" in label
+    actual_opts = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping", sign=sign)
+    model = simulate("test2", ref, gains=[gains], disturbance="ideal",
+                     pid_options=PIDOptions(sign=sign))  # fmt: skip
+    mm = compute_metrics(model)
+    act = simulate("test2", ref, gains=np.tile(gains, (len(seeds), 1)),
+                   disturbance="actual", seeds=seeds, randomize=True,
+                   pid_options=actual_opts)  # fmt: skip
+    am = compute_metrics(act)
+    at = compute_metrics(act, "true")
+    kind = "untuned" if label.startswith("untuned") else "tuned"
+    paper = PAPER_TABLE4[kind]
+    paper_txt = f"{paper[0]} / {paper[1]}" if not hardware else f"- / {paper[1]}"
+    if not mm.stable[0]:
+        model_txt, model_sd = "unstable (diverges)", "-"
+    else:
+        model_txt = (f"{mm.grip['overshoot_pct'][0]:.1f} / "
+                     f"{mm.ungrip['overshoot_pct'][0]:.1f}")  # fmt: skip
+        model_sd = f"{mm.run['sd_deg'][0]:.3f}"
+    sd_act = am.run["sd_deg"]
+    act_txt = f"{np.mean(sd_act):.3f} +/- {np.std(sd_act, ddof=1):.3f}"
+    rep = stability_report("test2", PIDGains(*gains), sign)
+    if not rep.stable:
+        # limits keep the actual loop bounded: it runs into a stop and stays there
+        act_txt += " (unstable loop: pinned at a stop)"
+        margin_txt = "unstable"
+    else:
+        gm = "inf" if rep.gain_margin_db is None else f"{rep.gain_margin_db:.1f}"
+        margin_txt = f"{gm} / {rep.ms:.2f}"
+    os_txt = (f"{np.mean(at.grip['overshoot_pct']):.1f} / "
+              f"{np.mean(at.ungrip['overshoot_pct']):.1f}")  # fmt: skip
+    sign_txt = "e = r - y" if sign == 1 else "e = y - r"
+    row = (
+        f"| {label} | {gains[0]} | {gains[1]} | {gains[2]} | {sign_txt} | {model_txt} | "
+        f"{os_txt} | {margin_txt} | {model_sd} | {act_txt} | {paper_txt} |"
+    )
+    return row, model, act, mm, at
 
 
 def _sign_section(lines: list[str]) -> None:

@@ -134,7 +134,7 @@ def profile(
 ) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
     """Cost of each friction candidate with the transfer function fitted to it."""
     idx = tick_index(core.n, core.refresh, phase)
-    costs, thetas = np.empty(len(pairs)), []
+    costs, thetas = np.empty(len(pairs)), list[np.ndarray]()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # diagnostics of candidates are not the user's business
         _profile_chunks(core, pairs, model, phase, tau, n, m, idx, costs, thetas)

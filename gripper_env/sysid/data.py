@@ -311,7 +311,7 @@ def prepare_data(
             raise ValueError("t_s needs at least two time stamps to define the sample interval")
         dt, t0, signals, time_base, jitter = _time_base(t_arr, signals, max_jitter, max_gap)
     u_arr, y_arr = signals[0], signals[1]
-    r_arr = signals[2] if r is not None else None
+    r_sig = signals[2] if r is not None else None
     if u_arr.size < min_samples:
         what = f" for {model}" if model else ""
         raise ValueError(
@@ -324,19 +324,19 @@ def prepare_data(
         )
     if np.ptp(y_arr) == 0:
         raise ValueError(f"y is constant ({y_arr[0]} for all samples): there is no response to fit")
-    if r_arr is not None and np.ptp(r_arr) == 0:
-        raise ValueError(f"r is constant ({r_arr[0]} for all samples): it excites nothing")
+    if r_sig is not None and np.ptp(r_sig) == 0:
+        raise ValueError(f"r is constant ({r_sig[0]} for all samples): it excites nothing")
     r_op = 0.0
     if offset == "initial":
         moved = np.flatnonzero(u_arr != u_arr[0])
         k = int(moved[0]) if moved.size else u_arr.size
         u_op = float(u_arr[0])
         y_op = float(np.mean(y_arr[: max(k, 1)]))
-        r_op = float(r_arr[0]) if r_arr is not None else 0.0
+        r_op = float(r_sig[0]) if r_sig is not None else 0.0
     elif offset == "mean":
         u_op = float(np.mean(u_arr))
         y_op = float(np.mean(y_arr))
-        r_op = float(np.mean(r_arr)) if r_arr is not None else 0.0
+        r_op = float(np.mean(r_sig)) if r_sig is not None else 0.0
     else:
         u_op = y_op = 0.0
     return IOData(
@@ -349,6 +349,6 @@ def prepare_data(
         offset=offset,
         time_base=time_base,
         jitter=jitter,
-        r=None if r_arr is None else r_arr - r_op,
+        r=None if r_sig is None else r_sig - r_op,
         r_op=r_op,
     )

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from gripper_env.disturbances import Disturbance, describe, load_disturbance
 from gripper_env.files import write_csv
@@ -277,9 +278,7 @@ def _log_rows(block: Any, t0_us: int) -> np.ndarray:
 # Identification
 
 
-def step_t63(
-    num: Sequence[float], den: Sequence[float], dt_s: float = 1e-3, horizon_s: float = 60.0
-) -> float:
+def step_t63(num: ArrayLike, den: ArrayLike, dt_s: float = 1e-3, horizon_s: float = 60.0) -> float:
     """Time for the unit step response to first cover 63.2 % of the commanded move (s).
 
     A summary of speed that holds for any structure (real, complex or non-minimum-phase

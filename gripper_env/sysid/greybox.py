@@ -329,11 +329,9 @@ def identify_actual(
     # 1. coarse friction grid, refresh phase 0, no delay
     coarse = np.concatenate([[0.0], np.arange(0.5, max_friction_deg, 1.0)])
     pairs = [(s, j) for s in coarse for j in coarse]
-    phase, tau = 0, 0.0
-    costs, thetas = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
+    costs, thetas = profile(core, pairs, model, 0, 0.0, n_poles, n_zeros)
     best = int(np.argmin(costs))
     s_best, j_best = pairs[best]
-    coarse_pairs, coarse_costs = np.array(pairs), costs
     say(f"friction, coarse grid of {len(pairs)}: S {s_best:g}, J {j_best:g} deg")
 
     # 2. timing with that friction and its transfer function
@@ -344,30 +342,8 @@ def identify_actual(
     say(f"timing: refresh phase {phase} steps, delay {1e3 * tau:g} ms")
 
     # 3. fine friction grid
-    step = 0.25
-    s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
-    j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
-    pairs = [(s, j) for s in s_vals for j in j_vals]
-    costs, thetas = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
-    grid = costs.reshape(s_vals.size, j_vals.size)
-    n_tick = tick_index(core.n, core.refresh, phase).size
-    bound = float(costs.min()) + CHI2_95 * float(costs.min()) / max(n_tick, 1)
-    # the consistent set, on both grids (the fine one may not reach its edges)
-    all_pairs = np.concatenate([np.array(pairs), coarse_pairs])
-    all_costs = np.concatenate([costs, coarse_costs])
-    s_rng = consistent(all_pairs[:, 0], all_costs, bound)
-    j_rng = consistent(all_pairs[:, 1], all_costs, bound)
-    i_best = int(np.argmin(costs))
-    s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
-    si, ji = int(np.argmin(np.abs(s_vals - s_est))), int(np.argmin(np.abs(j_vals - j_est)))
-    if grid[si, ji] > bound:  # the middles are not jointly consistent: keep the best point
-        s_est, j_est = pairs[i_best]
-    friction = FrictionEstimate(
-        model, float(s_est), float(j_est), s_rng, j_rng, *map(float, pairs[i_best]),
-        s_vals, j_vals, grid,
-    )  # fmt: skip
-    say(
-        f"friction, fine grid of {len(pairs)}: S {s_est:.3g} deg {s_rng}, J {j_est:.3g} deg {j_rng}"
+    friction = _fine_friction(
+        core, model, phase, tau, (s_best, j_best), (np.array(pairs), costs), n_poles, n_zeros, say
     )
 
     # 4. the servo's dynamics at full rate, from the friction output
@@ -404,6 +380,55 @@ def identify_actual(
     if validation is not None:
         est = _with_validation(est, validation)
     return est
+
+
+def _fine_friction(
+    core: CoreRuns,
+    model: str,
+    phase: int,
+    tau: float,
+    coarse_best: tuple[float, float],
+    coarse: tuple[np.ndarray, np.ndarray],
+    n_poles: int,
+    n_zeros: int,
+    say: Callable[[str], None],
+) -> FrictionEstimate:
+    """Friction on a fine grid around the coarse grid's best ``(S, J)``, with the values
+    consistent with the data on both grids (``coarse``: its pairs and costs)."""
+    s_best, j_best = coarse_best
+    step = 0.25
+    s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
+    j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
+    pairs = [(s, j) for s in s_vals for j in j_vals]
+    costs, _ = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
+    grid = costs.reshape(s_vals.size, j_vals.size)
+    n_tick = tick_index(core.n, core.refresh, phase).size
+    bound = float(costs.min()) + CHI2_95 * float(costs.min()) / max(n_tick, 1)
+    # the consistent set, on both grids (the fine one may not reach its edges)
+    all_pairs = np.concatenate([np.array(pairs), coarse[0]])
+    all_costs = np.concatenate([costs, coarse[1]])
+    s_rng = consistent(all_pairs[:, 0], all_costs, bound)
+    j_rng = consistent(all_pairs[:, 1], all_costs, bound)
+    i_best = int(np.argmin(costs))
+    s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
+    si, ji = int(np.argmin(np.abs(s_vals - s_est))), int(np.argmin(np.abs(j_vals - j_est)))
+    if grid[si, ji] > bound:  # the middles are not jointly consistent: keep the best point
+        s_est, j_est = pairs[i_best]
+    say(
+        f"friction, fine grid of {len(pairs)}: S {s_est:.3g} deg {s_rng}, J {j_est:.3g} deg {j_rng}"
+    )
+    return FrictionEstimate(
+        model=model,
+        S_deg=float(s_est),
+        J_deg=float(j_est),
+        S_range_deg=s_rng,
+        J_range_deg=j_rng,
+        best_S_deg=float(pairs[i_best][0]),
+        best_J_deg=float(pairs[i_best][1]),
+        grid_S_deg=s_vals,
+        grid_J_deg=j_vals,
+        grid_cost=grid,
+    )
 
 
 def _dynamics(dt: float, v: np.ndarray, y: np.ndarray, n: int, m: int) -> TFEstimate:

@@ -255,16 +255,10 @@ def compare_orders(
         done[order] = est
     rows = tuple(OrderRow(o[0], o[1], done[o]) for o in orders)
     if validation is not None:
-        best_fit = max(r.estimate.validation.fit_pct for r in rows)  # type: ignore[union-attr]
-        near = [
-            i
-            for i, r in enumerate(rows)
-            if r.estimate.validation.fit_pct >= best_fit - FIT_TOLERANCE_PCT  # type: ignore[union-attr]
-        ]
-        chosen = min(
-            near,
-            key=lambda i: (rows[i].estimate.n_model_params, -rows[i].estimate.validation.fit_pct),
-        )  # type: ignore[union-attr]
+        fits = [_validation_fit_pct(r.estimate) for r in rows]
+        best_fit = max(fits)
+        near = [i for i, fit in enumerate(fits) if fit >= best_fit - FIT_TOLERANCE_PCT]
+        chosen = min(near, key=lambda i: (rows[i].estimate.n_model_params, -fits[i]))
         rule = (
             f"highest fit on validation data, the fewest parameters within "
             f"{FIT_TOLERANCE_PCT:g} points of it"
@@ -275,14 +269,22 @@ def compare_orders(
     return OrderSelection(rows, chosen, rule)
 
 
+def _validation_fit_pct(estimate: TFEstimate) -> float:
+    """Fit % of an estimate on the validation data (scored whenever validation data is given)."""
+    if estimate.validation is None:
+        raise ValueError("estimate has no fit on validation data")
+    return estimate.validation.fit_pct
+
+
 def as_record(
     time_s: float | ArrayLike, u: ArrayLike, y: ArrayLike, r: ArrayLike | None = None
 ) -> Record:
     """A :class:`Record` from arrays."""
-    t = time_s if np.ndim(time_s) == 0 else np.asarray(time_s, dtype=float)
+    # a scalar sample interval is checked (with a message naming it) when the record is used
+    t: Any = time_s if np.ndim(time_s) == 0 else np.asarray(time_s, dtype=float)
     return Record(
         t,
         np.asarray(u, dtype=float),
         np.asarray(y, dtype=float),
         None if r is None else np.asarray(r, float),
-    )  # type: ignore[arg-type]
+    )

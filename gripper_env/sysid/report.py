@@ -161,7 +161,7 @@ def actual_figure(run: IdentificationRun, path: Path) -> Path:
         f"Actual gripper identified from {run.actual_from}: fit on the validation record "
         f"{a.validation['fit_pct']:.2f} %"
         if a.validation
-        else "",  # type: ignore[index]
+        else "",
         fontsize=10,
     )
     fig.tight_layout()
@@ -278,8 +278,18 @@ def render_report(
     plant_files : sequence of Path
         Plant (and preset) files written.
     """
+    lines = _header(run, command, elapsed_s)
+    lines += _table1_section(run, true_plant, figures)
+    lines += _table2_section(run, validation_text, figures)
+    if run.actual is not None:
+        lines += _actual_section(run, truth, true_plant, figures.get("actual"))
+    lines += _plant_files_section(plant_files)
+    return "\n".join(lines)
+
+
+def _header(run: IdentificationRun, command: str, elapsed_s: float | None) -> list[str]:
+    """Title, provenance, the headline fits and the record's source."""
     val = run.validation
-    fits = {row.name: row.fit_pct for row in val.rows}
     best = max(val.rows, key=lambda r: r.fit_pct)
     headline = (
         f"**Fit on validation data** (the direct-response record, which no model was estimated "
@@ -290,7 +300,7 @@ def render_report(
             f"; the actual gripper identified with the core **"
             f"{run.actual.validation['fit_pct']:.2f} %**"
         )
-    lines = [
+    return [
         "# System identification: the paper's Table 1 and Table 2, rerun",
         "",
         f"Written by `{command}` (gripper-env {__version__}, "
@@ -306,6 +316,15 @@ def render_report(
         run.source,
         "```",
         "",
+    ]
+
+
+def _table1_section(
+    run: IdentificationRun, true_plant: Plant | None, figures: dict[str, str]
+) -> list[str]:
+    """Section 1: the experiments and their transfer functions (Table 1, Figure 7)."""
+    fits = {row.name: row.fit_pct for row in run.validation.rows}
+    lines = [
         "## 1. Experiments and identified transfer functions (Table 1, Figure 7)",
         "",
         "Each experiment runs open loop (the desired angle is the servo command), starting at",
@@ -359,8 +378,15 @@ def render_report(
     for item in run.experiments:
         name = item.experiment.name
         lines.append(f"![{name}: measured vs model]({figures[name]})")
-    lines += [
-        "",
+    return [*lines, ""]
+
+
+def _table2_section(
+    run: IdentificationRun, validation_text: str, figures: dict[str, str]
+) -> list[str]:
+    """Section 2: validation stage 1, the direct response (Table 2, Figure 9)."""
+    val = run.validation
+    lines = [
         "## 2. Validation stage 1: direct response (Table 2, Figure 9)",
         "",
         validation_text,
@@ -405,18 +431,22 @@ def render_report(
             f"| {row.name} | {row.sd_deg:.3f} | {row.sd_gap_deg:.3f} | {row.fit_pct:.2f} |"
         )
     lines += ["", f"![Figure 9: direct response]({figures['validation']})", ""]
-    if run.actual is not None:
-        lines += _actual_section(run, truth, true_plant, figures.get("actual"))
-    if plant_files:
-        lines += ["## 4. Plant files and presets", ""]
-        lines += [f"- `{p}`" for p in plant_files]
-        lines += [
-            "",
-            "Each plant file loads with `gripper_env.plants.load_plant(PATH)` and runs wherever",
-            "a plant is accepted (`--plant PATH`); it holds the transfer function only (the",
-            "operating point and delay it was identified with are in its description). The",
-            "identified actual gripper is a plant file and a disturbance preset: tune on it",
-            "with `python -m tuners.optuna --plant PLANT.yaml --disturbance PRESET.yaml`.",
-            "",
-        ]
-    return "\n".join(lines)
+    return lines
+
+
+def _plant_files_section(plant_files: Sequence[Path]) -> list[str]:
+    """Section 4: the plant files and presets written (none: no section)."""
+    if not plant_files:
+        return []
+    lines = ["## 4. Plant files and presets", ""]
+    lines += [f"- `{p}`" for p in plant_files]
+    lines += [
+        "",
+        "Each plant file loads with `gripper_env.plants.load_plant(PATH)` and runs wherever",
+        "a plant is accepted (`--plant PATH`); it holds the transfer function only (the",
+        "operating point and delay it was identified with are in its description). The",
+        "identified actual gripper is a plant file and a disturbance preset: tune on it",
+        "with `python -m tuners.optuna --plant PLANT.yaml --disturbance PRESET.yaml`.",
+        "",
+    ]
+    return lines

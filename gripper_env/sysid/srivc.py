@@ -287,7 +287,7 @@ def srivc(
         new = _solve(zeta, phi, target)[: n + m + 1]
         if not np.all(np.isfinite(new)):
             break
-        step = np.linalg.norm(new - theta) / max(np.linalg.norm(theta), 1e-300)
+        step = float(np.linalg.norm(new - theta)) / max(float(np.linalg.norm(theta)), 1e-300)
         theta = new
         if step <= tol:
             converged = True

@@ -71,11 +71,11 @@ def estimation_starts(
     delay: float | None,
 ) -> list[tuple[np.ndarray, float, float | None]]:
     """``(theta, lambda, delay or None)``: SVF starts (delay decided later), then nested ones."""
-    lams: Sequence[float | None]
-    if svf_lambda_rad_s is None or np.ndim(svf_lambda_rad_s) == 0:
-        lams = [svf_lambda_rad_s]  # type: ignore[list-item]
+    lams: list[float | None]
+    if svf_lambda_rad_s is None or isinstance(svf_lambda_rad_s, int | float | np.number):
+        lams = [svf_lambda_rad_s]
     else:
-        lams = list(svf_lambda_rad_s)  # type: ignore[arg-type]
+        lams = list(svf_lambda_rad_s)
         if not lams:
             raise ValueError("svf_lambda_rad_s needs at least one start")
     out: list[tuple[np.ndarray, float, float | None]] = []
@@ -97,8 +97,8 @@ def estimation_starts(
         out.append((theta, lam_used, None))
     for est in start_from:
         for corner in _corners(data, est, n, m):
-            theta = nested_theta(est, n, m, corner)
-            if theta is not None:
+            nested = nested_theta(est, n, m, corner)
+            if nested is not None:
                 tau = est.input_delay_s if delay is None else delay
-                out.append((theta, math.nan, tau))
+                out.append((nested, math.nan, tau))
     return out

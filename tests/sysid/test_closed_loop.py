@@ -11,10 +11,15 @@ plant, the PI law written out, the output measured before each command acts.
 
 from __future__ import annotations
 
+import dataclasses
+
 import control
 import numpy as np
 import pytest
 from scipy import signal
+
+from gripper_env.sysid import tfest
+from gripper_env.sysid.commands.tf import text_report
 
 from .cli_support import run, run_json, write_log
 
@@ -91,3 +96,17 @@ def test_open_loop_data_are_not_flagged(tmp_path, capsys):
     log = write_log(tmp_path / "open.csv", traj.t, desired_deg=traj.r[0], actual_deg=traj.y[0])
     status, _, err = run([str(log), "--delay", "0", "--allow-nonconverged"], capsys)
     assert status == 0 and "fed back" not in err
+
+
+def test_the_text_report_quotes_the_closed_loop_fits():
+    # the text report of a closed-loop estimate (it used to ask for a field the estimate lacks)
+    t = np.arange(1000) * DT
+    u = np.where(t >= 1.0, 10.0, 0.0)
+    y = signal.lfilter([1 - np.exp(-5 * DT)], [1, -np.exp(-5 * DT)], u)  # 5 rad/s lag, gain 1
+    est = tfest(DT, u, y, 1, 0, input_delay_s=0.0, check_feedback=False)
+    loop = {"controller_num": [0.5, 3.0], "controller_den": [1.0, 0.0],
+            "controller_fit_pct": 99.96, "loop_fit_pct": 97.46}  # fmt: skip
+    text = text_report(dataclasses.replace(est, closed_loop=loop), None)
+    assert "the fitted controller explains 100.0 % of the input" in text
+    assert "the simulated loop fits 97.5 % of the output" in text
+    assert "closed loop" not in text_report(est, None)

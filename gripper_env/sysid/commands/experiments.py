@@ -73,12 +73,12 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         ("--timeout", float, "S", "seconds to wait for each answer from the board (0.5)"),
     ):
         dev.add_argument(flag, type=kind, default=None, metavar=metavar, help=text)
-    for flag, kind, text in (
+    for flag, convert, text in (
         ("--plant", str, "simulated gripper's transfer function: plant name or YAML (test2)"),
         ("--disturbance", str, "simulated gripper's preset: a name or YAML file (actual)"),
         ("--seed", int, "base noise seed; run k (test k+1, validation 4) uses seed + k (0)"),
     ):
-        p.add_argument(flag, type=kind, default=None, help=text)
+        p.add_argument(flag, type=convert, default=None, help=text)
     p.add_argument(
         "--quick",
         action="store_true",

@@ -136,8 +136,10 @@ def text_report(est: ActualEstimate) -> str:
 
 def _base_ref(base: str) -> str:
     """How the preset refers to its base: a preset name stays a name, a file its full path."""
-    path = find_config("disturbances", base)
-    return base if "/" not in base and not base.endswith((".yaml", ".yml")) else str(path.resolve())
+    path = find_config("disturbances", base)  # raises for an unknown name or a missing file
+    if "/" not in base and not base.endswith((".yaml", ".yml")):
+        return base
+    return str(Path(str(path)).resolve())
 
 
 def run(args: argparse.Namespace) -> int:

@@ -76,6 +76,17 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         "--allow-nonconverged), 2 on bad input (one line on stderr).",
     )
     p.add_argument("log", metavar="LOG.csv", help="log file: header row, then one row per sample")
+    _add_model_arguments(p)
+    _add_validation_arguments(p)
+    add_column_arguments(p)
+    add_time_arguments(p)
+    _add_fit_arguments(p)
+    _add_output_arguments(p)
+    p.set_defaults(run=run)
+    return p
+
+
+def _add_model_arguments(p: argparse.ArgumentParser) -> None:
     order = p.add_argument_group("model")
     order.add_argument("--poles", type=int, default=2, help="number of poles (default: 2)")
     order.add_argument(
@@ -102,6 +113,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="longest delay estimated (default: 0.25 s, at most a fifth of the record)",
     )
+
+
+def _add_validation_arguments(p: argparse.ArgumentParser) -> None:
     val = p.add_argument_group("validation").add_mutually_exclusive_group()
     val.add_argument(
         "--split",
@@ -116,8 +130,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="FILE.csv",
         help="another log (same columns) to validate the model on",
     )
-    add_column_arguments(p)
-    add_time_arguments(p)
+
+
+def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
     fit = p.add_argument_group("fit")
     fit.add_argument(
         "--offset",
@@ -152,6 +167,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         action="store_true",
         help="exit 0 (with a warning) when the output-error search did not converge",
     )
+
+
+def _add_output_arguments(p: argparse.ArgumentParser) -> None:
     out = p.add_argument_group("output")
     out.add_argument(
         "--json",
@@ -170,8 +188,6 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     out.add_argument(
         "--name", default=None, help="plant name for --save-plant (default: file stem)"
     )
-    p.set_defaults(run=run)
-    return p
 
 
 def _fit(args: argparse.Namespace) -> tuple[TFEstimate, OrderSelection | None, Record]:
@@ -238,10 +254,12 @@ def text_report(est: TFEstimate, sel: OrderSelection | None) -> str:
         f"{est.residuals.size} samples at {est.dt_s:g} s ({est.time_base} time base); residual "
         f"RMS {np.sqrt(np.mean(est.residuals**2)):.3g} deg; AIC {est.aic:.6g}"
     )
-    if est.closed_loop:
+    if est.closed_loop is not None:
+        loop = est.closed_loop
         lines.append(
-            f"closed loop: the reference explains {est.input_fit_pct:.1f} % of the input "
-            "(stage 1); the plant is fitted to the input it predicts"
+            f"closed loop (indirect method): the fitted controller explains "
+            f"{loop['controller_fit_pct']:.1f} % of the input; the simulated loop fits "
+            f"{loop['loop_fit_pct']:.1f} % of the output"
         )
     lines.append(
         f"iterations: SRIVC {est.n_iter_srivc}, output error {est.n_iter_oe}"
