@@ -58,8 +58,14 @@ from gripper_env.sim.mechanics import (
     mechanics_params,
     store_mechanics,
 )
-from gripper_env.sim.plant import load_plant_state, plant_matrices, plant_output, plant_step
-from gripper_env.sim.sensor import sense, sensor_params
+from gripper_env.sim.plant import (
+    load_plant_state,
+    plant_matrices,
+    plant_output,
+    plant_step,
+    update_state_general,
+)
+from gripper_env.sim.sensor import delay_line, sense, sensor_params
 from gripper_env.sim.servo import load_servo, servo_params, servo_step, store_servo
 
 __all__ = ["PARALLEL_MIN_BATCH", "advance_kernel", "advance_row"]
@@ -78,23 +84,16 @@ def _pid_params(params: np.ndarray, b: int) -> PidParams:
 
 
 @njit(nogil=True, inline="always")
-def _record_step(b, k, out_r, out_u, out_y, out_yt, r, u, y, y_true):  # type: ignore[no-untyped-def]
-    """Record step ``k`` of run ``b``; a ``None`` output is compiled away."""
-    if out_r is not None:
-        out_r[b, k] = r
-    if out_u is not None:
-        out_u[b, k] = u
-    out_y[b, k] = y
-    if out_yt is not None:
-        out_yt[b, k] = y_true
-
-
-@njit(nogil=True, inline="always")
 def _record_diverged(b, k0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt):  # type: ignore[no-untyped-def]
     """Recording of a diverged run from step ``k0``: the reference, NaN for the rest."""
     for k in range(k0, n_steps):
-        _record_step(b, k, out_r, out_u, out_y, out_yt, ref[rb, ref_offset + k], np.nan, np.nan,
-                     np.nan)  # fmt: skip
+        if out_r is not None:
+            out_r[b, k] = ref[rb, ref_offset + k]
+        if out_u is not None:
+            out_u[b, k] = np.nan
+        out_y[b, k] = np.nan
+        if out_yt is not None:
+            out_yt[b, k] = np.nan
 
 
 @njit(nogil=True, inline="always")
@@ -147,14 +146,17 @@ def advance_row(
     xi, xf, u, y_meas = state[b, S_XI], state[b, S_XF], state[b, S_U], state[b, S_YMEAS]
     servo_s, fric_s = load_servo(state, b), load_friction(state, b)
     mech_s = load_mechanics(state, b)
+    small = plant_b.shape[1] <= 2
     x0, x1 = load_plant_state(state, b, plant_b.shape[1])
     didx, z = int(state[b, S_DIDX]), rng[b]
     saturated = state[b, S_SATURATED]
     done = n_steps
     for k in range(n_steps):
         # true jaw angle before this step's input reaches the plant, then its measurement
-        y_now = plant_output(x0, fric_s[0], plant_m)
-        y_meas, didx, z = sense(y_now, b, delay_buf, didx, z, sensor_p)
+        y_meas = plant_output(x0, fric_s[0], plant_m)
+        if sensor_p[0] > 0:
+            y_meas, didx = delay_line(y_meas, b, delay_buf, didx, sensor_p[0])
+        y_meas, z = sense(y_meas, z, sensor_p)
         r = ref[rb, ref_offset + k]
         clipped = False
         if closed_loop:
@@ -171,11 +173,20 @@ def advance_row(
         fric_s = friction_step(cmd, fric_s, fric_p)
         v_in = fric_s[0]  # the position the servo's dynamics follow
         y_true = plant_output(x0, v_in, plant_m)
-        x0, x1 = plant_step(x0, x1, v_in, plant_m, b, pb, plant_a, plant_b, state)
+        if small:
+            x0, x1 = plant_step(x0, x1, v_in, plant_m)
+        else:
+            x0, x1 = update_state_general(b, pb, x0, v_in, plant_a, plant_b, state, S_X)
         mech_s = count_contact(x0, cmd, mech_s, mech_p)
         x0 = clamp_to_stops(x0, mech_p)
-        if record:
-            _record_step(b, k, out_r, out_u, out_y, out_yt, r, u, y_meas, y_true)
+        if record:  # in line: an array passed to an inlined helper costs an atomic add per call
+            if out_r is not None:
+                out_r[b, k] = r
+            if out_u is not None:
+                out_u[b, k] = u
+            out_y[b, k] = y_meas
+            if out_yt is not None:
+                out_yt[b, k] = y_true
         if not (abs(x0) < DIVERGENCE_BOUND and abs(u) < DIVERGENCE_BOUND):
             done = k + 1
             break

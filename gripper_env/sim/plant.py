@@ -8,7 +8,8 @@ function, in the observable form of :meth:`gripper_env.plants.Plant.zoh_matrices
 
 with ``v`` the position the servo's dynamics follow (deg; the held command after friction).
 The paper's plants are of order 1 and 2: their update runs on two scalars in registers
-(:func:`plant_step`); higher orders go through the state row, out of line.
+(:func:`plant_step`); higher orders go through the state row, out of line
+(:func:`update_state_general`).
 
 Matrices (a tuple, :func:`plant_matrices`): ``(d, a00, a01, a10, a11, b0, b1)``, the direct
 feed-through and the entries of ``A`` and ``B`` for the first two states (zero beyond the order).
@@ -21,7 +22,13 @@ from numba import njit
 
 from gripper_env.sim.layout import S_X
 
-__all__ = ["load_plant_state", "plant_matrices", "plant_output", "plant_step"]
+__all__ = [
+    "load_plant_state",
+    "plant_matrices",
+    "plant_output",
+    "plant_step",
+    "update_state_general",
+]
 
 PlantMatrices = tuple[float, float, float, float, float, float, float]
 
@@ -52,7 +59,7 @@ def plant_output(x0: float, v: float, m: PlantMatrices) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _update_state_general(
+def update_state_general(
     b: int,
     pb: int,
     x0: float,
@@ -81,40 +88,22 @@ def _update_state_general(
 
 
 @njit(inline="always")
-def plant_step(
-    x0: float,
-    x1: float,
-    v: float,
-    m: PlantMatrices,
-    b: int,
-    pb: int,
-    plant_a: np.ndarray,
-    plant_b: np.ndarray,
-    state: np.ndarray,
-) -> tuple[float, float]:
-    """One zero-order-hold step of run ``b``'s plant under input ``v`` (deg).
+def plant_step(x0: float, x1: float, v: float, m: PlantMatrices) -> tuple[float, float]:
+    """One zero-order-hold step of a plant of order 1 or 2 under input ``v`` (deg).
 
     Parameters
     ----------
     x0, x1 : float
-        First two plant states before the step (the jaw angle's part, deg).
+        The plant states before the step (the jaw angle's part, deg).
     v : float
         Plant input over the step (deg).
     m : tuple of 7 float
         :func:`plant_matrices` of the run's plant.
-    b, pb : int
-        The run's row in ``state`` and its plant's row in ``plant_a``, ``plant_b``.
-    plant_a, plant_b : ndarray
-        All plants' matrices (for orders above 2).
-    state : ndarray
-        The state rows (orders above 2 keep their states there).
 
     Returns
     -------
     tuple of 2 float
-        ``(x0, x1)`` after the step.
+        ``(x0, x1)`` after the step. Higher orders: :func:`update_state_general`.
     """
-    if plant_b.shape[1] <= 2:
-        _, a00, a01, a10, a11, b0, b1 = m
-        return a00 * x0 + a01 * x1 + b0 * v, a10 * x0 + a11 * x1 + b1 * v
-    return _update_state_general(b, pb, x0, v, plant_a, plant_b, state, S_X)
+    _, a00, a01, a10, a11, b0, b1 = m
+    return a00 * x0 + a01 * x1 + b0 * v, a10 * x0 + a11 * x1 + b1 * v

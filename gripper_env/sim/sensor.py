@@ -9,7 +9,9 @@ delay (physics steps), noise standard deviation (deg), angle per count (deg, 0 f
 its inverse (1/deg), the angle of count 0 (deg) and the largest count.
 
 State: the delay line's write position (``didx``; the line itself is a row of ``delay_buf``)
-and the noise generator's state ``z``.
+and the noise generator's state ``z``. The steps take scalars only, and the kernel calls
+:func:`delay_line`, the one that takes an array, only for a delayed sensor: an array passed to
+an inlined helper costs a reference-count update (an atomic add) per call.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from gripper_env.sim.layout import P_ADC_LO, P_ADC_LSB, P_ADC_MAX, P_DELAY, P_NO
 from gripper_env.sim.noise import normal
 from gripper_env.sim.rounding import round_half_up
 
-__all__ = ["sense", "sensor_columns", "sensor_params"]
+__all__ = ["delay_line", "sense", "sensor_columns", "sensor_params"]
 
 SensorParams = tuple[int, float, float, float, float, float]
 
@@ -48,10 +50,8 @@ def sensor_params(params: np.ndarray, b: int) -> SensorParams:
 
 
 @njit(inline="always")
-def sense(
-    y: float, b: int, delay_buf: np.ndarray, didx: int, z: np.uint64, p: SensorParams
-) -> tuple[float, int, np.uint64]:
-    """The measured angle of run ``b`` at one physics step.
+def delay_line(y: float, b: int, delay_buf: np.ndarray, didx: int, delay: int) -> tuple[float, int]:
+    """Run ``b``'s angle ``y`` (deg) delayed by ``delay`` > 0 physics steps.
 
     Parameters
     ----------
@@ -63,6 +63,31 @@ def sense(
         Delay lines (deg); ``L`` exceeds the largest delay.
     didx : int
         Write position in the run's delay line.
+    delay : int
+        Delay (physics steps), at least 1.
+
+    Returns
+    -------
+    y : float
+        The angle ``delay`` steps ago (deg).
+    didx : int
+        The delay line's next write position.
+    """
+    buf_len = delay_buf.shape[1]
+    delay_buf[b, didx] = y
+    j = didx - delay  # delay < buf_len: one wrap at most, no integer division
+    y = delay_buf[b, j + buf_len if j < 0 else j]
+    return y, (didx + 1 if didx + 1 < buf_len else 0)
+
+
+@njit(inline="always")
+def sense(y: float, z: np.uint64, p: SensorParams) -> tuple[float, np.uint64]:
+    """Noise and ADC quantisation of the (delayed) jaw angle at one physics step.
+
+    Parameters
+    ----------
+    y : float
+        The jaw angle reaching the sensor (deg; after :func:`delay_line` if delayed).
     z : uint64
         Noise generator state.
     p : tuple
@@ -72,18 +97,10 @@ def sense(
     -------
     y_meas : float
         Measured angle (deg).
-    didx : int
-        The delay line's next write position.
     z : uint64
         The noise generator's next state.
     """
-    delay, noise, lsb, inv_lsb, adc_lo, adc_max = p
-    if delay > 0:
-        buf_len = delay_buf.shape[1]
-        delay_buf[b, didx] = y
-        j = didx - delay  # delay < buf_len: one wrap at most, no integer division
-        y = delay_buf[b, j + buf_len if j < 0 else j]
-        didx = didx + 1 if didx + 1 < buf_len else 0
+    _, noise, lsb, inv_lsb, adc_lo, adc_max = p
     if noise > 0.0:
         z, g = normal(z)
         y += noise * g
@@ -91,4 +108,4 @@ def sense(
         code = round_half_up((y - adc_lo) * inv_lsb)
         code = 0.0 if code < 0.0 else (adc_max if code > adc_max else code)
         y = adc_lo + code * lsb
-    return y, didx, z
+    return y, z
