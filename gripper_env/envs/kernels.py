@@ -26,6 +26,7 @@ array arguments, and the array views it would take, cost more than a control per
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import get_num_threads, njit, prange, set_num_threads
@@ -366,7 +367,7 @@ PARALLEL_MIN_STEPS = 4096
 step_serial, step_parallel = compile_kernel(_step_impl)
 
 
-def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None):  # type: ignore[no-untyped-def]
+def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None) -> Callable[..., tuple]:
     """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
 
     A single environment runs the serial kernel; a batch the parallel one, which runs on the

@@ -22,6 +22,8 @@ recording is NaN.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numba import njit, prange
 
@@ -84,7 +86,18 @@ def _pid_params(params: np.ndarray, b: int) -> PidParams:
 
 
 @njit(nogil=True, inline="always")
-def _record_diverged(b, k0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt):  # type: ignore[no-untyped-def]
+def _record_diverged(
+    b: int,
+    k0: int,
+    n_steps: int,
+    ref: np.ndarray,
+    rb: int | np.integer,
+    ref_offset: int,
+    out_r: np.ndarray | None,
+    out_u: np.ndarray | None,
+    out_y: np.ndarray,
+    out_yt: np.ndarray | None,
+) -> None:
     """Recording of a diverged run from step ``k0``: the reference, NaN for the rest."""
     for k in range(k0, n_steps):
         if out_r is not None:
@@ -249,7 +262,7 @@ _ADVANCE = compile_kernel(_advance_impl, nogil=True)
 PARALLEL_MIN_BATCH = 16
 
 
-def advance_kernel(n_runs: int):  # type: ignore[no-untyped-def]
+def advance_kernel(n_runs: int) -> Callable[..., None]:
     """The compiled :func:`_advance_impl` for a batch of ``n_runs`` runs (parallel from
     :data:`PARALLEL_MIN_BATCH`)."""
     return _ADVANCE.parallel if n_runs >= PARALLEL_MIN_BATCH else _ADVANCE.serial

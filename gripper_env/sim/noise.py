@@ -124,7 +124,7 @@ def normal(z: np.uint64) -> tuple[np.uint64, float]:
 
 def normal_draws(seed: int, n: int) -> np.ndarray:
     """``n`` draws of the core's noise generator for ``seed`` (for tests and inspection)."""
-    return _normal_draws(noise_states(seed)[()], n)
+    return _normal_draws(np.uint64(noise_states(seed)[()]), n)
 
 
 @njit(cache=True)

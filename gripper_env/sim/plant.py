@@ -35,7 +35,7 @@ PlantMatrices = tuple[float, float, float, float, float, float, float]
 
 @njit(inline="always")
 def plant_matrices(
-    plant_a: np.ndarray, plant_b: np.ndarray, plant_d: np.ndarray, pb: int
+    plant_a: np.ndarray, plant_b: np.ndarray, plant_d: np.ndarray, pb: int | np.integer
 ) -> PlantMatrices:
     """Feed-through and first-two-state matrix entries of plant row ``pb``."""
     n_x = plant_b.shape[1]
@@ -61,7 +61,7 @@ def plant_output(x0: float, v: float, m: PlantMatrices) -> float:
 @njit(cache=True, nogil=True)
 def update_state_general(
     b: int,
-    pb: int,
+    pb: int | np.integer,
     x0: float,
     v_in: float,
     plant_a: np.ndarray,

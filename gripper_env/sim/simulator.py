@@ -290,7 +290,8 @@ class BatchSimulator:
         if ref.shape[0] not in (1, self.n_runs):
             raise ValueError(f"reference has {ref.shape[0]} rows for {self.n_runs} runs")
         if out is None:
-            out = tuple(np.empty((self.n_runs, n_steps)) for _ in range(4))
+            shape = (self.n_runs, n_steps)
+            out = (np.empty(shape), np.empty(shape), np.empty(shape), np.empty(shape))
         advance_kernel(self.n_runs)(
             n_steps,
             self.closed_loop,
