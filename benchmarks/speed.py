@@ -36,7 +36,7 @@ import numba
 import numpy as np
 
 from benchmarks import envs_speed
-from gripper_env import _schedule, pid
+from gripper_env import pid
 from gripper_env.disturbances import load_disturbance
 from gripper_env.files import write_atomic
 from gripper_env.pid import PIDOptions
@@ -85,7 +85,7 @@ def _plain_python_episode() -> Callable[[], object]:
     out = tuple(np.empty((1, n)) for _ in range(4))
     # every module the kernel compiles in: its compiled globals become their Python sources
     modules = [m for name, m in sys.modules.items() if name.startswith("gripper_env.sim.")]
-    modules += [pid, _schedule]
+    modules.append(pid)
     swaps: list[tuple[object, str, object]] = [(kernel, "prange", range)]
     for module in modules:
         for name, value in vars(module).items():
@@ -250,8 +250,8 @@ noise) with the PID (the paper's tuned gains, output limits 0-180 deg, clamping 
 
 Recording writes 4 x 1024 x 20 000 doubles (655 MB) per batch into preallocated arrays; the
 tuners record whole trajectories, the environments' vector stepping records one control period.
-Batches of 16 runs or more run on all cores (numba `prange`), smaller ones on one; the runs go
-out one at a time to whichever thread is free (`gripper_env._schedule`).
+Batches of 16 runs or more run on all cores (numba `prange`, one block of runs per thread),
+smaller ones on one (`results/schedule_speed.md`: dynamic chunks were no faster).
 """
 
 

@@ -27,7 +27,6 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit, prange
 
-from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.pid import pid_step
 from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.friction import friction_params, friction_step, load_friction, store_friction
@@ -83,6 +82,15 @@ def _pid_params(params: np.ndarray, b: int) -> PidParams:
         params[b, P_ULO], params[b, P_UHI], int(params[b, P_AW]), params[b, P_KB],
         params[b, P_SIGN], int(params[b, P_DMEAS]),
     )  # fmt: skip
+
+
+@njit(inline="always")
+def _pid(
+    r: float, y: float, g: PidParams, dt: float, xi: float, xf: float
+) -> tuple[float, float, float, float]:
+    """:func:`~gripper_env.pid.pid_step` with the run's parameters ``g``; ``(u, v, xi, xf)``."""
+    p, i, d, n, u_lo, u_hi, aw, kb, sign, d_on_meas = g
+    return pid_step(r, y, p, i, d, n, dt, u_lo, u_hi, aw, kb, sign, d_on_meas, xi, xf)
 
 
 @njit(nogil=True, inline="always")
@@ -152,7 +160,7 @@ def advance_row(
         if record:
             _record_diverged(b, 0, n_steps, ref, rb, ref_offset, out_r, out_u, out_y, out_yt)
         return
-    p_gain, i_gain, d_gain, n_filt, u_lo, u_hi, aw, kb, sgn, dmeas = _pid_params(params, b)
+    pid_p = _pid_params(params, b)
     servo_p, fric_p = servo_params(params, b, dt), friction_params(params, b)
     mech_p, sensor_p = mechanics_params(params, b), sensor_params(params, b)
     plant_m = plant_matrices(plant_a, plant_b, plant_d, pb)
@@ -173,10 +181,7 @@ def advance_row(
         r = ref[rb, ref_offset + k]
         clipped = False
         if closed_loop:
-            u, v, xi, xf = pid_step(
-                r, y_meas, p_gain, i_gain, d_gain, n_filt, dt,
-                u_lo, u_hi, aw, kb, sgn, dmeas, xi, xf,
-            )  # fmt: skip
+            u, v, xi, xf = _pid(r, y_meas, pid_p, dt, xi, xf)
             clipped = u != v
         else:
             u = r
@@ -239,21 +244,16 @@ def _advance_impl(
 ) -> None:
     """Advance every run by ``n_steps`` physics steps: :func:`advance_row` over the batch.
 
-    The rows go out in chunks to whichever thread is free (:mod:`gripper_env._schedule`).
+    A plain ``prange`` over the runs: chunks taken from a shared counter
+    (:mod:`gripper_env._schedule`) were no faster here, idle or beside a busy process
+    (``python -m benchmarks.schedule_speed``, ``results/schedule_speed.md``).
     """
-    n_rows = params.shape[0]
-    chunk = rows_per_chunk(n_steps)
-    n_chunks = (n_rows + chunk - 1) // chunk
-    counter = np.zeros(1, np.int64)
-    for _ in prange(n_workers(n_chunks)):
-        c = fetch_add(counter, np.int64(1))
-        while c < n_chunks:
-            for b in range(c * chunk, min(n_rows, (c + 1) * chunk)):
-                advance_row(
-                    b, n_steps, closed_loop, dt, ref, ref_offset, params, plant_a, plant_b,
-                    plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
-                )  # fmt: skip
-            c = fetch_add(counter, np.int64(1))
+    for i in prange(params.shape[0]):
+        b = np.int64(i)  # prange's index is unsigned; the row index is signed, like ``pb``
+        advance_row(
+            b, n_steps, closed_loop, dt, ref, ref_offset, params, plant_a,  # type: ignore[arg-type]
+            plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
+        )  # fmt: skip
 
 
 _ADVANCE = compile_kernel(_advance_impl, nogil=True)
