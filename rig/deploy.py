@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.files import save_figure, write_json
-from gripper_env.gains_file import load_gains_file
+from gripper_env.gains_file import GainsFileError, load_gains_file
 from gripper_env.hardware.calibration import load_calibration
 from gripper_env.hardware.device import GripperDevice, TelemetryBlock
 from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
@@ -112,10 +112,13 @@ def _parser() -> argparse.ArgumentParser:
 def _run(args: argparse.Namespace) -> int:
     loaded = load_gains_file(args.gains)
     plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
-    if not plant:
-        raise ValueError(f"{args.gains}: the gains file names no plant (needed for the gate)")
+    try:
+        model = loaded.plant_model()  # the transfer function tuned on, wherever it came from
+    except GainsFileError as exc:
+        raise ValueError(f"{args.gains}: {exc} (needed for the gate)") from None
+    plant = plant or model.name
     # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
-    report = stability_report(plant, gains, options.sign, disturbance="actual")
+    report = stability_report(model, gains, options.sign, disturbance="actual")
     if not report.stable and not args.allow_unstable:
         raise ValueError(
             f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
@@ -148,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
         rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
     predicted = simulate(
-        plant,
+        model,
         measured.r[0],
         gains=[gains.as_array()],
         disturbance=args.disturbance,
