@@ -36,13 +36,13 @@ import numba
 import numpy as np
 
 from benchmarks import envs_speed
-from gripper_env import friction, pid, simulation
+from gripper_env import pid
 from gripper_env.disturbances import load_disturbance
 from gripper_env.files import write_atomic
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference
-from gripper_env.simulation import BatchSimulator
+from gripper_env.sim import BatchSimulator, kernel, sensor, servo
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 GAINS = (1.0, 9.0, -0.001, 100.0)  # the paper's tuned gains on TF test2
@@ -83,38 +83,32 @@ def _plain_python_episode() -> Callable[[], object]:
     sim.configure(np.array([GAINS]), load_disturbance("actual"), OPTIONS)
     n = len(ref)
     out = tuple(np.empty((1, n)) for _ in range(4))
-    swaps = {
-        "_advance_row": simulation._advance_row.py_func,
-        "pid_step": pid.pid_step.py_func,
-        "stiction_scalar": friction.stiction_scalar.py_func,
-        "backlash_step": friction.backlash_step.py_func,
-        "_normal": simulation._normal.py_func,
-        "_floor": math.floor,  # the same rounding; np.floor on a Python float is slower
-        "prange": range,
-    }
-    inner = {
-        "_splitmix64": simulation._splitmix64.py_func,
-        "_normal_tail": simulation._normal_tail.py_func,
-        "_uniform": simulation._uniform.py_func,
-    }
+    # every module the kernel compiles in: its compiled globals become their Python sources
+    modules = [m for name, m in sys.modules.items() if name.startswith("gripper_env.sim.")]
+    modules.append(pid)
+    swaps: list[tuple[object, str, object]] = [(kernel, "prange", range)]
+    for module in modules:
+        for name, value in vars(module).items():
+            if hasattr(value, "py_func"):
+                swaps.append((module, name, value.py_func))
+    for module in (servo, sensor):
+        # the same rounding; np.floor on a Python float is slower
+        swaps.append((module, "round_half_up", lambda x: math.floor(x + 0.5)))
 
     def run() -> None:
-        saved = {k: getattr(simulation, k) for k in (*swaps, *inner)}
-        saved_sign = friction._sign
+        saved = [(module, name, getattr(module, name)) for module, name, _ in swaps]
         try:
-            for k, v in {**swaps, **inner}.items():
-                setattr(simulation, k, v)
-            friction._sign = friction._sign.py_func
+            for module, name, value in swaps:
+                setattr(module, name, value)
             sim.reset(92.0, 0)
             with np.errstate(over="ignore"):  # SplitMix64 wraps around on purpose
-                simulation._advance_impl(
+                kernel._advance_impl(
                     n, True, sim.dt_s, ref.values_deg[None, :], 0, sim.params, sim.plant_a,
                     sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf, *out,
                 )  # fmt: skip
         finally:
-            for k, v in saved.items():
-                setattr(simulation, k, v)
-            friction._sign = saved_sign
+            for module, name, value in reversed(saved):
+                setattr(module, name, value)
 
     return run
 
@@ -256,8 +250,8 @@ noise) with the PID (the paper's tuned gains, output limits 0-180 deg, clamping 
 
 Recording writes 4 x 1024 x 20 000 doubles (655 MB) per batch into preallocated arrays; the
 tuners record whole trajectories, the environments' vector stepping records one control period.
-Batches of 16 runs or more run on all cores (numba `prange`), smaller ones on one; the runs go
-out one at a time to whichever thread is free (`gripper_env._schedule`).
+Batches of 16 runs or more run on all cores (numba `prange`, one block of runs per thread),
+smaller ones on one (`results/schedule_speed.md`: dynamic chunks were no faster).
 """
 
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.files import write_atomic
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.sysid import identify_actual, tfest
 from gripper_env.sysid.zoh import zoh_response
 

@@ -1,9 +1,9 @@
 """gripper-env: a Gymnasium environment and PID-tuning benchmark for a low-cost robot gripper.
 
 The library: the paper's identified plants (:mod:`gripper_env.plants`), the actual-gripper
-model (:mod:`gripper_env.disturbances`, :mod:`gripper_env.friction`), a Simulink-style PID
+model (:mod:`gripper_env.disturbances`, :mod:`gripper_env.sim.friction`), a Simulink-style PID
 (:mod:`gripper_env.pid`), reference profiles (:mod:`gripper_env.references`), one batched
-simulation core (:mod:`gripper_env.simulation`), MATLAB-compatible metrics
+simulation core (:mod:`gripper_env.sim`), MATLAB-compatible metrics
 (:mod:`gripper_env.metrics`), the shared tuning objective (:mod:`gripper_env.objective`) and
 the Gymnasium environments (:mod:`gripper_env.envs`), registered on import.
 """
@@ -16,7 +16,7 @@ from gripper_env.objective import Objective, load_objective
 from gripper_env.pid import PID, PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference, random_profile
-from gripper_env.simulation import BatchSimulator, Trajectory, simulate
+from gripper_env.sim import BatchSimulator, Trajectory, simulate
 
 register_envs()
 

@@ -82,7 +82,7 @@ class CommandPath(BaseModel):
 
 
 class Friction(BaseModel):
-    """Friction of the jaw mechanism (see :mod:`gripper_env.friction`).
+    """Friction of the jaw mechanism (see :mod:`gripper_env.sim.friction`).
 
     Attributes
     ----------

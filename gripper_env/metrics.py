@@ -37,10 +37,9 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from gripper_env import _schedule
-from gripper_env._numba_cache import renamed, stamp_caches
 from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.references import Segment
+from gripper_env.sim.compile import compile_kernel
 
 __all__ = ["Metrics", "compute_metrics", "fit_percent", "sample_sd", "step_metrics"]
 
@@ -234,9 +233,7 @@ def _metrics_impl(
             c = fetch_add(counter, np.int64(1))
 
 
-_metrics_serial = njit(cache=True)(_metrics_impl)
-_metrics_parallel = njit(cache=True, parallel=True)(renamed(_metrics_impl, "_parallel"))
-stamp_caches((_metrics_serial, _metrics_parallel), (__file__, _schedule.__file__))
+_metrics_serial, _metrics_parallel = compile_kernel(_metrics_impl)
 #: Batches at least this large are scored on all cores (threads cost more for a few runs).
 PARALLEL_MIN_BATCH = 16
 
@@ -352,7 +349,7 @@ def compute_metrics(
     segments: tuple[Segment, ...] | None = None,
     settling_band_deg: float = 0.0,
 ) -> Metrics:
-    """All metrics of a :class:`~gripper_env.simulation.Trajectory` (or any object with ``t``,
+    """All metrics of a :class:`~gripper_env.sim.Trajectory` (or any object with ``t``,
     ``r``, ``u``, ``y``, ``y_true``, ``stable``, ``saturated_s`` and ``reference``).
 
     Parameters
@@ -367,7 +364,7 @@ def compute_metrics(
         Floor of the settling band (deg); the band is ``max(2 % of the move, floor)``.
 
     The contact, stall, force and servo-effort metrics come from the trajectory's counters
-    (:meth:`~gripper_env.simulation.Trajectory.from_simulator`); NaN where it has none.
+    (:meth:`~gripper_env.sim.Trajectory.from_simulator`); NaN where it has none.
     """
     if signal not in ("measured", "true"):
         raise ValueError(f"signal must be 'measured' or 'true', got {signal!r}")

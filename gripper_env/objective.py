@@ -113,7 +113,7 @@ class Objective(BaseModel):
 
     Examples
     --------
-    >>> from gripper_env.simulation import simulate
+    >>> from gripper_env.sim import simulate
     >>> from gripper_env.metrics import compute_metrics
     >>> objective = load_objective()
     >>> traj = simulate("test2", "step", gains=[(1.0, 9.0, -0.001)], disturbance="ideal")

@@ -21,7 +21,7 @@ changes the slope of the integral, never its value: no bump. ``xf`` holds the fi
 input, not the derivative term, so changing ``D`` rescales the current derivative estimate instead
 of kicking the output by ``N * dD * e``. Negative gains are legal (the paper uses them).
 
-The same equations are the PID of the simulation core (:mod:`gripper_env.simulation`) and of the
+The same equations are the PID of the simulation core (:mod:`gripper_env.sim`) and of the
 firmware (``firmware/gripper/gripper_pid.h``); :func:`pid_update` is the one implementation in
 Python.
 """

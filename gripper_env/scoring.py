@@ -39,7 +39,7 @@ from gripper_env.objective import COST_TERMS, Objective, load_objective
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
-from gripper_env.simulation import Trajectory, simulate
+from gripper_env.sim import Trajectory, simulate
 from gripper_env.stability import LoopAnalysis, Robustness, ServoLoop
 
 __all__ = [

@@ -6,7 +6,7 @@ that hold: it adds about half a refresh period of dead time, which is all the ph
 has (a loop with 48 dB of gain margin at 1 ms can have 3 dB with the hold). This module analyses
 the *sampled-data* loop exactly, by lifting it to the refresh period.
 
-The loop (the linear part of what the simulation core runs, :mod:`gripper_env.simulation`):
+The loop (the linear part of what the simulation core runs, :mod:`gripper_env.sim`):
 
 * the plant's exact zero-order-hold model at the physics step ``dt``, driven by the held servo
   command ``c``;

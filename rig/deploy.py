@@ -38,13 +38,13 @@ from gripper_env.hardware.protocol import Mode
 from gripper_env.metrics import compute_metrics, fit_percent
 from gripper_env.objective import load_objective
 from gripper_env.references import PROFILES, load_reference
-from gripper_env.simulation import Trajectory, simulate
+from gripper_env.sim import Trajectory, simulate
 from gripper_env.stability import stability_report
 from rig.cli import add_device_arguments, run_cli
 
 __all__ = ["DEPLOY_COLUMNS", "main"]
 
-#: The log's columns: a :class:`~gripper_env.simulation.Trajectory`'s CSV columns.
+#: The log's columns: a :class:`~gripper_env.sim.Trajectory`'s CSV columns.
 DEPLOY_COLUMNS = Trajectory.CSV_COLUMNS
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gripper_env.metrics import compute_metrics, fit_percent, sample_sd, step_metrics
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 DT = 1e-3
 

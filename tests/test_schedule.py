@@ -9,7 +9,7 @@ from numba import njit, prange
 import gripper_env  # noqa: F401  (registers the ids)
 from gripper_env._schedule import MAX_WORKERS, fetch_add, n_workers, rows_per_chunk
 from gripper_env.paper import PID_GAINS
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 
 @njit(parallel=True)

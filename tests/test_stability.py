@@ -12,7 +12,7 @@ from gripper_env.disturbances import load_disturbance
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import load_plant
-from gripper_env.simulation import BatchSimulator, simulate
+from gripper_env.sim import BatchSimulator, simulate
 from gripper_env.stability import LoopAnalysis, ServoLoop, lifted_loop, stability_report
 
 OPTUNA_OLD = (0.3712425487944064, 98.64068524172313, -0.002567357793555773)  # issue 11's winner

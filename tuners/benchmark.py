@@ -50,7 +50,7 @@ from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference
 from gripper_env.scoring import reachability, score_trajectory
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from tuners import classical, cli, leaderboard, manual
 from tuners import optuna as optuna_tuner
 from tuners.evaluation import summarize_runs, with_cost

@@ -37,7 +37,7 @@ from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, load_reference
 from gripper_env.scoring import GainScorer, Task, reachability
-from gripper_env.simulation import Trajectory
+from gripper_env.sim import Trajectory
 from gripper_env.stability import stability_report
 
 __all__ = [

@@ -152,7 +152,7 @@ def evaluate_controller(
     """Metrics of a ``gain-schedule`` or ``servo`` policy over held-out episodes.
 
     The deterministic policy runs one episode per seed (:func:`gripper_env.envs.rollout.
-    policy_trajectory`: the episodes :func:`~gripper_env.simulation.simulate` runs for those
+    policy_trajectory`: the episodes :func:`~gripper_env.sim.simulate` runs for those
     seeds) and the trajectories are scored through the one scoring path
     (:func:`gripper_env.scoring.score_trajectory`, the objective's signal), summarised like a
     gains file's ``actual`` block.

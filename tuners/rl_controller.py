@@ -14,7 +14,7 @@ the kept one is evaluated once on the held-out seeds.
 
 The evaluation is every tuner's: the policy's whole episodes on the ``ideal`` model and on the
 ``actual`` model over the held-out seeds (:func:`gripper_env.envs.rollout.policy_trajectory`,
-the same episodes :func:`gripper_env.simulation.simulate` runs for a PID), the same metrics,
+the same episodes :func:`gripper_env.sim.simulate` runs for a PID), the same metrics,
 objective and summary (mean, std, 95 % CI), beside the two baselines it must beat: the residual's
 own base (the PID, or command = reference) and command = reference.
 
@@ -39,7 +39,7 @@ from gripper_env.gains_file import provenance
 from gripper_env.objective import load_objective
 from gripper_env.pid import PIDGains
 from gripper_env.scoring import score_trajectory
-from gripper_env.simulation import Trajectory, simulate
+from gripper_env.sim import Trajectory, simulate
 from tuners import cli
 from tuners.evaluation import summarize_runs, with_cost
 from tuners.settings import OptunaSettings, load_settings

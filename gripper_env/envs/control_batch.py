@@ -1,6 +1,6 @@
 """A batch of step-by-step environments (servo control or gain scheduling) on one core simulator.
 
-:class:`ControlBatch` owns one :class:`~gripper_env.simulation.BatchSimulator`, the references,
+:class:`ControlBatch` owns one :class:`~gripper_env.sim.BatchSimulator`, the references,
 the per-environment state of the observation and reward, and preallocated buffers, and steps them
 all with one compiled call (:mod:`gripper_env.envs.kernels`). :class:`GripperServoEnv` and
 :class:`GripperGainScheduleEnv` are a batch of one; their native vector environments are a batch
@@ -27,7 +27,8 @@ from gripper_env.envs.spaces import (
     reference_features,
 )
 from gripper_env.references import Reference, step_profile
-from gripper_env.simulation import P_DELAY, build_params
+from gripper_env.sim import build_params
+from gripper_env.sim.layout import P_DELAY
 
 __all__ = ["DIVERGED_PENALTY", "VARIATION_CAP", "ControlBatch"]
 

@@ -2,7 +2,7 @@
 
 One call maps every environment's action to its drive (a held servo command; PID gains and the
 reference; or a bounded correction added to the reference or to the PID's output), advances the
-core's kernel (:mod:`gripper_env.simulation`) by one control period of physics steps for the
+core's kernel (:mod:`gripper_env.sim.kernel`) by one control period of physics steps for the
 whole batch, then computes each environment's reward and observation from the recorded physics
 steps. A single environment is a batch of one; the native vector environment calls the same
 functions, so both play identical trajectories.
@@ -26,20 +26,15 @@ array arguments, and the array views it would take, cost more than a control per
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import get_num_threads, njit, prange, set_num_threads
 
-from gripper_env import _schedule, friction, pid, simulation
-from gripper_env._numba_cache import renamed, stamp_caches
 from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
-from gripper_env.simulation import (
-    P_P,
-    S_DIVERGED,
-    S_SERVO_TV,
-    S_XI,
-    _advance_row,
-)
+from gripper_env.sim.compile import compile_kernel
+from gripper_env.sim.kernel import advance_row as _advance_row
+from gripper_env.sim.layout import P_P, S_DIVERGED, S_SERVO_TV, S_XI
 
 # cfg entries
 (
@@ -300,7 +295,7 @@ def _step_impl(
     params, plant_a, plant_b, plant_d, state, rng, delay_buf, out_r, out_u, out_y, out_yt,
 ):  # fmt: skip
     """One control period of every row: its action, its physics steps in the core
-    (:func:`gripper_env.simulation._advance_row`), its reward, flags and observation - fused per
+    (:func:`gripper_env.sim.kernel.advance_row`), its reward, flags and observation - fused per
     row, so the parallel variant runs one parallel region per step.
 
     Nothing is touched if an action is not finite. A row whose episode ended on the previous step
@@ -368,11 +363,11 @@ def _step_impl(
 #: one-thread and all-threads columns).
 PARALLEL_MIN_STEPS = 4096
 
-step_serial = njit(cache=True)(_step_impl)
-step_parallel = njit(cache=True, parallel=True)(renamed(_step_impl, "_parallel"))
+# cached per version of every file they compile in (the core, the PID, the work sharing)
+step_serial, step_parallel = compile_kernel(_step_impl)
 
 
-def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None):  # type: ignore[no-untyped-def]
+def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None) -> Callable[..., tuple]:
     """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
 
     A single environment runs the serial kernel; a batch the parallel one, which runs on the
@@ -400,10 +395,3 @@ def observation_size(mode: int, n_actions: int, n_context: int) -> int:
 def empty_env_state(n_rows: int, n_actions: int) -> np.ndarray:
     """A zeroed ``env`` array."""
     return np.zeros((n_rows, E_A0 + n_actions))
-
-
-# these kernels compile the core's kernel (and its PID and friction steps) into themselves
-stamp_caches(
-    (_clip, _pre, period_reward, tracking_observation, _post, step_serial, step_parallel),
-    (__file__, simulation.__file__, pid.__file__, friction.__file__, _schedule.__file__),
-)

@@ -25,7 +25,7 @@ from gripper_env.envs.spaces import (
 from gripper_env.metrics import Metrics
 from gripper_env.objective import Objective, load_objective
 from gripper_env.scoring import robustness, score_trajectory
-from gripper_env.simulation import Trajectory
+from gripper_env.sim import Trajectory
 
 __all__ = ["EpisodeRenderer", "EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
 
@@ -54,8 +54,8 @@ def run_episodes(
     """Run whole grip/un-grip episodes under PID gains and score them with the shared objective.
 
     The physics of up to :data:`MAX_ROWS_PER_CALL` episodes runs in one call of the simulation
-    core (:class:`~gripper_env.simulation.BatchSimulator`), exactly as
-    :func:`~gripper_env.simulation.simulate` runs it; the metrics are
+    core (:class:`~gripper_env.sim.BatchSimulator`), exactly as
+    :func:`~gripper_env.sim.simulate` runs it; the metrics are
     :func:`~gripper_env.metrics.compute_metrics` and the cost is :meth:`Objective.cost` with the
     reference's duration, as for every tuner.
 

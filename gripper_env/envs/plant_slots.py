@@ -1,6 +1,6 @@
 """The core simulator of a batch of environments, whose rows may each draw their plant.
 
-:class:`PlantSlots` owns one :class:`~gripper_env.simulation.BatchSimulator` sized for every
+:class:`PlantSlots` owns one :class:`~gripper_env.sim.BatchSimulator` sized for every
 candidate plant of the environment's settings; :func:`delay_capacity` sizes its sensor delay
 line. Both the step-by-step environments (:class:`~gripper_env.envs.control_batch.ControlBatch`)
 and ``GripperPIDTune-v0`` (:func:`~gripper_env.envs.pid_tune.run_episodes`) run on it.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from gripper_env.envs.settings import Settings
 from gripper_env.envs.spaces import plant_features
-from gripper_env.simulation import BatchSimulator
+from gripper_env.sim import BatchSimulator
 
 __all__ = ["PlantSlots", "delay_capacity"]
 

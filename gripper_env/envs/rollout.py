@@ -2,9 +2,9 @@
 
 :func:`policy_trajectory` runs a policy (observations -> actions, e.g. a stable-baselines3
 model's ``predict``) for one episode per disturbance seed, all seeds in one batch of the
-environments' compiled step, and returns a :class:`~gripper_env.simulation.Trajectory` with the
+environments' compiled step, and returns a :class:`~gripper_env.sim.Trajectory` with the
 reference, the controller output, the measured and the true jaw angle and the core's counters
-(saturation, contact with a stop, stall, servo effort): what :func:`~gripper_env.simulation.
+(saturation, contact with a stop, stall, servo effort): what :func:`~gripper_env.sim.
 simulate` returns for a PID, so the policy is scored by the same metrics and objective as every
 tuner. The episodes are the ones ``simulate`` runs for those seeds (the same randomised
 disturbance draw and sensor noise per seed); the zero action of ``residual="reference"`` is
@@ -25,7 +25,7 @@ from gripper_env.envs.episode import Episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
 from gripper_env.envs.servo import GripperServoEnv
 from gripper_env.references import Reference
-from gripper_env.simulation import Trajectory, sampling_rng
+from gripper_env.sim import Trajectory, sampling_rng
 
 __all__ = ["policy_trajectory"]
 
@@ -66,7 +66,7 @@ def policy_trajectory(
     seeds : int or sequence of int
         Disturbance seeds, one episode each: the seed of the sensor noise and, with
         ``randomize``, of the disturbance parameters (drawn as
-        :func:`~gripper_env.simulation.simulate` draws them).
+        :func:`~gripper_env.sim.simulate` draws them).
     env_id : str
         ``"gripper_env/GripperServo-v0"`` (with its residual modes) or
         ``"gripper_env/GripperGainSchedule-v0"``.

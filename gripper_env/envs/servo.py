@@ -26,7 +26,7 @@ class GripperServoEnv(ControlEnv):
     noise; see :mod:`gripper_env.disturbances`). The agent replaces the controller: every control
     period (20 ms by default, the servo's refresh) it sets the servo command, which the servo holds
     until the next one, while the physics runs at 1 ms underneath (20 sub-steps of the simulation
-    core, :mod:`gripper_env.simulation`). The reference is the paper's grip/un-grip step by
+    core, :mod:`gripper_env.sim`). The reference is the paper's grip/un-grip step by
     default (open at 92 deg, grip to 21 deg at 1 s, un-grip at 10 s, 20 s in all).
 
     With ``residual`` the agent is a *residual* controller instead: its action is a bounded

@@ -26,7 +26,7 @@ import numpy as np
 from gripper_env.hardware.device import DeviceTimeout, GripperDevice, TelemetryBlock
 from gripper_env.hardware.protocol import Mode, SampleFlag
 from gripper_env.references import Reference, Segment
-from gripper_env.simulation import Trajectory
+from gripper_env.sim import Trajectory
 
 __all__ = ["CsvLog", "Recording", "partial_path", "run_profile"]
 
@@ -197,7 +197,7 @@ def _reference_lag(planned: np.ndarray, recorded: np.ndarray) -> int:
 
 @dataclass
 class RecordedTrajectory(Trajectory):
-    """A recorded run as a :class:`gripper_env.simulation.Trajectory` of one run, plus the
+    """A recorded run as a :class:`gripper_env.sim.Trajectory` of one run, plus the
     number of telemetry samples that never arrived (filled by interpolation)."""
 
     missing_samples: int = 0

@@ -12,7 +12,7 @@ tests and the agreement need and a host racing a pty cannot give.
    Timer1 pulses: 0.5 us resolution, 50 Hz at the timer's phase);
 2. on the Python twin of the firmware (float64 PID; the rig's servo takes the command in whole
    degrees every 20 ms, like ``Servo.write``);
-3. in the simulation core, :func:`gripper_env.simulation.simulate`, closed loop with the same
+3. in the simulation core, :func:`gripper_env.sim.simulate`, closed loop with the same
    PID, command path and sensor;
 
 with the same host traffic as ``rig.deploy`` (the profile's value every 20 ms, a heartbeat
@@ -37,7 +37,7 @@ from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.firmware import UART_BYTES_PER_TICK
 from gripper_env.pid import ANTI_WINDUP_MODES, PIDGains, PIDOptions
 from gripper_env.references import Reference, load_reference
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 __all__ = [
     "AGREEMENT_DISTURBANCE",

@@ -10,7 +10,7 @@ Inside, three parts mirror the real rig:
 * :class:`~gripper_env.hardware.firmware.Firmware`, the board's state machine (the Python twin
   of ``firmware/gripper/gripper_device.h``, PID included), ticked every 1 ms of device time;
 * :class:`VirtualRig`, the servo, jaw and potentiometer: the project's one simulation core
-  (:class:`~gripper_env.simulation.BatchSimulator`) in open loop, driven by the firmware's servo
+  (:class:`~gripper_env.sim.BatchSimulator`) in open loop, driven by the firmware's servo
   command one physics step per tick, whose measured angle is reported as 10-bit ADC counts;
 * the serial line: the firmware's 512-byte transmit queue drained at 1 Mbaud (100 bytes per
   tick) into the pty, the host's bytes fed to the firmware as they arrive.
@@ -63,7 +63,7 @@ from gripper_env.hardware.firmware import (
 )
 from gripper_env.pid import pid_update
 from gripper_env.plants import load_plant
-from gripper_env.simulation import BatchSimulator
+from gripper_env.sim import BatchSimulator
 
 if TYPE_CHECKING:
     from gripper_env.hardware.emulator import EmulatedBoard

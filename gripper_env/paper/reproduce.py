@@ -34,7 +34,7 @@ from gripper_env.metrics import Metrics, compute_metrics, fit_percent, sample_sd
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.plants import load_plant
 from gripper_env.references import Reference, load_reference, step_profile
-from gripper_env.simulation import Trajectory, simulate
+from gripper_env.sim import Trajectory, simulate
 from gripper_env.stability import stability_report
 
 PLANTS = ("test1", "test2", "test3", "test4")

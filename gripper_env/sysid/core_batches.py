@@ -1,7 +1,7 @@
 """Candidate actual grippers, run in batches by the simulation core, for the grey-box fit.
 
 :class:`CoreRuns` holds a log and the preset whose known blocks are kept, and runs the core
-(:class:`gripper_env.simulation.BatchSimulator`, open loop on the log's command) on a batch of
+(:class:`gripper_env.sim.BatchSimulator`, open loop on the log's command) on a batch of
 candidate presets in one compiled call per chunk, each with its own servo refresh phase.
 On top of it: the friction's profile cost (:func:`profile`: each candidate's friction output,
 the transfer function fitted to it on the refresh-tick grid) and the timing scans
@@ -17,7 +17,7 @@ import numpy as np
 
 from gripper_env.disturbances import Disturbance
 from gripper_env.plants import Plant
-from gripper_env.simulation import BatchSimulator
+from gripper_env.sim import BatchSimulator
 from gripper_env.sysid.tfest import tfest
 
 __all__ = [

@@ -20,7 +20,7 @@ import numpy as np
 from gripper_env import paper
 from gripper_env.metrics import fit_percent, sample_sd
 from gripper_env.plants import Plant, load_plant
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.experiments import IdentifiedExperiment
 from gripper_env.sysid.logfile import read_log

@@ -39,7 +39,7 @@ from gripper_env.disturbances import Disturbance, describe, load_disturbance
 from gripper_env.files import write_csv
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import Reference, step_profile
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.logfile import LOG_COLUMNS, read_log
 from gripper_env.sysid.tfest import TFEstimate, tfest
@@ -160,7 +160,7 @@ def write_log(
 class SimulatedRecorder:
     """The simulated actual gripper as a :data:`Recorder`: ``plant`` behind ``disturbance``.
 
-    Each run is an open-loop :func:`gripper_env.simulation.simulate` from rest at the profile's
+    Each run is an open-loop :func:`gripper_env.sim.simulate` from rest at the profile's
     first angle; the log holds the desired angle and the *measured* angle (sensor noise and ADC
     included), as a board would report them. The disturbance parameters are the preset's nominal
     values (one gripper for the whole session); run ``k`` draws its noise from seed ``seed + k``.

@@ -4,7 +4,7 @@ A linear transfer function fitted to a log of the real gripper absorbs the frict
 its poles (on a slow slope, a model more than twice as slow as the servo). This module fits the
 project's whole actual-gripper model instead (:mod:`gripper_env.disturbances`: servo command
 path, friction, the transfer function, stops, sensor), by running the simulation core
-(:class:`gripper_env.simulation.BatchSimulator`) on batches of candidate parameter sets:
+(:class:`gripper_env.sim.BatchSimulator`) on batches of candidate parameter sets:
 
 1. **Sensor** from the measured values alone (:mod:`gripper_env.sysid.sensor`): ADC resolution
    and offset, noise.

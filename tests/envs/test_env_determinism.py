@@ -6,7 +6,7 @@ import pytest
 from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO, signed_log_gains
 
 import gripper_env  # noqa: F401
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 
 def rollout(env, seed, n_steps, action_seed=0):

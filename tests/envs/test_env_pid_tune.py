@@ -13,7 +13,7 @@ from gripper_env.metrics import compute_metrics
 from gripper_env.objective import load_objective
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDGains
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.stability import stability_report
 
 

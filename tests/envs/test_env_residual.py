@@ -10,7 +10,8 @@ import gripper_env  # noqa: F401
 from gripper_env.disturbances import load_disturbance
 from gripper_env.plants import load_plant
 from gripper_env.references import load_reference
-from gripper_env.simulation import S_XI, BatchSimulator, simulate
+from gripper_env.sim import BatchSimulator, simulate
+from gripper_env.sim.layout import S_XI
 
 GAINS = (1.0, 9.0, -0.001)  # the paper's tuned gains on TF test2
 JC, JH = 56.5, 35.5  # centre and half-width of the jaw range (deg)

@@ -5,7 +5,7 @@ import pytest
 
 from gripper_env.envs.rollout import policy_trajectory
 from gripper_env.pid import PIDOptions
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 SEEDS = [100000, 100001, 100002]
 FIELDS = ("r", "u", "y", "y_true", "stable", "saturated_s", "contact_s", "stall_s",

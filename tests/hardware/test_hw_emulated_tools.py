@@ -28,7 +28,7 @@ from gripper_env.hardware.virtual import _parser as virtual_parser
 from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import step_profile
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from rig import calibrate, deploy, record
 
 GAINS = PIDGains(1.0, 9.0, -0.001)

@@ -16,7 +16,7 @@ from gripper_env.hardware.protocol import Fault, Mode
 from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 
 GAINS = PIDGains(1.0, 9.0, -0.001)  # the paper's tuned gains on test2
 OPTIONS = PIDOptions(output_limits=(21.0, 92.0))

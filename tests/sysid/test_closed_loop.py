@@ -90,7 +90,7 @@ def test_closed_loop_data_without_reference_are_flagged(loop_log, capsys):
 
 
 def test_open_loop_data_are_not_flagged(tmp_path, capsys):
-    from gripper_env.simulation import simulate
+    from gripper_env.sim import simulate
 
     traj = simulate("test2", "slope20", gains=None, disturbance="actual", seeds=2)
     log = write_log(tmp_path / "open.csv", traj.t, desired_deg=traj.r[0], actual_deg=traj.y[0])

@@ -92,7 +92,7 @@ def _greybox(log, base, plant, preset, capsys):
 
 
 def test_a_step_record_says_the_friction_is_not_pinned_down(tmp_path, capsys):
-    from gripper_env.simulation import simulate
+    from gripper_env.sim import simulate
 
     traj = simulate("test2", "step", gains=None, disturbance="actual", seeds=3)
     log = write_log(tmp_path / "step.csv", traj.t, desired_deg=traj.r[0], actual_deg=traj.y[0])

@@ -15,7 +15,7 @@ import pytest
 
 from gripper_env.disturbances import load_disturbance
 from gripper_env.plants import load_plant
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.sysid.commands import main as sysid_main
 from gripper_env.sysid.experiments import (
     EXPERIMENTS,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gripper_env.simulation import simulate
+from gripper_env.sim import simulate
 from gripper_env.sysid import tfest
 
 from .cli_support import run, run_json, write_log

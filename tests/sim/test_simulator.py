@@ -9,7 +9,7 @@ from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.pid import PIDOptions
 from gripper_env.plants import Plant, load_plant
 from gripper_env.references import load_reference
-from gripper_env.simulation import BatchSimulator, simulate
+from gripper_env.sim import BatchSimulator, simulate
 
 TS = 1e-3
 
@@ -220,7 +220,7 @@ def test_bad_inputs():
 def test_noise_generator_is_standard_normal():
     from scipy import stats
 
-    from gripper_env.simulation import normal_draws
+    from gripper_env.sim.noise import normal_draws
 
     x = normal_draws(11, 200_000)
     assert abs(x.mean()) < 0.01 and abs(x.std() - 1) < 0.01

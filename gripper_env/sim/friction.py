@@ -27,8 +27,18 @@ Backlash (``backlash_deg``, the play operator)
     The output moves only when the input has taken up a play of ``b`` (deg):
     ``y = x - b/2`` when ``x - y > b/2``, ``y = x + b/2`` when ``y - x > b/2``, else held.
 
-All functions update a small state vector in place so the simulation core can run them in its
-compiled loop; they are also callable from Python (tests, notebooks).
+In the simulation core (:mod:`gripper_env.sim.kernel`) the held servo command goes through
+stiction, then backlash (:func:`friction_step`), on the scalar state of a run. The configuration
+is :class:`gripper_env.disturbances.Friction`; :func:`stiction_step` and :func:`backlash_step`
+are also callable from Python (tests, notebooks).
+
+Parameters (a tuple, :func:`friction_params`): ``(model, S, J, backlash)`` - model code
+(:data:`FRICTION_MODELS`), ``S`` and ``J`` (deg), backlash width (deg, 0 for none).
+
+State (a tuple, :func:`load_friction`): ``(v, out, x_prev, x_ss, direction, stuck, backlash_out)``
+- the block's output (deg: the position the servo's dynamics follow), the stiction output (deg),
+its previous input (deg), the input where the jaw stuck (deg), the direction of the last motion
+(-1, 0, +1), 1.0 while stuck, and the backlash output (deg).
 """
 
 from __future__ import annotations
@@ -36,24 +46,41 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from gripper_env.disturbances import Friction
+from gripper_env.sim.layout import (
+    F_DIR,
+    F_OUT,
+    F_SIZE,
+    F_STUCK,
+    F_XPREV,
+    F_XSS,
+    P_BACKLASH,
+    P_FRIC,
+    P_J,
+    P_S,
+    S_BACKLASH,
+    S_FRIC,
+    S_VPREV,
+)
+
 __all__ = [
     "FRICTION_MODELS",
     "backlash_step",
+    "friction_columns",
+    "friction_params",
     "friction_state",
+    "friction_step",
+    "load_friction",
     "stiction_scalar",
     "stiction_step",
+    "store_friction",
 ]
 
 #: Friction model names and their codes in the simulation core.
 FRICTION_MODELS: dict[str, int] = {"none": 0, "choudhury": 1, "kano": 2}
 
-# Layout of a friction state vector.
-F_OUT = 0  # output position (deg)
-F_XPREV = 1  # previous input (deg)
-F_XSS = 2  # input where the jaw stuck (deg)
-F_DIR = 3  # direction of the last motion: -1, 0 (none yet), +1
-F_STUCK = 4  # 1 while stuck
-F_SIZE = 5
+FrictionParams = tuple[int, float, float, float]
+FrictionState = tuple[float, float, float, float, float, float, float]
 
 
 def friction_state(x0: float) -> np.ndarray:
@@ -128,7 +155,7 @@ def stiction_scalar(
     return out, x_ss, direction, stuck
 
 
-@njit(cache=True)
+@njit
 def stiction_step(model: int, x: float, s_deg: float, j_deg: float, st: np.ndarray) -> float:
     """Advance a stiction model by one sample.
 
@@ -168,3 +195,71 @@ def backlash_step(x: float, width_deg: float, y_prev: float) -> float:
     if y_prev - x > half:
         return x + half
     return y_prev
+
+
+def friction_columns(f: Friction) -> dict[int, float]:
+    """Parameter columns of the friction block ``f``."""
+    model = FRICTION_MODELS[f.model]
+    return {P_FRIC: model, P_S: f.S_deg, P_J: f.J_deg, P_BACKLASH: f.backlash_deg}
+
+
+@njit(inline="always")
+def friction_params(params: np.ndarray, b: int) -> FrictionParams:
+    """Run ``b``'s friction parameters (see the module docstring)."""
+    return int(params[b, P_FRIC]), params[b, P_S], params[b, P_J], params[b, P_BACKLASH]
+
+
+@njit(inline="always")
+def load_friction(state: np.ndarray, b: int) -> FrictionState:
+    """Run ``b``'s friction state."""
+    return (
+        state[b, S_VPREV],
+        state[b, S_FRIC + F_OUT],
+        state[b, S_FRIC + F_XPREV],
+        state[b, S_FRIC + F_XSS],
+        state[b, S_FRIC + F_DIR],
+        state[b, S_FRIC + F_STUCK],
+        state[b, S_BACKLASH],
+    )
+
+
+@njit(inline="always")
+def store_friction(state: np.ndarray, b: int, s: FrictionState) -> None:
+    """Write run ``b``'s friction state back."""
+    state[b, S_VPREV], state[b, S_FRIC + F_OUT], state[b, S_FRIC + F_XPREV] = s[:3]
+    state[b, S_FRIC + F_XSS], state[b, S_FRIC + F_DIR], state[b, S_FRIC + F_STUCK] = s[3:6]
+    state[b, S_BACKLASH] = s[6]
+
+
+@njit(cache=True, inline="always")
+def friction_step(x: float, s: FrictionState, p: FrictionParams) -> FrictionState:
+    """Stiction, then backlash, on the held servo command ``x`` (deg), for one physics step.
+
+    Parameters
+    ----------
+    x : float
+        The command the servo acts on (deg).
+    s : tuple of 7 float
+        Friction state before the step (see the module docstring).
+    p : tuple (int, float, float, float)
+        ``(model, S, J, backlash)``.
+
+    Returns
+    -------
+    tuple of 7 float
+        Friction state after the step; its first entry is the position passed on to the servo
+        dynamics (deg). A flat tuple: numba's parallel array analysis fails on nested ones.
+    """
+    _, out, x_prev, x_ss, direction, stuck, bl_out = s
+    model, s_deg, j_deg, play = p
+    v = x
+    if model != 0:
+        out, x_ss, direction, stuck = stiction_scalar(
+            model, x, s_deg, j_deg, out, x_prev, x_ss, direction, stuck
+        )
+        x_prev = x
+        v = out
+    if play > 0.0:
+        bl_out = backlash_step(v, play, bl_out)
+        v = bl_out
+    return v, out, x_prev, x_ss, direction, stuck, bl_out

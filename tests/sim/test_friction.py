@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gripper_env.friction import (
+from gripper_env.sim.friction import (
     F_DIR,
     F_STUCK,
     F_XSS,
