@@ -126,7 +126,6 @@ class ControlBatch:
         cfg[K.C_DIVPEN] = DIVERGED_PENALTY
         cfg[K.C_MAXSTEPS] = 0.0  # no limit: see set_time_limit
         cfg[K.C_RESIDUAL] = 0.0 if residual is None else residual.bound_deg
-        cfg[K.C_PARMIN] = K.PARALLEL_MIN_STEPS
         self.cfg = cfg
         self.n_context = len(context_features(s.plants[0], s.disturbance, _any_reference(s)))
         self.n_obs = K.observation_size(mode, self.n_actions, self.n_context * observe_context)
@@ -151,13 +150,12 @@ class ControlBatch:
         self._bind()
 
     def set_parallel(self, parallel: bool | None) -> None:
-        """``None`` (the default): by batch size (:func:`~gripper_env.envs.kernels.step_kernel`:
-        the parallel kernel for several rows, on every thread from
-        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per call, else on the
-        calling thread); ``True``: the parallel kernel on every thread whatever the size;
-        ``False``: the serial kernel. The results are the same; only the speed differs."""
+        """``None`` (the default): the serial or the parallel kernel by batch size
+        (:func:`~gripper_env.envs.kernels.step_kernel`, from
+        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per call);
+        ``True``: the parallel kernel whatever the size; ``False``: the serial one. The results
+        are the same; only the speed differs."""
         self.parallel = parallel
-        self.cfg[K.C_PARMIN] = 0.0 if parallel else K.PARALLEL_MIN_STEPS
         self._bind()
 
     # Copies (pickle, deepcopy, a spawned worker) rebuild the derived references: the compiled

@@ -29,7 +29,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from numba import get_num_threads, njit, prange, set_num_threads
+from numba import njit, prange
 
 from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.sim.compile import compile_kernel
@@ -60,9 +60,8 @@ from gripper_env.sim.layout import P_P, S_DIVERGED, S_SERVO_TV, S_XI
     C_DIVPEN,  # reward of a step on which the run diverged (positive number, negated)
     C_MAXSTEPS,  # truncate after this many steps (0: no limit; the vector envs' time limit)
     C_RESIDUAL,  # residual modes: correction (deg) at action +/-1
-    C_PARMIN,  # physics steps per call from which the parallel kernel uses every thread
-) = range(23)
-N_CFG = 23
+) = range(22)
+N_CFG = 22
 
 MODE_SERVO = 0  # action = servo command (open loop)
 MODE_GAINS = 1  # action = PID gains (closed loop)
@@ -321,17 +320,12 @@ def _step_impl(
     # compile-time open loop lets LLVM drop the PID from the physics loop (1.06x)
     closed = out_u is not None
     dt = cfg[C_DT]
-    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule); a
-    # small batch runs on the calling thread alone (no worker wakes up for it)
+    # rows in chunks, taken from a shared counter by whichever thread is free (_schedule)
     chunk = rows_per_chunk(n_sub)
     n_chunks = (n_rows + chunk - 1) // chunk
     workers = n_workers(n_chunks)
     counter = np.zeros(1, np.int64)
     resetting = np.zeros(workers, np.int64)
-    threads = get_num_threads()
-    small = n_rows * n_sub < cfg[C_PARMIN]
-    if small and threads > 1:
-        set_num_threads(1)
     for w in prange(workers):
         c = fetch_add(counter, np.int64(1))
         while c < n_chunks:
@@ -351,34 +345,28 @@ def _step_impl(
                     _post(b, actions, cfg, ref, env, obs, rewards, terminated, truncated, state,
                           drive, out_u, out_y)  # fmt: skip
             c = fetch_add(counter, np.int64(1))
-    if small and threads > 1:
-        set_num_threads(threads)
     return -1, int(resetting.sum()), rewards[0], terminated[0], truncated[0]
 
 
-#: Physics steps per call (rows x steps per control period) from which the parallel kernel
-#: spreads a batch over the worker threads. Below it the batch runs on the calling thread alone:
-#: waking a worker costs ~5-20 us on an idle 2-core machine and far more on a loaded one, while
-#: a row's period costs ~0.2 us. Measured with ``python -m benchmarks.envs_speed`` (its
-#: one-thread and all-threads columns).
-PARALLEL_MIN_STEPS = 4096
+#: Physics steps per call (rows x steps per control period) from which a batch runs the parallel
+#: kernel; below it the serial one, on the calling thread. Waking the worker threads costs
+#: ~5-20 us on an idle 2-core machine (far more on a loaded one) while a row's 20-step period
+#: costs ~0.5 us, so small batches never pay for a wake-up. (Limiting the threads inside the
+#: kernel, numba.set_num_threads, would make it uncacheable: numba refuses to cache a function
+#: that holds the threading layer's ctypes pointers.) Measured with
+#: ``python -m benchmarks.envs_speed`` (its serial and parallel columns).
+PARALLEL_MIN_STEPS = 400
 
 # cached per version of every file they compile in (the core, the PID, the work sharing)
 step_serial, step_parallel = compile_kernel(_step_impl)
 
 
 def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None) -> Callable[..., tuple]:
-    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
-
-    A single environment runs the serial kernel; a batch the parallel one, which runs on the
-    calling thread alone below ``cfg[C_PARMIN]`` (:data:`PARALLEL_MIN_STEPS`) physics steps per
-    call and on every numba thread from there (numba's parallel compilation makes the row loop
-    ~1.5-2.5x faster than the serial one even on one thread, measured at 32-1024 rows).
-    ``parallel`` forces the serial (``False``) or the parallel (``True``) kernel; the results
-    are the same.
-    """
+    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call: the
+    parallel one from :data:`PARALLEL_MIN_STEPS` physics steps per call, else the serial one.
+    ``parallel`` forces one or the other; the results are the same."""
     if parallel is None:
-        parallel = n_rows > 1
+        parallel = n_rows > 1 and n_rows * n_sub >= PARALLEL_MIN_STEPS
     return step_parallel if parallel else step_serial
 
 

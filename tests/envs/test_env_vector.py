@@ -152,15 +152,18 @@ def test_vector_renders_the_chosen_envs(env_id):
 
 
 def test_kernel_by_batch_size():
-    """A single environment runs the serial kernel; a batch the parallel one, which wakes the
-    worker threads only from PARALLEL_MIN_STEPS physics steps per call (the kernel's check)."""
+    """Small batches run the serial kernel (no thread wake-up), large ones the parallel one;
+    set_parallel forces either."""
     assert kernels.step_kernel(1, 20) is kernels.step_serial
-    assert kernels.step_kernel(8, 20) is kernels.step_parallel
+    assert kernels.step_kernel(8, 20) is kernels.step_serial
+    assert kernels.step_kernel(32, 20) is kernels.step_parallel
     assert kernels.step_kernel(1024, 20, parallel=False) is kernels.step_serial
+    assert kernels.step_kernel(8, 20, parallel=True) is kernels.step_parallel
     envs = gym.make_vec(SERVO, num_envs=8, vectorization_mode="vector_entry_point")
     batch = envs.unwrapped._batch
-    assert batch.cfg[kernels.C_PARMIN] == kernels.PARALLEL_MIN_STEPS > 8 * 20
+    assert batch._kernel is kernels.step_serial
     envs.unwrapped.set_parallel(True)
-    assert batch.cfg[kernels.C_PARMIN] == 0 and batch._kernel is kernels.step_parallel
+    assert batch._kernel is kernels.step_parallel
     envs.unwrapped.set_parallel(False)
     assert batch._kernel is kernels.step_serial
+    envs.close()
