@@ -20,7 +20,8 @@ stable-baselines3 steps these through :class:`gripper_env.sb3.NativeVecEnv`.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -30,11 +31,13 @@ from gymnasium.vector.utils import batch_space
 
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
+from gripper_env.envs.control_env import ControlEnv
 from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
 from gripper_env.envs.pid_tune import EpisodeRenderer, GripperPIDTuneEnv, run_episodes
 from gripper_env.envs.rendering import RENDER_MODES, RowRenderer
 from gripper_env.envs.servo import GripperServoEnv
+from gripper_env.envs.settings import Settings
 from gripper_env.envs.spaces import check_actions
 
 __all__ = [
@@ -47,11 +50,13 @@ __all__ = [
 class _SeededVectorEnv(VectorEnv):
     """Per-environment generators, seeding like ``SyncVectorEnv``, shared argument checks."""
 
-    metadata: ClassVar[dict[str, Any]] = {
+    # gymnasium declares metadata per instance (VectorEnv.metadata); this is the class default
+    metadata: dict[str, Any] = {  # noqa: RUF012
         "autoreset_mode": AutoresetMode.NEXT_STEP,
         "render_modes": list(RENDER_MODES),
     }
     _name = "VectorEnv"
+    settings: Settings
 
     def _setup(
         self, num_envs: int, max_episode_steps: int | None, render_mode: Any, render_envs: Any
@@ -328,7 +333,8 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._slots: dict[int, Any] = self._single.slots
         self._episodes: list[Any] = [None] * self.num_envs
-        self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
+        obs_shape = tuple(self.single_observation_space.shape or ())
+        self._obs = np.zeros((self.num_envs, *obs_shape), np.float32)
         # (the control envs keep these per row in their kernel's state)
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
@@ -407,7 +413,7 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
             renderer.close()
 
 
-_SINGLE: dict[int, type[gym.Env]] = {
+_SINGLE: dict[int, Callable[..., ControlEnv]] = {
     K.MODE_SERVO: GripperServoEnv,
     K.MODE_GAINS: GripperGainScheduleEnv,
 }
