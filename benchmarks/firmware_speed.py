@@ -39,13 +39,12 @@ import numpy as np
 from gripper_env.files import write_atomic
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.device import GripperDevice, configure_message
 from gripper_env.hardware.emulator import CYCLES_PER_MS, CYCLES_PER_US, EmulatedBoard, ensure_built
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.scripted import (
     AGREEMENT_SHIFT_MS,
     ScriptedHost,
-    configure_message,
     run_agreement,
 )
 from gripper_env.hardware.virtual import VirtualDevice, VirtualRig

@@ -32,9 +32,10 @@ import numpy as np
 from gripper_env.files import save_figure, write_json
 from gripper_env.gains_file import load_gains_file
 from gripper_env.hardware.calibration import load_calibration
-from gripper_env.hardware.device import GripperDevice, TelemetryBlock
+from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
 from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.metrics import compute_metrics, fit_percent
 from gripper_env.objective import load_objective
 from gripper_env.references import PROFILES, load_reference

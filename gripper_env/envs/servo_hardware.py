@@ -26,14 +26,10 @@ from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.settings import check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S, check_actions
 from gripper_env.hardware.calibration import Calibration, load_calibration
-from gripper_env.hardware.device import (
-    DeviceError,
-    DeviceFault,
-    DeviceTimeout,
-    GripperDevice,
-    TelemetryBlock,
-)
+from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.errors import DeviceError, DeviceFault, DeviceTimeout
 from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.references import Reference
 
 __all__ = ["GripperServoHardwareEnv", "MissedDeadlineWarning", "SettleWarning"]
@@ -432,7 +428,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         block = TelemetryBlock.concatenate(self._pending)
         period = (block.t_us > self._t_obs_us) & (block.t_us <= end_us)
         after = block.t_us > end_us
-        self._pending = [_select(block, after)] if after.any() else []
+        self._pending = [block.select(after)] if after.any() else []
         if not period.any():  # the period's frames were lost: use the next sample
             period = after & (np.cumsum(after) == 1)
         y = np.ascontiguousarray(block.position_deg[period], dtype=np.float64)
@@ -507,17 +503,6 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
                 dev.safe_stop()
             finally:
                 dev.close()
-
-
-def _select(block: TelemetryBlock, mask: np.ndarray) -> TelemetryBlock:
-    return TelemetryBlock(
-        block.t_us[mask],
-        block.reference_deg[mask],
-        block.command_deg[mask],
-        block.adc[mask],
-        block.position_deg[mask],
-        block.flags[mask],
-    )
 
 
 def _load_kernels() -> None:

@@ -23,8 +23,10 @@ from typing import IO
 
 import numpy as np
 
-from gripper_env.hardware.device import DeviceTimeout, GripperDevice, TelemetryBlock
+from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.errors import DeviceTimeout
 from gripper_env.hardware.protocol import Mode, SampleFlag
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.references import Reference, Segment
 from gripper_env.simulation import Trajectory
 
@@ -284,7 +286,7 @@ def run_profile(
                 active = np.flatnonzero(block.mode == mode)
                 if not len(active):
                     continue
-                block = TelemetryBlock(*(getattr(block, f)[active[0] :] for f in _FIELDS))
+                block = block.select(slice(active[0], None))
                 t0_us = int(block.t_us[0])
                 next_host_us = next_beat_us = t0_us
             blocks.append(block)
@@ -326,6 +328,3 @@ def run_profile(
     )
     rec.extra["log"] = str(where) if where else None
     return rec
-
-
-_FIELDS = ("t_us", "reference_deg", "command_deg", "adc", "position_deg", "flags")

@@ -20,8 +20,8 @@ from virtual_support import REPO, gains_file, open_device, short_step_csv, true_
 
 from gripper_env.hardware import emulator
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.device import DeviceReset
 from gripper_env.hardware.emulator import EMULATED_DEVICE_ID
+from gripper_env.hardware.errors import DeviceReset
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import _parser as virtual_parser

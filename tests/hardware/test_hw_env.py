@@ -16,7 +16,7 @@ import gripper_env
 from gripper_env.config import ConfigError
 from gripper_env.envs.servo_hardware import GripperServoHardwareEnv, MissedDeadlineWarning
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import DeviceTimeout
+from gripper_env.hardware.errors import DeviceTimeout
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
 
