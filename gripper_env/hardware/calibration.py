@@ -33,7 +33,11 @@ from typing import Any
 import numpy as np
 
 from gripper_env.files import read_format_json, write_json
-from gripper_env.hardware.firmware import ADC_MAX_COUNT, CAL_ANGLE_HI_DEG, CAL_ANGLE_LO_DEG
+from gripper_env.hardware.firmware_safety import (
+    ADC_MAX_COUNT,
+    CAL_ANGLE_HI_DEG,
+    CAL_ANGLE_LO_DEG,
+)
 
 __all__ = [
     "DEFAULT_PATH",

@@ -1,7 +1,7 @@
 """A scripted host on an in-process board, and the three-way agreement of the firmware models.
 
 :class:`ScriptedHost` drives a board object (the Python twin, :class:`~gripper_env.hardware.
-virtual.TwinBoard`, or the compiled image under simavr, :class:`~gripper_env.hardware.emulator.
+virtual_rig.TwinBoard`, or the compiled image under simavr, :class:`~gripper_env.hardware.emulator.
 EmulatedBoard`) without a pty: every frame goes out at a chosen millisecond of device time and
 the board's bytes are decoded as they come. A run is therefore deterministic, which the fault
 tests and the agreement need and a host racing a pty cannot give.
@@ -308,12 +308,12 @@ def run_agreement(
     disturbance : preset, dict or Disturbance, optional
         The rig (default :data:`AGREEMENT_DISTURBANCE`).
     image, harness : path, optional
-        Firmware image and emulator harness (:class:`~gripper_env.hardware.emulator.Mega2560`).
+        Firmware image and emulator harness (:class:`~gripper_env.hardware.mega2560.Mega2560`).
     seed : int
         Noise seed of the rigs and the simulation.
     """
     from gripper_env.hardware.emulator import EmulatedBoard
-    from gripper_env.hardware.virtual import TwinBoard, VirtualRig
+    from gripper_env.hardware.virtual_rig import TwinBoard, VirtualRig
 
     ref = load_reference(profile)
     values = ref.values_deg

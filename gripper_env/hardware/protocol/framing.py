@@ -37,6 +37,7 @@ __all__ = [
     "MESSAGE_TYPES",
     "DecoderStats",
     "FrameDecoder",
+    "FrameSplitter",
     "ReceivedFrame",
     "decode_frame",
     "decode_payload",
@@ -194,13 +195,14 @@ class DecoderStats:
         return self.bad_cobs + self.bad_crc + self.truncated + self.oversized + self.bad_message
 
 
-class FrameDecoder:
-    """Turn an arbitrary byte stream into messages; never raises on bad input.
+class FrameSplitter:
+    """Split an arbitrary byte stream into CRC-checked frames; never raises on bad input.
 
-    Feed it whatever the serial port returns; it splits on ``0x00``, drops frames that are not
-    valid COBS, are too short or too long, fail the CRC or do not parse, counts each reason in
-    :attr:`stats`, keeps the last reason in :attr:`last_error`, and resynchronises at the next
-    delimiter.
+    Feed it whatever the line delivers; it splits on ``0x00``, drops frames that are not valid
+    COBS, are too short or too long or fail the CRC, counts each reason in :attr:`stats`, keeps
+    the last reason in :attr:`last_error`, and resynchronises at the next delimiter. The
+    firmware's stream decoder (``gripper_protocol.h``) works the same way; its Python twin uses
+    this class.
 
     Parameters
     ----------
@@ -209,11 +211,17 @@ class FrameDecoder:
         everything up to the first ``0x00``: use it when joining a stream mid-frame.
     max_encoded : int
         Longest accepted frame in bytes, without the delimiter.
+
+    Attributes
+    ----------
+    last_gap : int
+        Frames missing before the last valid frame.
     """
 
     def __init__(self, *, synced: bool = True, max_encoded: int = MAX_ENCODED_FRAME) -> None:
         self.stats = DecoderStats()
         self.last_error: ProtocolError | None = None
+        self.last_gap = 0
         self._max = max_encoded
         self._buffer = bytearray()
         self._overflow = False
@@ -224,9 +232,17 @@ class FrameDecoder:
         """Forget the last sequence number (after a device reset): no gap is counted next."""
         self._last_seq = None
 
-    def feed(self, data: bytes) -> list[ReceivedFrame]:
-        """Consume ``data`` and return the frames it completed, in order."""
-        out: list[ReceivedFrame] = []
+    def forgive_last_gap(self) -> None:
+        """Take the last gap back out of the counts (the sender started a new sequence)."""
+        if self.last_gap:
+            self.stats.lost -= self.last_gap
+            self.stats.gaps -= 1
+        self.last_gap = 0
+
+    def split(self, data: bytes) -> list[tuple[int, int, bytes, int]]:
+        """Consume ``data``; return the CRC-valid frames it completed, in order, as
+        ``(seq, type, payload, gap)`` (``gap``: frames missing before this one)."""
+        out = []
         start = 0
         while True:
             end = data.find(0, start)
@@ -244,17 +260,21 @@ class FrameDecoder:
             if end < 0:
                 return out
             self._synced = True
-            received = self._finish()
-            if received is not None:
-                out.append(received)
+            frame = self._finish()
+            if frame is not None:
+                out.append(frame)
+                self._accepted(*frame)
             start = end + 1
+
+    def _accepted(self, seq: int, type_id: int, payload: bytes, gap: int) -> None:
+        """Called on each valid frame as it completes (subclasses parse it)."""
 
     def _reject(self, counter: str, error: ProtocolError, n: int) -> None:
         setattr(self.stats, counter, getattr(self.stats, counter) + 1)
         self.stats.discarded_bytes += n
         self.last_error = error
 
-    def _finish(self) -> ReceivedFrame | None:
+    def _finish(self) -> tuple[int, int, bytes, int] | None:
         encoded = bytes(self._buffer)
         overflow = self._overflow
         self._buffer.clear()
@@ -283,12 +303,42 @@ class FrameDecoder:
         if gap:
             self.stats.lost += gap
             self.stats.gaps += 1
+        self.last_gap = gap
         self._last_seq = seq
+        return seq, type_id, payload, gap
+
+
+class FrameDecoder(FrameSplitter):
+    """Turn an arbitrary byte stream into messages; never raises on bad input.
+
+    A :class:`FrameSplitter` that also parses each frame's payload: frames with an unknown
+    type or a payload that does not fit it are dropped too (counted as ``bad_message``).
+
+    Parameters
+    ----------
+    synced : bool
+        ``True`` (default) treats the first bytes as the start of a frame. ``False`` discards
+        everything up to the first ``0x00``: use it when joining a stream mid-frame.
+    max_encoded : int
+        Longest accepted frame in bytes, without the delimiter.
+    """
+
+    def __init__(self, *, synced: bool = True, max_encoded: int = MAX_ENCODED_FRAME) -> None:
+        super().__init__(synced=synced, max_encoded=max_encoded)
+        self._received: list[ReceivedFrame] = []
+
+    def feed(self, data: bytes) -> list[ReceivedFrame]:
+        """Consume ``data`` and return the messages it completed, in order."""
+        self.split(data)
+        out, self._received = self._received, []
+        return out
+
+    def _accepted(self, seq: int, type_id: int, payload: bytes, gap: int) -> None:
         try:
             message = decode_payload(type_id, payload)
         except ProtocolError as exc:
             self.stats.bad_message += 1
             self.last_error = exc
-            return None
+            return
         self.stats.messages += 1
-        return ReceivedFrame(seq, message, gap)
+        self._received.append(ReceivedFrame(seq, message, gap))
