@@ -350,7 +350,7 @@ class GripperDevice:
                 blocks.append(block)
                 if start is None:
                     start = int(block.t_us[0])
-                if self._clock.latest_us - start >= duration_s * 1e6:
+                if (self._clock.latest_us or 0) - start >= duration_s * 1e6:
                     return TelemetryBlock.concatenate(blocks)
             elif time.monotonic() - last > wait:
                 raise DeviceTimeout(
@@ -479,7 +479,11 @@ class GripperDevice:
                     if isinstance(answer, expect):
                         if isinstance(answer, proto.Status) and answer.last_rx_seq != seq:
                             continue  # a fault report or an answer to an earlier frame
-                        if isinstance(msg, proto.Heartbeat) and answer.echo != msg.token:
+                        if (
+                            isinstance(msg, proto.Heartbeat)
+                            and isinstance(answer, proto.Status)
+                            and answer.echo != msg.token
+                        ):
                             continue
                         return answer
         corrupted = self.decoder.stats.rejected - rejected_before

@@ -288,13 +288,13 @@ class Firmware:
             msg = cls.decode(payload)
         except proto.PayloadLengthError:
             return self._refuse(proto.ErrorCode.BAD_LENGTH, n)
-        if type_id == proto.Configure.TYPE:
+        if isinstance(msg, proto.Configure):
             config, field_index = validate_configure(msg)
             if config is None:
                 return self._refuse(proto.ErrorCode.BAD_VALUE, field_index)
             self._apply_config(config)
             self._send_status()
-        elif type_id == proto.SetMode.TYPE:
+        elif isinstance(msg, proto.SetMode):
             mode = msg.mode
             if mode > proto.Mode.CLOSED_LOOP:
                 return self._refuse(proto.ErrorCode.BAD_VALUE, 0)
@@ -310,14 +310,14 @@ class Firmware:
                     self.mode = mode
                     self.entry_pending = True
             self._send_status()
-        elif type_id == proto.Setpoint.TYPE:
+        elif isinstance(msg, proto.Setpoint):
             if not _finite(msg.angle_deg):
                 return self._refuse(proto.ErrorCode.BAD_VALUE, 0)
             self.setpoint = msg.angle_deg
             self.have_setpoint = True
-        elif type_id == proto.ProfileChunk.TYPE:
+        elif isinstance(msg, proto.ProfileChunk):
             return self._refuse(proto.ErrorCode.UNSUPPORTED, 0)
-        elif type_id == proto.Heartbeat.TYPE:
+        elif isinstance(msg, proto.Heartbeat):
             self.echo = msg.token
             self._send_status()
         return None

@@ -293,7 +293,7 @@ class Mega2560:
         """Counters of the harness (cycles, instructions, sleep, UART, pulses, stack...)."""
         s = _Stats()
         self._lib.gb_stats(self._handle, ctypes.byref(s))
-        return {name: getattr(s, name) for name, _ in _Stats._fields_}
+        return {name: getattr(s, name) for name, *_ in _Stats._fields_}
 
     def profile(self, enable: bool = True) -> None:
         """Start (or stop) counting the cycles spent at each instruction address."""

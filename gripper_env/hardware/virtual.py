@@ -333,8 +333,8 @@ class VirtualDevice:
                 frame = proto.cobs_encode(bytes(raw)) + b"\x00"
             elif self._truncate:
                 self._truncate -= 1
-                raw = proto.cobs_decode(frame[:-1])
-                frame = proto.cobs_encode(raw[:3]) + b"\x00"  # shorter than seq+type+crc
+                decoded = proto.cobs_decode(frame[:-1])
+                frame = proto.cobs_encode(decoded[:3]) + b"\x00"  # shorter than seq+type+crc
             self._out += frame
 
     def _write_output(self, master: int) -> None:

@@ -74,9 +74,10 @@ class VirtualRig:
         self.adc_lo_deg = lo
         self.deg_per_count = (hi - lo) / ADC_MAX_COUNT
         self._command = np.zeros(1)
-        self._out = tuple(np.empty((1, 1)) for _ in range(4))
+        self._out = (np.empty((1, 1)), np.empty((1, 1)), np.empty((1, 1)), np.empty((1, 1)))
         # load the compiled kernels now, not at the first tick (a zero-step advance is a no-op)
-        self.sim.advance(0, self._command, 0, tuple(np.empty((1, 0)) for _ in range(4)))
+        empty = (np.empty((1, 0)), np.empty((1, 0)), np.empty((1, 0)), np.empty((1, 0)))
+        self.sim.advance(0, self._command, 0, empty)
         pid_update(0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 1e-3, 0.0, 1.0, 1, 1.0, 1.0, 0, np.zeros(2))
         self.adc = self.counts(y0_deg)
         self.position_deg = float(y0_deg)

@@ -159,10 +159,10 @@ def render_header(desc: Description) -> str:
     for e in desc.enums.values():
         out += ["", f"// {e.doc}" if e.doc else "", f"enum {e.name} {{"]
         for k, mem in enumerate(e.members):
-            value = f"0x{mem.value:02X}" if e.bits else str(mem.value)
+            number = f"0x{mem.value:02X}" if e.bits else str(mem.value)
             sep = "," if k + 1 < len(e.members) else ""
             doc = mem.doc or mem.detail
-            out.append(f"    {e.prefix}{mem.name} = {value}{sep}{_comment(doc)}")
+            out.append(f"    {e.prefix}{mem.name} = {number}{sep}{_comment(doc)}")
         out.append("};")
     for m in msgs:
         if m.field_enum:

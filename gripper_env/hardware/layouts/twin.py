@@ -46,18 +46,20 @@ def check_python(desc: Description) -> list[str]:
             problems.append(f"protocol.{m.python}.TYPE = 0x{cls.TYPE:02x}, expected 0x{m.id:02x}")
         names = [f.name for f in fields(cls)]
         if m.array is None:
-            want = [f.name for f in m.fields]
+            want_names = [f.name for f in m.fields]
             if getattr(cls, "_FORMAT", None) != m.format:
                 problems.append(
                     f"protocol.{m.python}._FORMAT = {getattr(cls, '_FORMAT', None)!r}, "
                     f"expected {m.format!r}"
                 )
         else:
-            want = [f.name for f in m.fields if f.name != m.array.count] + [m.array.name]
-        if names != want:
-            problems.append(f"protocol.{m.python} fields {names}, expected {want}")
+            want_names = [f.name for f in m.fields if f.name != m.array.count] + [m.array.name]
+        if names != want_names:
+            problems.append(f"protocol.{m.python} fields {names}, expected {want_names}")
     header = "<" + desc.messages["TELEMETRY"].format
-    got = reports.TELEMETRY_HEADER_STRUCT.format
-    if got != header:
-        problems.append(f"protocol.reports.TELEMETRY_HEADER_STRUCT is {got!r}, expected {header!r}")
+    header_format = reports.TELEMETRY_HEADER_STRUCT.format
+    if header_format != header:
+        problems.append(
+            f"protocol.reports.TELEMETRY_HEADER_STRUCT is {header_format!r}, expected {header!r}"
+        )
     return problems

@@ -242,7 +242,7 @@ class FrameSplitter:
     def split(self, data: bytes) -> list[tuple[int, int, bytes, int]]:
         """Consume ``data``; return the CRC-valid frames it completed, in order, as
         ``(seq, type, payload, gap)`` (``gap``: frames missing before this one)."""
-        out = []
+        out: list[tuple[int, int, bytes, int]] = []
         start = 0
         while True:
             end = data.find(0, start)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import astuple, dataclass, fields
-from typing import ClassVar, Self
+from typing import Any, ClassVar, Self
 
 from gripper_env.hardware.protocol.constants import (
     PROFILE_CHUNK_MAX_SAMPLES,
@@ -59,6 +59,7 @@ class FixedMessage(Message):
 
     _FORMAT: ClassVar[str] = ""
     _STRUCT: ClassVar[struct.Struct]
+    __dataclass_fields__: ClassVar[dict[str, Any]]  # every subclass is a dataclass
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
