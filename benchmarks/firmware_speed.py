@@ -39,7 +39,8 @@ import numpy as np
 from gripper_env.files import write_atomic
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import GripperDevice, configure_message
+from gripper_env.hardware.configuration import configure_message
+from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.emulator import EmulatedBoard
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.firmware_build import ensure_built

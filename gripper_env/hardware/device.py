@@ -28,6 +28,7 @@ from typing import Any
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
+from gripper_env.hardware.configuration import configure_message
 from gripper_env.hardware.errors import (
     DeviceError,
     DeviceFault,
@@ -47,34 +48,11 @@ from gripper_env.hardware.serial_port import (
     write_bytes,
 )
 from gripper_env.hardware.telemetry import TelemetryBlock, TelemetryClock
-from gripper_env.pid import ANTI_WINDUP_MODES, PIDGains, PIDOptions
+from gripper_env.pid import PIDGains, PIDOptions
 
-__all__ = ["BAUDRATE", "GripperDevice", "configure_message"]
+__all__ = ["BAUDRATE", "GripperDevice"]
 
 BAUDRATE = 1_000_000
-
-
-def configure_message(
-    gains: PIDGains, options: PIDOptions, calibration: Calibration, **fields: Any
-) -> proto.Configure:
-    """The CONFIGURE for these gains, options and calibration; ``fields`` set the others."""
-    lo, hi = calibration.device_counts
-    values: dict[str, Any] = {
-        "p": float(gains.P),
-        "i": float(gains.I),
-        "d": float(gains.D),
-        "n": float(gains.N),
-        "u_min": float(options.output_limits[0]),
-        "u_max": float(options.output_limits[1]),
-        "kb": float(options.kb),
-        "adc_at_lo": lo,
-        "adc_at_hi": hi,
-        "anti_windup": ANTI_WINDUP_MODES[options.anti_windup],
-        "sign": int(options.sign),
-        "d_on_meas": 1 if options.derivative_on == "measurement" else 0,
-    }
-    values.update(fields)
-    return proto.Configure(**values)
 
 
 class GripperDevice:

@@ -34,7 +34,7 @@ import numpy as np
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import configure_message
+from gripper_env.hardware.configuration import configure_message
 from gripper_env.hardware.firmware import UART_BYTES_PER_TICK
 from gripper_env.hardware.telemetry import TelemetryBlock, TelemetryClock
 from gripper_env.pid import PIDGains, PIDOptions
