@@ -312,15 +312,8 @@ class FrameDecoder(FrameSplitter):
     """Turn an arbitrary byte stream into messages; never raises on bad input.
 
     A :class:`FrameSplitter` that also parses each frame's payload: frames with an unknown
-    type or a payload that does not fit it are dropped too (counted as ``bad_message``).
-
-    Parameters
-    ----------
-    synced : bool
-        ``True`` (default) treats the first bytes as the start of a frame. ``False`` discards
-        everything up to the first ``0x00``: use it when joining a stream mid-frame.
-    max_encoded : int
-        Longest accepted frame in bytes, without the delimiter.
+    type or a payload that does not fit it are dropped too (counted as ``bad_message``). Its
+    parameters are :class:`FrameSplitter`'s.
     """
 
     def __init__(self, *, synced: bool = True, max_encoded: int = MAX_ENCODED_FRAME) -> None:
