@@ -7,6 +7,9 @@
 
     format, format_version      "gripper-gains", 1
     plant, tuner, label         which plant, which tuner, a free label ("paper-tuned", ...)
+    plant_model                 the plant's transfer function as tuned on: name, num, den, dt_s,
+                                jaw_range_deg, fit_pct, source (so a plant tuned from the
+                                user's own file is found again wherever the gains file goes)
     P, I, D, N                  Simulink parallel-form gains: deg/deg, 1/s, s, 1/s
     sign, sign_convention       +1 for e = r - y, -1 for e = y - r (the paper's hardware gains)
     limits                      output_deg [min, max], anti_windup, kb, derivative_on
@@ -46,8 +49,10 @@ from pathlib import Path
 from typing import Any
 
 from gripper_env import __version__
+from gripper_env.config import SHIPPED
 from gripper_env.files import json_ready, read_format_json
 from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.plants import Plant, PlantSpec, load_plant
 
 __all__ = [
     "FORMAT",
@@ -117,6 +122,7 @@ def build_gains_file(
     prov: dict[str, Any] | None = None,
     label: str = "",
     sample_time_s: float = 1e-3,
+    plant_model: Plant | None = None,
 ) -> dict[str, Any]:
     """Assemble the gains file's content (see the module docstring).
 
@@ -127,12 +133,26 @@ def build_gains_file(
         ``robustness`` and ``cross_model`` (a ``tuners.evaluation.Evaluation``).
     evaluation_settings : dict
         Profile, disturbance, seeds, randomize, signal, ideal-model limits.
+    plant_model : Plant, optional
+        The plant tuned on, recorded so that :meth:`GainsFile.plant_model` finds it again.
     """
+    model = None
+    if plant_model is not None:
+        model = {
+            "name": plant_model.name,
+            "num": list(plant_model.num),
+            "den": list(plant_model.den),
+            "dt_s": plant_model.dt_s,
+            "jaw_range_deg": list(plant_model.jaw_range_deg),
+            "fit_pct": plant_model.fit_pct,
+            "source": _portable_source(plant_model.source),
+        }
     return json_ready(
         {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
             "plant": plant,
+            "plant_model": model,
             "tuner": tuner,
             "label": label,
             "P": gains.P,
@@ -162,6 +182,18 @@ def build_gains_file(
     )
 
 
+def _portable_source(source: str) -> str:
+    """A shipped plant by its package path (``gripper_env.configs/plants/test2.yaml``), so that
+    no machine's folder ends up in a committed gains file; a user's own file as given."""
+    if not source:
+        return source
+    try:
+        rel = Path(source).resolve().relative_to(Path(str(SHIPPED)).resolve())
+    except (ValueError, OSError):
+        return source
+    return f"gripper_env.configs/{rel.as_posix()}"
+
+
 @dataclass(frozen=True)
 class GainsFile:
     """A loaded gains file: the controller it describes, and the raw content."""
@@ -171,6 +203,31 @@ class GainsFile:
     gains: PIDGains
     options: PIDOptions
     content: dict[str, Any]
+
+    def plant_model(self) -> Plant:
+        """The plant these gains were tuned on: the transfer function the file records
+        (``plant_model``), else the plant named ``plant`` (files written before it was recorded).
+
+        Raises
+        ------
+        GainsFileError
+            The file names no plant, or records a malformed one.
+        gripper_env.config.ConfigError
+            An older file names a plant that is not available here.
+        """
+        model = self.content.get("plant_model")
+        if model is None:
+            if not self.plant:
+                raise GainsFileError("the gains file names no plant")
+            return load_plant(self.plant)
+        source = str(model.get("source") or "")
+        fields = {k: v for k, v in model.items() if k != "source"}
+        try:
+            spec = PlantSpec(**fields)
+        except (TypeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0]
+            raise GainsFileError(f"the gains file's plant_model is malformed: {first}") from None
+        return Plant.from_spec(spec, source=source)
 
 
 def _number(content: dict[str, Any], key: str, source: str) -> float:

@@ -190,6 +190,7 @@ def make_result(
         ),
         label=label,
         sample_time_s=inputs.plant.dt_s,
+        plant_model=inputs.plant,
     )
     return content, ev
 

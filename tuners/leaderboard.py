@@ -16,13 +16,14 @@ best textbook baseline of its plant, two-sided, at 5 %. With 10 seeds the smalle
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
-__all__ = ["figures", "rank", "render_head", "render_markdown", "why_not_ranked"]
+__all__ = ["figures", "rank", "render_head", "render_markdown", "update_readme", "why_not_ranked"]
 
 ALPHA = 0.05
 
@@ -356,3 +357,63 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
                 )
             )
     return paths
+
+
+README_START = "<!-- leaderboard:start"
+README_END = "<!-- leaderboard:end -->"
+
+
+def update_readme(readme: Path, data: dict[str, Any]) -> bool:
+    """Put the leaderboard's head between the README's leaderboard markers.
+
+    Returns
+    -------
+    bool
+        Whether the README changed.
+
+    Raises
+    ------
+    ValueError
+        The README has no leaderboard markers.
+    """
+    from gripper_env.files import write_atomic
+
+    text = readme.read_text()
+    if README_START not in text or README_END not in text:
+        raise ValueError(f"{readme}: no '{README_START} ...' and '{README_END}' markers")
+    start = text.index("\n", text.index(README_START)) + 1
+    end = text.index(README_END)
+    new = text[:start] + render_head(data) + "\n" + text[end:]
+    if new != text:
+        write_atomic(readme, new)
+    return new != text
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m tuners.leaderboard [BENCHMARK_JSON] [--readme README.md]``: print the
+    leaderboard's head, or write it into the README."""
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.leaderboard",
+        description="Print the benchmark's leaderboard, or put it into the README.",
+    )
+    parser.add_argument("benchmark", nargs="?", default="results/benchmark.json")
+    parser.add_argument("--readme", default=None, help="write it between this file's markers")
+    args = parser.parse_args(argv)
+    try:
+        data = json.loads(Path(args.benchmark).read_text())
+        if args.readme:
+            changed = update_readme(Path(args.readme), data)
+            print(f"{args.readme}: {'updated' if changed else 'already up to date'}")
+        else:
+            print(render_head(data))
+    except (OSError, ValueError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -94,3 +94,15 @@ def test_rl_controller_row_corrects_the_best_deployable_pid(quick):
         rows[base]["metrics"]["actual"]["mean"]["iae"], rel=1e-12
     )
     assert len(row["per_seed_iae"]) == 10 and row["tuning"]["timesteps"] > 0
+
+
+def test_readme_shows_the_committed_leaderboard():
+    """The README's leaderboard is the head of the committed results/benchmark.json."""
+    from tests.tuners.conftest import REPO
+
+    readme = (REPO / "README.md").read_text()
+    start = readme.index("<!-- leaderboard:start")
+    start = readme.index("\n", start) + 1
+    shown = readme[start : readme.index("<!-- leaderboard:end -->")].strip()
+    data = json.loads((REPO / "results" / "benchmark.json").read_text())
+    assert shown == leaderboard.render_head(data).strip()
