@@ -39,16 +39,19 @@ import numpy as np
 from gripper_env.files import write_atomic
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
+from gripper_env.hardware.configuration import configure_message
 from gripper_env.hardware.device import GripperDevice
-from gripper_env.hardware.emulator import CYCLES_PER_MS, CYCLES_PER_US, EmulatedBoard, ensure_built
+from gripper_env.hardware.emulator import EmulatedBoard
 from gripper_env.hardware.experiment import run_profile
+from gripper_env.hardware.firmware_build import ensure_built
+from gripper_env.hardware.mega2560 import CYCLES_PER_MS, CYCLES_PER_US
 from gripper_env.hardware.scripted import (
     AGREEMENT_SHIFT_MS,
     ScriptedHost,
-    configure_message,
     run_agreement,
 )
-from gripper_env.hardware.virtual import VirtualDevice, VirtualRig
+from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.hardware.virtual_rig import VirtualRig
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import Reference, load_reference
 

@@ -27,12 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from gripper_env.files import write_atomic
+from gripper_env.hardware.board_cli import parse_speed
 from gripper_env.hardware.calibration import Calibration
 from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.firmware import Firmware
 from gripper_env.hardware.protocol import Mode
-from gripper_env.hardware.virtual import VirtualDevice, VirtualRig, parse_speed
+from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.hardware.virtual_rig import VirtualRig
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import step_profile
 

@@ -16,7 +16,8 @@ from collections.abc import Callable, Sequence
 
 from gripper_env.config import ConfigError
 from gripper_env.hardware.calibration import CalibrationError, default_calibration_path
-from gripper_env.hardware.device import DeviceError, list_ports
+from gripper_env.hardware.errors import DeviceError
+from gripper_env.hardware.serial_port import list_ports
 
 __all__ = ["EXIT_ERROR", "add_device_arguments", "positive_float", "run_cli"]
 

@@ -32,14 +32,17 @@ import numpy as np
 from gripper_env.files import save_figure, write_json
 from gripper_env.gains_file import GainsFileError, load_gains_file
 from gripper_env.hardware.calibration import load_calibration
-from gripper_env.hardware.device import GripperDevice, TelemetryBlock
+from gripper_env.hardware.device import GripperDevice
 from gripper_env.hardware.experiment import CsvLog, RecordedTrajectory, run_profile
 from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.metrics import compute_metrics, fit_percent
 from gripper_env.objective import load_objective
+from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.plants import Plant
 from gripper_env.references import PROFILES, load_reference
 from gripper_env.sim import Trajectory, simulate
-from gripper_env.stability import stability_report
+from gripper_env.stability import StabilityReport, stability_report
 from rig.cli import add_device_arguments, run_cli
 
 __all__ = ["DEPLOY_COLUMNS", "main"]
@@ -109,17 +112,15 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _run(args: argparse.Namespace) -> int:
-    loaded = load_gains_file(args.gains)
-    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
-    try:
-        model = loaded.plant_model()  # the transfer function tuned on, wherever it came from
-    except GainsFileError as exc:
-        raise ValueError(f"{args.gains}: {exc} (needed for the gate)") from None
-    plant = plant or model.name
+def _gate(
+    model: Plant, plant: str, gains: PIDGains, options: PIDOptions, allow_unstable: bool
+) -> StabilityReport:
+    """The stability gate: refuse (ValueError) gains unstable on ``model`` (named ``plant``) as
+    the board runs them, unless ``allow_unstable``; warn when they are stable but not robust.
+    Returns the :func:`~gripper_env.stability.stability_report`."""
     # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
     report = stability_report(model, gains, options.sign, disturbance="actual")
-    if not report.stable and not args.allow_unstable:
+    if not report.stable and not allow_unstable:
         raise ValueError(
             f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
             f"(sign {options.sign:+d}) give an unstable closed loop on plant {plant} with the "
@@ -139,6 +140,18 @@ def _run(args: argparse.Namespace) -> int:
                 f"{lim.ms_max:g} and >= {lim.gm_min_db:g} dB)",
                 file=sys.stderr,
             )
+    return report
+
+
+def _run(args: argparse.Namespace) -> int:
+    loaded = load_gains_file(args.gains)
+    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
+    try:
+        model = loaded.plant_model()  # the transfer function tuned on, wherever it came from
+    except GainsFileError as exc:
+        raise ValueError(f"{args.gains}: {exc} (needed for the gate)") from None
+    plant = plant or model.name
+    report = _gate(model, plant, gains, options, args.allow_unstable)
     reference = load_reference(args.profile)
     calibration = load_calibration(args.calibration)
     out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")

@@ -17,7 +17,7 @@
 //   stack     the lowest stack pointer reached, for the stack high-water mark.
 //
 // Emulated time (avr->cycle at 16 MHz) is the only clock: a run is deterministic and goes as
-// fast as the host CPU allows. The Python side is gripper_env/hardware/emulator.py (ctypes).
+// fast as the host CPU allows. The Python side is gripper_env/hardware/mega2560.py (ctypes).
 // Build: firmware/emulator/build.sh.
 
 #ifndef GRIPPER_BOARD_H

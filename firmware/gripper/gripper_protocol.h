@@ -3,7 +3,7 @@
 // generated gripper_messages.h (constants, enums, message codecs, from firmware/protocol.toml).
 //
 // The wire format is specified in firmware/PROTOCOL.md; the Python twin is
-// gripper_env/hardware/protocol.py.
+// gripper_env/hardware/protocol/ (framing.py for this file).
 
 #ifndef GRIPPER_PROTOCOL_H
 #define GRIPPER_PROTOCOL_H

@@ -10,11 +10,10 @@ simulation runs here unchanged.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 import warnings
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -23,24 +22,20 @@ from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import DIVERGED_PENALTY, VARIATION_CAP
 from gripper_env.envs.episode import draw_episode
+from gripper_env.envs.link_settings import check_link_arguments, check_port
 from gripper_env.envs.settings import check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S, check_actions
 from gripper_env.hardware.calibration import Calibration, load_calibration
-from gripper_env.hardware.device import (
-    DeviceError,
-    DeviceFault,
-    DeviceTimeout,
-    GripperDevice,
-    TelemetryBlock,
-)
+from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.errors import DeviceError, DeviceFault, DeviceTimeout
+from gripper_env.hardware.experiment import settle_jaw
 from gripper_env.hardware.protocol import Mode
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.references import Reference
 
 __all__ = ["GripperServoHardwareEnv", "MissedDeadlineWarning", "SettleWarning"]
 
 _NAME = "GripperServoHardware-v0"
-_SETTLE_WINDOW_S = 0.1  # the jaw is settled when a window's mean is near the target and still
-_SETTLE_STILL_DEG = 0.5  # ... moving less than this between two windows
 
 
 class MissedDeadlineWarning(RuntimeWarning):
@@ -180,7 +175,8 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
     * v0: initial version.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 50}
+    # gymnasium declares metadata per instance (Env.metadata); this is the class default
+    metadata: dict[str, Any] = {"render_modes": [], "render_fps": 50}  # noqa: RUF012
 
     def __init__(
         self,
@@ -201,19 +197,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         warn_every: int = 50,
         render_mode: str | None = None,
     ) -> None:
-        if port is None or (isinstance(port, str) and not port):
-            raise ConfigError(
-                f"{_NAME}: argument 'port' is required: the board's serial port (e.g. "
-                "port='/dev/ttyACM0'), a pyserial URL, or the path a virtual board prints "
-                "(python -m gripper_env.hardware.virtual)"
-            )
-        if not isinstance(port, str | os.PathLike):
-            raise ConfigError(f"{_NAME}: argument 'port': expected a path or URL, got {port!r}")
-        if render_mode is not None:
-            raise ConfigError(
-                f"{_NAME}: argument 'render_mode': no rendering on hardware (a plot would cost "
-                f"the real-time loop its deadlines), got {render_mode!r}"
-            )
+        port_path = check_port(_NAME, port, render_mode)
         self.settings = parse_settings(
             _NAME,
             reference=reference,
@@ -222,23 +206,15 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
             command_range_deg=command_range_deg,
         )
         check_reward_weights(_NAME, overshoot_weight, chatter_weight)
-        for arg, value, low in (
-            ("boot_wait_s", boot_wait_s, 0.0),
-            ("timeout_s", timeout_s, 1e-3),
-            ("settle_tol_deg", settle_tol_deg, 1e-3),
-            ("settle_timeout_s", settle_timeout_s, 0.0),
-        ):
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= low):
-                raise ConfigError(f"{_NAME}: argument {arg!r}: expected a number >= {low:g}, "
-                                  f"got {value!r}")  # fmt: skip
-        for arg, value, high in (
-            ("telemetry_batch", telemetry_batch, 32),
-            ("warn_every", warn_every, None),
-        ):
-            if not (isinstance(value, int) and value >= 1 and (high is None or value <= high)):
-                bounds = f"1..{high}" if high else ">= 1"
-                raise ConfigError(f"{_NAME}: argument {arg!r}: expected an integer {bounds}, "
-                                  f"got {value!r}")  # fmt: skip
+        check_link_arguments(
+            _NAME,
+            boot_wait_s,
+            timeout_s,
+            settle_tol_deg,
+            settle_timeout_s,
+            telemetry_batch,
+            warn_every,
+        )
         if isinstance(calibration, Calibration):
             self.calibration = calibration
         else:
@@ -246,7 +222,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.calibration = load_calibration(calibration)
             except ValueError as exc:
                 raise ConfigError(f"{_NAME}: argument 'calibration': {exc}") from None
-        self.port = os.fspath(port)
+        self.port = port_path
         self.render_mode = None
         self.boot_wait_s = float(boot_wait_s)
         self.timeout_s = float(timeout_s)
@@ -385,27 +361,15 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _settle(self, dev: GripperDevice, target_deg: float) -> tuple[bool, float]:
         """Wait until the jaw rests at ``target_deg`` (or the timeout); (settled, last angle)."""
-        deadline = time.monotonic() + self.settle_timeout_s
-        prev = math.nan
-        y = math.nan
-        while True:
-            block = dev.wait_telemetry(_SETTLE_WINDOW_S)
-            window = block.position_deg[-round(_SETTLE_WINDOW_S * 1000) :]
-            y = float(window[-1])
-            mean = float(np.mean(window))
-            if abs(mean - target_deg) <= self.settle_tol_deg and abs(mean - prev) <= (
-                _SETTLE_STILL_DEG
-            ):
-                return True, y
-            if time.monotonic() > deadline:
-                warnings.warn(
-                    f"{_NAME}: the jaw did not settle at {target_deg:g} deg within "
-                    f"{self.settle_timeout_s:g} s (it is at {mean:.1f} deg); starting anyway",
-                    SettleWarning,
-                    stacklevel=4,
-                )
-                return False, y
-            prev = mean
+        settled, y, mean = settle_jaw(dev, target_deg, self.settle_tol_deg, self.settle_timeout_s)
+        if not settled:
+            warnings.warn(
+                f"{_NAME}: the jaw did not settle at {target_deg:g} deg within "
+                f"{self.settle_timeout_s:g} s (it is at {mean:.1f} deg); starting anyway",
+                SettleWarning,
+                stacklevel=4,
+            )
+        return settled, y
 
     def _step(self, a: float, command: float) -> tuple[np.ndarray, float, bool, bool, dict]:
         dev = self.device
@@ -432,7 +396,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         block = TelemetryBlock.concatenate(self._pending)
         period = (block.t_us > self._t_obs_us) & (block.t_us <= end_us)
         after = block.t_us > end_us
-        self._pending = [_select(block, after)] if after.any() else []
+        self._pending = [block.select(after)] if after.any() else []
         if not period.any():  # the period's frames were lost: use the next sample
             period = after & (np.cumsum(after) == 1)
         y = np.ascontiguousarray(block.position_deg[period], dtype=np.float64)
@@ -507,17 +471,6 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
                 dev.safe_stop()
             finally:
                 dev.close()
-
-
-def _select(block: TelemetryBlock, mask: np.ndarray) -> TelemetryBlock:
-    return TelemetryBlock(
-        block.t_us[mask],
-        block.reference_deg[mask],
-        block.command_deg[mask],
-        block.adc[mask],
-        block.position_deg[mask],
-        block.flags[mask],
-    )
 
 
 def _load_kernels() -> None:

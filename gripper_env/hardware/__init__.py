@@ -5,16 +5,29 @@ wire format is specified in ``firmware/PROTOCOL.md`` and its message layouts des
 ``firmware/protocol.toml`` (:mod:`~gripper_env.hardware.layouts`). The rest, imported from its
 module:
 
-* :mod:`~gripper_env.hardware.device`: :class:`GripperDevice`, the host's session with a board;
-* :mod:`~gripper_env.hardware.calibration`: the two-point ADC calibration and its file;
-* :mod:`~gripper_env.hardware.experiment`: run a profile host-in-the-loop and record it;
-* :mod:`~gripper_env.hardware.firmware`: the board's state machine in Python;
-* :mod:`~gripper_env.hardware.virtual`: the virtual board on a pty
-  (``python -m gripper_env.hardware.virtual``);
-* :mod:`~gripper_env.hardware.emulator`: the compiled firmware under simavr, on a pty too
-  (``python -m gripper_env.hardware.emulator``);
-* :mod:`~gripper_env.hardware.scripted`: a scripted host on emulated time, and the agreement of
-  the emulated board, the Python twin and the simulation core.
+* the host's side of a board:
+
+  * :mod:`~gripper_env.hardware.device`: :class:`GripperDevice`, the host's session with a
+    board, over :mod:`~gripper_env.hardware.serial_port` (the pyserial port);
+  * :mod:`~gripper_env.hardware.errors`: :class:`DeviceError` and its kinds;
+  * :mod:`~gripper_env.hardware.telemetry`: telemetry as arrays on one device clock;
+  * :mod:`~gripper_env.hardware.configuration`: the CONFIGURE for gains and a calibration;
+  * :mod:`~gripper_env.hardware.calibration`: the two-point ADC calibration and its file;
+  * :mod:`~gripper_env.hardware.experiment`: run a profile host-in-the-loop and record it;
+
+* the board without hardware:
+
+  * :mod:`~gripper_env.hardware.firmware`: the board's state machine in Python, with
+    :mod:`~gripper_env.hardware.firmware_safety` and :mod:`~gripper_env.hardware.firmware_config`;
+  * :mod:`~gripper_env.hardware.virtual_rig`: the simulated gripper, and the twin wired to it;
+  * :mod:`~gripper_env.hardware.virtual`: the virtual board on a pty
+    (``python -m gripper_env.hardware.virtual``; command line in
+    :mod:`~gripper_env.hardware.board_cli`);
+  * :mod:`~gripper_env.hardware.emulator`: the compiled firmware under simavr
+    (:mod:`~gripper_env.hardware.mega2560`, built by :mod:`~gripper_env.hardware.firmware_build`),
+    on a pty too (``python -m gripper_env.hardware.emulator``);
+  * :mod:`~gripper_env.hardware.scripted`: a scripted host on emulated time, and the agreement of
+    the emulated board, the Python twin and the simulation core.
 """
 
 from gripper_env.hardware.protocol import (

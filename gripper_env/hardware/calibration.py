@@ -28,12 +28,16 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from gripper_env.files import read_format_json, write_json
-from gripper_env.hardware.firmware import ADC_MAX_COUNT, CAL_ANGLE_HI_DEG, CAL_ANGLE_LO_DEG
+from gripper_env.hardware.firmware_safety import (
+    ADC_MAX_COUNT,
+    CAL_ANGLE_HI_DEG,
+    CAL_ANGLE_LO_DEG,
+)
 
 __all__ = [
     "DEFAULT_PATH",
@@ -171,8 +175,8 @@ def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
     known = {"format", "format_version", "adc_at_21_deg", "adc_at_92_deg", "date", "port"}
     try:
         return Calibration(
-            content.get("adc_at_21_deg"),
-            content.get("adc_at_92_deg"),
+            cast(float, content.get("adc_at_21_deg")),  # Calibration checks them
+            cast(float, content.get("adc_at_92_deg")),
             str(content.get("date", "")),
             str(content.get("port", "")),
             {k: v for k, v in content.items() if k not in known},

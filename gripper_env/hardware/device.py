@@ -7,16 +7,9 @@ the board's PID, limits and calibration, switches modes, streams setpoints and c
 batched telemetry into arrays. Used as a context manager it always leaves the device stopped in
 the safe (open) position, whatever happened inside the block.
 
-Every failure is a :class:`DeviceError` subclass that says what happened:
-
-=====================  ============================================================================
-:class:`DeviceTimeout`  no valid answer in time (a silent device)
-:class:`LinkError`      answers arrived but were corrupted (CRC, COBS, truncated frames)
-:class:`DeviceReset`    the board restarted (it lost the session: NO_SESSION, unsolicited INFO)
-:class:`PortVanished`   the serial port disappeared (cable pulled)
-:class:`DeviceRefused`  the board answered ERROR (``VersionMismatch`` for a protocol mismatch)
-:class:`DeviceFault`    a fault latched on the board (watchdog, ESTOP, sensor, numeric)
-=====================  ============================================================================
+Every failure is a :class:`~gripper_env.hardware.errors.DeviceError` subclass that says what
+happened (:mod:`gripper_env.hardware.errors` lists them); telemetry arrives as
+:class:`~gripper_env.hardware.telemetry.TelemetryBlock` s.
 
 Examples
 --------
@@ -30,163 +23,36 @@ Examples
 from __future__ import annotations
 
 import math
-import os
 import time
-from dataclasses import dataclass, fields
 from typing import Any
-
-import numpy as np
-import serial
-import serial.tools.list_ports
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.protocol import ErrorCode, Fault, Mode, SampleFlag
-from gripper_env.pid import ANTI_WINDUP_MODES, PIDGains, PIDOptions
+from gripper_env.hardware.configuration import configure_message
+from gripper_env.hardware.errors import (
+    DeviceError,
+    DeviceFault,
+    DeviceReset,
+    DeviceTimeout,
+    LinkError,
+    PortVanished,
+    fault_error,
+    refusal,
+    version_mismatch,
+)
+from gripper_env.hardware.protocol import ErrorCode, Mode, SampleFlag
+from gripper_env.hardware.serial_port import (
+    close_port,
+    open_port,
+    read_bytes,
+    write_bytes,
+)
+from gripper_env.hardware.telemetry import TelemetryBlock, TelemetryClock
+from gripper_env.pid import PIDGains, PIDOptions
 
-__all__ = [
-    "BAUDRATE",
-    "DeviceError",
-    "DeviceFault",
-    "DeviceRefused",
-    "DeviceReset",
-    "DeviceTimeout",
-    "GripperDevice",
-    "LinkError",
-    "PortVanished",
-    "TelemetryBlock",
-    "VersionMismatch",
-    "fault_names",
-    "list_ports",
-]
+__all__ = ["BAUDRATE", "GripperDevice"]
 
 BAUDRATE = 1_000_000
-ERROR_NAMES = {v: k for k, v in vars(ErrorCode).items() if not k.startswith("_")}
-FAULT_BITS = {"WATCHDOG": Fault.WATCHDOG, "ESTOP": Fault.ESTOP, "NUMERIC": Fault.NUMERIC}
-FAULT_BITS["SENSOR"] = Fault.SENSOR
-
-
-def fault_names(bits: int) -> str:
-    """``"WATCHDOG+ESTOP"`` for fault bits (``"none"`` for 0)."""
-    names = [name for name, bit in FAULT_BITS.items() if bits & bit]
-    return "+".join(names) or "none"
-
-
-class DeviceError(Exception):
-    """Base class of everything that can go wrong talking to the board."""
-
-
-class DeviceTimeout(DeviceError, TimeoutError):
-    """No valid answer arrived in time."""
-
-
-class LinkError(DeviceError, proto.ProtocolError):
-    """Frames arrived but failed their checks (CRC, COBS, length), so no valid answer came."""
-
-
-class DeviceReset(DeviceError):
-    """The board restarted and lost its session, mode and configuration."""
-
-
-class PortVanished(DeviceError, ConnectionError):
-    """The serial port went away (unplugged cable, closed pseudo-terminal)."""
-
-
-class DeviceRefused(DeviceError):
-    """The board answered a command with ERROR.
-
-    Attributes
-    ----------
-    code : int
-        :class:`~gripper_env.hardware.protocol.ErrorCode`.
-    detail : int
-        The code-specific detail (field index, fault bits, version...).
-    """
-
-    def __init__(self, message: str, code: int, detail: int) -> None:
-        super().__init__(message)
-        self.code = code
-        self.detail = detail
-
-
-class VersionMismatch(DeviceRefused):
-    """The board speaks another protocol version."""
-
-
-class DeviceFault(DeviceError):
-    """A fault latched on the board: it made a safe stop (idle, jaw open).
-
-    Attributes
-    ----------
-    faults : int
-        The latched :class:`~gripper_env.hardware.protocol.Fault` bits.
-    """
-
-    def __init__(self, message: str, faults: int) -> None:
-        super().__init__(message)
-        self.faults = faults
-
-
-def list_ports() -> list[tuple[str, str]]:
-    """Serial ports that may be a gripper board: ``(device, description)``, Arduinos first."""
-    ports = []
-    for p in serial.tools.list_ports.comports():
-        text = f"{p.description or ''} {p.manufacturer or ''}".strip()
-        arduino = "arduino" in text.lower() or (p.vid == 0x2341)  # Arduino's USB vendor id
-        ports.append((not arduino, p.device, text or "serial port"))
-    return [(device, text) for _, device, text in sorted(ports)]
-
-
-@dataclass
-class TelemetryBlock:
-    """Telemetry samples as arrays (one entry per sample).
-
-    Attributes
-    ----------
-    t_us : ndarray of int64
-        Device time (us, unwrapped: monotonic over the session).
-    reference_deg, command_deg : ndarray
-        Reference (or open-loop setpoint) and servo command (deg); NaN while the servo is off.
-    adc : ndarray of int
-        Potentiometer reading (counts).
-    position_deg : ndarray
-        Measured jaw angle (deg) from ``adc`` by the host's calibration (NaN without one).
-    flags : ndarray of uint8
-        :class:`~gripper_env.hardware.protocol.SampleFlag` bits.
-    """
-
-    t_us: np.ndarray
-    reference_deg: np.ndarray
-    command_deg: np.ndarray
-    adc: np.ndarray
-    position_deg: np.ndarray
-    flags: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.t_us)
-
-    @property
-    def mode(self) -> np.ndarray:
-        """Device mode at each sample."""
-        return self.flags & SampleFlag.MODE_MASK
-
-    @classmethod
-    def concatenate(cls, blocks: list[TelemetryBlock]) -> TelemetryBlock:
-        blocks = [b for b in blocks if len(b)]
-        if not blocks:
-            return cls.empty()
-        if len(blocks) == 1:
-            return blocks[0]
-        return cls(*(np.concatenate([getattr(b, f) for b in blocks]) for f in _BLOCK_FIELDS))
-
-    @classmethod
-    def empty(cls) -> TelemetryBlock:
-        f, i = np.zeros(0), np.zeros(0, dtype=np.int64)
-        return cls(i, f, f.copy(), i.copy(), f.copy(), np.zeros(0, dtype=np.uint8))
-
-
-_BLOCK_FIELDS = ("t_us", "reference_deg", "command_deg", "adc", "position_deg", "flags")
-_SAMPLE_DTYPE = np.dtype([("r", "<i2"), ("u", "<i2"), ("adc", "<u2"), ("flags", "u1")])
 
 
 class GripperDevice:
@@ -236,16 +102,12 @@ class GripperDevice:
         # (Unsynced, the decoder threw away that first answer, and every open waited out one
         # timeout and sent HELLO again: found against the emulated board.)
         self.decoder = proto.FrameDecoder()
-        self.samples_missing = 0
         self._serial: Any = None
         self._seq = 0
         self._session = False
         self._mode = Mode.IDLE
         self._blocks: list[TelemetryBlock] = []
-        self._last_t_raw: int | None = None
-        self._t_offset = 0
-        self._next_t_us: int | None = None
-        self._latest_t_us: int | None = None
+        self._clock = TelemetryClock()
         self._token = 0
         self._last_rx_wall = time.monotonic()
         if open:
@@ -255,12 +117,7 @@ class GripperDevice:
 
     def open(self) -> proto.Info:
         """Open the port, let the board boot, and do the handshake; return its INFO."""
-        try:
-            self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baudrate, timeout=0.01, write_timeout=1.0
-            )
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise PortVanished(f"cannot open serial port {self.port!r}: {exc}") from None
+        self._serial = open_port(self.port, self.baudrate)
         try:
             if self.boot_wait_s > 0:
                 time.sleep(self.boot_wait_s)
@@ -275,10 +132,7 @@ class GripperDevice:
         ser, self._serial = self._serial, None
         self._session = False
         if ser is not None:
-            try:
-                ser.close()
-            except (serial.SerialException, OSError):
-                pass
+            close_port(ser)
 
     @property
     def is_open(self) -> bool:
@@ -304,12 +158,7 @@ class GripperDevice:
         self.decoder.reset_sequence()
         info = self._request(proto.Hello(), proto.Info)
         if info.protocol_version != proto.PROTOCOL_VERSION:
-            raise VersionMismatch(
-                f"device on {self.port} speaks protocol version {info.protocol_version}, this "
-                f"host speaks {proto.PROTOCOL_VERSION}: update the firmware or the host",
-                ErrorCode.VERSION_MISMATCH,
-                info.protocol_version,
-            )
+            raise version_mismatch(self.port, info.protocol_version)
         self.info = info
         self._session = True
         self._mode = Mode.IDLE
@@ -352,25 +201,15 @@ class GripperDevice:
             self.calibration = calibration
         if self.calibration is None:
             raise ValueError("configure needs a calibration (python -m rig.calibrate)")
-        lo_counts, hi_counts = self.calibration.device_counts
-        msg = proto.Configure(
-            p=float(gains.P),
-            i=float(gains.I),
-            d=float(gains.D),
-            n=float(gains.N),
-            u_min=float(options.output_limits[0]),
-            u_max=float(options.output_limits[1]),
-            kb=float(options.kb),
+        msg = configure_message(
+            gains,
+            options,
+            self.calibration,
             jaw_min=float(jaw_deg[0]),
             jaw_max=float(jaw_deg[1]),
-            adc_at_lo=lo_counts,
-            adc_at_hi=hi_counts,
             servo_us_at_0=int(servo_us[0]),
             servo_us_at_180=int(servo_us[1]),
             decimation=int(decimation),
-            anti_windup=ANTI_WINDUP_MODES[options.anti_windup],
-            sign=int(options.sign),
-            d_on_meas=1 if options.derivative_on == "measurement" else 0,
             telemetry_batch=int(telemetry_batch),
         )
         return self._request(msg, proto.Status)
@@ -474,14 +313,14 @@ class GripperDevice:
         """
         self.poll(0.0)
         blocks = [self.read_telemetry()]
-        start = self._latest_t_us
+        start = self._clock.latest_us
         next_beat = start
         wait = self.timeout_s if timeout_s is None else timeout_s
         last = time.monotonic()
         while True:
-            if heartbeat_s > 0 and (next_beat is None or (self._latest_t_us or 0) >= next_beat):
+            if heartbeat_s > 0 and (next_beat is None or (self._clock.latest_us or 0) >= next_beat):
                 self.send_heartbeat()
-                next_beat = (self._latest_t_us or 0) + int(heartbeat_s * 1e6)
+                next_beat = (self._clock.latest_us or 0) + int(heartbeat_s * 1e6)
             self.poll(0.01)
             block = self.read_telemetry()
             if len(block):
@@ -489,7 +328,7 @@ class GripperDevice:
                 blocks.append(block)
                 if start is None:
                     start = int(block.t_us[0])
-                if self._latest_t_us - start >= duration_s * 1e6:
+                if (self._clock.latest_us or 0) - start >= duration_s * 1e6:
                     return TelemetryBlock.concatenate(blocks)
             elif time.monotonic() - last > wait:
                 raise DeviceTimeout(
@@ -499,7 +338,12 @@ class GripperDevice:
     @property
     def latest_time_us(self) -> int | None:
         """Device time (us, unwrapped) of the newest telemetry sample received."""
-        return self._latest_t_us
+        return self._clock.latest_us
+
+    @property
+    def samples_missing(self) -> int:
+        """Telemetry samples that never arrived (gaps in the device time)."""
+        return self._clock.samples_missing
 
     @property
     def frames_lost(self) -> int:
@@ -509,20 +353,17 @@ class GripperDevice:
 
     # ---- internals -----------------------------------------------------------------------------
 
-    def _write(self, data: bytes) -> None:
+    def _port(self) -> Any:
         if self._serial is None:
             raise PortVanished(f"serial port {self.port} is closed")
-        try:
-            self._serial.write(data)
-        except serial.SerialTimeoutException:
-            raise DeviceTimeout(f"cannot write to {self.port}: the line is blocked") from None
-        except (serial.SerialException, OSError) as exc:
-            self._vanished(exc)
+        return self._serial
 
-    def _vanished(self, exc: BaseException) -> None:
-        self.close()
-        gone = "" if os.path.exists(self.port) else f" ({self.port} no longer exists)"
-        raise PortVanished(f"serial port {self.port} went away{gone}: {exc}") from None
+    def _write(self, data: bytes) -> None:
+        try:
+            write_bytes(self._port(), self.port, data)
+        except PortVanished:
+            self.close()
+            raise
 
     def _send(self, msg: proto.Message) -> int:
         seq = self._seq
@@ -531,24 +372,11 @@ class GripperDevice:
         return seq
 
     def _read(self, timeout_s: float) -> bytes:
-        ser = self._serial
-        if ser is None:
-            raise PortVanished(f"serial port {self.port} is closed")
-        deadline = time.monotonic() + timeout_s
         try:
-            while True:
-                waiting = ser.in_waiting
-                if waiting or timeout_s <= 0:
-                    data = ser.read(waiting) if waiting else b""
-                else:
-                    data = ser.read(1)
-                    if data and ser.in_waiting:
-                        data += ser.read(ser.in_waiting)
-                if data or time.monotonic() >= deadline:
-                    return data
-        except (serial.SerialException, OSError) as exc:
-            self._vanished(exc)
-            raise  # unreachable: _vanished raises
+            return read_bytes(self._port(), self.port, timeout_s)
+        except PortVanished:
+            self.close()
+            raise
 
     def _pump(self, timeout_s: float, strict: bool = True) -> list[proto.Message]:
         """Read and decode; store telemetry; raise (after storing everything) on a fault or a
@@ -595,44 +423,10 @@ class GripperDevice:
         return out
 
     def _fault(self, faults: int) -> DeviceFault:
-        names = fault_names(faults)
-        why = {
-            "WATCHDOG": "no host frame for 500 ms",
-            "ESTOP": "emergency stop",
-            "SENSOR": "potentiometer reading at a rail",
-            "NUMERIC": "non-finite PID value",
-        }
-        reasons = ", ".join(why[n] for n in names.split("+") if n in why) or "fault"
-        return DeviceFault(
-            f"device on {self.port} made a safe stop (idle, jaw open): fault {names} ({reasons})",
-            faults,
-        )
+        return fault_error(self.port, faults)
 
     def _store(self, msg: proto.Telemetry) -> None:
-        raw = msg.t0_us
-        if (
-            self._last_t_raw is not None
-            and raw < self._last_t_raw
-            and self._last_t_raw - raw > (1 << 31)
-        ):
-            self._t_offset += 1 << 32  # micros() wrapped
-        self._last_t_raw = raw
-        step = msg.decimation * 1000
-        n = len(msg.samples)
-        t = self._t_offset + raw + step * np.arange(n, dtype=np.int64)
-        if self._next_t_us is not None and t[0] > self._next_t_us:
-            self.samples_missing += int((t[0] - self._next_t_us) // max(step, 1))
-        self._next_t_us = int(t[-1]) + step
-        self._latest_t_us = int(t[-1])
-        arr = np.array(
-            [(s.reference_cdeg, s.command_cdeg, s.adc, s.flags) for s in msg.samples],
-            dtype=_SAMPLE_DTYPE,
-        )
-        ref = np.where(arr["r"] == proto.CDEG_NONE, np.nan, arr["r"] / 100.0)
-        cmd = np.where(arr["u"] == proto.CDEG_NONE, np.nan, arr["u"] / 100.0)
-        adc = arr["adc"].astype(np.int64)
-        pos = self.calibration.to_deg(adc) if self.calibration else np.full(n, np.nan)
-        self._blocks.append(TelemetryBlock(t, ref, cmd, adc, pos, arr["flags"].copy()))
+        self._blocks.append(self._clock.block(msg, self.calibration))
 
     def link_summary(self) -> str:
         """What the link looked like lately, for error messages ("; 3 corrupted frames...")."""
@@ -663,7 +457,11 @@ class GripperDevice:
                     if isinstance(answer, expect):
                         if isinstance(answer, proto.Status) and answer.last_rx_seq != seq:
                             continue  # a fault report or an answer to an earlier frame
-                        if isinstance(msg, proto.Heartbeat) and answer.echo != msg.token:
+                        if (
+                            isinstance(msg, proto.Heartbeat)
+                            and isinstance(answer, proto.Status)
+                            and answer.echo != msg.token
+                        ):
                             continue
                         return answer
         corrupted = self.decoder.stats.rejected - rejected_before
@@ -677,22 +475,8 @@ class GripperDevice:
         raise DeviceTimeout(what + self.link_summary())
 
     def _refused(self, msg: proto.Message, err: proto.ErrorReport) -> None:
-        name = type(msg).__name__.upper()
-        code = ERROR_NAMES.get(err.code, f"code {err.code}")
-        if err.code == ErrorCode.VERSION_MISMATCH:
-            raise VersionMismatch(
-                f"device on {self.port} speaks protocol version {err.detail}, this host speaks "
-                f"{proto.PROTOCOL_VERSION}: update the firmware or the host",
-                err.code,
-                err.detail,
-            )
         if err.code == ErrorCode.NO_SESSION and self._session:
             self._session = False
+            name = type(msg).__name__.upper()
             raise DeviceReset(f"device on {self.port} reset: it answered {name} with NO_SESSION")
-        detail = ""
-        if err.code == ErrorCode.BAD_VALUE and isinstance(msg, proto.Configure):
-            field_name = [f.name for f in fields(msg)][err.detail]
-            detail = f": field {field_name}={getattr(msg, field_name)!r} refused"
-        elif err.code == ErrorCode.FAULT_LATCHED:
-            detail = f": fault {fault_names(err.detail)} latched (set IDLE to acknowledge)"
-        raise DeviceRefused(f"device refused {name}: {code}{detail}", err.code, err.detail)
+        raise refusal(self.port, msg, err)

@@ -14,6 +14,7 @@ interpolated and counted) with the fields :func:`gripper_env.metrics.compute_met
 from __future__ import annotations
 
 import csv
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -23,15 +24,19 @@ from typing import IO
 
 import numpy as np
 
-from gripper_env.hardware.device import DeviceTimeout, GripperDevice, TelemetryBlock
+from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.errors import DeviceTimeout
 from gripper_env.hardware.protocol import Mode, SampleFlag
+from gripper_env.hardware.telemetry import TelemetryBlock
 from gripper_env.references import Reference, Segment
 from gripper_env.sim import Trajectory
 
-__all__ = ["CsvLog", "Recording", "partial_path", "run_profile"]
+__all__ = ["CsvLog", "Recording", "partial_path", "run_profile", "settle_jaw"]
 
 HOST_PERIOD_S = 0.020  # the servo's 50 Hz frame
 HEARTBEAT_PERIOD_S = 0.2
+SETTLE_WINDOW_S = 0.1  # the jaw is settled when a window's mean is near the target and still
+SETTLE_STILL_DEG = 0.5  # ... moving less than this between two windows
 
 
 def partial_path(path: str | os.PathLike[str]) -> Path:
@@ -203,6 +208,53 @@ class RecordedTrajectory(Trajectory):
     missing_samples: int = 0
 
 
+def settle_jaw(
+    device: GripperDevice, target_deg: float, tol_deg: float, timeout_s: float
+) -> tuple[bool, float, float]:
+    """Wait until the jaw rests at ``target_deg``: a 100 ms window's mean within ``tol_deg`` of
+    it and within 0.5 deg of the previous window's, or ``timeout_s`` passed.
+
+    Returns
+    -------
+    settled : bool
+        The jaw settled in time.
+    position_deg, mean_deg : float
+        The last measured angle and the last window's mean (deg).
+    """
+    deadline = time.monotonic() + timeout_s
+    prev = math.nan
+    while True:
+        block = device.wait_telemetry(SETTLE_WINDOW_S)
+        window = block.position_deg[-round(SETTLE_WINDOW_S * 1000) :]
+        y = float(window[-1])
+        mean = float(np.mean(window))
+        if abs(mean - target_deg) <= tol_deg and abs(mean - prev) <= SETTLE_STILL_DEG:
+            return True, y, mean
+        if time.monotonic() > deadline:
+            return False, y, mean
+        prev = mean
+
+
+def _next_block(device: GripperDevice, timeout_s: float, since: float) -> TelemetryBlock:
+    """The next telemetry to arrive. A quiet board is probed with a heartbeat every quarter of
+    ``timeout_s`` (one that reset answers NO_SESSION); after ``timeout_s`` of wall time without
+    telemetry since ``since`` (``time.monotonic()``), :class:`DeviceTimeout`."""
+    last_probe = 0.0
+    while True:
+        device.poll(0.005)
+        block = device.read_telemetry()
+        if len(block):
+            return block
+        quiet = time.monotonic() - since
+        if quiet - last_probe > timeout_s / 4:
+            device.send_heartbeat()
+            last_probe = quiet
+        if quiet > timeout_s:
+            raise DeviceTimeout(
+                f"no telemetry from {device.port} for {timeout_s:g} s" + device.link_summary()
+            )
+
+
 def run_profile(
     device: GripperDevice,
     reference: Reference,
@@ -264,27 +316,14 @@ def run_profile(
         timeout = device.timeout_s if telemetry_timeout_s is None else telemetry_timeout_s
         next_host_us = next_beat_us = 0
         last_wall = time.monotonic()
-        last_probe = 0.0
         while True:
-            device.poll(0.005)
-            block = device.read_telemetry()
-            if not len(block):
-                quiet = time.monotonic() - last_wall
-                if quiet - last_probe > timeout / 4:
-                    device.send_heartbeat()  # a board that reset answers NO_SESSION
-                    last_probe = quiet
-                if quiet > timeout:
-                    raise DeviceTimeout(
-                        f"no telemetry from {device.port} for {timeout:g} s" + device.link_summary()
-                    )
-                continue
+            block = _next_block(device, timeout, last_wall)
             last_wall = time.monotonic()
-            last_probe = 0.0
             if t0_us is None:
                 active = np.flatnonzero(block.mode == mode)
                 if not len(active):
                     continue
-                block = TelemetryBlock(*(getattr(block, f)[active[0] :] for f in _FIELDS))
+                block = block.select(slice(active[0], None))
                 t0_us = int(block.t_us[0])
                 next_host_us = next_beat_us = t0_us
             blocks.append(block)
@@ -326,6 +365,3 @@ def run_profile(
     )
     rec.extra["log"] = str(where) if where else None
     return rec
-
-
-_FIELDS = ("t_us", "reference_deg", "command_deg", "adc", "position_deg", "flags")

@@ -1,7 +1,7 @@
 """A scripted host on an in-process board, and the three-way agreement of the firmware models.
 
 :class:`ScriptedHost` drives a board object (the Python twin, :class:`~gripper_env.hardware.
-virtual.TwinBoard`, or the compiled image under simavr, :class:`~gripper_env.hardware.emulator.
+virtual_rig.TwinBoard`, or the compiled image under simavr, :class:`~gripper_env.hardware.emulator.
 EmulatedBoard`) without a pty: every frame goes out at a chosen millisecond of device time and
 the board's bytes are decoded as they come. A run is therefore deterministic, which the fault
 tests and the agreement need and a host racing a pty cannot give.
@@ -34,8 +34,10 @@ import numpy as np
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
+from gripper_env.hardware.configuration import configure_message
 from gripper_env.hardware.firmware import UART_BYTES_PER_TICK
-from gripper_env.pid import ANTI_WINDUP_MODES, PIDGains, PIDOptions
+from gripper_env.hardware.telemetry import TelemetryBlock, TelemetryClock
+from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import Reference, load_reference
 from gripper_env.sim import simulate
 
@@ -44,7 +46,6 @@ __all__ = [
     "AGREEMENT_SHIFT_MS",
     "Agreement",
     "ScriptedHost",
-    "configure_message",
     "run_agreement",
     "tube_difference",
 ]
@@ -75,17 +76,6 @@ class Board(Protocol):
     def uart_out(self, max_bytes: int) -> bytes: ...
 
 
-@dataclass
-class Samples:
-    """Telemetry of a scripted run, one entry per sample."""
-
-    t_us: np.ndarray
-    reference_deg: np.ndarray
-    command_deg: np.ndarray
-    adc: np.ndarray
-    flags: np.ndarray
-
-
 class ScriptedHost:
     """A host that talks to an in-process board at chosen instants of device time.
 
@@ -101,9 +91,8 @@ class ScriptedHost:
         self.seq = 0
         self.decoder = proto.FrameDecoder()  # from power-on: the first byte starts a frame
         self.messages: list[tuple[int, proto.Message]] = []
-        self._samples: list[tuple[int, int, int, int, int]] = []
-        self._t_offset = 0
-        self._last_t0: int | None = None
+        self._blocks: list[TelemetryBlock] = []
+        self._clock = TelemetryClock()
 
     @property
     def now_us(self) -> int:
@@ -138,13 +127,7 @@ class ScriptedHost:
         for frame in self.decoder.feed(data):
             msg = frame.message
             if isinstance(msg, proto.Telemetry):
-                if self._last_t0 is not None and msg.t0_us < self._last_t0 - (1 << 31):
-                    self._t_offset += 1 << 32  # micros() wrapped
-                self._last_t0 = msg.t0_us
-                step = msg.decimation * 1000
-                for k, s in enumerate(msg.samples):
-                    t = self._t_offset + msg.t0_us + k * step
-                    self._samples.append((t, s.reference_cdeg, s.command_cdeg, s.adc, s.flags))
+                self._blocks.append(self._clock.block(msg))
             else:
                 self.messages.append((self.ms, msg))
 
@@ -152,12 +135,10 @@ class ScriptedHost:
         """Messages of one type received at or after ``since_ms``."""
         return [m for t, m in self.messages if isinstance(m, kind) and t >= since_ms]
 
-    def samples(self) -> Samples:
-        """Every telemetry sample received so far."""
-        a = np.array(self._samples, dtype=np.int64).reshape(-1, 5)
-        ref = np.where(a[:, 1] == proto.CDEG_NONE, np.nan, a[:, 1] / 100.0)
-        cmd = np.where(a[:, 2] == proto.CDEG_NONE, np.nan, a[:, 2] / 100.0)
-        return Samples(a[:, 0], ref, cmd, a[:, 3], a[:, 4].astype(np.uint8))
+    def samples(self) -> TelemetryBlock:
+        """Every telemetry sample received so far (``position_deg`` is NaN: no calibration)."""
+        self._blocks = [TelemetryBlock.concatenate(self._blocks)]
+        return self._blocks[0]
 
     def deploy(self, values: np.ndarray) -> int:
         """``rig.deploy``'s traffic on an open, configured session: the profile's first value,
@@ -196,29 +177,6 @@ class ScriptedHost:
             if not self.replies(proto.Status, since):
                 raise RuntimeError(f"CONFIGURE not acknowledged: {self.messages[-3:]}")
         return info[-1]
-
-
-def configure_message(
-    gains: PIDGains, options: PIDOptions, calibration: Calibration, **fields: Any
-) -> proto.Configure:
-    """The CONFIGURE that ``GripperDevice.configure`` sends for these gains and calibration."""
-    lo, hi = calibration.device_counts
-    values: dict[str, Any] = {
-        "p": float(gains.P),
-        "i": float(gains.I),
-        "d": float(gains.D),
-        "n": float(gains.N),
-        "u_min": float(options.output_limits[0]),
-        "u_max": float(options.output_limits[1]),
-        "kb": float(options.kb),
-        "adc_at_lo": lo,
-        "adc_at_hi": hi,
-        "anti_windup": ANTI_WINDUP_MODES[options.anti_windup],
-        "sign": int(options.sign),
-        "d_on_meas": 1 if options.derivative_on == "measurement" else 0,
-    }
-    values.update(fields)
-    return proto.Configure(**values)
 
 
 def tube_difference(y: np.ndarray, other: np.ndarray, shift: int) -> np.ndarray:
@@ -350,12 +308,12 @@ def run_agreement(
     disturbance : preset, dict or Disturbance, optional
         The rig (default :data:`AGREEMENT_DISTURBANCE`).
     image, harness : path, optional
-        Firmware image and emulator harness (:class:`~gripper_env.hardware.emulator.Mega2560`).
+        Firmware image and emulator harness (:class:`~gripper_env.hardware.mega2560.Mega2560`).
     seed : int
         Noise seed of the rigs and the simulation.
     """
     from gripper_env.hardware.emulator import EmulatedBoard
-    from gripper_env.hardware.virtual import TwinBoard, VirtualRig
+    from gripper_env.hardware.virtual_rig import TwinBoard, VirtualRig
 
     ref = load_reference(profile)
     values = ref.values_deg

@@ -9,9 +9,11 @@ Inside, three parts mirror the real rig:
 
 * :class:`~gripper_env.hardware.firmware.Firmware`, the board's state machine (the Python twin
   of ``firmware/gripper/gripper_device.h``, PID included), ticked every 1 ms of device time;
-* :class:`VirtualRig`, the servo, jaw and potentiometer: the project's one simulation core
-  (:class:`~gripper_env.sim.BatchSimulator`) in open loop, driven by the firmware's servo
-  command one physics step per tick, whose measured angle is reported as 10-bit ADC counts;
+* :class:`~gripper_env.hardware.virtual_rig.VirtualRig`, the servo, jaw and potentiometer: the
+  project's one simulation core in open loop, driven by the firmware's servo command one
+  physics step per tick, whose measured angle is reported as 10-bit ADC counts
+  (:mod:`gripper_env.hardware.virtual_rig`, with :class:`~gripper_env.hardware.virtual_rig.
+  TwinBoard`, the twin wired to the rig);
 * the serial line: the firmware's 512-byte transmit queue drained at 1 Mbaud (100 bytes per
   tick) into the pty, the host's bytes fed to the firmware as they arrive.
 
@@ -21,13 +23,9 @@ the host's last frame, then waits up to 1 s of wall time for the next one, so a 
 not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
-The one difference from the board's timing: the firmware reads the measurement taken at the
-end of the previous physics step (the simulation core measures before it applies a command), a
-1 ms sensor delay that the closed loop hardly notices (the plants' fastest pole is 96 rad/s).
-
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
 garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, a reset mid-run
-and a vanishing port.
+and a vanishing port. Its command line is :mod:`gripper_env.hardware.board_cli`.
 
 Examples
 --------
@@ -38,10 +36,8 @@ Examples
 
 from __future__ import annotations
 
-import argparse
 import os
 import select
-import signal
 import sys
 import threading
 import time
@@ -49,158 +45,19 @@ import tty
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from gripper_env.disturbances import load_disturbance
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.firmware import (
-    ADC_MAX_COUNT,
-    CAL_ANGLE_HI_DEG,
-    CAL_ANGLE_LO_DEG,
-    TICK_PERIOD_US,
-    UART_BYTES_PER_TICK,
-    Firmware,
-)
-from gripper_env.pid import pid_update
-from gripper_env.plants import load_plant
-from gripper_env.sim import BatchSimulator
+from gripper_env.hardware.firmware import UART_BYTES_PER_TICK
+from gripper_env.hardware.firmware_config import TICK_PERIOD_US
+from gripper_env.hardware.virtual_rig import VIRTUAL_DEVICE_ID, TwinBoard, VirtualRig
 
 if TYPE_CHECKING:
     from gripper_env.hardware.emulator import EmulatedBoard
 
-__all__ = ["TwinBoard", "VirtualDevice", "VirtualRig", "main", "parse_speed"]
+__all__ = ["VirtualDevice", "main"]
 
-VIRTUAL_DEVICE_ID = 0x56495254  # "VIRT"
-_DEFAULT_ADC_RANGE_DEG = (0.0, 270.0)  # a 270-degree pot on the 10-bit ADC
 _OUT_HIGH_WATER = 4096  # bytes waiting for the pty before the UART stops draining the queue
 _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20 ticks
 _MAX_AHEAD_US = 200_000  # at speed 0, device time runs at most this far past the last host frame
-
-
-class VirtualRig:
-    """The servo, jaw and potentiometer behind the virtual board.
-
-    Parameters
-    ----------
-    plant : str or path
-        Plant name or YAML file (the servo's transfer function).
-    disturbance : str or path
-        Actual-gripper preset (command path, friction, stops, sensor noise and ADC).
-    seed : int
-        Noise seed.
-    y0_deg : float
-        Jaw angle at power-on (deg).
-    pulse_train : bool
-        The servo is driven by a real pulse train (the emulated firmware's): the preset's command
-        quantisation and refresh are dropped, since the pulses carry their own resolution and
-        50 Hz timing. The command range, friction, stops and sensor stay.
-    """
-
-    def __init__(
-        self,
-        plant: str = "test2",
-        disturbance: str = "actual",
-        seed: int = 0,
-        y0_deg: float = 92.0,
-        *,
-        pulse_train: bool = False,
-    ) -> None:
-        self.plant = load_plant(plant)
-        self.disturbance = load_disturbance(disturbance)
-        self.pulse_train = pulse_train
-        if pulse_train:
-            self.disturbance = self.disturbance.with_overrides(
-                {"command": {"quantization": "none", "refresh_period_s": 0.0}}
-            )
-        sensor = self.disturbance.sensor
-        delay = max(1, round(sensor.delay_s / self.plant.dt_s))
-        self.sim = BatchSimulator(self.plant, delay_capacity=delay)
-        self.sim.configure(None, self.disturbance)
-        self.sim.reset(y0_deg, seed)
-        lo, hi = sensor.adc_range_deg if sensor.adc_bits else _DEFAULT_ADC_RANGE_DEG
-        self.adc_lo_deg = lo
-        self.deg_per_count = (hi - lo) / ADC_MAX_COUNT
-        self._command = np.zeros(1)
-        self._out = tuple(np.empty((1, 1)) for _ in range(4))
-        # load the compiled kernels now, not at the first tick (a zero-step advance is a no-op)
-        self.sim.advance(0, self._command, 0, tuple(np.empty((1, 0)) for _ in range(4)))
-        pid_update(0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 1e-3, 0.0, 1.0, 1, 1.0, 1.0, 0, np.zeros(2))
-        self.adc = self.counts(y0_deg)
-        self.position_deg = float(y0_deg)
-
-    def counts(self, angle_deg: float) -> int:
-        """ADC reading (0..1023) for a measured angle (deg)."""
-        code = int(np.floor((angle_deg - self.adc_lo_deg) / self.deg_per_count + 0.5))
-        return min(max(code, 0), ADC_MAX_COUNT)
-
-    @property
-    def true_calibration(self) -> tuple[float, float]:
-        """ADC counts (fractional) at exactly 21 and 92 deg: what a perfect calibration finds."""
-        return tuple(  # type: ignore[return-value]
-            (a - self.adc_lo_deg) / self.deg_per_count for a in (CAL_ANGLE_LO_DEG, CAL_ANGLE_HI_DEG)
-        )
-
-    def step(self, command_deg: float | None) -> int:
-        """Advance one physics step with the servo command (deg), ``None`` while the servo gets
-        no pulses (limp: it holds where it is); return the new ADC reading."""
-        self._command[0] = self.position_deg if command_deg is None else command_deg
-        _r, _u, y, y_true = self.sim.advance(1, self._command, 0, self._out)
-        self.position_deg = float(y_true[0, 0])
-        self.adc = self.counts(float(y[0, 0]))
-        return self.adc
-
-
-class TwinBoard:
-    """The Python twin of the firmware wired to a rig: the board :class:`VirtualDevice` runs by
-    default (the other is :class:`~gripper_env.hardware.emulator.EmulatedBoard`, the real image).
-
-    Parameters
-    ----------
-    rig : VirtualRig
-        The simulated gripper.
-    device_id : int
-        Board id reported in INFO.
-
-    Attributes
-    ----------
-    firmware : Firmware
-        The board's state machine.
-    """
-
-    def __init__(self, rig: VirtualRig, device_id: int = VIRTUAL_DEVICE_ID) -> None:
-        self.rig = rig
-        self.device_id = device_id
-        self.firmware = Firmware(device_id, 0)
-        self.firmware.tx += b"\x00"  # the sketch's boot delimiter (gripper.ino, setup)
-
-    @property
-    def active(self) -> bool:
-        """In an active mode (open or closed loop)."""
-        return self.firmware.mode != 0
-
-    @property
-    def last_rx_us(self) -> int:
-        """Device time (us) of the last valid host frame."""
-        return self.firmware.last_rx_us
-
-    def receive(self, data: bytes, now_us: int) -> None:
-        """Bytes from the host at device time ``now_us``."""
-        self.firmware.receive(data, now_us)
-
-    def step(self, now_us: int, overrun: bool = False) -> None:
-        """One control tick with the rig's reading, then one physics step with its command."""
-        fw = self.firmware
-        fw.tick(now_us, self.rig.adc, overrun)
-        self.rig.step(fw.command if fw.servo_on else None)
-
-    def uart_out(self, max_bytes: int) -> bytes:
-        """At most ``max_bytes`` of the transmit queue, as the UART sends them in one tick."""
-        return self.firmware.uart_drain(max_bytes) if self.firmware.tx and max_bytes else b""
-
-    def reset(self, now_us: int) -> None:
-        """The board restarts (no session, servo limp) and sends its boot delimiter."""
-        self.firmware.begin(self.device_id, now_us)
-        self.firmware.tx += b"\x00"
 
 
 class VirtualDevice:
@@ -209,7 +66,7 @@ class VirtualDevice:
     Parameters
     ----------
     plant, disturbance : str
-        The simulated rig (see :class:`VirtualRig`).
+        The simulated rig (see :class:`~gripper_env.hardware.virtual_rig.VirtualRig`).
     speed : float
         Device time per wall-clock time; ``0`` runs as fast as possible.
     seed : int
@@ -224,7 +81,7 @@ class VirtualDevice:
         INFO reports the EEPROM id ``device_id``.
     harness : path, optional
         The simavr harness library for ``image`` (default: see
-        :class:`~gripper_env.hardware.emulator.Mega2560`).
+        :class:`~gripper_env.hardware.mega2560.Mega2560`).
 
     Attributes
     ----------
@@ -260,7 +117,8 @@ class VirtualDevice:
             self.rig = VirtualRig(plant, disturbance, seed, y0_deg)
             self.board = TwinBoard(self.rig, self.device_id)
         else:
-            from gripper_env.hardware.emulator import EMULATED_DEVICE_ID, EmulatedBoard
+            from gripper_env.hardware.emulator import EmulatedBoard
+            from gripper_env.hardware.mega2560 import EMULATED_DEVICE_ID
 
             self.device_id = EMULATED_DEVICE_ID if device_id is None else device_id
             device_id = self.device_id
@@ -475,8 +333,8 @@ class VirtualDevice:
                 frame = proto.cobs_encode(bytes(raw)) + b"\x00"
             elif self._truncate:
                 self._truncate -= 1
-                raw = proto.cobs_decode(frame[:-1])
-                frame = proto.cobs_encode(raw[:3]) + b"\x00"  # shorter than seq+type+crc
+                decoded = proto.cobs_decode(frame[:-1])
+                frame = proto.cobs_encode(decoded[:3]) + b"\x00"  # shorter than seq+type+crc
             self._out += frame
 
     def _write_output(self, master: int) -> None:
@@ -514,149 +372,12 @@ class VirtualDevice:
         return True
 
 
-# ---- command line -------------------------------------------------------------------------------
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m gripper_env.hardware.virtual``
+    (:func:`gripper_env.hardware.board_cli.run_board`)."""
+    from gripper_env.hardware.board_cli import run_board
 
-
-def parse_speed(text: str) -> float:
-    """``--speed`` value: a factor >= 0, or ``max`` (same as 0: as fast as possible)."""
-    if text.strip().lower() == "max":
-        return 0.0
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"speed must be a number >= 0 or 'max', got {text!r}"
-        ) from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"speed must be a finite number >= 0 or 'max', got {text}")
-    return value
-
-
-def _parser(emulated: bool = False) -> argparse.ArgumentParser:
-    if emulated:
-        prog = "python -m gripper_env.hardware.emulator"
-        what = (
-            "Run the compiled Mega 2560 firmware under simavr on a pseudo-terminal, over the "
-            "simulated actual gripper (the firmware's own servo pulses drive it, the ADC reads it)."
-            " Builds the image and the harness with the project's scripts when missing."
-        )
-    else:
-        prog = "python -m gripper_env.hardware.virtual"
-        what = (
-            "Run a virtual gripper board on a pseudo-terminal: the firmware's protocol, modes and "
-            "watchdog (its Python twin) over the simulated actual gripper."
-        )
-    parser = argparse.ArgumentParser(
-        prog=prog,
-        description=what + " Prints the pty path; pass it as --port to the host tools (with "
-        "--boot-wait 0: the board boots at once). Stops on Ctrl-C or SIGTERM.",
-    )
-    parser.add_argument("--plant", default="test2", help="plant name or YAML file (default: test2)")
-    parser.add_argument(
-        "--disturbance",
-        default="actual",
-        help="actual-gripper preset name or YAML file (default: actual)",
-    )
-    parser.add_argument(
-        "--speed",
-        type=parse_speed,
-        default=1.0,
-        help="device time per wall-clock time: 1 = real time, 2 = twice as fast, "
-        "0 or 'max' = as fast as possible, paced by an active host (default: 1)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="sensor-noise seed (default: 0)")
-    parser.add_argument(
-        "--y0",
-        type=float,
-        default=92.0,
-        help="jaw angle at power-on, deg (default: 92, open)",
-    )
-    parser.add_argument(
-        "--link",
-        default=None,
-        help="also make a symbolic link to the pty at this path (removed on exit)",
-    )
-    if emulated:
-        parser.add_argument(
-            "--image",
-            default=None,
-            metavar="ELF",
-            help="firmware image to run (default: firmware/build-mega/gripper.elf, built by "
-            "firmware/build.sh when missing)",
-        )
-        parser.add_argument(
-            "--rebuild",
-            action="store_true",
-            help="rebuild the default image and the harness before starting",
-        )
-    else:
-        parser.add_argument(
-            "--image",
-            default=None,
-            metavar="ELF",
-            help="run this compiled firmware image under simavr instead of the Python twin "
-            "(see python -m gripper_env.hardware.emulator)",
-        )
-    return parser
-
-
-def main(argv: Sequence[str] | None = None, emulated: bool = False) -> int:
-    """Entry point of ``python -m gripper_env.hardware.virtual`` (and, with ``emulated``, of
-    ``python -m gripper_env.hardware.emulator``)."""
-    parser = _parser(emulated)
-    args = parser.parse_args(argv)
-    try:
-        if not 0.0 <= args.y0 <= 180.0:
-            raise ValueError(f"--y0 must be an angle in [0, 180] deg, got {args.y0}")
-        image = args.image
-        if emulated:
-            from gripper_env.hardware.emulator import ensure_built
-
-            image, _harness = ensure_built(args.image, rebuild=args.rebuild)
-        device = VirtualDevice(
-            args.plant, args.disturbance, speed=args.speed, seed=args.seed, y0_deg=args.y0,
-            image=image,
-        )  # fmt: skip
-    except (ValueError, OSError, RuntimeError) as exc:
-        parser.exit(2, f"{parser.prog}: error: {exc}\n")
-    stop = threading.Event()
-
-    def _on_signal(signum: int, frame: object) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, _on_signal)
-    signal.signal(signal.SIGINT, _on_signal)
-    device.start()
-    link = None
-    try:
-        if args.link:
-            link = os.path.abspath(args.link)
-            if os.path.islink(link):
-                os.unlink(link)
-            os.symlink(device.path, link)
-        speed = "max" if args.speed == 0 else f"{args.speed:g}x"
-        board = f"firmware image {image}" if image else "the firmware's Python twin"
-        print(device.path, flush=True)
-        print(
-            f"virtual gripper ({board}): plant {args.plant}, disturbance {args.disturbance}, "
-            f"speed {speed}" + (f", linked at {link}" if link else "") + "; Ctrl-C to stop",
-            file=sys.stderr,
-            flush=True,
-        )
-        while not stop.wait(0.2):
-            if not device.running:
-                break
-    except OSError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 2
-    finally:
-        device.stop()
-        if link and os.path.islink(link):
-            os.unlink(link)
-    if device.error is not None:
-        print(f"{parser.prog}: error: the board stopped: {device.error}", file=sys.stderr)
-        return 1
-    return 0
+    return run_board(argv)
 
 
 if __name__ == "__main__":

@@ -87,7 +87,7 @@ def harness_f32(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Harness]:
 def emulator_build(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """The firmware image and the simavr harness, built by the project's scripts into this
     session's own directory (parallel workers do not share a build tree)."""
-    from gripper_env.hardware.emulator import build_harness, build_image, emulator_missing
+    from gripper_env.hardware.firmware_build import build_harness, build_image, emulator_missing
 
     why = emulator_missing()
     if why:

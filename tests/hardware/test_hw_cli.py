@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from virtual_support import gains_file, run_cli, short_step_csv
 
+from gripper_env.hardware.board_cli import board_parser as virtual_parser
 from gripper_env.hardware.calibration import load_calibration
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.hardware.virtual import _parser as virtual_parser
 from rig import calibrate, deploy, record
 
 SPEED = "--boot-wait", "0"

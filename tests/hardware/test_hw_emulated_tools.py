@@ -20,11 +20,11 @@ from virtual_support import REPO, gains_file, open_device, short_step_csv, true_
 
 from gripper_env.hardware import emulator
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.device import DeviceReset
-from gripper_env.hardware.emulator import EMULATED_DEVICE_ID
+from gripper_env.hardware.board_cli import board_parser as virtual_parser
+from gripper_env.hardware.errors import DeviceReset
 from gripper_env.hardware.experiment import run_profile
+from gripper_env.hardware.mega2560 import EMULATED_DEVICE_ID
 from gripper_env.hardware.protocol import Mode
-from gripper_env.hardware.virtual import _parser as virtual_parser
 from gripper_env.metrics import fit_percent
 from gripper_env.pid import PIDGains, PIDOptions
 from gripper_env.references import step_profile

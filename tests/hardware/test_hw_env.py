@@ -16,7 +16,7 @@ import gripper_env
 from gripper_env.config import ConfigError
 from gripper_env.envs.servo_hardware import GripperServoHardwareEnv, MissedDeadlineWarning
 from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import DeviceTimeout
+from gripper_env.hardware.errors import DeviceTimeout
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
 
@@ -117,12 +117,12 @@ def test_non_finite_action_is_refused_before_anything_is_sent(virtual) -> None:
     env = make(virtual)
     env.reset(seed=0)
     env.step(action_for(50.0))
-    frames = virtual.firmware.rx.frames_ok
+    frames = virtual.firmware.rx.stats.frames
     for bad in (np.nan, np.inf):
         with pytest.raises(ValueError, match="finite"):
             env.step(np.array([bad], np.float32))
     assert virtual.wait_ticks(20)
-    assert virtual.firmware.rx.frames_ok == frames
+    assert virtual.firmware.rx.stats.frames == frames
     assert virtual.firmware.setpoint == pytest.approx(50.0, abs=1e-4)
     env.close()
     assert idle_and_open(virtual)

@@ -11,7 +11,7 @@ import pytest
 from virtual_support import SPEED, open_device
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.device import (
+from gripper_env.hardware.errors import (
     DeviceReset,
     DeviceTimeout,
     LinkError,

@@ -10,7 +10,7 @@ import pytest
 from virtual_support import SPEED, open_device, short_step
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.device import DeviceFault, DeviceRefused, VersionMismatch
+from gripper_env.hardware.errors import DeviceFault, DeviceRefused, VersionMismatch
 from gripper_env.hardware.experiment import CsvLog, run_profile
 from gripper_env.hardware.protocol import Fault, Mode
 from gripper_env.hardware.virtual import VirtualDevice

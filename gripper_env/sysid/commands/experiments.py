@@ -212,7 +212,7 @@ def _session(args: argparse.Namespace, started: float) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Run the ``experiments`` command; returns the exit status."""
     from gripper_env.hardware.calibration import CalibrationError
-    from gripper_env.hardware.device import DeviceError
+    from gripper_env.hardware.errors import DeviceError
 
     started = time.perf_counter()
     _check(args, args.parser)
