@@ -320,9 +320,8 @@ def markdown(fig: dict) -> str:
         "Time per vector step (us, medians). Sync: `gym.make_vec(..., "
         'vectorization_mode="sync")` over N `gym.make` environments (each with its wrappers); '
         'native: `vectorization_mode="vector_entry_point"`, with the kernel it chooses by batch '
-        "size (`gripper_env.envs.kernels.step_kernel`: the parallel-compiled kernel for N > 1, "
-        "on the calling thread alone below "
-        f"{fig['parallel_min_steps']} physics steps per call, on every numba thread above), then "
+        "size (`gripper_env.envs.kernels.step_kernel`: the serial kernel below "
+        f"{fig['parallel_min_steps']} physics steps per call, the parallel one from there), then "
         "forced: the serial kernel, the parallel kernel on one thread, and on every thread "
         "whatever N. native / Sync is the median Sync time over the median native time; per "
         "repeat: the lowest and highest of the repeats' own ratios. Autoresets are included as "
