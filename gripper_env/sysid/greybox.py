@@ -70,6 +70,8 @@ __all__ = ["ActualEstimate", "FrictionEstimate", "identify_actual", "response_on
 
 #: Friction candidates span [0, this] deg for S and J unless told otherwise.
 MAX_FRICTION_DEG = 8.0
+#: Spacing of the fine friction grid (deg): the resolution of ``S`` and ``J`` and their ranges.
+FINE_STEP_DEG = 0.25
 
 
 @dataclass(frozen=True)
@@ -396,7 +398,7 @@ def _fine_friction(
     """Friction on a fine grid around the coarse grid's best ``(S, J)``, with the values
     consistent with the data on both grids (``coarse``: its pairs and costs)."""
     s_best, j_best = coarse_best
-    step = 0.25
+    step = FINE_STEP_DEG
     s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
     j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
     pairs = [(s, j) for s in s_vals for j in j_vals]

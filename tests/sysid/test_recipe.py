@@ -20,6 +20,7 @@ from gripper_env.disturbances import load_disturbance
 from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.plants import load_plant
 from gripper_env.sysid.__main__ import main as sysid
+from gripper_env.sysid.greybox import FINE_STEP_DEG
 
 
 @pytest.fixture
@@ -46,9 +47,16 @@ def test_record_identify_tune_deploy(configs, tmp_path, capsys):
     assert sysid(["greybox", str(log), "--name", "mine", "--json", "--save-plant", str(plant),
                   "--save-disturbance", str(preset)]) == 0  # fmt: skip
     found = json.loads(capsys.readouterr().out)
-    # the virtual rig is test2 behind the actual preset (its board reads the sensor 1 ms late)
-    assert found["friction"]["S_deg"] == pytest.approx(truth.friction.S_deg, rel=0.15)
-    assert found["friction"]["J_deg"] == pytest.approx(truth.friction.J_deg, rel=0.15)
+    # The virtual rig is test2 behind the actual preset (its board reads the sensor 1 ms late).
+    # At speed 0 the slope reaches the board as a staircase whose treads depend on how quickly
+    # the host is scheduled, so the record (and the estimate) varies from run to run: the true
+    # friction must lie in the range the estimator calls consistent with the data, and the
+    # estimate within 15 % of it, both to the estimator's resolution (its fine grid step).
+    for key in ("S_deg", "J_deg"):
+        true, (lo, hi) = getattr(truth.friction, key), found["friction"][f"{key[0]}_range_deg"]
+        assert lo - FINE_STEP_DEG <= true <= hi + FINE_STEP_DEG, (key, lo, hi)
+        tol = max(0.15 * true, FINE_STEP_DEG) + 1e-9
+        assert found["friction"][key] == pytest.approx(true, abs=tol), key
     assert found["sensor"]["noise_std_deg"] == pytest.approx(truth.sensor.noise_std_deg, rel=0.15)
     assert found["delay_s"] <= 5e-3  # 1 ms, known to a few ms from a slope
     assert load_plant("mine").is_stable and load_disturbance("mine").friction.model == "choudhury"
