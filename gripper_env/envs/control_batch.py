@@ -144,6 +144,7 @@ class ControlBatch:
         self.out_y = np.zeros((n_rows, s.n_sub))
         self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
         self.episodes: list[Episode | None] = [None] * n_rows
+        self._counter = np.zeros(1, dtype=np.int64)  # the step kernel's scratch
         #: None: the serial or the parallel kernel by batch size (kernels.step_kernel); True or
         #: False forces one (set_parallel).
         self.parallel: bool | None = None
@@ -178,7 +179,7 @@ class ControlBatch:
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,
             self.rewards, self.terminated, self.truncated,
             sim.params, sim.plant_a, sim.plant_b, sim.plant_d, sim.state, sim.rng, sim.delay_buf,
-            None, self.out_u, self.out_y, self.out_yt,
+            None, self.out_u, self.out_y, self.out_yt, self._counter,
         )  # fmt: skip
 
     # ------------------------------------------------------------------------------------------

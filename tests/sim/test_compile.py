@@ -8,6 +8,10 @@ import sys
 import types
 from pathlib import Path
 
+import numba
+import numpy as np
+import pytest
+
 import gripper_env
 from gripper_env import metrics
 from gripper_env.envs import kernels as env_kernels
@@ -128,3 +132,31 @@ def test_the_source_list_holds_every_file_the_kernels_compile_in():
         missing = files - listed - {own}
         assert not missing, f"{fn.__name__} compiles in files missing from SOURCES: {missing}"
     assert {p.name for p in SOURCES} >= {"kernel.py", "servo.py", "pid.py", "_schedule.py"}
+
+
+def _fill(x, out):
+    for i in range(x.shape[0]):
+        out[i] = 2.0 * x[i]
+
+
+def _allocates(x):
+    return np.zeros_like(x) + x[0]
+
+
+def test_a_kernel_without_reference_counting_runs_alike_and_refuses_to_allocate():
+    # numba's underscored _nrt option: this test notices first if an upgrade drops it
+    counted, uncounted = compile_kernel(_fill), compile_kernel(_fill, refcount=False)
+    assert uncounted.serial.py_func.__name__.startswith("_fill_norc__")
+    assert uncounted.parallel.py_func.__name__.startswith("_fill_parallel_norc__")
+    assert uncounted.serial.targetoptions["_nrt"] is False
+    x = np.linspace(-1.0, 1.0, 7)
+    a, b = np.empty_like(x), np.empty_like(x)
+    counted.serial(x, a)
+    uncounted.serial(x, b)
+    np.testing.assert_array_equal(a, 2.0 * x)
+    np.testing.assert_array_equal(b, a)
+    with pytest.raises(numba.core.errors.NumbaError):
+        compile_kernel(_allocates, refcount=False).serial(x)
+    # the environments' step is such a kernel
+    assert env_kernels.step_serial.targetoptions["_nrt"] is False
+    assert env_kernels.step_parallel.targetoptions["_nrt"] is False
