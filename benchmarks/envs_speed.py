@@ -34,6 +34,7 @@ import numpy as np
 
 import gripper_env  # noqa: F401  (registers the ids)
 from gripper_env.envs import kernels
+from gripper_env.sim.compile import compile_kernel
 
 SERVO = "gripper_env/GripperServo-v0"
 GAIN_SCHEDULE = "gripper_env/GripperGainSchedule-v0"
@@ -124,6 +125,10 @@ def pid_tune_vector_rate(num_envs: int) -> Callable[[], float]:
 
 SWEEP_N = (1, 8, 32, 64, 256, 1024)
 
+#: The serial step kernel compiled as it was before it went without reference counting
+#: (``compile_kernel(refcount=True)``): the "before" of that change, measured in the same run.
+REFCOUNTED = compile_kernel(kernels._step_impl).serial
+
 
 def vector_sweep(ns: tuple[int, ...], repeats: int, quick: bool) -> list[dict[str, float]]:
     """Native over Sync at each N (see the module docstring), one row per N."""
@@ -157,12 +162,20 @@ def vector_sweep(ns: tuple[int, ...], repeats: int, quick: bool) -> list[dict[st
                 numba.set_num_threads(default)
                 env.set_parallel(None)
 
+        def refcounted(batch=batch, native_time=native_time) -> float:
+            batch._kernel = REFCOUNTED
+            try:
+                return native_time()
+            finally:
+                batch._bind()
+
         samples = []
         for _ in range(repeats):  # interleaved: load changes hit every side alike
             samples.append(
-                (native_time(), sync_time(), forced(False), forced(True, 1), forced(True))
+                (native_time(), sync_time(), forced(False), forced(True, 1), forced(True),
+                 refcounted())
             )  # fmt: skip
-        med = [statistics.median(s[i] for s in samples) for i in range(5)]
+        med = [statistics.median(s[i] for s in samples) for i in range(6)]
         ratios = [s[1] / s[0] for s in samples]
         rows.append(
             {
@@ -176,6 +189,8 @@ def vector_sweep(ns: tuple[int, ...], repeats: int, quick: bool) -> list[dict[st
                 "serial_step_us": med[2] * 1e6,
                 "parallel_1thread_step_us": med[3] * 1e6,
                 "parallel_step_us": med[4] * 1e6,
+                "serial_refcounted_step_us": med[5] * 1e6,
+                "refcounted_vs_serial": med[5] / med[2],
                 "native_physics_steps_per_s": n * N_SUB / med[0],
                 "sync_physics_steps_per_s": n * N_SUB / med[1],
             }
@@ -294,7 +309,8 @@ def markdown(fig: dict) -> str:
             f"({r['kernel']}) | **{r['native_vs_sync']:.1f}x** | "
             f"{r['native_vs_sync_min']:.1f}x - {r['native_vs_sync_max']:.1f}x | "
             f"{r['serial_step_us']:.1f} | {r['parallel_1thread_step_us']:.1f} | "
-            f"{r['parallel_step_us']:.1f} | {r['native_physics_steps_per_s']:.3g} | "
+            f"{r['parallel_step_us']:.1f} | {r['serial_refcounted_step_us']:.1f} "
+            f"({r['refcounted_vs_serial']:.1f}x) | {r['native_physics_steps_per_s']:.3g} | "
             + (f">= {goal:.0f}x: {yes(r['native_vs_sync'] >= goal)}" if goal else "")
             + " |"
         )
@@ -323,13 +339,16 @@ def markdown(fig: dict) -> str:
         "size (`gripper_env.envs.kernels.step_kernel`: the serial kernel below "
         f"{fig['parallel_min_steps']} physics steps per call, the parallel one from there), then "
         "forced: the serial kernel, the parallel kernel on one thread, and on every thread "
-        "whatever N. native / Sync is the median Sync time over the median native time; per "
-        "repeat: the lowest and highest of the repeats' own ratios. Autoresets are included as "
-        "they happen.",
+        "whatever N; and, for comparison, the serial kernel compiled with numba's reference "
+        "counting, as it was before (`compile_kernel(refcount=True)`; in brackets its time over "
+        "the serial kernel's). native / Sync is the median Sync time over the median native "
+        "time; per repeat: the lowest and highest of the repeats' own ratios. Autoresets are "
+        "included as they happen.",
         "",
         "| N | Sync | native (kernel) | native / Sync | per repeat | serial kernel | parallel, 1 "
-        "thread | parallel, all threads | native physics steps/s | goal |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "thread | parallel, all threads | serial, reference counting (before) | native physics "
+        "steps/s | goal |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *sweep,
         "",
     ]
