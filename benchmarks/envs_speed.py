@@ -162,12 +162,17 @@ def vector_sweep(ns: tuple[int, ...], repeats: int, quick: bool) -> list[dict[st
                 numba.set_num_threads(default)
                 env.set_parallel(None)
 
-        def refcounted(batch=batch, native_time=native_time) -> float:
-            batch._kernel = REFCOUNTED
+        def refcounted(env=env, native_time=native_time) -> float:
+            # swapped in where the batch looks its kernel up again on every (auto)reset
+            serial = kernels.step_serial
+            kernels.step_serial = REFCOUNTED
+            env.set_parallel(False)
             try:
+                assert env._batch._kernel is REFCOUNTED
                 return native_time()
             finally:
-                batch._bind()
+                kernels.step_serial = serial
+                env.set_parallel(None)
 
         samples = []
         for _ in range(repeats):  # interleaved: load changes hit every side alike
