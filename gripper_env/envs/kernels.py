@@ -363,8 +363,8 @@ def _step_impl(
 PARALLEL_MIN_STEPS = 400
 
 # cached per version of every file they compile in (the core, the PID, the work sharing)
-# Without reference counting (it allocates nothing): 2.4x faster per call at 1-8 rows (the
-# counting's atomic adds on every array argument and every array an inlined helper binds)
+# Without reference counting (it allocates nothing): the counted kernel is 1.3x slower at 1 row,
+# 1.6x at 8 and 2.0-2.3x from 32 (results/speed.md, its "reference counting (before)" column)
 step_serial, step_parallel = compile_kernel(_step_impl, refcount=False)
 
 
