@@ -17,8 +17,8 @@ from gripper_env.hardware.protocol.constants import (
     AntiWindup,
     Mode,
 )
-from gripper_env.hardware.protocol.errors import FieldValueError, PayloadLengthError
-from gripper_env.hardware.protocol.wire import check_field
+from gripper_env.hardware.protocol.errors import PayloadLengthError
+from gripper_env.hardware.protocol.wire import check_count, check_field
 
 __all__ = [
     "Configure",
@@ -197,11 +197,7 @@ class ProfileChunk(Message):
         name = type(self).__name__
         check_field(name, "start_index", "H", self.start_index)
         check_field(name, "total_length", "H", self.total_length)
-        if not 1 <= len(self.samples_cdeg) <= PROFILE_CHUNK_MAX_SAMPLES:
-            raise FieldValueError(
-                f"{name}.samples_cdeg must hold 1..{PROFILE_CHUNK_MAX_SAMPLES} samples, "
-                f"got {len(self.samples_cdeg)}"
-            )
+        check_count(name, "samples_cdeg", len(self.samples_cdeg), PROFILE_CHUNK_MAX_SAMPLES)
         for value in self.samples_cdeg:
             check_field(name, "samples_cdeg", "h", value)
         count = len(self.samples_cdeg)

@@ -15,9 +15,9 @@ from gripper_env.hardware.protocol.constants import (
     Mode,
     SampleFlag,
 )
-from gripper_env.hardware.protocol.errors import FieldValueError, PayloadLengthError
+from gripper_env.hardware.protocol.errors import PayloadLengthError
 from gripper_env.hardware.protocol.messages import FixedMessage, Message
-from gripper_env.hardware.protocol.wire import check_field
+from gripper_env.hardware.protocol.wire import check_count, check_field
 
 __all__ = [
     "SAMPLE_STRUCT",
@@ -126,11 +126,7 @@ class Telemetry(Message):
         name = type(self).__name__
         check_field(name, "t0_us", "I", self.t0_us)
         check_field(name, "decimation", "H", self.decimation)
-        if not 1 <= len(self.samples) <= TELEMETRY_MAX_SAMPLES:
-            raise FieldValueError(
-                f"{name}.samples must hold 1..{TELEMETRY_MAX_SAMPLES} samples, "
-                f"got {len(self.samples)}"
-            )
+        check_count(name, "samples", len(self.samples), TELEMETRY_MAX_SAMPLES)
         out = bytearray(
             TELEMETRY_HEADER_STRUCT.pack(self.t0_us, self.decimation, len(self.samples))
         )

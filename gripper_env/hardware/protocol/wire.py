@@ -10,7 +10,7 @@ import math
 from gripper_env.hardware.protocol.constants import FLT_MAX
 from gripper_env.hardware.protocol.errors import CobsError, FieldValueError
 
-__all__ = ["check_field", "cobs_decode", "cobs_encode", "crc16_ccitt_false"]
+__all__ = ["check_count", "check_field", "cobs_decode", "cobs_encode", "crc16_ccitt_false"]
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -120,3 +120,9 @@ def check_field(message: str, name: str, code: str, value: object) -> None:
     lo, hi = _INT_RANGES[code]
     if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
         raise FieldValueError(f"{message}.{name} must be an integer in [{lo}, {hi}], got {value!r}")
+
+
+def check_count(message: str, name: str, n: int, most: int) -> None:
+    """Raise :class:`FieldValueError` unless an array field holds 1..``most`` samples."""
+    if not 1 <= n <= most:
+        raise FieldValueError(f"{message}.{name} must hold 1..{most} samples, got {n}")
