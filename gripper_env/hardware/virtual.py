@@ -138,6 +138,8 @@ class VirtualDevice:
         self._silent = False
         self._paced_since = 0.0
         self._garbage = bytearray()
+        self._reset_before: int | None = None
+        self.resets = 0
         self.error: BaseException | None = None
         self.bytes_sent = self.bytes_received = 0
 
@@ -223,9 +225,20 @@ class VirtualDevice:
     def reset(self) -> None:
         """Reset the board mid-run: the firmware restarts (no session, servo limp)."""
         with self.lock:
-            self.board.reset(self._now_us())
-            self._out.clear()
-            self._frame.clear()
+            self._reset_board()
+
+    def reset_before(self, message_type: int) -> None:
+        """Reset the board just before the next host frame of ``message_type`` reaches it (for
+        example ``proto.Configure.TYPE``: a reset that lands while the host uploads a
+        configuration). Fires once; :attr:`resets` counts the resets done."""
+        with self.lock:
+            self._reset_before = int(message_type)
+
+    def _reset_board(self) -> None:
+        self.board.reset(self._now_us())
+        self._out.clear()
+        self._frame.clear()
+        self.resets += 1
 
     def vanish(self) -> None:
         """The USB cable is pulled: the pty closes under the host and the board stops."""
@@ -302,7 +315,22 @@ class VirtualDevice:
         if data:
             self.bytes_received += len(data)
             with self.lock:
+                if self._reset_before is not None and self._carries(data, self._reset_before):
+                    self._reset_before = None
+                    self._reset_board()
                 self.board.receive(data, self._now_us())
+
+    @staticmethod
+    def _carries(data: bytes, message_type: int) -> bool:
+        """``data`` holds a whole host frame of ``message_type``."""
+        for chunk in data.split(b"\x00")[:-1]:
+            try:
+                raw = proto.cobs_decode(chunk)
+            except proto.CobsError:
+                continue
+            if len(raw) >= 2 and raw[1] == message_type:
+                return True
+        return False
 
     def _emit(self, data: bytes) -> None:
         """Pass bytes the UART sent through the armed faults to the line."""

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import gymnasium as gym
@@ -67,25 +66,58 @@ def test_random_bytes_mid_run_then_a_normal_deploy(emulated) -> None:
     assert _deploy_fit(rec) > 90.0
 
 
+def _reconnect_and_deploy(dev, emulated) -> None:
+    """The same host, after a reset: handshake, configure, a whole run that fits the model."""
+    info = dev.handshake()
+    assert info.device_id == EMULATED_DEVICE_ID
+    dev.configure(GAINS, OPTIONS)
+    rec = run_profile(dev, SHORT, Mode.CLOSED_LOOP)
+    assert rec.complete and rec.frames_lost == 0
+    assert _deploy_fit(rec) > 90.0
+
+
 def test_a_reset_mid_run_is_reported_and_the_host_reconnects(emulated) -> None:
+    # The reset is triggered by the run's own progress (a quarter of the profile streamed), so
+    # it lands inside the run whatever the machine's load: the emulated board runs at most
+    # 200 ms of device time ahead of the host, and the profile lasts 3.3 s.
+    done: list[float] = []
+
+    def reset_a_quarter_in(fraction: float) -> None:
+        if fraction >= 0.25 and not done:
+            done.append(fraction)
+            emulated.reset()
+
     with open_device(emulated) as dev:
         dev.configure(GAINS, OPTIONS)
-        start = emulated.ticks
-        timer = threading.Thread(
-            target=lambda: emulated.wait_ticks(800) and emulated.reset(), daemon=True
-        )
-        timer.start()
-        with pytest.raises(DeviceReset, match="reset"):
-            run_profile(dev, SHORT, Mode.CLOSED_LOOP)
-        timer.join(10)
-        assert emulated.ticks - start < len(SHORT.values_deg)  # it did not run to the end
-        # the same host reconnects: handshake, configure, deploy
-        info = dev.handshake()
-        assert info.device_id == EMULATED_DEVICE_ID
+        with pytest.raises(DeviceReset, match="reset") as raised:
+            run_profile(dev, SHORT, Mode.CLOSED_LOOP, progress=reset_a_quarter_in)
+        assert done and done[0] < 0.5 and emulated.resets == 1
+        assert "Traceback" not in str(raised.value)
+        _reconnect_and_deploy(dev, emulated)
+
+
+def test_a_reset_during_the_configuration_upload_is_reported(emulated) -> None:
+    # the board restarts just as the CONFIGURE frame reaches it: it has no session to take it
+    with open_device(emulated) as dev:
+        emulated.reset_before(proto.Configure.TYPE)
+        with pytest.raises(DeviceReset, match="NO_SESSION"):
+            dev.configure(GAINS, OPTIONS)
+        assert emulated.resets == 1
+        _reconnect_and_deploy(dev, emulated)
+
+
+def test_a_reset_between_runs_is_reported_before_the_next_run_moves(emulated) -> None:
+    with open_device(emulated) as dev:
         dev.configure(GAINS, OPTIONS)
         rec = run_profile(dev, SHORT, Mode.CLOSED_LOOP)
-        assert rec.complete and rec.frames_lost == 0
-    assert _deploy_fit(rec) > 90.0
+        assert rec.complete
+        dev.set_mode(Mode.IDLE)
+        emulated.reset()
+        # the next run's first request (SET_MODE) meets a board without a session
+        with pytest.raises(DeviceReset, match="reset"):
+            run_profile(dev, SHORT, Mode.CLOSED_LOOP)
+        assert emulated.board.mode == Mode.IDLE
+        _reconnect_and_deploy(dev, emulated)
 
 
 def test_the_launcher_and_the_hardware_commands(emulator_build, tmp_path, capsys) -> None:

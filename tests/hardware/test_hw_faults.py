@@ -3,7 +3,6 @@ written so far is kept, and nothing hangs (every wait is bounded by the device's
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 
 import numpy as np
@@ -34,24 +33,18 @@ def _rows(block, t0_us):
 
 
 def _fault_during_run(dev, vd, tmp_path, fault, after_s: float = 0.6):
-    """Start a long open-loop run, trigger ``fault`` after ``after_s`` of device time."""
+    """Start a long open-loop run and trigger ``fault`` once the run itself has streamed
+    ``after_s`` of its profile (the run's own progress, so the fault lands inside the run)."""
     log = CsvLog(tmp_path / "run.csv", ("t_s", "desired_deg", "actual_deg"), _rows)
-    start = vd.ticks
-    stop = threading.Event()
+    profile = step_profile()
+    fired: list[float] = []
 
-    def trigger() -> None:
-        while not stop.is_set() and vd.ticks - start < after_s * 1000:
-            stop.wait(0.005)
-        if not stop.is_set():
+    def trigger(fraction: float) -> None:
+        if not fired and fraction * profile.duration_s >= after_s:
+            fired.append(fraction)
             fault()
 
-    thread = threading.Thread(target=trigger, daemon=True)
-    thread.start()
-    try:
-        run_profile(dev, step_profile(), Mode.OPEN_LOOP, log=log)
-    finally:
-        stop.set()
-        thread.join(5.0)
+    run_profile(dev, profile, Mode.OPEN_LOOP, log=log, progress=trigger)
     return log
 
 
