@@ -264,6 +264,7 @@ class LoopAnalysis:
         rhs = np.broadcast_to(gamma[:, None], (len(z), nw, 1))
         x = np.linalg.solve(z[:, None, None] * eye - phi, rhs)[:, :, 0]
         self._freq = x @ self.h.T  # (n_omega, 3): responses of the P, I and D output maps
+        self._freq_rows = np.ascontiguousarray(self._freq.T)  # (3, n_omega), for _combine
 
     def _gains(self, gains: Any) -> np.ndarray:
         g = np.atleast_2d(np.asarray(gains, dtype=float))
@@ -281,11 +282,11 @@ class LoopAnalysis:
 
     def loop_gain(self, gains: Any) -> np.ndarray:
         """``L(e^{j omega T})`` on :attr:`omega` for each gain set, shape (B, n_omega)."""
-        return -(self._gains(gains) @ self._freq.T)
+        return -_combine(self._gains(gains), self._freq_rows)
 
     def closed_loop_matrix(self, gains: Any) -> np.ndarray:
         """The closed-loop lifted matrices ``Phi + Gamma H`` (B, n, n)."""
-        h = self._gains(gains) @ self.h
+        h = _combine(self._gains(gains), self.h)
         return self.phi[None] + self.gamma[None, :, None] * h[:, None, :]
 
     def robustness(self, gains: Any) -> Robustness:
@@ -316,6 +317,16 @@ class LoopAnalysis:
         """
         h = self._gains(gains)[0] @ self.h
         return control.ss(self.phi, self.gamma[:, None], -h[None, :], 0.0, self.loop.period_s)
+
+
+def _combine(gains: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``gains @ rows`` for (B, 3) gains, as three broadcast products: no BLAS call. A BLAS
+    product here starts BLAS's threads, which fight the simulation core's numba threads still
+    spinning after a parallel kernel (measured in GripperPIDTune-v0's step: 7 ms per call instead
+    of 0.06 ms)."""
+    return (
+        gains[:, 0, None] * rows[0] + gains[:, 1, None] * rows[1] + gains[:, 2, None] * rows[2]
+    )
 
 
 def _gain_margins(loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
