@@ -25,7 +25,15 @@ Definitions (DESIGN.md section 2):
 * **Fit %** between two responses (MATLAB ``compare``):
   ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``.
 
-A run flagged unstable (diverged) gets ``inf`` for every error-like metric and ``stable = False``.
+* **Sustained oscillation** (deg): the largest peak-to-peak swing of the response over the last
+  :data:`OSCILLATION_WINDOW_S` (at most half) of every grip or un-grip segment. A loop with its
+  command limited and its jaw between stops cannot diverge numerically: it swings from stop to
+  stop for ever. Such a run is classified as diverged (``stable = False``) once its swing
+  exceeds :data:`OSCILLATION_LIMIT_DEG`, well above any friction limit cycle (stick-slip hunting
+  of ``S + J``, a few degrees on the presets) and far below a stop-to-stop swing.
+
+A run flagged unstable (diverged, or oscillating) gets ``inf`` for every error-like metric and
+``stable = False``.
 """
 
 from __future__ import annotations
@@ -41,7 +49,15 @@ from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
 from gripper_env.references import Segment
 from gripper_env.sim.compile import compile_kernel
 
-__all__ = ["Metrics", "compute_metrics", "fit_percent", "sample_sd", "step_metrics"]
+__all__ = [
+    "OSCILLATION_LIMIT_DEG",
+    "Metrics",
+    "compute_metrics",
+    "fit_percent",
+    "sample_sd",
+    "step_metrics",
+    "sustained_swing",
+]
 
 STEP_KEYS = (
     "overshoot_pct",
@@ -64,7 +80,14 @@ RUN_KEYS = (
     "contact_s",
     "stall_s",
     "force_proxy",
+    "oscillation_deg",
 )
+
+#: Window (s) at the end of each segment over which the sustained swing is measured.
+OSCILLATION_WINDOW_S = 2.0
+#: A run whose response still swings more than this (deg, peak to peak) at the end of a segment
+#: is classified as diverged (see the module docstring).
+OSCILLATION_LIMIT_DEG = 8.0
 
 
 def sample_sd(x: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -295,7 +318,7 @@ class Metrics:
     run : dict of str to ndarray
         Run metrics (see :data:`RUN_KEYS`).
     stable : ndarray of bool
-        False for diverged runs.
+        False for diverged runs and runs in sustained oscillation.
     """
 
     grip: dict[str, np.ndarray]
@@ -317,6 +340,29 @@ class Metrics:
         out.update({k: float(v[i]) for k, v in self.run.items()})
         out["stable"] = bool(self.stable[i])
         return out
+
+
+def sustained_swing(y: np.ndarray, segments: Any, dt_s: float) -> np.ndarray:
+    """Largest peak-to-peak swing (deg) of each run over the last :data:`OSCILLATION_WINDOW_S`
+    (at most half) of every segment; 0 without segments.
+
+    Parameters
+    ----------
+    y : ndarray, shape (B, n)
+        Responses (deg).
+    segments : sequence of Segment
+        The moves; each spans from its start to the next move.
+    dt_s : float
+        Sample time (s).
+    """
+    swing = np.zeros(y.shape[0])
+    for seg in segments:
+        n = min(round(OSCILLATION_WINDOW_S / dt_s), (seg.stop - seg.start) // 2)
+        if n < 2:
+            continue
+        window = y[:, seg.stop - n : seg.stop]
+        swing = np.maximum(swing, window.max(axis=1) - window.min(axis=1))
+    return swing
 
 
 def _aggregate(parts: list[dict[str, np.ndarray]], n_runs: int) -> dict[str, np.ndarray]:
@@ -413,11 +459,14 @@ def compute_metrics(
         "contact_s": _counter(traj, "contact_s", n_runs),
         "stall_s": _counter(traj, "stall_s", n_runs),
         "force_proxy": _counter(traj, "force_proxy", n_runs),
+        "oscillation_deg": sustained_swing(ys, segs, float(t[1] - t[0]) if len(t) > 1 else 1.0),
     }
+    oscillating = run["oscillation_deg"] > OSCILLATION_LIMIT_DEG
+    stable = stable & ~oscillating
     bad = ~stable
     if bad.any():
         for d in (grip, ungrip, run):
             for k in d:
-                if k != "sd_reference_deg":
+                if k not in ("sd_reference_deg", "oscillation_deg"):
                     d[k] = np.where(bad, math.inf, d[k])
     return Metrics(grip=grip, ungrip=ungrip, run=run, stable=stable)

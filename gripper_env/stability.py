@@ -216,12 +216,14 @@ class LoopAnalysis:
     (True, 1.11)
     """
 
-    def __init__(self, plant: Plant | str, loop: ServoLoop) -> None:
+    def __init__(
+        self, plant: Plant | str, loop: ServoLoop, frequency_response: bool = True
+    ) -> None:
         self.plant = load_plant(plant)
         self.loop = loop
-        self._build()
+        self._build(frequency_response)
 
-    def _build(self) -> None:
+    def _build(self, frequency_response: bool) -> None:
         lp = self.loop
         a, b, dff = self.plant.zoh_matrices(lp.dt_s)
         n, d = a.shape[0], lp.delay_steps
@@ -255,6 +257,8 @@ class LoopAnalysis:
         h_d[i_f] -= lp.N
         self.phi, self.gamma = phi, gamma
         self.h = np.stack([e, h_i, h_d])  # output maps of P, I and D
+        if not frequency_response:  # the lifted matrices only: spectral radius, no margins
+            return
         omega_n = math.pi / lp.period_s
         self.omega = np.concatenate(
             [np.geomspace(OMEGA_MIN, omega_n, N_FREQUENCIES, endpoint=False), [omega_n]]
@@ -289,10 +293,15 @@ class LoopAnalysis:
         h = _combine(self._gains(gains), self.h)
         return self.phi[None] + self.gamma[None, :, None] * h[:, None, :]
 
+    def spectral_radius(self, gains: Any) -> np.ndarray:
+        """Largest closed-loop pole magnitude of the lifted loop for each gain set (< 1:
+        stable); needs no frequency response."""
+        return np.max(np.abs(np.linalg.eigvals(self.closed_loop_matrix(gains))), axis=1)
+
     def robustness(self, gains: Any) -> Robustness:
         """Stability, margins, ``Ms`` and ``Mt`` of each gain set (see the module docstring)."""
         g = self._gains(gains)
-        rho = np.max(np.abs(np.linalg.eigvals(self.closed_loop_matrix(g))), axis=1)
+        rho = self.spectral_radius(g)
         loop = self.loop_gain(g)
         one = 1.0 + loop
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -324,9 +333,7 @@ def _combine(gains: np.ndarray, rows: np.ndarray) -> np.ndarray:
     product here starts BLAS's threads, which fight the simulation core's numba threads still
     spinning after a parallel kernel (measured in GripperPIDTune-v0's step: 7 ms per call instead
     of 0.06 ms)."""
-    return (
-        gains[:, 0, None] * rows[0] + gains[:, 1, None] * rows[1] + gains[:, 2, None] * rows[2]
-    )
+    return gains[:, 0, None] * rows[0] + gains[:, 1, None] * rows[1] + gains[:, 2, None] * rows[2]
 
 
 def _gain_margins(loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

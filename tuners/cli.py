@@ -117,6 +117,18 @@ def resolve(args: argparse.Namespace) -> Inputs:
     return Inputs(plant, disturbance, reference, settings, str(args.disturbance), str(args.profile))
 
 
+def plants_arg(value: str | None) -> list[str]:
+    """``--plants``: two or more comma-separated plants, each checked (empty if not given)."""
+    if value is None:
+        return []
+    plants = [p.strip() for p in value.split(",") if p.strip()]
+    if len(plants) < 2:
+        raise ValueError(f"--plants needs at least two plants separated by commas, got {value!r}")
+    for p in plants:
+        load_plant(p)
+    return plants
+
+
 def evaluation_settings(inputs: Inputs, ideal_options: PIDOptions) -> dict[str, Any]:
     """What the gains file records about how it was evaluated."""
     s = inputs.settings

@@ -207,8 +207,10 @@ class ClassicalSettings(BaseModel):
     extra_dead_time_s: float = Field(0.0, ge=0)
     tau_c_factor: float = Field(1.0, gt=0)
     tau_c_min_s: float = Field(0.0, ge=0)
+    theta_factor: float = Field(1.0, gt=0)
     migo_ms: float = Field(1.4, gt=1.0)
     pidtune_pm_deg: float = Field(60.0, gt=0.0, lt=90.0)
+    pidtune_wc_hz: float = Field(0.0, ge=0.0)
 
 
 _DEFAULT_FILES = {

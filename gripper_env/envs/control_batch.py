@@ -60,6 +60,9 @@ class ControlBatch:
     record_true : bool
         Also record the true jaw angle of each period in :attr:`out_yt` (for whole-episode
         trajectories, :mod:`gripper_env.envs.rollout`; the environments leave it out).
+    min_delay_steps : int
+        A sensor delay (physics steps) the delay line must hold besides the settings' (rows
+        given their own disturbance, :func:`gripper_env.envs.rollout.policy_trajectory`).
     """
 
     def __init__(
@@ -72,6 +75,7 @@ class ControlBatch:
         chatter_weight: float,
         residual: Residual | None = None,
         record_true: bool = False,
+        min_delay_steps: int = 0,
     ) -> None:
         self.settings = settings
         self.n_rows = n_rows
@@ -83,7 +87,7 @@ class ControlBatch:
             raise ValueError("the residual modes, and only they, need a Residual")
         self.residual = residual
         s = settings
-        self.plant_slots = PlantSlots(s, n_rows)
+        self.plant_slots = PlantSlots(s, n_rows, min_delay_steps)
         self.sim = self.plant_slots.sim
         self.gains0 = None
         if K.closed_loop(mode):

@@ -40,6 +40,11 @@ class ControlEnv(gym.Env[np.ndarray, np.ndarray]):
         **kwargs: Any,
     ) -> None:
         self.settings = parse_settings(self._name, **kwargs)
+        if self.settings.gain_scaling == "relative":
+            raise ConfigError(
+                f"{self._name}: argument 'gain_scaling': 'relative' is GripperPIDTune-v0's map; "
+                "use 'log' or 'linear'"
+            )
         check_reward_weights(self._name, overshoot_weight, chatter_weight)
         if not isinstance(observe_context, bool | np.bool_):
             raise ConfigError(

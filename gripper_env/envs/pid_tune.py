@@ -77,7 +77,10 @@ def run_episodes(
     """
     n = len(episodes)
     gains = np.empty((n, 4))
-    gains[:, :3] = action_to_gains(actions, settings.gain_max, settings.gain_scaling)
+    gains[:, :3] = action_to_gains(
+        actions, settings.gain_max, settings.gain_scaling, settings.gain_center,
+        settings.gain_decades,
+    )  # fmt: skip
     gains[:, 3] = settings.derivative_filter
     costs = np.empty(n)
     infos: list[dict[str, Any]] = []
@@ -332,6 +335,8 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
         pid_options: Any = None,
         gain_max: Any = (10.0, 50.0, 0.1),
         gain_scaling: str = "log",
+        gain_center: Any = None,
+        gain_decades: float = 1.0,
         derivative_filter: float = 100.0,
         objective: str | os.PathLike[str] | Mapping[str, Any] | Objective | None = None,
     ) -> None:
@@ -339,6 +344,7 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
             self._name, plant=plant, disturbance=disturbance, reference=reference,
             randomize=randomize, render_mode=render_mode, episode_s=episode_s,
             pid_options=pid_options, gain_max=gain_max, gain_scaling=gain_scaling,
+            gain_center=gain_center, gain_decades=gain_decades,
             derivative_filter=derivative_filter,
         )  # fmt: skip
         try:

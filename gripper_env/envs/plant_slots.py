@@ -22,14 +22,15 @@ class PlantSlots:
     for the largest candidate, and :meth:`install` swaps a candidate's in.
     """
 
-    def __init__(self, settings: Settings, n_rows: int) -> None:
+    def __init__(self, settings: Settings, n_rows: int, min_delay_steps: int = 0) -> None:
         s = settings
         self.plants = s.plants
         self.features = [plant_features(p) for p in s.plants]
         self.shared = len(s.plants) == 1
         # one row per environment; with several candidates the core keeps a plant per row
         plants = s.plants[0] if self.shared else [s.plants[0]] * n_rows
-        self.sim = BatchSimulator(plants, s.dt_s, delay_capacity=delay_capacity(s))
+        capacity = max(delay_capacity(s), int(min_delay_steps) + 1)
+        self.sim = BatchSimulator(plants, s.dt_s, delay_capacity=capacity)
         if not self.shared:
             widest = max(s.plants, key=lambda p: p.order)
             self.sim.set_plant(0, widest)  # size the state for the largest candidate

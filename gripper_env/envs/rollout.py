@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.disturbances import Disturbance
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.episode import Episode
@@ -52,6 +53,8 @@ def policy_trajectory(
     seeds: int | Sequence[int] | np.ndarray = 0,
     *,
     env_id: str = "gripper_env/GripperServo-v0",
+    run_plants: Sequence[int] | None = None,
+    run_disturbances: Sequence[Disturbance] | None = None,
     **env_kwargs: Any,
 ) -> Trajectory:
     """Run ``policy`` for one whole episode per seed and return the trajectories.
@@ -70,9 +73,15 @@ def policy_trajectory(
     env_id : str
         ``"gripper_env/GripperServo-v0"`` (with its residual modes) or
         ``"gripper_env/GripperGainSchedule-v0"``.
+    run_plants : sequence of int, optional
+        Per seed, the index of its plant in the ``plant`` list (default: one plant for all).
+    run_disturbances : sequence of Disturbance, optional
+        Per seed, its own actual-gripper blocks, used as given (default: the environment's
+        ``disturbance``, drawn per seed with ``randomize``).
     **env_kwargs
-        The environment's keyword arguments: one ``plant``, a fixed ``reference`` (not
-        ``"random"``), ``disturbance``, ``randomize``, ``residual``, ``observe_context``, ...
+        The environment's keyword arguments: ``plant`` (one, or several with ``run_plants``), a
+        fixed ``reference`` (not ``"random"``), ``disturbance``, ``randomize``, ``residual``,
+        ``observe_context``, ...
 
     Returns
     -------
@@ -87,25 +96,36 @@ def policy_trajectory(
     env = _ENVS[env_id](observe_context=observe_context, **env_kwargs)
     s = env.settings
     env.close()
-    if len(s.plants) != 1 or s.reference is None:
+    if (len(s.plants) != 1 and run_plants is None) or s.reference is None:
         raise ValueError(
-            "policy_trajectory: give one plant and a fixed reference (a profile name or file)"
+            "policy_trajectory: give one plant (or run_plants) and a fixed reference (a profile "
+            "name or file)"
         )
     seed_arr = np.atleast_1d(np.asarray(seeds, dtype=np.int64))
     n = len(seed_arr)
+    plant_index = [0] * n if run_plants is None else [int(i) for i in run_plants]
+    if run_disturbances is None:
+        dists = [
+            s.disturbance.sample(sampling_rng(int(seed))) if s.randomize else s.disturbance
+            for seed in seed_arr
+        ]
+    else:
+        dists = list(run_disturbances)
+    if len(plant_index) != n or len(dists) != n:
+        raise ValueError(
+            f"policy_trajectory: {n} seeds but {len(plant_index)} run_plants and {len(dists)} "
+            "run_disturbances"
+        )
+    if not all(0 <= i < len(s.plants) for i in plant_index):
+        raise ValueError(f"policy_trajectory: run_plants must index the {len(s.plants)} plants")
+    longest = max(round(d.sensor.delay_s / s.dt_s) for d in dists)
     batch = ControlBatch(
         s, n, env._mode, bool(observe_context),
         env_kwargs.get("overshoot_weight", 1.0), env_kwargs.get("chatter_weight", 0.1),
-        env._residual, record_true=True,
+        env._residual, record_true=True, min_delay_steps=longest,
     )  # fmt: skip
     episodes = [
-        Episode(
-            0,
-            s.disturbance.sample(sampling_rng(int(seed))) if s.randomize else s.disturbance,
-            s.reference,
-            int(seed),
-        )
-        for seed in seed_arr
+        Episode(plant_index[b], dists[b], s.reference, int(seed_arr[b])) for b in range(n)
     ]
     batch.reset_rows(range(n), episodes)
     n_sub = s.n_sub

@@ -58,6 +58,8 @@ class Settings:
     pid_options: PIDOptions
     gain_max: tuple[float, float, float]
     gain_scaling: str
+    gain_center: tuple[float, float, float] | None
+    gain_decades: float
     derivative_filter: float
     render_mode: str | None
 
@@ -97,6 +99,8 @@ def parse_settings(
     pid_options: PIDOptions | Mapping[str, Any] | None = None,
     gain_max: Any = GAIN_MAX,
     gain_scaling: str = "log",
+    gain_center: Any = None,
+    gain_decades: float = 1.0,
     derivative_filter: float = 100.0,
 ) -> Settings:
     """Validate the keyword arguments of an environment.
@@ -129,8 +133,13 @@ def parse_settings(
         PID structure (output limits, anti-windup, derivative input, error sign).
     gain_max : (float, float, float)
         Largest ``|P|``, ``|I|``, ``|D|`` an action maps to.
-    gain_scaling : {"log", "linear"}
-        Gain map (see :func:`gripper_env.envs.spaces.action_to_gains`).
+    gain_scaling : {"log", "linear", "relative"}
+        Gain map (see :func:`gripper_env.envs.spaces.action_to_gains`); ``relative`` needs
+        ``gain_center``.
+    gain_center : (float, float, float), optional
+        ``relative`` map: the design (P, I, D) at the zero action; P and I nonzero.
+    gain_decades : float
+        ``relative`` map: decades of P and I on each side of the design at ``|a| = 1``.
     derivative_filter : float
         PID derivative filter coefficient ``N`` (1/s).
     """
@@ -144,6 +153,7 @@ def parse_settings(
     opts = _parse_pid_options(env_name, pid_options)
     gmax = _parse_gain_max(env_name, gain_max)
     _check_structure(env_name, gain_scaling, derivative_filter, dt, render_mode)
+    center = _parse_gain_center(env_name, gain_scaling, gain_center, gain_decades)
     return Settings(
         plants=plants,
         disturbance=dist,
@@ -158,6 +168,8 @@ def parse_settings(
         pid_options=opts,
         gain_max=gmax,
         gain_scaling=gain_scaling,
+        gain_center=center,
+        gain_decades=float(gain_decades),
         derivative_filter=float(derivative_filter),
         render_mode=render_mode,
     )
@@ -276,12 +288,37 @@ def _parse_gain_max(env_name: str, gain_max: Any) -> tuple[float, float, float]:
     return gmax[0], gmax[1], gmax[2]
 
 
+def _parse_gain_center(
+    env_name: str, scaling: str, center: Any, decades: Any
+) -> tuple[float, float, float] | None:
+    """The design of the ``relative`` gain map: three finite numbers, P and I nonzero."""
+    if not (isinstance(decades, int | float) and math.isfinite(decades) and 0 < decades <= 6):
+        raise _fail(env_name, "gain_decades", f"expected a number in (0, 6], got {decades!r}")
+    if center is None:
+        if scaling == "relative":
+            raise _fail(env_name, "gain_center", "the relative gain map needs a design (P, I, D)")
+        return None
+    try:
+        c = tuple(float(g) for g in center)
+    except (TypeError, ValueError):
+        c = ()
+    if len(c) != 3 or not all(math.isfinite(g) for g in c) or c[0] == 0 or c[1] == 0:
+        raise _fail(
+            env_name, "gain_center", f"expected finite (P, I, D) with P, I nonzero, got {center!r}"
+        )
+    return c[0], c[1], c[2]
+
+
 def _check_structure(
     env_name: str, gain_scaling: str, derivative_filter: Any, dt: float, render_mode: str | None
 ) -> None:
     """The gain map, the derivative filter (``N*dt < 2``) and the render mode."""
-    if gain_scaling not in ("log", "linear"):
-        raise _fail(env_name, "gain_scaling", f"expected 'log' or 'linear', got {gain_scaling!r}")
+    if gain_scaling not in ("log", "linear", "relative"):
+        raise _fail(
+            env_name,
+            "gain_scaling",
+            f"expected 'log', 'linear' or 'relative', got {gain_scaling!r}",
+        )
     if not (
         isinstance(derivative_filter, int | float)
         and derivative_filter > 0

@@ -169,16 +169,33 @@ def action_to_gains(
     action: np.ndarray,
     gain_max: tuple[float, float, float] = GAIN_MAX,
     scaling: str = "log",
+    center: tuple[float, float, float] | None = None,
+    decades: float = 1.0,
 ) -> np.ndarray:
     """Map actions in [-1, 1] (one row per gain set, columns P, I, D) to PID gains.
 
     ``log`` (default): ``g = sign(a) * g_max * (10**(3 |a|) - 1) / (10**3 - 1)``, a signed
     logarithmic map: 0 at ``a = 0``, ``+/- g_max`` at ``a = +/-1``, three decades of resolution
     (``|a| = 1/3`` gives ``g_max / 111``). ``linear``: ``g = a * g_max``. Negative gains are legal
-    (the paper's hardware gains are negative). Actions are clipped to [-1, 1] first.
+    (the paper's hardware gains are negative).
+
+    ``relative``: around a design ``center = (P0, I0, D0)`` (a textbook design, say):
+    ``P = P0 * 10**(decades a_P)``, ``I = I0 * 10**(decades a_I)`` (the sign of the design kept,
+    the magnitude log-uniform over ``+/- decades`` decades) and ``D = D0 + a_D * g_max[2]``. The
+    zero action is the design itself, so a policy starts from a working controller.
+
+    Actions are clipped to [-1, 1] first.
     """
     a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
     g = np.asarray(gain_max, dtype=np.float64)
+    if scaling == "relative":
+        if center is None:
+            raise ValueError("the relative gain map needs the design it is centred on (center)")
+        c = np.asarray(center, dtype=np.float64)
+        out = np.empty(np.broadcast(a, c).shape)
+        out[..., :2] = c[:2] * 10.0 ** (decades * a[..., :2])
+        out[..., 2] = c[2] + a[..., 2] * g[2]
+        return out
     if scaling == "linear":
         return a * g
     return (
@@ -193,10 +210,22 @@ def gains_to_action(
     gains: np.ndarray,
     gain_max: tuple[float, float, float] = GAIN_MAX,
     scaling: str = "log",
+    center: tuple[float, float, float] | None = None,
+    decades: float = 1.0,
 ) -> np.ndarray:
-    """Inverse of :func:`action_to_gains` (gains beyond ``gain_max`` map to +/-1)."""
+    """Inverse of :func:`action_to_gains` (gains beyond the map's range map to +/-1)."""
     g = np.asarray(gains, dtype=np.float64)
     gmax = np.asarray(gain_max, dtype=np.float64)
+    if scaling == "relative":
+        if center is None:
+            raise ValueError("the relative gain map needs the design it is centred on (center)")
+        c = np.asarray(center, dtype=np.float64)
+        out = np.empty(np.broadcast(g, c).shape)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(np.sign(g[..., :2]) == np.sign(c[:2]), g[..., :2] / c[:2], 0.0)
+            out[..., :2] = np.log10(np.maximum(ratio, 1e-300)) / decades
+        out[..., 2] = (g[..., 2] - c[2]) / gmax[2]
+        return np.clip(out, -1.0, 1.0)
     frac = np.clip(np.abs(g) / gmax, 0.0, 1.0)
     if scaling == "linear":
         return np.sign(g) * frac

@@ -33,7 +33,7 @@ def configs(tmp_path, monkeypatch):
 
 def test_record_identify_tune_deploy(configs, tmp_path, capsys):
     from rig import calibrate, deploy, record
-    from tuners import optuna as optuna_tuner
+    from tuners.optuna import command as optuna_tuner
 
     truth = load_disturbance("actual")
     cal, log = tmp_path / "calibration.json", tmp_path / "mine_slope20.csv"

@@ -1,10 +1,4 @@
-"""Textbook robust PID designs from the plant's model: the baselines every search must beat.
-
-Usage::
-
-    python -m tuners.classical --plant test2                      # default method: amigo-pi
-    python -m tuners.classical --plant test2 --method migo
-    python -m tuners.classical --plant test2 --method all         # every method, one table
+"""The textbook rules: PID gains from the plant's model, for a given setting of each rule's knob.
 
 The first thing a control engineer tries. Most methods start from a first-order-plus-dead-time
 model ``k exp(-theta s) / (tau s + 1)`` (:func:`fit_fopdt`) read off the plant's step response
@@ -23,17 +17,19 @@ Methods (parallel-form gains ``P = Kc``, ``I = Kc / Ti``, ``D = Kc Td``):
     Skogestad's SIMC PI rule, S. Skogestad, "Simple analytic rules for model reduction and PID
     controller tuning", J. Process Control 13 (2003) 291-309: ``Kc = tau / (k (tau_c + theta))``,
     ``Ti = min(tau, 4 (tau_c + theta))`` with the "tight control" choice ``tau_c = theta``
-    (``tau_c_factor``).
+    (``tau_c_factor``, the rule's robustness knob).
 ``lambda``
     IMC / lambda PI tuning (Rivera, Morari and Skogestad, Ind. Eng. Chem. Process Des. Dev. 25
     (1986) 252-265): ``Kc = tau / (k (lambda + theta))``, ``Ti = tau``, ``lambda = tau_c``.
 ``amigo-pi``, ``amigo-pid``
     K. J. Astrom and T. Hagglund, "Revisiting the Ziegler-Nichols step response method for PID
     control", J. Process Control 14 (2004) 635-650 (AMIGO: Approximate M-constrained Integral
-    Gain Optimisation, designed for Ms ~ 1.4). PI: ``Kc = 0.15/k + (0.35 - L T / (L + T)^2) T /
-    (k L)``, ``Ti = 0.35 L + 13 L T^2 / (T^2 + 12 L T + 7 L^2)``; PID: ``Kc = (0.2 + 0.45 T / L)
-    / k``, ``Ti = (0.4 L + 0.8 T) L / (L + 0.1 T)``, ``Td = 0.5 L T / (0.3 L + T)`` (``T = tau``,
-    ``L = theta``).
+    Gain Optimisation, designed for Ms ~ 1.4 on the FOPDT model). Knob: the dead time the rule
+    is given, ``theta_factor`` times the effective one (a larger assumed dead time detunes).
+    PI: ``Kc = 0.15/k + (0.35 - L T / (L + T)^2) T / (k L)``,
+    ``Ti = 0.35 L + 13 L T^2 / (T^2 + 12 L T + 7 L^2)``; PID: ``Kc = (0.2 + 0.45 T / L) / k``,
+    ``Ti = (0.4 L + 0.8 T) L / (L + 0.1 T)``, ``Td = 0.5 L T / (0.3 L + T)`` (``T = tau``,
+    ``L = theta_factor * theta``).
 ``migo``
     MIGO (K. J. Astrom and T. Hagglund, *Advanced PID Control*, ISA 2006, ch. 7): the PI gains
     with the largest integral gain ``I`` subject to ``Ms <= migo_ms`` (1.4) -- computed here on
@@ -43,7 +39,8 @@ Methods (parallel-form gains ``P = Kc``, ``I = Kc / Ti``, ``D = Kc Td``):
     Loop shaping like MATLAB ``pidtune``'s default (The MathWorks, *Control System Toolbox*,
     "PID Controller Tuning"): a PI controller with a phase margin of ``pidtune_pm_deg`` (60 deg)
     at the highest crossover frequency for which the loop as it runs is stable with a single
-    crossover and at least 6 dB of gain margin.
+    crossover and at least 6 dB of gain margin, or at the crossover ``pidtune_wc_hz`` (the
+    rule's knob, like ``pidtune(sys, 'PI', wc)``).
 
 Every method's result is evaluated and checked against the same robustness constraints as the
 searches (``configs/objective.yaml``); a design that misses them says so in its gains file.
@@ -52,11 +49,8 @@ searches (``configs/objective.yaml``); a design that misses them says so in its 
 from __future__ import annotations
 
 import math
-import sys
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import control
@@ -67,10 +61,9 @@ from gripper_env.pid import PIDGains
 from gripper_env.plants import Plant
 from gripper_env.scoring import loop_analysis
 from gripper_env.stability import ServoLoop
-from tuners import cli
-from tuners.settings import ClassicalSettings, load_settings
+from tuners.settings import ClassicalSettings
 
-__all__ = ["FOPDT", "METHODS", "design", "fit_fopdt", "main"]
+__all__ = ["FOPDT", "METHODS", "Design", "design", "fit_fopdt"]
 
 
 @dataclass(frozen=True)
@@ -129,28 +122,31 @@ def _pid(kc: float, ti: float, td: float, n: float) -> PIDGains:
 def _simc(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
     tau_c = max(s.tau_c_min_s, s.tau_c_factor * m.theta_s)
     kc = m.tau_s / (m.k * (tau_c + m.theta_s))
-    return Design(_pid(kc, min(m.tau_s, 4.0 * (tau_c + m.theta_s)), 0.0, ctx.n), {"tau_c_s": tau_c})
+    return Design(
+        _pid(kc, min(m.tau_s, 4.0 * (tau_c + m.theta_s)), 0.0, ctx.n),
+        {"tau_c_s": tau_c, "tau_c_factor": s.tau_c_factor},
+    )
 
 
 def _lambda(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
     lam = max(s.tau_c_min_s, s.tau_c_factor * m.theta_s)
     kc = m.tau_s / (m.k * (lam + m.theta_s))
-    return Design(_pid(kc, m.tau_s, 0.0, ctx.n), {"lambda_s": lam})
+    return Design(_pid(kc, m.tau_s, 0.0, ctx.n), {"lambda_s": lam, "tau_c_factor": s.tau_c_factor})
 
 
 def _amigo_pi(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
-    k, t, lag = m.k, m.tau_s, m.theta_s
+    k, t, lag = m.k, m.tau_s, m.theta_s * s.theta_factor
     kc = 0.15 / k + (0.35 - lag * t / (lag + t) ** 2) * t / (k * lag)
     ti = 0.35 * lag + 13.0 * lag * t**2 / (t**2 + 12.0 * lag * t + 7.0 * lag**2)
-    return Design(_pid(kc, ti, 0.0, ctx.n), {})
+    return Design(_pid(kc, ti, 0.0, ctx.n), {"theta_factor": s.theta_factor})
 
 
 def _amigo_pid(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
-    k, t, lag = m.k, m.tau_s, m.theta_s
+    k, t, lag = m.k, m.tau_s, m.theta_s * s.theta_factor
     kc = (0.2 + 0.45 * t / lag) / k
     ti = (0.4 * lag + 0.8 * t) * lag / (lag + 0.1 * t)
     td = 0.5 * lag * t / (0.3 * lag + t)
-    return Design(_pid(kc, ti, td, ctx.n), {})
+    return Design(_pid(kc, ti, td, ctx.n), {"theta_factor": s.theta_factor})
 
 
 @dataclass(frozen=True)
@@ -194,7 +190,7 @@ def _migo(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
     j = int(np.argmax(ki_fine))
     if ki_fine[j] <= 0.0:
         raise ValueError(f"plant {ctx.plant.name}: no PI gains reach Ms <= {s.migo_ms}")
-    return Design(PIDGains(float(fine[j]), float(ki_fine[j]), 0.0, ctx.n), {"ms_max": s.migo_ms})
+    return Design(PIDGains(float(fine[j]), float(ki_fine[j]), 0.0, ctx.n), {"migo_ms": s.migo_ms})
 
 
 def _pidtune(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
@@ -210,22 +206,33 @@ def _pidtune(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
     candidates = np.linalg.solve(a, rhs.T[:, :, None])[:, :, 0]
     ok_sign = (candidates[:, 0] >= 0.0) & (candidates[:, 1] > 0.0)
     gains = np.column_stack([candidates, np.zeros(len(candidates))])
-    best = None
+    good = np.zeros(len(candidates), dtype=bool)
     idx = np.flatnonzero(ok_sign)
     for chunk in np.array_split(idx, max(1, len(idx) // 256)):
         if len(chunk) == 0:
             continue
         r = analysis.robustness(gains[chunk])
-        good = r.stable & (r.gm_db >= 6.0) & (np.abs(r.pm_deg - s.pidtune_pm_deg) < 0.5)
-        if good.any():
-            best = chunk[np.flatnonzero(good)[-1]]  # grid is ascending: the highest frequency
-    if best is None:
+        good[chunk] = r.stable & (r.gm_db >= 6.0) & (np.abs(r.pm_deg - s.pidtune_pm_deg) < 0.5)
+    found = np.flatnonzero(good)
+    if not len(found):
         raise ValueError(
             f"plant {ctx.plant.name}: no PI gains give a {s.pidtune_pm_deg:g} deg phase margin"
         )
+    if s.pidtune_wc_hz > 0:  # the requested crossover (the nearest that works)
+        target_w = 2 * math.pi * s.pidtune_wc_hz
+        best = found[np.argmin(np.abs(np.log(analysis.omega[found] / target_w)))]
+    else:  # the grid is ascending: the highest crossover, MATLAB's default choice
+        best = found[-1]
     wc = float(analysis.omega[best])
     p, i = (float(v) for v in candidates[best])
-    return Design(PIDGains(p, i, 0.0, ctx.n), {"crossover_hz": wc / (2 * math.pi)})
+    return Design(
+        PIDGains(p, i, 0.0, ctx.n),
+        {
+            "crossover_hz": wc / (2 * math.pi),
+            "pidtune_pm_deg": s.pidtune_pm_deg,
+            "pidtune_wc_hz": s.pidtune_wc_hz,
+        },
+    )
 
 
 #: Method name -> design function ``(FOPDT, settings, context) -> Design``.
@@ -261,59 +268,3 @@ def design(
     ctx = _Context(plant, ServoLoop.from_disturbance(disturbance, plant.dt_s, n, 1))
     result = METHODS[method](model, settings, ctx)
     return result.gains, {"method": method, "fopdt": asdict(model), **result.notes}
-
-
-def build_parser():
-    parser = cli.base_parser(
-        "python -m tuners.classical",
-        "PID gains from the plant's model by a textbook robust design.",
-    )
-    parser.add_argument(
-        "--method",
-        choices=(*METHODS, "all"),
-        default=None,
-        help="design method (default: the config's 'method'); 'all' runs every one",
-    )
-    parser.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        help="method settings; default configs/tuners/classical.yaml",
-    )
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = cli.parse(build_parser(), argv)
-    inputs = cli.resolve(args)
-    settings = load_settings(ClassicalSettings, args.config)
-    chosen = args.method or settings.method
-    methods = list(METHODS) if chosen == "all" else [chosen]
-    if args.json and len(methods) > 1:
-        raise ValueError("--json prints one gains file; use it with one --method, not 'all'")
-    for method in methods:
-        start = time.perf_counter()
-        gains, tuning = design(
-            method, inputs.plant, inputs.disturbance, settings, inputs.settings.pid.N
-        )
-        fopdt = tuning["fopdt"]
-        cli.publish(
-            args,
-            inputs,
-            tuner=f"classical-{method}",
-            gains=gains,
-            sign=1,
-            label=method,
-            tuning=tuning,
-            config={"classical": settings.model_dump()},
-            wall_time_s=time.perf_counter() - start,
-            notes=[
-                f"{method}: FOPDT k={fopdt['k']:.4g} tau={fopdt['tau_s']:.4g} s "
-                f"theta={fopdt['theta_s']:.4g} s"
-            ],
-        )
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(cli.run(main))

@@ -1,0 +1,131 @@
+"""``python -m tuners.classical``: PID gains by a textbook robust design, at its best or fixed."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from gripper_env.pid import PIDGains
+from tuners import cli
+from tuners.classical.constrained import KNOBS, constrained_design
+from tuners.classical.rules import METHODS, design
+from tuners.settings import ClassicalSettings, OptunaSettings, check_disjoint, load_settings
+from tuners.tasks import make_scorer
+
+__all__ = ["build_parser", "main"]
+
+
+def build_parser():
+    parser = cli.base_parser(
+        "python -m tuners.classical",
+        "PID gains from the plant's model by a textbook robust design, its robustness knob set "
+        "to the best value that meets the objective's constraints (or, with --fixed, at the "
+        "rule's fixed setting from the config).",
+    )
+    parser.add_argument(
+        "--method",
+        choices=(*METHODS, "all"),
+        default=None,
+        help="design method (default: the config's 'method'); 'all' runs every one",
+    )
+    parser.add_argument(
+        "--fixed",
+        action="store_true",
+        help="the rule at the config's fixed knob setting (e.g. SIMC's tau_c = theta), as a "
+        "reference; written as classical-<method>-fixed",
+    )
+    parser.add_argument(
+        "--plants",
+        default=None,
+        help="robust: the knob must meet the constraints on every one of these plants (e.g. "
+        "test2,test3,test4) at the least mean cost; the rule reads --plant's model",
+    )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="method settings; default configs/tuners/classical.yaml",
+    )
+    parser.add_argument(
+        "--optuna-config",
+        type=Path,
+        default=None,
+        help="where the tuning seeds come from; default configs/tuners/optuna.yaml",
+    )
+    return parser
+
+
+def tuner_name(method: str, fixed: bool, robust: bool = False) -> str:
+    """``classical-<method>`` (knob set under the constraints), ``-fixed``, ``-robust``."""
+    return f"classical-{method}" + ("-fixed" if fixed else "") + ("-robust" if robust else "")
+
+
+def tune(
+    method: str,
+    inputs: cli.Inputs,
+    settings: ClassicalSettings,
+    *,
+    fixed: bool = False,
+    plants: list[str] | None = None,
+    optuna_settings: OptunaSettings | None = None,
+) -> tuple[PIDGains, dict[str, Any]]:
+    """The rule's gains: at its fixed setting, or with its knob set under the constraints (on
+    the tuning task of ``plants``, default the inputs' plant)."""
+    n = inputs.settings.pid.N
+    if fixed or method not in KNOBS:
+        return design(method, inputs.plant, inputs.disturbance, settings, n)
+    scorer = make_scorer(inputs, optuna_settings, plants or ())
+    gains, tuning = constrained_design(
+        method, inputs.plant, inputs.disturbance, settings, scorer, n
+    )
+    tuning["tuned_on"] = [p.name for p in scorer.task.plants]
+    return gains, tuning
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.classical`` and ``gripper-classical``."""
+    return cli.run(_main, argv)
+
+
+def _main(argv: list[str] | None = None) -> int:
+    args = cli.parse(build_parser(), argv)
+    inputs = cli.resolve(args)
+    settings = load_settings(ClassicalSettings, args.config)
+    opt = load_settings(OptunaSettings, args.optuna_config)
+    check_disjoint(opt.tuning_seeds, inputs.settings.seeds)
+    plants = cli.plants_arg(args.plants)
+    chosen = args.method or settings.method
+    methods = list(METHODS) if chosen == "all" else [chosen]
+    if args.json and len(methods) > 1:
+        raise ValueError("--json prints one gains file; use it with one --method, not 'all'")
+    for method in methods:
+        start = time.perf_counter()
+        gains, tuning = tune(
+            method, inputs, settings, fixed=args.fixed, plants=plants, optuna_settings=opt
+        )
+        fopdt = tuning["fopdt"]
+        notes = [
+            f"{method}: FOPDT k={fopdt['k']:.4g} tau={fopdt['tau_s']:.4g} s "
+            f"theta={fopdt['theta_s']:.4g} s"
+        ]
+        if "knob" in tuning:
+            k = tuning["knob"]
+            notes.append(
+                f"{method}: {k['name']} = {k['value']:.4g} ({k['meaning']}), the best setting in "
+                f"[{k['range'][0]:g}, {k['range'][1]:g}] that meets the constraints "
+                f"(tuning cost {tuning['best_value_tuning']:.4g})"
+            )
+        cli.publish(
+            args,
+            inputs,
+            tuner=tuner_name(method, args.fixed or method not in KNOBS, bool(plants)),
+            gains=gains,
+            sign=1,
+            label=method,
+            tuning=tuning,
+            config={"classical": settings.model_dump()},
+            wall_time_s=time.perf_counter() - start,
+            notes=notes,
+        )
+    return 0

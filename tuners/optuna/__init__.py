@@ -1,0 +1,61 @@
+"""Search PID gains with Optuna, under the robustness constraints, in batches through the core.
+
+Usage::
+
+    python -m tuners.optuna --plant test2
+    python -m tuners.optuna --plant test2 --trials 400 --sampler cmaes --seed 3
+    python -m tuners.optuna --plant test2 --plants test2,test3,test4      # robust: all three
+    python -m tuners.optuna --plant test2 --multi-objective               # Pareto front + knee
+    python -m tuners.optuna --plant test2 --storage postgresql://user:pw@host/db --seed 7
+    optuna-dashboard sqlite:///results/optuna.db                          # look at the studies
+
+Each trial's gains are scored through the one scoring path (:mod:`gripper_env.scoring`) on the
+``actual`` model under ``tuning_seeds`` randomised disturbance draws
+(``configs/tuners/optuna.yaml``) with the shared objective (``configs/objective.yaml``),
+averaged over the draws (and over the plants in the robust mode). The objective's robustness
+limits (``Ms`` and the gain margin of the loop as it runs, with the servo's command hold) are
+Optuna *constraints*
+(:meth:`optuna.trial.Trial.set_constraint`): TPE samples toward feasible gains and the result is
+the best feasible trial. CMA-ES takes no constraints, so it minimises the penalised cost
+(:meth:`gripper_env.objective.Objective.penalised`).
+
+The search ranges scale with the plant (:mod:`tuners.search_space`); a result within 2 % of a
+bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...; just
+``<name>`` for one) run one after the other; the best feasible result is kept and the spread
+over the seeds is recorded.
+
+Trials are asked ``batch_size`` at a time, simulated in one batched call, and told. Studies live
+in a storage (default ``sqlite:///<out>/optuna.db``): an interrupted run (Ctrl-C, a killed
+process) resumes from it when rerun with the same command, keeping every finished trial;
+``--trials`` is the number of finished trials each study should hold. Several processes (or
+machines) may work on the same studies through a shared PostgreSQL storage; give each its own
+``--seed``. Only Optuna's public API is used (ask/tell, enqueue, the storage's heartbeats).
+
+Modules: :mod:`~tuners.optuna.storage` (storages), :mod:`~tuners.optuna.sampler` (samplers by
+name), :mod:`~tuners.optuna.study` (one study: ask, score, tell), :mod:`~tuners.optuna.search`
+(in-memory searches and the spread over seeds), :mod:`~tuners.optuna.command` (the command line).
+"""
+
+from __future__ import annotations
+
+from tuners.optuna.sampler import SAMPLERS, make_sampler
+from tuners.optuna.search import best_of, make_scorer, make_task, search, seed_summary, tuner_name
+from tuners.optuna.storage import open_storage, redact
+from tuners.optuna.study import CONSTRAINTS, StudyResult, knee_point, run_study
+
+__all__ = [
+    "CONSTRAINTS",
+    "SAMPLERS",
+    "StudyResult",
+    "best_of",
+    "knee_point",
+    "make_sampler",
+    "make_scorer",
+    "make_task",
+    "open_storage",
+    "redact",
+    "run_study",
+    "search",
+    "seed_summary",
+    "tuner_name",
+]

@@ -1,0 +1,292 @@
+"""``python -m tuners.optuna``: search PID gains with Optuna under the robustness constraints.
+
+See :mod:`tuners.optuna` for what a search does; this module parses the command line, plans the
+studies, runs them and publishes the gains file.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import optuna
+
+from gripper_env.config import ConfigError
+from gripper_env.scoring import GainScorer
+from tuners import cli
+from tuners.optuna.sampler import SAMPLERS, make_sampler
+from tuners.optuna.search import best_of, make_scorer, seed_summary, tuner_name
+from tuners.optuna.storage import open_storage, redact
+from tuners.optuna.study import StudyResult, check_study_attrs, run_study
+from tuners.search_space import SearchSpace, search_space
+from tuners.settings import OptunaSettings, check_disjoint, load_settings
+
+__all__ = ["build_parser", "main"]
+
+logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
+
+
+def build_parser():
+    parser = cli.base_parser(
+        "python -m tuners.optuna",
+        "Search PID gains with Optuna on the actual-gripper model, under robustness "
+        "constraints (robust over disturbance seeds, and over plants with --plants).",
+    )
+    parser.add_argument(
+        "--trials",
+        type=int,
+        default=None,
+        help="finished trials each search seed's study should hold (default: the config's "
+        "'trials'); a rerun of an interrupted study runs only the missing ones",
+    )
+    parser.add_argument(
+        "--search-seeds",
+        type=int,
+        default=None,
+        help="independent studies (sampler seeds SEED, SEED+1, ...); the best feasible result "
+        "is kept and the spread reported (default: the config's 'search_seeds')",
+    )
+    parser.add_argument(
+        "--plants",
+        default=None,
+        help="robust mode: tune on several identifications at once, e.g. test2,test3,test4 "
+        "(mean cost over them, constraints on every one); the gains file is written for --plant",
+    )
+    parser.add_argument(
+        "--storage",
+        default=None,
+        help="Optuna storage URL (sqlite:///..., postgresql://user:pw@host/db); default "
+        "sqlite:///OUT/optuna.db",
+    )
+    parser.add_argument(
+        "--study-name",
+        default=None,
+        help="study name prefix (default <plants>-<disturbance>-<profile>-<sampler>[-mo]); each "
+        "search seed i uses <name>-s<i> (just <name> with --search-seeds 1); reusing a name "
+        "resumes those studies",
+    )
+    parser.add_argument(
+        "--sampler",
+        choices=SAMPLERS,
+        default=None,
+        help="search algorithm (default: the config's 'sampler')",
+    )
+    parser.add_argument(
+        "--multi-objective",
+        action="store_true",
+        help="Pareto front of the config's multi_objective terms instead of the weighted cost "
+        "(constraints still apply); the knee point becomes the gains file",
+    )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="tuner settings (ranges, seeds, batch size); default configs/tuners/optuna.yaml",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What a run searches: the checked command-line choices over the config's defaults."""
+
+    settings: OptunaSettings
+    sampler: str
+    multi: bool
+    terms: list[str]
+    n_trials: int
+    n_seeds: int
+    base_name: str
+    url: str
+
+
+def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
+    """Check the trials, search seeds and sampler; name the studies and their storage."""
+    settings = load_settings(OptunaSettings, args.config)
+    check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
+    n_trials = settings.trials if args.trials is None else args.trials
+    if n_trials < 1:
+        raise ValueError(f"--trials must be at least 1, got {n_trials}")
+    n_seeds = settings.search_seeds if args.search_seeds is None else args.search_seeds
+    if n_seeds < 1:
+        raise ValueError(f"--search-seeds must be at least 1, got {n_seeds}")
+    sampler_name = args.sampler or settings.sampler
+    multi = args.multi_objective
+    make_sampler(sampler_name, args.seed, settings, multi)  # checks the combination
+    base = args.study_name or (
+        f"{'+'.join(plants) or inputs.plant.name}-{Path(inputs.disturbance_name).stem}-"
+        f"{Path(inputs.profile_name).stem}-{sampler_name}{'-mo' if multi else ''}"
+    )
+    if args.storage is None:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        url = f"sqlite:///{Path(args.out) / 'optuna.db'}"
+    else:
+        url = args.storage
+    terms = list(settings.multi_objective.objectives) if multi else []
+    return _Plan(settings, sampler_name, multi, terms, n_trials, n_seeds, base, url)
+
+
+def _search(
+    args: Any,
+    inputs: cli.Inputs,
+    plan: _Plan,
+    storage: Any,
+    scorer: GainScorer,
+    space: SearchSpace,
+) -> tuple[list[StudyResult], list[str]]:
+    """One study per search seed (stopping at an interruption): their results and names."""
+    n_objectives = len(plan.terms) if plan.multi else 1
+    results, names = [], []
+    for i in range(plan.n_seeds):
+        name = plan.base_name if plan.n_seeds == 1 else f"{plan.base_name}-s{i}"
+        study = optuna.create_study(
+            storage=storage,
+            study_name=name,
+            sampler=optuna.samplers.RandomSampler(seed=args.seed + i),
+            load_if_exists=True,
+            directions=["minimize"] * n_objectives,
+        )
+        if len(study.directions) != n_objectives:
+            raise ConfigError(
+                f"study {name!r} has {len(study.directions)} objectives; use another --study-name"
+            )
+        check_study_attrs(
+            study,
+            {
+                "plants": [p.name for p in scorer.task.plants],
+                "disturbance": inputs.disturbance_name,
+                "profile": inputs.profile_name,
+                "search": space.as_dict()["ranges"],
+                "tuning_seeds": plan.settings.tuning_seeds.model_dump(),
+                "objectives": plan.terms or ["cost"],
+                "objective": scorer.task.objective.model_dump(),
+            },
+        )
+        result = run_study(
+            study, scorer, space, plan.settings, plan.n_trials, inputs.settings.pid.N,
+            sampler=make_sampler(plan.sampler, args.seed + i, plan.settings, plan.multi),
+            progress=not args.no_progress, terms=plan.terms, storage=storage,
+        )  # fmt: skip
+        results.append(result)
+        names.append(name)
+        if result.interrupted:
+            break
+    return results, names
+
+
+def _tuning_record(
+    plan: _Plan,
+    results: list[StudyResult],
+    names: list[str],
+    chosen: int,
+    scorer: GainScorer,
+    space: SearchSpace,
+    wall_s: float,
+) -> dict[str, Any]:
+    """The gains file's ``tuning`` block: the studies, the kept seed's best trial, the spread."""
+    best = results[chosen]
+    return {
+        "study_names": names,
+        "storage": redact(plan.url),
+        "sampler": plan.sampler,
+        "multi_objective": plan.multi,
+        "objectives": plan.terms or ["cost"],
+        "tuned_on": [p.name for p in scorer.task.plants],
+        "trials_per_seed": plan.n_trials,
+        "trials_in_study": best.n_complete,
+        "trials_this_run": sum(r.n_run_here for r in results),
+        "chosen_seed": chosen,
+        "best_trial": best.best_trial,
+        "best_value_tuning": best.best_value,
+        "feasible": best.feasible,
+        "tuning_seeds": plan.settings.tuning_seeds.seeds().tolist(),
+        "episodes_per_trial": best.episodes_per_trial,
+        "episodes_this_run": scorer.episodes,
+        "history": [list(p) for p in best.history],
+        "pareto_front": best.pareto,
+        "search_space": space.as_dict(),
+        "on_bound": space.on_bound(best.gains),
+        **seed_summary(results, list(range(len(results)))),
+        "search_wall_time_s": wall_s,
+    }
+
+
+def _notes(
+    plan: _Plan, results: list[StudyResult], chosen: int, tuning: dict[str, Any]
+) -> list[str]:
+    """What the report says beside the gains: seed spread, infeasibility, Pareto knee, and
+    (last) an interruption."""
+    best = results[chosen]
+    notes = []
+    if len(results) > 1:
+        c = tuning["best_cost"]
+        notes.append(
+            f"{len(results)} search seeds: best tuning cost {c['min']:.4g} / {c['median']:.4g} / "
+            f"{c['max']:.4g} (min / median / max); kept seed {chosen}"
+        )
+    if not best.feasible:
+        notes.append(
+            "warning: no trial met the robustness constraints; these are the least infeasible "
+            "gains (raise --trials, or widen the search in the config)"
+        )
+    if plan.multi:
+        notes.append(
+            f"Pareto front: {len(best.pareto)} trials; knee point = trial {best.best_trial}"
+        )
+    if _interrupted(plan, results):
+        notes.append(
+            f"interrupted: finished trials are in {redact(plan.url)}; rerun the same command to "
+            "resume (reporting the best so far)"
+        )
+    return notes
+
+
+def _interrupted(plan: _Plan, results: list[StudyResult]) -> bool:
+    """A study stopped early (Ctrl-C), so some search seeds did not run."""
+    return results[-1].interrupted or len(results) < plan.n_seeds
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.optuna`` and ``gripper-optuna``: bad input is one line
+    on stderr and exit status 2 (:func:`tuners.cli.run`)."""
+    return cli.run(_main, argv)
+
+
+def _main(argv: list[str] | None = None) -> int:
+    args = cli.parse(build_parser(), argv)
+    start = time.perf_counter()
+    # 1. check every input before anything is written
+    inputs = cli.resolve(args)
+    plants = cli.plants_arg(args.plants)
+    plan = _plan(args, inputs, plants)
+    storage = open_storage(plan.url, plan.settings)
+    scorer = make_scorer(inputs, plan.settings, plants)
+    space = search_space(scorer.task.plants, inputs.disturbance, plan.settings)
+    # 2. search: one study per search seed
+    results, names = _search(args, inputs, plan, storage, scorer, space)
+    chosen = best_of(results)
+    wall = time.perf_counter() - start
+    # 3. report
+    tuning = _tuning_record(plan, results, names, chosen, scorer, space, wall)
+    notes = _notes(plan, results, chosen, tuning)
+    cli.publish(
+        args,
+        inputs,
+        tuner=tuner_name(plan.sampler, plan.multi, robust=bool(plants)),
+        gains=results[chosen].gains,
+        sign=1,
+        tuning=tuning,
+        config={"optuna": plan.settings.model_dump()},
+        wall_time_s=time.perf_counter() - start,
+        notes=notes,
+        label=names[chosen],
+    )
+    if _interrupted(plan, results):
+        print(notes[-1], file=sys.stderr)
+        return cli.EXIT_INTERRUPTED
+    return 0
