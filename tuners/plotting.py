@@ -99,6 +99,52 @@ def budget_plot(
     return save_figure(fig, path, bbox_inches="tight")
 
 
+def learning_curve_plot(
+    curves: Sequence[tuple[Sequence[float], Sequence[float]]],
+    path: str | os.PathLike[str],
+    title: str,
+    xlabel: str,
+    ylabel: str,
+    lines: Mapping[str, float] | None = None,
+    labels: Sequence[str] | None = None,
+) -> Path:
+    """Learning curves over training seeds: each seed thin, their mean bold with the band
+    between the best and the worst seed, and reference levels as dashed lines.
+
+    Parameters
+    ----------
+    curves : sequence of (x, y)
+        One curve per seed, on the same ``x`` (NaN where undefined, e.g. infeasible gains).
+    lines : mapping of label to level, optional
+        Horizontal references (the base PID, the search's best).
+    """
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    x = np.asarray(curves[0][0], dtype=float)
+    ys = np.array([np.asarray(c[1], dtype=float) for c in curves if len(c[1]) == len(x)])
+    for i, y in enumerate(ys):
+        ax.plot(x, y, lw=0.7, alpha=0.5,
+                label=(labels[i] if labels else ("seeds" if i == 0 else None)))  # fmt: skip
+    if len(ys) > 1:
+        with np.errstate(all="ignore"):
+            lo, hi, mean = np.nanmin(ys, axis=0), np.nanmax(ys, axis=0), np.nanmean(ys, axis=0)
+        ax.fill_between(x, lo, hi, alpha=0.15, color="tab:blue", label="best to worst seed")
+        ax.plot(x, mean, lw=2, color="tab:blue", label=f"mean of {len(ys)} seeds")
+    for i, (label, level) in enumerate((lines or {}).items()):
+        ax.axhline(level, ls="--", lw=1.2, color=("k", "tab:red", "tab:green")[i % 3], label=label)
+    finite = ys[np.isfinite(ys)]
+    if finite.size:
+        top = np.percentile(finite, 95)
+        levels = [v for v in (lines or {}).values() if np.isfinite(v)]
+        bottom = min([finite.min(), *levels])
+        ax.set_ylim(bottom - 0.05 * (top - bottom), max([top, *levels]) + 0.1 * (top - bottom))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return save_figure(fig, path, bbox_inches="tight")
+
+
 _KIND_STYLE = {
     "feedforward": ("k", "s"),
     "manual": ("tab:gray", "v"),

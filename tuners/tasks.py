@@ -33,6 +33,7 @@ def make_task(
         opt.tuning_seeds.seeds(),
         randomize=inputs.settings.randomize,
         options=actual_opts,
+        objective=inputs.objective,
     )
 
 

@@ -3,9 +3,9 @@
 A textbook rule has one knob that trades speed for robustness (:data:`KNOBS`): SIMC's and the
 lambda rule's closed-loop time constant ``tau_c`` (as a multiple of the dead time), the dead
 time AMIGO is given (a multiple of the effective one), MIGO's ``Ms`` target and pidtune's
-crossover frequency. Run at one fixed setting (``tau_c = theta``, say) a rule is weaker than the textbook
-allows: the engineer who uses it picks the knob. :func:`constrained_design` does what that
-engineer does, with the searches' own yardstick:
+crossover frequency. Run at one fixed setting (``tau_c = theta``, say) a rule is weaker than
+the textbook allows: the engineer who uses it picks the knob. :func:`constrained_design` does
+what that engineer does, with the searches' own yardstick:
 
 1. the rule's design for every knob value on a grid over the knob's textbook range;
 2. the designs that meet the objective's constraints on the loop as it runs (``Ms`` and gain

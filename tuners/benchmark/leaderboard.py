@@ -60,7 +60,7 @@ def _cost(row: dict[str, Any]) -> float:
     return float(row["metrics"]["actual"]["mean"]["cost"])
 
 
-def _paired(a: list[float], b: list[float]) -> tuple[float, float]:
+def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
     """Mean of ``a - b`` and the two-sided Wilcoxon signed-rank p-value."""
     d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
     if not np.all(np.isfinite(d)):
@@ -90,7 +90,7 @@ def rank(data: dict[str, Any]) -> dict[str, Any]:
             for ref in filter(None, (best_base, "command=reference")):
                 if ref == name or ref not in rows:
                     continue
-                diff, p = _paired(rows[name]["per_seed_cost"], rows[ref]["per_seed_cost"])
+                diff, p = paired_test(rows[name]["per_seed_cost"], rows[ref]["per_seed_cost"])
                 verdict = "n.s." if p >= ALPHA else ("better" if diff < 0 else "worse")
                 entry[ref] = {"mean_cost_difference": diff, "p_value": p, "verdict": verdict}
             tests[name] = entry

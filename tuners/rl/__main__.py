@@ -1,0 +1,7 @@
+"""``python -m tuners.rl`` (:mod:`tuners.rl.command`)."""
+
+import sys
+
+from tuners.rl.command import main
+
+sys.exit(main())
