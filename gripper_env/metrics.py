@@ -25,8 +25,10 @@ Definitions (DESIGN.md section 2):
 * **Fit %** between two responses (MATLAB ``compare``):
   ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``.
 
-* **Sustained oscillation** (deg): the largest peak-to-peak swing of the response over the last
-  :data:`OSCILLATION_WINDOW_S` (at most half) of every grip or un-grip segment. A loop with its
+* **Sustained oscillation** (deg): the largest peak-to-peak swing of the response over a window of
+  :data:`OSCILLATION_WINDOW_S` ending :data:`OSCILLATION_GUARD_S` before the end of every grip or
+  un-grip segment (within its second half; the guard leaves out a controller that sees the
+  profile ahead and starts the next move early). A loop with its
   command limited and its jaw between stops cannot diverge numerically: it swings from stop to
   stop for ever. Such a run is classified as diverged (``stable = False``) once its swing
   exceeds :data:`OSCILLATION_LIMIT_DEG`, well above any friction limit cycle (stick-slip hunting
@@ -83,8 +85,10 @@ RUN_KEYS = (
     "oscillation_deg",
 )
 
-#: Window (s) at the end of each segment over which the sustained swing is measured.
+#: Window (s) near the end of each segment over which the sustained swing is measured.
 OSCILLATION_WINDOW_S = 2.0
+#: The window ends this long (s) before the segment does.
+OSCILLATION_GUARD_S = 0.5
 #: A run whose response still swings more than this (deg, peak to peak) at the end of a segment
 #: is classified as diverged (see the module docstring).
 OSCILLATION_LIMIT_DEG = 8.0
@@ -343,8 +347,9 @@ class Metrics:
 
 
 def sustained_swing(y: np.ndarray, segments: Any, dt_s: float) -> np.ndarray:
-    """Largest peak-to-peak swing (deg) of each run over the last :data:`OSCILLATION_WINDOW_S`
-    (at most half) of every segment; 0 without segments.
+    """Largest peak-to-peak swing (deg) of each run over a window of :data:`OSCILLATION_WINDOW_S`
+    ending :data:`OSCILLATION_GUARD_S` before the end of every segment (within its second
+    half); 0 without segments.
 
     Parameters
     ----------
@@ -356,11 +361,14 @@ def sustained_swing(y: np.ndarray, segments: Any, dt_s: float) -> np.ndarray:
         Sample time (s).
     """
     swing = np.zeros(y.shape[0])
+    guard = round(OSCILLATION_GUARD_S / dt_s)
     for seg in segments:
-        n = min(round(OSCILLATION_WINDOW_S / dt_s), (seg.stop - seg.start) // 2)
+        half = (seg.stop - seg.start) // 2
+        end = seg.stop - min(guard, half // 2)
+        n = min(round(OSCILLATION_WINDOW_S / dt_s), end - (seg.start + half))
         if n < 2:
             continue
-        window = y[:, seg.stop - n : seg.stop]
+        window = y[:, end - n : end]
         swing = np.maximum(swing, window.max(axis=1) - window.min(axis=1))
     return swing
 

@@ -164,11 +164,16 @@ def evaluation_settings(inputs: Inputs, ideal_options: PIDOptions) -> dict[str, 
 
 
 def evaluate_inputs(
-    inputs: Inputs, gains: PIDGains, options: PIDOptions, ideal_options: PIDOptions
+    inputs: Inputs,
+    gains: PIDGains,
+    options: PIDOptions,
+    ideal_options: PIDOptions,
+    cross: bool = True,
 ) -> Evaluation:
-    """Evaluate gains with the inputs' plant, profile, preset and held-out seeds."""
+    """Evaluate gains with the inputs' plant, profile, preset and held-out seeds (and on the
+    gripper's other identifications with ``cross``)."""
     s = inputs.settings
-    cross = PAPER_PLANTS if inputs.plant.name in PAPER_PLANTS else ()
+    others = PAPER_PLANTS if cross and inputs.plant.name in PAPER_PLANTS else ()
     return evaluate(
         inputs.plant,
         gains,
@@ -179,7 +184,7 @@ def evaluate_inputs(
         randomize=s.randomize,
         objective=inputs.objective,
         ideal_options=ideal_options,
-        cross_plants=cross,
+        cross_plants=others,
     )
 
 

@@ -23,8 +23,9 @@ from gripper_env import paper
 from gripper_env.gains_file import load_gains_file
 from gripper_env.pid import PIDGains
 from tuners import cli
+from tuners.interface import Budget, Tuned
 
-__all__ = ["PAPER_GAINS", "ManualGains", "main", "parse_gains"]
+__all__ = ["PAPER_GAINS", "ManualGains", "ManualTuner", "main", "parse_gains"]
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,24 @@ def parse_gains(text: str) -> ManualGains:
     return ManualGains(PIDGains(*values), 1, "")
 
 
+class ManualTuner:
+    """The paper's gains as a benchmark row (:class:`tuners.interface.Tuner`)."""
+
+    kind = "manual"
+    plants: tuple[str, ...] = ()
+
+    def __init__(self, preset: str) -> None:
+        if preset not in PAPER_GAINS:
+            raise ValueError(f"unknown manual preset {preset!r}; choose one of "
+                             f"{', '.join(PAPER_GAINS)}")  # fmt: skip
+        self.chosen = PAPER_GAINS[preset]
+        self.name = f"manual-{preset}"
+
+    def tune(self, inputs: cli.Inputs, budget: Budget, seed: int) -> Tuned:
+        c = self.chosen
+        return Tuned(c.gains, c.sign, {"preset": c.label}, label=c.label)
+
+
 def build_parser():
     parser = cli.base_parser("python -m tuners.manual", "Evaluate given PID gains.")
     parser.add_argument(
@@ -106,6 +125,11 @@ def build_parser():
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.manual`` and ``gripper-manual``."""
+    return cli.run(_main, argv)
+
+
+def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     # check every input before anything is written
     chosen = parse_gains(args.gains)
@@ -137,4 +161,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(cli.run(main))
+    sys.exit(main())

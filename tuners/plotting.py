@@ -20,7 +20,7 @@ import numpy as np
 
 from gripper_env.files import save_figure
 
-__all__ = ["budget_plot", "pareto_plot", "response_plot"]
+__all__ = ["budget_plot", "learning_curve_plot", "pareto_plot", "response_plot"]
 
 
 def response_plot(evaluation: Any, title: str, path: str | os.PathLike[str]) -> Path:
@@ -146,30 +146,34 @@ def learning_curve_plot(
 
 
 _KIND_STYLE = {
-    "feedforward": ("k", "s"),
+    "reference": ("k", "s"),
     "manual": ("tab:gray", "v"),
     "baseline": ("tab:blue", "o"),
     "search": ("tab:red", "^"),
-    "robust": ("tab:purple", "D"),
     "controller": ("tab:green", "*"),
 }
 
 
 def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
-    """Tracking against robustness, one panel per feasible plant: every row's actual-model IAE
-    against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI), and
-    the Ms limit (the feasible side shaded). ``command = reference`` (open loop, S = 1) sits at
-    Ms = 1. Rows far worse than the best are drawn as arrows at the top edge with their IAE."""
+    """Tracking against robustness, one panel per feasible plant: every PID row's actual-model
+    IAE against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI),
+    the Ms limit (the feasible side shaded), and as horizontal lines the oracle's IAE and the
+    limit's. ``command = reference`` (open loop, S = 1) sits at Ms = 1. Rows far worse than the
+    best are drawn as arrows at the top edge with their IAE."""
     plants = [p for p, d in data["plants"].items() if d.get("feasible")]
     n = max(1, len(plants))
     fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 5.0), squeeze=False)
     for ax, plant in zip(axes[0], plants, strict=False):
         pdata = data["plants"][plant]
+        refs = pdata.get("references", {})
         points = []
         ms_max = None
-        for name, row in pdata["tuners"].items():
+        rows = dict(pdata.get("rows", {}))
+        if "command=reference" in refs:
+            rows["command=reference"] = refs["command=reference"]
+        for name, row in rows.items():
             rb = row["robustness"]
-            ms = rb.get("ms") if row["kind"] != "feedforward" else 1.0
+            ms = rb.get("ms")
             iae = row["metrics"]["actual"]["mean"]["iae"]
             if ms is None or iae is None or not np.isfinite(iae):
                 continue
@@ -179,10 +183,20 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             continue
         best = min(p[3] for p in points)
         top = 2.6 * best
-        front = pdata.get("pareto_front") or []
+        front = (data.get("pareto_fronts") or {}).get(plant) or []
         if front:
             ax.plot([f["ms"] for f in front], [min(f["iae"], top) for f in front], "-",
                     color="0.55", lw=1.5, label="MIGO front (max I per Ms)", zorder=1)  # fmt: skip
+        floor = best
+        for name, style in (("oracle", ":"), ("limit", "--")):
+            ref = refs.get(name)
+            if ref is None:
+                continue
+            level = ref["iae"] if name == "limit" else ref["metrics"]["actual"]["mean"]["iae"]
+            floor = min(floor, level)
+            ax.axhline(level, color="tab:green" if name == "oracle" else "k", ls=style, lw=1,
+                       label="oracle (MPC, actual model)" if name == "oracle"
+                       else "limit (any command, ideal model)")  # fmt: skip
         if ms_max:
             ax.axvspan(0.9, ms_max, color="tab:green", alpha=0.06, lw=0)
             ax.axvline(ms_max, color="tab:red", ls=":", lw=1, label=f"Ms limit {ms_max:g}")
@@ -200,7 +214,7 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             ax.scatter([ms], [iae], c=color, marker=marker, s=40, label=label, zorder=3)
             ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2), textcoords="offset points")
         ax.set_xlim(0.9, 4.15)
-        ax.set_ylim(0.9 * best, top * 1.04)
+        ax.set_ylim(0.9 * floor, top * 1.04)
         ax.set_xlabel("Ms with the 20 ms servo hold (capped at 4; shaded: feasible)")
         ax.set_ylabel("IAE on the actual model (deg s)")
         ax.set_title(f"{plant}: tracking against robustness", fontsize=10)

@@ -1,16 +1,25 @@
-"""The benchmark's verdict: which rows may be ranked, their ranking, significance, the report.
+"""The benchmark's verdict: which rows a control engineer would deploy, their ranking, the report.
 
-A row is **ranked** only if a control engineer could deploy it: the loop as it runs (with the
-servo's command hold) is stable, every held-out run stayed stable, it meets the robustness
-constraints (``Ms`` and gain margin, ``configs/objective.yaml``) and the jaw actually moves (the
-grip reaches 90 % of the way). Rows that miss are listed with the reason, never ranked.
+**Deployable** (:func:`why_not_deployable`): the loop as it runs (PID at 1 ms, servo command
+held 20 ms) is stable; every held-out run stays stable and settles (a loop that swings from stop
+to stop counts as diverged, :data:`gripper_env.metrics.OSCILLATION_LIMIT_DEG`); a PID meets
+``Ms <= ms_max`` and the gain-margin floor with the hold, a learned controller the measured gain
+margin that ``Ms <= ms_max`` guarantees a linear loop (:mod:`tuners.probe`); the jaw completes
+the grip without touching a stop or stalling. Reference rows (command = reference, a rule at a
+fixed setting, the limit, the oracle) are shown, never ranked.
 
-Ranked rows are ordered by the objective's cost on the actual model (mean over the held-out
-seeds; ``configs/objective.yaml``: what every search minimises, IAE first), with IAE beside it.
-Differences are tested **paired over the held-out seeds** (every row meets the same friction,
-noise and stop draws): a Wilcoxon signed-rank test of the per-seed cost of each row against the
-best textbook baseline of its plant, two-sided, at 5 %. With 10 seeds the smallest possible p is
-0.002.
+**The headline** ranks gain sets for the *gripper*: its four identifications are fits of one
+device and disagree 9x on the fast time constant, so a gain set is admitted only if it is
+deployable on every one of ``robust_plants`` (test2-test4; test1 cannot follow the step
+profile). Candidates are the robust rows (tuned once on all of them) and every per-plant gain
+set (tuned on one, evaluated on the others). **Per-plant tables** rank the rows tuned for one
+identification, on that identification only.
+
+Rows are ranked by the objective's cost on the actual model (mean over the held-out seeds, and
+over the plants in the headline), IAE beside it. Differences are tested **paired over the
+held-out seeds**: a two-sided Wilcoxon signed-rank test of the per-seed costs against the best
+deployable textbook row (``baseline`` kind: a rule with its knob set under the constraints), at
+5 %; with 10 seeds the smallest possible p is 0.002.
 """
 
 from __future__ import annotations
@@ -23,41 +32,71 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-__all__ = ["figures", "rank", "render_head", "render_markdown", "update_readme", "why_not_ranked"]
+__all__ = [
+    "ALPHA",
+    "figures",
+    "paired_test",
+    "rank",
+    "render_head",
+    "render_markdown",
+    "update_readme",
+    "why_not_deployable",
+]
 
 ALPHA = 0.05
+RANKED_KINDS = ("manual", "baseline", "search", "controller")
 
 
-def why_not_ranked(row: dict[str, Any]) -> str | None:
-    """Why a row may not be ranked (``None`` if it may)."""
+def _f(x: Any, digits: int = 3) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, float) and not math.isfinite(x):
+        return "inf" if x > 0 else "-inf"
+    return f"{x:.{digits}g}"
+
+
+def why_not_deployable(row: dict[str, Any]) -> str | None:
+    """Why a control engineer would not deploy a row (``None``: deployable)."""
     rb = row["robustness"]
     actual = row["metrics"]["actual"]
-    if not rb.get("stable", False):
-        return "unstable loop (with the servo's command hold)"
+    if rb.get("linear", True) and not rb.get("stable", False):
+        rho = rb.get("max_pole_magnitude")
+        growth = ""
+        if rho and rho > 0 and rb.get("refresh_period_s"):
+            growth = f", growing x{rho:.3g} per servo frame"
+        return f"unstable with the servo's hold (spectral radius {_f(rho)}{growth})"
     if actual["stable_fraction"] < 1.0:
-        return "diverged on some held-out seeds"
+        n = actual["n_seeds"]
+        bad = round((1 - actual["stable_fraction"]) * n)
+        return f"{bad} of {n} held-out runs diverge or swing from stop to stop"
     rise = actual["mean"]["grip"]["rise_time_s"]
     if rise is None or not math.isfinite(rise):
         return "the jaw does not complete the grip"
-    if not rb.get("meets_constraints", False):
-        ms, gm = rb.get("ms"), rb.get("gain_margin_db")
+    if row["kind"] == "controller":
+        mm = row["measured_margins"]
+        gm = math.inf if mm["gain_margin_db"] is None else mm["gain_margin_db"]
+        if gm < mm["required_gain_margin_db"]:
+            return (f"measured gain margin {_f(gm)} dB < the {mm['required_gain_margin_db']:.3g} "
+                    "dB that Ms <= 1.6 guarantees a linear loop")  # fmt: skip
+    elif not rb.get("meets_constraints", False):
         lim = rb.get("constraints", {})
-        ms_max, gm_min = lim.get("ms_max", math.inf), lim.get("gm_min_db", 0.0)
+        ms, gm = rb.get("ms"), rb.get("gain_margin_db")
         misses = []
-        if ms is None or ms > ms_max:
-            misses.append(f"Ms {_f(ms)} > {ms_max:g}")
-        if gm is not None and gm < gm_min:
-            misses.append(f"gain margin {_f(gm)} dB < {gm_min:g} dB")
-        return (
-            "misses the robustness constraints with the servo hold ("
-            + (", ".join(misses) or "a lower gain margin")
-            + ")"
-        )
+        if ms is None or ms > lim.get("ms_max", math.inf):
+            misses.append(f"Ms {_f(ms)} > {lim.get('ms_max', 0):g}")
+        if gm is not None and gm < lim.get("gm_min_db", 0.0):
+            misses.append(f"gain margin {_f(gm)} dB < {lim.get('gm_min_db', 0):g} dB")
+        return ("misses the robustness constraints with the servo hold ("
+                + (", ".join(misses) or "a lower gain margin") + ")")  # fmt: skip
+    contact = actual["mean"].get("contact_s") or 0.0
+    stall = actual["mean"].get("stall_s") or 0.0
+    if stall > 0:
+        return f"stalls against a stop ({_f(stall)} s)"
+    if contact > 0:
+        return f"hits a mechanical stop ({_f(contact)} s in contact)"
     return None
-
-
-def _cost(row: dict[str, Any]) -> float:
-    return float(row["metrics"]["actual"]["mean"]["cost"])
 
 
 def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
@@ -70,119 +109,197 @@ def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
     return float(d.mean()), float(stats.wilcoxon(d, zero_method="zsplit").pvalue)
 
 
-def rank(data: dict[str, Any]) -> dict[str, Any]:
-    """Per plant: ranked rows with significance against the best baseline; overall: per tuner
-    over the plants."""
-    per_plant: dict[str, Any] = {}
-    for plant, pdata in data["plants"].items():
-        if not pdata.get("feasible"):
+def _cost(row: dict[str, Any]) -> float:
+    return float(row["metrics"]["actual"]["mean"]["cost"])
+
+
+def _test(a: list[float], b: list[float]) -> dict[str, Any]:
+    diff, p = paired_test(a, b)
+    verdict = "n.s." if p >= ALPHA else ("better" if diff < 0 else "worse")
+    return {"mean_cost_difference": diff, "p_value": p, "verdict": verdict}
+
+
+def _per_plant(pdata: dict[str, Any]) -> dict[str, Any]:
+    rows = pdata["rows"]
+    reasons = {}
+    for name, r in rows.items():
+        reasons[name] = ("reference (shown, not ranked)" if r["kind"] not in RANKED_KINDS
+                         else why_not_deployable(r))  # fmt: skip
+    ranked = sorted((n for n, w in reasons.items() if w is None), key=lambda n: _cost(rows[n]))
+    baselines = [n for n in ranked if rows[n]["kind"] == "baseline"]
+    best = baselines[0] if baselines else None
+    reference = pdata["references"]["command=reference"]
+    tests = {}
+    for name in ranked:
+        tests[name] = {"command=reference": _test(rows[name]["per_seed_cost"],
+                                                  reference["per_seed_cost"])}  # fmt: skip
+        if best is not None and name != best:
+            tests[name][best] = _test(rows[name]["per_seed_cost"], rows[best]["per_seed_cost"])
+    return {"ranked": ranked, "not_ranked": {n: w for n, w in reasons.items() if w},
+            "best_baseline": best, "tests": tests}  # fmt: skip
+
+
+def _headline(data: dict[str, Any]) -> dict[str, Any]:
+    plants = [p for p in data["robust_plants"] if data["plants"].get(p, {}).get("feasible")]
+    admitted, refused = [], {}
+    for key, per in data.get("evaluations", {}).items():
+        if next(iter(per.values()))["kind"] not in RANKED_KINDS:
+            continue  # a reference row: shown in its plant's table, never ranked
+        if set(per) != set(plants):
+            refused[key] = "not evaluated on every identification"
             continue
-        rows = pdata["tuners"]
-        reasons = {name: why_not_ranked(r) for name, r in rows.items()}
-        ranked = sorted(
-            (n for n, why in reasons.items() if why is None), key=lambda n: _cost(rows[n])
-        )
-        baselines = [n for n in ranked if rows[n]["kind"] == "baseline"]
-        best_base = baselines[0] if baselines else None
-        tests = {}
-        for name in ranked:
-            entry: dict[str, Any] = {}
-            for ref in filter(None, (best_base, "command=reference")):
-                if ref == name or ref not in rows:
-                    continue
-                diff, p = paired_test(rows[name]["per_seed_cost"], rows[ref]["per_seed_cost"])
-                verdict = "n.s." if p >= ALPHA else ("better" if diff < 0 else "worse")
-                entry[ref] = {"mean_cost_difference": diff, "p_value": p, "verdict": verdict}
-            tests[name] = entry
-        per_plant[plant] = {
-            "ranked": ranked,
-            "not_ranked": {n: why for n, why in reasons.items() if why is not None},
-            "best_baseline": best_base,
-            "tests": tests,
-        }
-    return {"per_plant": per_plant, "overall": _overall(data, per_plant)}
+        reason = None
+        for p in plants:
+            why = why_not_deployable(per[p])
+            if why is not None:
+                reason = f"on {p}: {why}"
+                break
+        if reason:
+            refused[key] = reason
+            continue
+        admitted.append(key)
+    entries = {}
+    for key in admitted:
+        per = data["evaluations"][key]
+        rows = [per[p] for p in plants]
+        first = rows[0]
+        entries[key] = {
+            "row": key.split(" @ ")[0],
+            "tuned_on": first["tuned_on"],
+            "kind": first["kind"],
+            "cost": float(np.mean([_cost(r) for r in rows])),
+            "iae": float(np.mean([r["metrics"]["actual"]["mean"]["iae"] for r in rows])),
+            "per_plant_cost": {p: _cost(per[p]) for p in plants},
+            "per_seed_cost": [c for r in rows for c in r["per_seed_cost"]],
+            "worst_overshoot_pct": max(max(r["metrics"]["actual"]["mean"]["grip"]["overshoot_pct"],
+                                           r["metrics"]["actual"]["mean"]["ungrip"]["overshoot_pct"])
+                                       for r in rows),
+            "worst_ms": _worst([r["robustness"].get("ms") for r in rows], max),
+            "worst_gm_db": _worst([r["robustness"].get("gain_margin_db") for r in rows], min),
+            "worst_measured_gm_db": _worst(
+                [(r.get("measured_margins") or {}).get("gain_margin_db") for r in rows], min),
+            "episodes": int(first["episodes"]),
+            "wall_time_s": float(first["wall_time_s"]),
+            "P": first["P"], "I": first["I"], "D": first["D"],
+        }  # fmt: skip
+    order = sorted(entries, key=lambda k: entries[k]["cost"])
+    baselines = [k for k in order if entries[k]["kind"] == "baseline"]
+    best = baselines[0] if baselines else None
+    for k in order:
+        if best is not None and k != best:
+            entries[k]["vs_best_baseline"] = _test(entries[k]["per_seed_cost"],
+                                                   entries[best]["per_seed_cost"])  # fmt: skip
+    return {"plants": plants, "order": order, "entries": entries, "best_baseline": best,
+            "not_admitted": refused}  # fmt: skip
 
 
-def _overall(data: dict[str, Any], per_plant: dict[str, Any]) -> list[dict[str, Any]]:
-    """One line per tuner over the feasible plants (the README's head)."""
-    names: list[str] = []
-    for plant in per_plant:
-        for n in data["plants"][plant]["tuners"]:
-            if n not in names:
-                names.append(n)
-    out = []
-    for name in names:
-        rows = {p: data["plants"][p]["tuners"].get(name) for p in per_plant}
-        rows = {p: r for p, r in rows.items() if r is not None}
-        ranked_on = [p for p in rows if name in per_plant[p]["ranked"]]
-        actual = [r["metrics"]["actual"]["mean"] for r in rows.values()]
-        cross = [r["cross_model"].get("worst", {}) for r in rows.values() if r["cross_model"]]
-        better = [
-            p for p in ranked_on
-            if per_plant[p]["best_baseline"] not in (None, name)
-            and per_plant[p]["tests"][name][per_plant[p]["best_baseline"]]["verdict"] == "better"
-        ]  # fmt: skip
-        out.append(
-            {
-                "tuner": name,
-                "kind": next(iter(rows.values()))["kind"],
-                "ranked_on": ranked_on,
-                "plants": list(rows),
-                "iae": float(np.mean([a["iae"] for a in actual])),
-                "cost": float(np.mean([a["cost"] for a in actual])),
-                "overshoot_pct": max(
-                    max(a["grip"]["overshoot_pct"], a["ungrip"]["overshoot_pct"]) for a in actual
-                ),
-                "stall_s": max(a["stall_s"] for a in actual),
-                "grip_object_stall_s": max(r["grip_object"]["stall_s"] for r in rows.values()),
-                "ms": _worst([r["robustness"].get("ms") for r in rows.values()], max),
-                "gm_db": _worst(
-                    [r["robustness"].get("gain_margin_db") for r in rows.values()], min
-                ),
-                "cross_ms": _worst([c.get("ms") for c in cross], max) if cross else None,
-                "cross_gm_db": _worst([c.get("gain_margin_db") for c in cross], min)
-                if cross
-                else None,
-                "cross_overshoot_pct": _worst([c.get("overshoot_pct") for c in cross], max)
-                if cross
-                else None,
-                "cross_stable": all(c.get("stable", False) for c in cross) if cross else None,
-                "beats_best_baseline_on": better,
-                "episodes": int(sum(r["episodes"] for r in rows.values())),
-                "wall_time_s": float(sum(r["wall_time_s"] for r in rows.values())),
-            }
-        )
-    n_plants = len(per_plant)
-    full = [o for o in out if len(o["ranked_on"]) == n_plants]
-    rest = [o for o in out if len(o["ranked_on"]) != n_plants]
-    full.sort(key=lambda o: o["cost"])
-    rest.sort(key=lambda o: (-len(o["ranked_on"]), o["cost"]))
-    for i, o in enumerate(full):
-        o["rank"] = i + 1
-    for o in rest:
-        o["rank"] = None
-    return full + rest
-
-
-def _worst(values: list[Any], pick) -> float | None:
+def _worst(values: list[Any], pick: Any) -> float | None:
     vals = [math.inf if v is None else float(v) for v in values]
-    if not vals:
-        return None
-    return pick(vals)
+    return pick(vals) if vals else None
+
+
+def rank(data: dict[str, Any]) -> dict[str, Any]:
+    """The verdict: per plant (tuned for one identification) and the headline (one gain set
+    for the gripper)."""
+    per_plant = {p: _per_plant(d) for p, d in data["plants"].items() if d.get("feasible")}
+    return {"per_plant": per_plant, "headline": _headline(data)}
 
 
 # ----------------------------------------------------------------------------------------------
 # Report
 
 
-def _f(x: Any, digits: int = 3) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, float) and not math.isfinite(x):
-        return "inf" if x > 0 else "-inf"
-    return f"{x:.{digits}g}"
+def _name(key: str) -> str:
+    row, _, on = key.partition(" @ ")
+    return f"{row} (tuned on {on})"
+
+
+def render_head(data: dict[str, Any]) -> str:
+    """The headline table (the report's and the README's head)."""
+    h = data["leaderboard"]["headline"]
+    plants = ", ".join(h["plants"])
+    lines = [
+        f"| rank | gain set | cost (mean over {plants}) | IAE deg·s | worst overshoot % | "
+        "worst Ms (hold) | worst GM dB (hold) | worst measured GM dB | P | I | D | "
+        "vs best textbook (p) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for i, key in enumerate(h["order"]):
+        e = h["entries"][key]
+        vs = e.get("vs_best_baseline")
+        test = "best textbook" if key == h["best_baseline"] else (
+            f"{vs['verdict']} ({vs['mean_cost_difference']:+.3g}, p={vs['p_value']:.2g})"
+            if vs else "-")  # fmt: skip
+        lines.append(
+            f"| {i + 1} | {_name(key)} | {_f(e['cost'], 4)} | {_f(e['iae'], 4)} | "
+            f"{_f(e['worst_overshoot_pct'])} | {_f(e['worst_ms'])} | {_f(e['worst_gm_db'])} | "
+            f"{_f(e['worst_measured_gm_db'])} | {_f(e['P'], 4)} | {_f(e['I'], 4)} | "
+            f"{_f(e['D'], 3)} | {test} |"
+        )
+    return "\n".join(lines)
+
+
+def _plant_table(plant: str, pdata: dict[str, Any], info: dict[str, Any]) -> list[str]:
+    refs = pdata["references"]
+    rows = pdata["rows"]
+    base = info["best_baseline"]
+    limit = refs.get("limit")
+    ref_iae = refs["command=reference"]["metrics"]["actual"]["mean"]["iae"]
+
+    def frac(iae: float) -> str:
+        if limit is None or not math.isfinite(iae) or ref_iae <= limit["iae"]:
+            return "-"
+        return f"{100 * (ref_iae - iae) / (ref_iae - limit['iae']):.0f} %"
+
+    lines = [
+        "",
+        f"### {plant}: tuned for this identification",
+        "",
+        f"Best textbook design (knob set under the constraints): `{base}`. Limit: IAE "
+        + (f"{limit['iae']:.4g} deg·s" if limit else "not computed")
+        + f"; command = reference: IAE {ref_iae:.4g} deg·s. **to limit** = the share of that "
+        "gap a row closes.",
+        "",
+        "| rank | row | P | I | D | cost | IAE deg·s | to limit | OS % (grip / un-grip) | "
+        "Ms | GM dB | measured GM dB | delay margin ms | vs best textbook (cost, p) | "
+        "episodes |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    order = info["ranked"] + [n for n in rows if n not in info["ranked"]]
+    for name in order:
+        r = rows[name]
+        a = r["metrics"]["actual"]
+        rb = r["robustness"]
+        unstable = rb.get("linear", True) and not rb.get("stable", True)
+        mm = r.get("measured_margins") or {}
+        test = info["tests"].get(name, {}).get(base) if base else None
+        vs = (f"{test['verdict']} ({test['mean_cost_difference']:+.3g}, p={test['p_value']:.2g})"
+              if test else ("-" if name != base else "(itself)"))  # fmt: skip
+        rank = str(info["ranked"].index(name) + 1) if name in info["ranked"] else "-"
+        margins = (f"ρ = {_f(rb.get('max_pole_magnitude'))} | - | - | - |" if unstable else
+                   f"{_f(rb.get('ms'))} | {_f(rb.get('gain_margin_db'))} | "
+                   f"{_f(mm.get('gain_margin_db'))} | "
+                   f"{_f(None if mm.get('delay_margin_s') is None else 1e3 * mm['delay_margin_s'])} |")  # noqa: E501
+        lines.append(
+            f"| {rank} | {name} | {_f(r['P'], 4)} | {_f(r['I'], 4)} | {_f(r['D'], 3)} | "
+            f"{_ci(a, 'cost')} | {_ci(a, 'iae')} | {frac(a['mean']['iae'])} | "
+            f"{_f(a['mean']['grip']['overshoot_pct'])} / {_f(a['mean']['ungrip']['overshoot_pct'])}"
+            f" | {margins} {vs} | {r['episodes']} |"
+        )
+    lines += ["", "Reference rows (never ranked):", ""]
+    for name in ("command=reference", "oracle", "oracle-preview"):
+        if name in refs:
+            m = refs[name]["metrics"]["actual"]["mean"]
+            lines.append(f"* `{name}`: cost {_f(m['cost'], 4)}, IAE {_f(m['iae'], 4)} deg·s "
+                         f"({frac(m['iae'])} of the way to the limit) - "
+                         f"{refs[name]['controller']}")  # fmt: skip
+    if limit:
+        lines.append(f"* `limit`: IAE {limit['iae']:.4g} deg·s - {limit['controller']} on the "
+                     f"{limit['model']}")  # fmt: skip
+    if info["not_ranked"]:
+        lines += ["", "Not ranked:"]
+        lines += [f"* `{n}`: {why}" for n, why in info["not_ranked"].items()]
+    return lines
 
 
 def _ci(actual: dict[str, Any], *path: str) -> str:
@@ -199,147 +316,113 @@ def _ci(actual: dict[str, Any], *path: str) -> str:
     return f"{_f(mean)} ± {_f((hi - lo) / 2, 2)}"
 
 
-def render_head(data: dict[str, Any]) -> str:
-    """The overall leaderboard as a Markdown table (the report's and the README's head)."""
-    lb = data["leaderboard"]
-    plants = list(lb["per_plant"])
-    lines = [
-        f"| rank | tuner | cost (mean over {', '.join(plants)}) | IAE deg·s | worst overshoot % | "
-        "stall s | Ms (hold) | GM dB (hold) | other plants: worst Ms / GM dB / OS % | "
-        "beats best baseline (p<0.05) on | episodes | wall s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+def _margin_check(data: dict[str, Any]) -> list[str]:
+    """Measured against linear gain margins of every stable PID row: the probe's validation."""
+    pairs = []
+    for plant, pdata in data["plants"].items():
+        for name, r in (pdata.get("rows") or {}).items():
+            rb, mm = r["robustness"], r.get("measured_margins") or {}
+            if r.get("controller") != "pid" or not rb.get("stable"):
+                continue
+            lin, meas = rb.get("gain_margin_db"), mm.get("gain_margin_db")
+            if lin is not None and meas is not None:
+                pairs.append((plant, name, lin, meas))
+    if not pairs:
+        return []
+    diffs = np.array([m - lin for _, _, lin, m in pairs])
+    return [
+        "",
+        "## Measured margins, validated",
+        "",
+        f"Every stable PID row's gain margin measured by the probe (gain sweep until the "
+        f"frictionless loop with the hold swings more than 1 deg) against its linear gain "
+        f"margin with the hold: {len(pairs)} rows, difference {diffs.mean():+.3f} dB on "
+        f"average, largest {np.abs(diffs).max():.3f} dB. The same probe measures the learned "
+        "controllers' margins.",
     ]
-    for o in lb["overall"]:
-        rank = str(o["rank"]) if o["rank"] else f"not ranked ({len(o['ranked_on'])}/{len(plants)})"
-        cross = (
-            f"{_f(o['cross_ms'])} / {_f(o['cross_gm_db'])} / {_f(o['cross_overshoot_pct'])}"
-            + ("" if o["cross_stable"] in (None, True) else " (unstable)")
-            if o["cross_ms"] is not None
-            else "-"
-        )
-        lines.append(
-            f"| {rank} | {o['tuner']} | {_f(o['cost'], 4)} | {_f(o['iae'], 4)} | "
-            f"{_f(o['overshoot_pct'])} | "
-            f"{_f(o['stall_s'])} | {_f(o['ms'])} | {_f(o['gm_db'])} | {cross} | "
-            f"{', '.join(o['beats_best_baseline_on']) or '-'} | {o['episodes']} | "
-            f"{o['wall_time_s']:.1f} |"
-        )
-    return "\n".join(lines)
 
 
 def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
     """The benchmark report (Markdown)."""
     lb = data["leaderboard"]
+    h = lb["headline"]
     obj = meta["objective"]
     lim = obj["constraints"]
     lines = [
-        "# Benchmark: PID tuners for the hobby-servo gripper",
+        "# Benchmark: PID tuners and learned controllers for the hobby-servo gripper",
         "",
-        f"Generated by `{meta['command']}` ({meta['date']}, version {meta['version']}, commit "
-        f"`{(meta.get('git_commit') or 'unknown')[:10]}`), total wall time "
-        f"{meta['wall_time_s']:.0f} s. Profile `{meta['profile']}` (grip step 92 -> 21 deg at "
-        f"1 s, un-grip at 10 s, 20 s), actual-gripper preset `{meta['disturbance']}` (stops "
-        "beyond 21 and 92 deg, so overshoot is visible), "
-        f"{meta['n_seeds']} held-out seeds.",
+        f"Generated by `{meta['command']}`. Profile `{meta['profile']}` (grip step 92 -> 21 "
+        f"deg at 1 s, un-grip at 10 s, 20 s), actual-gripper preset `{meta['disturbance']}` "
+        f"(stops beyond 21 and 92 deg, so overshoot is visible), {meta['n_seeds']} held-out "
+        "seeds. Provenance (commit, date, wall time): `benchmark.provenance.json`.",
         "",
-        "## Leaderboard",
+        "## Headline: one gain set for the gripper",
+        "",
+        f"Admitted only if deployable on every identification ({', '.join(h['plants'])}): "
+        f"stable with the servo's 20 ms hold, Ms <= {lim['ms_max']} and GM >= "
+        f"{lim['gm_min_db']} dB with the hold (a learned controller: the measured gain margin "
+        "Ms <= 1.6 guarantees), every held-out run settled, no stop hit, no stall. test1 is "
+        "left out: it cannot follow the step profile within the servo's range (below).",
         "",
         render_head(data),
         "",
-        "* **Ranked** only if deployable: stable as the loop really runs (PID at 1 ms, servo "
-        f"command held 20 ms), every held-out run stable, Ms <= {lim['ms_max']} and gain margin "
-        f">= {lim['gm_min_db']} dB with the hold, and the jaw completes the grip. Ranked by the "
-        "objective's cost on the actual model (mean over the feasible plants), the cost every "
-        "search minimises; IAE beside it.",
-        "* **beats best baseline**: per plant, a paired Wilcoxon signed-rank test of the "
-        "per-seed cost against the best-ranked textbook design (`classical-*`), two-sided, "
-        f"p < {ALPHA}.",
-        "* **other plants**: the same gains on the other identifications of the gripper "
-        "(test2-test4; test1 cannot follow the step), worst case over them: Ms and GM with the "
-        "hold, actual-model overshoot.",
-        "* **episodes**: simulated 20 s episodes the tuner used (all its search seeds); "
-        "textbook designs use the model only.",
-        f"* Objective (`configs/objective.yaml`): signal `{obj['signal']}` jaw angle, settling "
-        "band >= the friction band; weights "
-        + ", ".join(f"{k} {v:g}" for k, v in obj["weights"].items() if v)
-        + ".",
     ]
-    if data.get("rl_note"):
-        lines.append(f"* {data['rl_note']}")
-    lines += _plant_sections(data, lb)
+    lines += _verdict_words(data)
+    if h["not_admitted"]:
+        lines += ["", "Not admitted:", ""]
+        lines += [f"* {_name(k)}: {why}" for k, why in h["not_admitted"].items()]
+    lines += ["", "## Tuned for one identification"]
+    for plant, pdata in data["plants"].items():
+        if not pdata.get("feasible"):
+            lines += ["", f"### {plant}", "", f"**Not ranked.** {plant}: {pdata['reason']}."]
+            continue
+        lines += _plant_table(plant, pdata, lb["per_plant"][plant])
+    lines += _margin_check(data)
     lines += [
         "",
-        "Figures: `figures/benchmark_pareto.png` (tracking against robustness: every row and "
-        "the MIGO front), `figures/benchmark_budget_<plant>.png` (best feasible tuning cost "
-        "against simulated episodes), and each row's response plot `<plant>/<tuner>.png`.",
+        "## How to read it",
+        "",
+        "* Ranked by the objective's cost on the actual model (`configs/objective.yaml`: "
+        + ", ".join(f"{k} {v:g}" for k, v in obj["weights"].items() if v)
+        + "), the cost every search minimises; IAE beside it.",
+        "* **vs best textbook**: paired Wilcoxon signed-rank test of the per-seed costs against "
+        f"the best deployable textbook row (a rule with its knob set under the same constraints), "
+        f"two-sided, p < {ALPHA} for a verdict.",
+        "* **measured GM**: the gain margin measured by the probe (`tuners/probe.py`) - the only "
+        "margin a learned controller has; for PIDs it matches the linear one (section above).",
+        "* `*-fixed`: a textbook rule at its fixed setting (e.g. SIMC's tau_c = theta), shown "
+        "for reference.",
+        "",
+        "Figures: `figures/benchmark_pareto.png` (tracking against robustness: every row, the "
+        "MIGO front, the limit and the oracle), `figures/benchmark_budget_<plant>.png` (best "
+        "tuning cost against simulated episodes), each row's response plot `<plant>/<row>.png`.",
         "",
     ]
     return "\n".join(lines)
 
 
-def _plant_sections(data: dict[str, Any], lb: dict[str, Any]) -> list[str]:
-    lines: list[str] = []
-    for plant, pdata in data["plants"].items():
-        lines += ["", f"## {plant}", ""]
-        if not pdata.get("feasible"):
-            lines.append(f"**Not ranked.** {plant}: {pdata['reason']}.")
-            continue
-        info = lb["per_plant"][plant]
-        rows = pdata["tuners"]
+def _verdict_words(data: dict[str, Any]) -> list[str]:
+    """What a reader should take away, in words: whether the searches beat the best textbook
+    design, plant by plant and in the headline."""
+    out = []
+    lb = data["leaderboard"]
+    for plant, info in lb["per_plant"].items():
         base = info["best_baseline"]
-        lines += [
-            f"Bang-bang bound (no controller can do better): IAE {_f(pdata['iae_bound'], 4)} "
-            f"deg·s. Best baseline: `{base}`.",
-            "",
-            "| rank | tuner | P | I | D | cost | IAE deg·s | OS % (grip / un-grip) | settle s | "
-            "stall s | effort deg | Ms | GM dB | PM deg | vs best baseline (cost) | grip object: "
-            "stall s / force / release s | episodes |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-        ]
-        order = info["ranked"] + [n for n in rows if n not in info["ranked"]]
-        for name in order:
-            r = rows[name]
-            a = r["metrics"]["actual"]
-            rb = r["robustness"]
-            test = info["tests"].get(name, {}).get(base) if base else None
-            vs = (
-                f"{test['verdict']} ({test['mean_cost_difference']:+.3g}, p={test['p_value']:.3g})"
-                if test
-                else "-"
-            )
-            rank = str(info["ranked"].index(name) + 1) if name in info["ranked"] else "-"
-            g = r["grip_object"]
-            lines.append(
-                f"| {rank} | {name} | {_f(r['P'], 4)} | {_f(r['I'], 4)} | {_f(r['D'], 3)} | "
-                f"{_ci(a, 'cost')} | {_ci(a, 'iae')} | {_f(a['mean']['grip']['overshoot_pct'])} / "
-                f"{_f(a['mean']['ungrip']['overshoot_pct'])} | "
-                f"{_f(a['mean']['grip']['settling_time_s'])} | {_f(a['mean']['stall_s'])} | "
-                f"{_f(a['mean']['servo_effort_deg'], 4)} | {_f(rb.get('ms'))} | "
-                f"{_f(rb.get('gain_margin_db'))} | {_f(rb.get('phase_margin_deg'))} | {vs} | "
-                f"{_f(g['stall_s'])} / {_f(g['force_proxy'])} / {_f(g['release_s'])} | "
-                f"{r['episodes']} |"
-            )
-        if info["not_ranked"]:
-            lines += ["", "Not ranked:"]
-            lines += [f"* `{n}`: {why}" for n, why in info["not_ranked"].items()]
-        spread = [
-            (n, r["tuning"]) for n, r in rows.items() if "best_cost" in (r.get("tuning") or {})
-        ]
-        if spread:
-            lines += [
-                "",
-                "Search seeds (best tuning cost per seed: min / median / max; results on a "
-                "search bound):",
-                "",
-            ]
-            for n, t in spread:
-                c = t["best_cost"]
-                bound = "; ".join(t.get("on_bound") or []) or "none on a bound"
-                lines.append(
-                    f"* `{n}`: {_f(c['min'], 4)} / {_f(c['median'], 4)} / {_f(c['max'], 4)} over "
-                    f"{len(t['per_seed'])} seeds; {bound}"
-                )
-    return lines
+        for name in ("optuna", "rl-tune", "rl-controller"):
+            if name not in info["ranked"] or base is None:
+                continue
+            t = info["tests"][name].get(base)
+            if t is None:
+                continue
+            if t["verdict"] == "better":
+                word = f"beats the best textbook design `{base}` significantly"
+            elif t["verdict"] == "worse":
+                word = f"is significantly worse than the best textbook design `{base}`"
+            else:
+                word = f"does not beat the best textbook design `{base}` significantly"
+            out.append(f"* {plant}: `{name}` {word} (cost {t['mean_cost_difference']:+.3g}, "
+                       f"p = {t['p_value']:.2g}).")  # fmt: skip
+    return ["In words:", "", *out] if out else []
 
 
 def figures(data: dict[str, Any], out: Path) -> list[Path]:
@@ -349,13 +432,10 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
     paths = [pareto_plot(data, out / "figures" / "benchmark_pareto.png")]
     for plant, pdata in data["plants"].items():
         if pdata.get("feasible") and pdata.get("curves"):
-            paths.append(
-                budget_plot(
-                    pdata["curves"],
-                    f"{plant}: best feasible tuning cost vs simulated episodes",
-                    out / "figures" / f"benchmark_budget_{plant}.png",
-                )
-            )
+            paths.append(budget_plot(
+                pdata["curves"], f"{plant}: best feasible tuning cost vs simulated episodes",
+                out / "figures" / f"benchmark_budget_{plant}.png",
+            ))  # fmt: skip
     return paths
 
 
@@ -363,53 +443,62 @@ README_START = "<!-- leaderboard:start"
 README_END = "<!-- leaderboard:end -->"
 
 
-def update_readme(readme: Path, data: dict[str, Any]) -> bool:
-    """Put the leaderboard's head between the README's leaderboard markers.
+def head_of(markdown: str) -> str:
+    """The headline table inside a benchmark report."""
+    lines = markdown.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| rank | gain set"))
+    end = start
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    return "\n".join(lines[start:end])
 
-    Returns
-    -------
-    bool
-        Whether the README changed.
+
+def update_readme(readme: Path, report: Path) -> bool:
+    """Copy the headline table of ``report`` (``benchmark.md``) between the README's markers.
+
+    Returns whether the README changed.
 
     Raises
     ------
     ValueError
-        The README has no leaderboard markers.
+        The README has no leaderboard markers, or the report no headline table.
     """
     from gripper_env.files import write_atomic
 
     text = readme.read_text()
     if README_START not in text or README_END not in text:
         raise ValueError(f"{readme}: no '{README_START} ...' and '{README_END}' markers")
+    try:
+        head = head_of(report.read_text())
+    except StopIteration:
+        raise ValueError(f"{report}: no headline table ('| rank | gain set ...')") from None
     start = text.index("\n", text.index(README_START)) + 1
     end = text.index(README_END)
-    new = text[:start] + render_head(data) + "\n" + text[end:]
+    new = text[:start] + head + "\n" + text[end:]
     if new != text:
         write_atomic(readme, new)
     return new != text
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m tuners.leaderboard [BENCHMARK_JSON] [--readme README.md]``: print the
-    leaderboard's head, or write it into the README."""
+    """``python -m tuners.benchmark.leaderboard [REPORT] [--readme README.md]``: print the
+    headline of a benchmark report, or copy it into the README."""
     import argparse
-    import json
 
     parser = argparse.ArgumentParser(
-        prog="python -m tuners.leaderboard",
-        description="Print the benchmark's leaderboard, or put it into the README.",
+        prog="python -m tuners.benchmark.leaderboard",
+        description="Print the benchmark's headline, or copy it into the README.",
     )
-    parser.add_argument("benchmark", nargs="?", default="results/benchmark.json")
+    parser.add_argument("report", nargs="?", default="results/benchmark.md")
     parser.add_argument("--readme", default=None, help="write it between this file's markers")
     args = parser.parse_args(argv)
     try:
-        data = json.loads(Path(args.benchmark).read_text())
         if args.readme:
-            changed = update_readme(Path(args.readme), data)
+            changed = update_readme(Path(args.readme), Path(args.report))
             print(f"{args.readme}: {'updated' if changed else 'already up to date'}")
         else:
-            print(render_head(data))
-    except (OSError, ValueError, KeyError) as exc:
+            print(head_of(Path(args.report).read_text()))
+    except (OSError, ValueError, StopIteration) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
 
-from gripper_env.pid import PIDGains
 from tuners import cli
-from tuners.classical.constrained import KNOBS, constrained_design
-from tuners.classical.rules import METHODS, design
+from tuners.classical.constrained import KNOBS
+from tuners.classical.rules import METHODS
+from tuners.classical.tuner import tune_rule, tuner_name
 from tuners.settings import ClassicalSettings, OptunaSettings, check_disjoint, load_settings
-from tuners.tasks import make_scorer
 
 __all__ = ["build_parser", "main"]
 
@@ -56,33 +54,6 @@ def build_parser():
     return parser
 
 
-def tuner_name(method: str, fixed: bool, robust: bool = False) -> str:
-    """``classical-<method>`` (knob set under the constraints), ``-fixed``, ``-robust``."""
-    return f"classical-{method}" + ("-fixed" if fixed else "") + ("-robust" if robust else "")
-
-
-def tune(
-    method: str,
-    inputs: cli.Inputs,
-    settings: ClassicalSettings,
-    *,
-    fixed: bool = False,
-    plants: list[str] | None = None,
-    optuna_settings: OptunaSettings | None = None,
-) -> tuple[PIDGains, dict[str, Any]]:
-    """The rule's gains: at its fixed setting, or with its knob set under the constraints (on
-    the tuning task of ``plants``, default the inputs' plant)."""
-    n = inputs.settings.pid.N
-    if fixed or method not in KNOBS:
-        return design(method, inputs.plant, inputs.disturbance, settings, n)
-    scorer = make_scorer(inputs, optuna_settings, plants or ())
-    gains, tuning = constrained_design(
-        method, inputs.plant, inputs.disturbance, settings, scorer, n
-    )
-    tuning["tuned_on"] = [p.name for p in scorer.task.plants]
-    return gains, tuning
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m tuners.classical`` and ``gripper-classical``."""
     return cli.run(_main, argv)
@@ -101,7 +72,7 @@ def _main(argv: list[str] | None = None) -> int:
         raise ValueError("--json prints one gains file; use it with one --method, not 'all'")
     for method in methods:
         start = time.perf_counter()
-        gains, tuning = tune(
+        gains, tuning = tune_rule(
             method, inputs, settings, fixed=args.fixed, plants=plants, optuna_settings=opt
         )
         fopdt = tuning["fopdt"]

@@ -190,6 +190,7 @@ def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]
             log=(lambda m: None) if args.json else print,
         ))  # fmt: skip
     summary = _tuner_summary(runs)
+    _held_out(inputs, summary)
     write_json(folder / "summary.json", summary)
     from tuners.plotting import learning_curve_plot
 
@@ -205,10 +206,16 @@ def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]
         return 0
     for r in summary["per_seed"]:
         if r["best_tuning_cost"] is None:
-            where = "no feasible gains off the bounds"
-        else:
-            where = f"best tuning cost {r['best_tuning_cost']:.4g} at {r['at_episodes']} episodes"
-        print(f"seed {r['seed']}: {where}")
+            print(f"seed {r['seed']}: no feasible gains off the bounds")
+            continue
+        print(f"seed {r['seed']}: best tuning cost {r['best_tuning_cost']:.4g} at "
+              f"{r['at_episodes']} episodes; held-out cost {r['held_out_cost']:.4g}, "
+              f"constraints {'met' if r['meets_constraints'] else 'NOT MET'}, "
+              f"{r['train_wall_time_s']:.0f} s")  # fmt: skip
+    held = summary["held_out_cost"]
+    if held["median"] is not None:
+        print(f"held-out cost over {held['n']} seeds: median {held['median']:.4g} (min "
+              f"{held['min']:.4g}, max {held['max']:.4g})")  # fmt: skip
     print(f"wrote {folder} (runs, summary.json, learning_curve.png); "
           f"'python -m tuners.rl export --plant {inputs.plant.name}"
           f"{' --run ' + folder.name if plants else ''} --out {args.out}' writes the gains file")
@@ -227,6 +234,28 @@ def _optuna_best(out: Path, plant: str, plants: list[str]) -> float | None:
         return float(json.loads(path.read_text())["tuning"]["best_value_tuning"])
     except (OSError, KeyError, ValueError, TypeError):
         return None
+
+
+def _held_out(inputs: cli.Inputs, summary: dict[str, Any]) -> None:
+    """Each seed's best gains on the held-out seeds of the actual model (the gains file's
+    figures): its cost and its constraint verdict; the median over the seeds."""
+    ideal_opts, actual_opts = inputs.settings.options(1)
+    costs = []
+    for r in summary["per_seed"]:
+        r["held_out_cost"] = r["meets_constraints"] = None
+        if r["gains"] is None:
+            continue
+        ev = cli.evaluate_inputs(inputs, PIDGains(*r["gains"]), actual_opts, ideal_opts,
+                                 cross=False)  # fmt: skip
+        r["held_out_cost"] = float(ev.actual["mean"]["cost"])
+        r["meets_constraints"] = bool(ev.robustness["meets_constraints"])
+        costs.append(r["held_out_cost"])
+    summary["held_out_cost"] = {
+        "n": len(costs),
+        "median": float(np.median(costs)) if costs else None,
+        "min": float(np.min(costs)) if costs else None,
+        "max": float(np.max(costs)) if costs else None,
+    }
 
 
 def _tuner_summary(runs: list[dict[str, Any]]) -> dict[str, Any]:

@@ -402,7 +402,9 @@ def controller_study(
             }
         per_seed.append(entry)
     wall = time.perf_counter() - t0
-    return _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
+    study = _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
+    study["requested_timesteps"] = s.timesteps if timesteps is None else int(timesteps)
+    return study
 
 
 def _summarise(

@@ -1,0 +1,94 @@
+"""``configs/benchmark.yaml``: the plants, the rows (tuners from the registry), the references."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from gripper_env.config import ConfigError, config_file, load_yaml, validate
+from gripper_env.disturbances import load_disturbance
+from gripper_env.plants import load_plant
+from gripper_env.references import load_reference
+
+__all__ = ["BenchmarkSettings", "load_benchmark_settings"]
+
+_STRICT = ConfigDict(extra="forbid")
+
+
+class ReferencesPart(BaseModel):
+    """The unranked reference rows: the limit (a linear program) and the oracle (an MPC)."""
+
+    model_config = _STRICT
+    limit: bool = True
+    oracle: bool = True
+    oracle_seeds: int | None = Field(None, ge=1)  # default: every held-out seed
+
+
+class QuickPart(BaseModel):
+    """``--quick``: fewer plants, every tuner at its quick budget, no robust rows."""
+
+    model_config = _STRICT
+    plants: list[str] = ["test1", "test2"]
+    robust: bool = False
+    skip: list[str] = []  # row names left out of the quick run
+    oracle_seeds: int = Field(2, ge=1)
+    pareto_points: int = Field(3, ge=0)
+
+
+class BenchmarkSettings(BaseModel):
+    """The benchmark (see the comments in ``configs/benchmark.yaml``)."""
+
+    model_config = _STRICT
+    plants: list[str] = ["test1", "test2", "test3", "test4"]
+    robust_plants: list[str] = ["test2", "test3", "test4"]
+    disturbance: str = "actual"
+    grip_scenario: str = "grip-object"
+    profile: str = "step"
+    seed: int = 0
+    tuners: list[dict[str, Any]]
+    references: ReferencesPart = ReferencesPart()
+    pareto_ms: list[float] = [1.2, 1.3, 1.4, 1.5, 1.6, 1.8, 2.0, 2.4]
+    quick: QuickPart = QuickPart()
+
+    @field_validator("tuners")
+    @classmethod
+    def _rows(cls, v: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        if not v:
+            raise ValueError("list at least one tuner")
+        for entry in v:
+            if not isinstance(entry, dict) or "family" not in entry:
+                raise ValueError(f"each tuner needs a 'family', got {entry!r}")
+        return v
+
+
+def load_benchmark_settings(path: str | os.PathLike[str] | None = None) -> BenchmarkSettings:
+    """Load, validate and check the benchmark's settings: every plant, preset, profile and tuner
+    named must exist (one-line errors that name the file)."""
+    from tuners.registry import make_tuner
+
+    p = config_file("benchmark.yaml") if path is None else path
+    bench = validate(BenchmarkSettings, load_yaml(p), str(p))
+    for plant in {*bench.plants, *bench.quick.plants, *bench.robust_plants}:
+        try:
+            load_plant(plant)
+        except ConfigError as exc:
+            raise ConfigError(f"{p}: {exc}") from None
+    load_disturbance(bench.disturbance)
+    load_disturbance(bench.grip_scenario)
+    load_reference(bench.profile)
+    names = set()
+    for entry in bench.tuners:
+        tuner = make_tuner(entry, str(p))
+        if tuner.name in names:
+            raise ConfigError(f"{p}: two rows are named {tuner.name!r}")
+        if tuner.plants and list(tuner.plants) != bench.robust_plants:
+            raise ConfigError(f"{p}: row {tuner.name} is tuned on {list(tuner.plants)}; robust "
+                              f"rows are tuned on robust_plants {bench.robust_plants}")  # fmt: skip
+        names.add(tuner.name)
+    for entry in bench.tuners:
+        for need in make_tuner(entry, str(p)).__dict__.get("requires", ()):
+            if need not in names:
+                raise ConfigError(f"{p}: row {entry!r} builds on {need!r}, which is not a row")
+    return bench

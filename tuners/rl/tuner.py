@@ -1,0 +1,188 @@
+"""The RL tuners as benchmark rows: :class:`RLTuner` (``rl-tune``) and :class:`RLControllerTuner`
+(``rl-controller``), through the :class:`tuners.interface.Tuner` interface."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env.pid import PIDGains
+from tuners import cli
+from tuners.interface import Budget, Tuned
+
+__all__ = ["RLControllerTuner", "RLTuner"]
+
+
+class RLTuner:
+    """The RL PID tuner (:mod:`tuners.rl.tune`) over ``search_seeds`` training seeds, the best
+    kept (like Optuna's search seeds), the spread recorded.
+
+    Parameters
+    ----------
+    plants : list of str, optional
+        Robust: one gain set for these identifications.
+    search_seeds : int
+        Training seeds.
+    out : path
+        Where the runs go (``<out>/rl/pid-tune-<plants>/seed-<k>``).
+    """
+
+    kind = "search"
+
+    def __init__(
+        self, plants: list[str] | None = None, search_seeds: int = 3, out: str = "runs"
+    ) -> None:
+        self.plants = tuple(plants or ())
+        self.name = "rl-tune-robust" if self.plants else "rl-tune"
+        self.search_seeds = int(search_seeds)
+        self.out = Path(out)
+
+    def tune(self, inputs: cli.Inputs, budget: Budget, seed: int) -> Tuned:
+        from tuners.rl.tune import load_tune_settings, train_tuner
+
+        s = load_tune_settings()
+        episodes = s.quick_episodes if budget.quick else round(s.episodes * budget.scale)
+        names = list(self.plants) or [inputs.plant.name]
+        folder = self.out / "rl" / f"pid-tune-{'+'.join(names)}"
+        start = time.perf_counter()
+        runs = [
+            train_tuner(inputs, s, seed=seed + i, run_dir=folder / f"seed-{seed + i}",
+                        plants=self.plants, episodes=episodes, progress=False,
+                        log=lambda m: None)
+            for i in range(self.search_seeds)
+        ]  # fmt: skip
+        good = [r for r in runs if r["best"] is not None]
+        if not good:
+            raise ValueError(f"{self.name} on {'+'.join(names)}: no seed evaluated feasible "
+                             "gains off the map's bounds")  # fmt: skip
+        best = min(good, key=lambda r: r["best"]["tuning_cost"])
+        costs = np.array([r["best"]["tuning_cost"] for r in good])
+        tuning = {
+            "algo": "ppo",
+            "tuned_on": names,
+            "episodes_per_seed": episodes,
+            "chosen_seed": best["seed"],
+            "at_episodes": best["best"]["episodes"],
+            "best_value_tuning": best["best"]["tuning_cost"],
+            "center": best["center"],
+            "on_bound": [],
+            "history": _best_so_far(best),
+            "best_cost": {"min": float(costs.min()), "median": float(np.median(costs)),
+                          "max": float(costs.max())},
+            "per_seed": [{"seed": r["seed"],
+                          "best_value_tuning": None if r["best"] is None
+                          else r["best"]["tuning_cost"],
+                          "at_episodes": None if r["best"] is None else r["best"]["episodes"],
+                          "gains": None if r["best"] is None else r["best"]["gains"]}
+                         for r in runs],
+        }  # fmt: skip
+        used = sum(r["episodes"] + r["selection_episodes"] for r in runs)
+        return Tuned(best["gains"], 1, tuning, episodes=int(used),
+                     wall_s=time.perf_counter() - start, label=self.name)  # fmt: skip
+
+
+def _best_so_far(run: Mapping[str, Any]) -> list[tuple[int, float]]:
+    """The run's budget curve: ``(episodes used, best feasible tuning cost so far)``."""
+    curve, best = [], float("inf")
+    per_eval = run["selection_episodes"] / max(1, len(run["evaluations"]))
+    for i, e in enumerate(run["evaluations"]):
+        if e["feasible"] and not e["on_bound"] and e["tuning_cost"] < best:
+            best = e["tuning_cost"]
+        if best < float("inf"):
+            curve.append((int(e["episodes"] + (i + 1) * per_eval), best))
+    return curve
+
+
+class RLControllerTuner:
+    """The RL controller (:mod:`tuners.rl.controller`): a residual PPO policy on the PID of the
+    row ``base``, trained over ``seeds`` (a count, or per plant ``{test2: 5, default: 3}``).
+
+    A study whose settings, base gains, seeds and budget match one already in ``out`` is
+    reused (``reuse``): training is the expensive part of the benchmark.
+    """
+
+    kind = "controller"
+
+    def __init__(
+        self,
+        base: str = "optuna",
+        seeds: int | dict[str, int] = 3,
+        plants: list[str] | None = None,
+        out: str = "runs",
+        reuse: bool = True,
+    ) -> None:
+        self.base = base
+        self.requires = (base,)
+        self.seeds = seeds
+        self.plants = tuple(plants or ())
+        self.name = "rl-controller-robust" if self.plants else "rl-controller"
+        self.out = Path(out)
+        self.reuse = reuse
+        self._bound: dict[str, Tuned] = {}
+
+    def bind(self, rows: Mapping[str, Tuned]) -> None:
+        """The results of the rows this tuner builds on (its base PID)."""
+        if self.base not in rows or rows[self.base].gains is None:
+            raise ValueError(f"{self.name} needs the row {self.base!r} (its base PID) first")
+        self._bound = dict(rows)
+
+    def _n_seeds(self, plant: str) -> int:
+        if isinstance(self.seeds, int):
+            return self.seeds
+        return int(self.seeds.get(plant, self.seeds.get("default", 3)))
+
+    def tune(self, inputs: cli.Inputs, budget: Budget, seed: int) -> Tuned:
+        from tuners.rl.controller import controller_study, load_controller_settings, write_study
+
+        base_row = self._bound.get(self.base)
+        if base_row is None or base_row.gains is None:
+            raise ValueError(f"{self.name}: bind the base row {self.base!r} first")
+        base: PIDGains = base_row.gains
+        s = load_controller_settings()
+        steps = s.quick_timesteps if budget.quick else round(s.timesteps * budget.scale)
+        seeds = list(range(seed, seed + (1 if budget.quick else self._n_seeds(inputs.plant.name))))
+        names = list(self.plants) or [inputs.plant.name]
+        name = f"controller-{'+'.join(names)}"
+        path = self.out / "rl" / name / "study.json"
+        start = time.perf_counter()
+        study = _reusable(path, s.model_dump(), base, seeds, steps) if self.reuse else None
+        if study is None:
+            study = controller_study(inputs, base, seeds=seeds, settings=s, plants=self.plants,
+                                     out=self.out, timesteps=steps, progress=False,
+                                     log=lambda m: None)  # fmt: skip
+            write_study(study, self.out, name)
+            study = json.loads(path.read_text())
+        tuning = {
+            "algo": "ppo",
+            "base_row": self.base,
+            "tuned_on": names,
+            "training_seeds": seeds,
+            "timesteps_per_seed": steps,
+            "first_step_mean_beats_base": study["curve"]["first_step_mean_beats_base"],
+            "study": str(path),
+        }
+        episodes = round(len(seeds) * steps * 0.020 / inputs.reference.duration_s)
+        return Tuned(None, 1, tuning, episodes=episodes, wall_s=time.perf_counter() - start,
+                     label=self.name, study=study)  # fmt: skip
+
+
+def _reusable(
+    path: Path, settings: dict[str, Any], base: PIDGains, seeds: list[int], steps: int
+) -> dict[str, Any] | None:
+    """The study at ``path`` if it was made with these settings, base, seeds and budget."""
+    try:
+        study = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    same = (
+        study.get("settings") == json.loads(json.dumps(settings))
+        and np.allclose(study.get("base_gains") or [], [base.P, base.I, base.D, base.N])
+        and [e["seed"] for e in study.get("seeds", [])] == seeds
+        and study.get("requested_timesteps") == steps
+    )
+    return study if same else None
