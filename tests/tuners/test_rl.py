@@ -1,142 +1,221 @@
-import json
+"""The RL tuners: the commands as printed, the tuner's export, the controller's study."""
 
+import json
+import math
+import re
+import shlex
+import subprocess
+import sys
+
+import numpy as np
 import pytest
 
 pytest.importorskip("stable_baselines3")
-pytest.importorskip(
-    "gripper_env.envs", reason="tuners.rl needs the Gymnasium environments (gripper_env.envs)"
-)
 
 from gripper_env.pid import PIDOptions
-from tuners import cli, rl
+from gripper_env.stability import stability_report
+from tests.tuners.conftest import REPO
+from tuners import cli
+from tuners.rl import command as rl
+from tuners.settings import OptunaSettings, load_settings
+
+#: The budget option appended to each command of the README and docs (the only change).
+BUDGET = {
+    "train": ["--timesteps", "256"],
+    "controller": ["--timesteps", "4096"],
+    "tuners.optuna": ["--trials", "16", "--search-seeds", "1"],
+}
 
 
-def test_train_then_export_a_gains_file(tmp_path, capsys, small_eval_config):
+def _printed_commands() -> list[str]:
+    """Every ``python -m tuners.rl`` command printed in the README and docs/, in order, with
+    the ``python -m tuners.optuna`` commands before them that they build on."""
+    out = []
+    for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        for line in path.read_text().splitlines():
+            m = re.match(r"^\s*(?:\$ )?(python -m tuners\.(?:rl|optuna) [^#`]*)", line)
+            if m:
+                out.append(m.group(1).strip())
+    return out
+
+
+def test_the_readme_rl_commands_run_as_printed(tmp_path):
+    """Issue 19: every RL command the README and docs print exits 0 from a fresh directory,
+    progress shown, with only its budget shortened (``--timesteps``, documented)."""
+    commands = _printed_commands()
+    assert any(" tuners.rl train" in c for c in commands)
+    assert any(" tuners.rl controller" in c for c in commands)
+    assert any(" tuners.rl play" in c for c in commands)
+    for command in commands:
+        argv = shlex.split(command)
+        if argv[2] == "tuners.optuna" and ("--plants" in argv or "test" not in argv[4]):
+            continue  # not the base PID an RL command builds on
+        key = argv[3] if argv[2] == "tuners.rl" else argv[2]
+        argv = [sys.executable, *argv[1:], *BUDGET.get(key, [])]
+        proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
+        assert "Traceback" not in proc.stderr, command
+        if key in ("train", "controller"):
+            assert "step/s" in proc.stderr or "it/s" in proc.stderr or "%|" in proc.stderr
+
+
+def test_a_missing_rl_extra_is_one_line(monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "torch" else real(name, *a))  # fmt: skip
+    code = rl.main(["train", "--plant", "test2"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "torch" in err and "gripper-env[rl]" in err
+
+
+def test_the_tuner_exports_the_best_evaluated_gains(tmp_path, capsys, small_eval_config):
     common = ["--plant", "test2", "--out", str(tmp_path), "--eval-config", str(small_eval_config)]
-    code = cli.run(
-        rl.main,
-        ["train", *common, "--timesteps", "512", "--n-envs", "16", "--eval-every", "128", "--json"],
-    )
+    code = rl.main(["train", *common, "--timesteps", "1024", "--no-progress", "--json"])
     assert code == 0, capsys.readouterr().err
-    facts = json.loads(capsys.readouterr().out)
-    run = tmp_path / "rl" / "pid-tune-ppo-test2"
-    assert (run / "model.zip").is_file() and (run / "tb").is_dir()
-    best = [c for _, c in facts["history"]]
-    assert best and best == sorted(best, reverse=True)
-    code = cli.run(rl.main, ["export", *common, "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    run = json.loads((tmp_path / "rl" / "pid-tune-test2" / "seed-0" / "history.json").read_text())
+    evaluated = [e for e in run["evaluations"] if e["feasible"] and not e["on_bound"]]
+    best = min(evaluated, key=lambda e: e["tuning_cost"])
+    assert summary["per_seed"][0]["gains"] == best["gains"]
+    # the first evaluation is the centre design: the textbook rule with its knob set
+    assert run["evaluations"][0]["episodes"] == 0 and run["center"]["rule"] == "simc"
+    code = rl.main(["export", *common, "--json"])
     assert code == 0
     content = json.loads(capsys.readouterr().out)
-    assert content["tuner"] == "rl" and content["tuning"]["held_out_plant"] is False
-    assert (tmp_path / "test2" / "rl.json").is_file()
+    assert [content[k] for k in "PIDN"] == pytest.approx(best["gains"])
+    t = content["tuning"]
+    assert t["chosen_seed"] == 0 and t["at_episodes"] == best["episodes"]
+    assert t["best_value_tuning"] == pytest.approx(best["tuning_cost"])
+    # the exported gains meet the constraints on the loop as it runs (checked independently)
+    from gripper_env.pid import PIDGains
+
+    assert stability_report("test2", PIDGains(*best["gains"])).meets(1.6, 6.0)
 
 
-def test_plant_conditioned_policy_exports_for_a_held_out_plant(tmp_path, capsys, small_eval_config):
-    common = ["--out", str(tmp_path), "--eval-config", str(small_eval_config)]
-    code = cli.run(
-        rl.main,
-        [
-            "train",
-            "--plant",
-            "test2,test3",
-            *common,
-            "--timesteps",
-            "256",
-            "--eval-every",
-            "256",
-            "--json",
-        ],
-    )
-    assert code == 0, capsys.readouterr().err
-    capsys.readouterr()
-    code = cli.run(
-        rl.main,
-        ["export", "--plant", "test4", "--run", "pid-tune-ppo-test2+test3", *common, "--json"],
-    )
-    assert code == 0
-    content = json.loads(capsys.readouterr().out)
-    assert content["plant"] == "test4" and content["tuning"]["held_out_plant"] is True
-    assert content["tuner"] == "rl-conditioned"
+def test_the_same_seed_gives_the_same_gains(tmp_path, small_eval_config):
+    from tuners.rl.tune import load_tune_settings, train_tuner
 
-
-def test_export_without_a_model_is_bad_input(tmp_path, capsys):
-    code = cli.run(rl.main, ["export", "--plant", "test2", "--out", str(tmp_path / "r")])
-    assert code == 2 and "no trained model" in capsys.readouterr().err
-
-
-def test_gain_schedule_policy_reports_metrics(tmp_path, capsys, small_eval_config):
-    common = [
-        "--plant",
-        "test2",
-        "--out",
-        str(tmp_path),
-        "--eval-config",
-        str(small_eval_config),
-        "--env",
-        "gain-schedule",
+    args = ["--plant", "test2", "--eval-config", str(small_eval_config)]
+    inputs = cli.resolve(rl.build_parser().parse_args(["export", *args]))
+    s = load_tune_settings().model_copy(update={"eval_every": 128})
+    runs = [train_tuner(inputs, s, seed=3, run_dir=tmp_path / f"r{i}", episodes=512,
+                        progress=False, log=lambda m: None) for i in range(2)]  # fmt: skip
+    assert runs[0]["best"]["gains"] == runs[1]["best"]["gains"]
+    assert [e["tuning_cost"] for e in runs[0]["evaluations"]] == [
+        e["tuning_cost"] for e in runs[1]["evaluations"]
     ]
-    code = cli.run(
-        rl.main,
-        [
-            "train",
-            *common,
-            "--timesteps",
-            "64",
-            "--n-envs",
-            "1",
-            "--eval-every",
-            "100000",
-            "--json",
-        ],
-    )
-    assert code == 0, capsys.readouterr().err
-    capsys.readouterr()
-    code = cli.run(rl.main, ["export", *common, "--json"])
-    assert code == 0, capsys.readouterr().err
-    content = json.loads(capsys.readouterr().out)
-    assert content["tuner"] == "rl-gain-schedule"
-    assert content["metrics"]["actual"]["n_seeds"] == 3
-    assert "iae" in content["metrics"]["actual"]["mean"]
 
 
-def test_controller_trains_and_scores_against_its_baselines(tmp_path, capsys, small_eval_config):
-    """The RL controller's row: the policy's metrics beside its baselines, and the baselines are
-    what every tuner's evaluation gives the base PID and command = reference."""
+def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins(
+    tmp_path, capsys, small_eval_config
+):
     import yaml
 
     from gripper_env.config import CONFIG_DIR
-    from gripper_env.pid import PIDGains
     from tuners.evaluation import evaluate
+    from tuners.rl.agents import agent_kwargs, load_agent
+    from tuners.rl.controller import evaluate_policy
 
     config = yaml.safe_load((CONFIG_DIR / "tuners" / "rl_controller.yaml").read_text())
-    config.update(n_envs=4, n_steps=32, batch_size=64, n_epochs=2, checkpoints=1, net_arch=[16])
+    config.update(n_envs=4, n_steps=64, batch_size=64, n_epochs=2, checkpoints=2, net_arch=[16])
+    config["validation_seeds"] = {"start": 200000, "count": 2}
     path = tmp_path / "controller.yaml"
     path.write_text(yaml.safe_dump(config))
-    code = cli.run(
-        rl.main,
-        ["controller", "--plant", "test2", "--out", str(tmp_path), "--eval-config",
-         str(small_eval_config), "--config", str(path), "--base", "2.4,39,0", "--timesteps",
-         "256", "--json"],
-    )  # fmt: skip
+    code = rl.main(["controller", "--plant", "test2", "--out", str(tmp_path), "--eval-config",
+                    str(small_eval_config), "--config", str(path), "--base", "2.4,39,0",
+                    "--timesteps", "512", "--seeds", "2", "--no-progress", "--json"])  # fmt: skip
     assert code == 0, capsys.readouterr().err
     content = json.loads(capsys.readouterr().out)
-    assert content["tuner"] == "rl-controller" and content["tuning"]["timesteps"] >= 256
-    assert content["tuning"]["residual"] == "pid" and content["P"] == 2.4
-    actual = content["metrics"]["actual"]
-    assert actual["n_seeds"] == 3 and actual["mean"]["iae"] > 0
-    seeds = [100000, 100001, 100002]
+    assert content["tuner"] == "rl-controller" and content["training_seeds"] == [0, 1]
+    # validation, tuning and held-out seeds are three disjoint sets
+    study = json.loads((tmp_path / "rl" / "controller-test2" / "study.json").read_text())
+    validation = set(study["seeds"][0]["training"]["validation_seeds"])
+    tuning = set(load_settings(OptunaSettings).tuning_seeds.seeds().tolist())
+    held_out = set(content["evaluation"]["seeds"])
+    assert not (validation & tuning) and not (validation & held_out) and not (tuning & held_out)
+    # the base's figures are what every tuner's evaluation gives that PID
     options = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
-    pid = evaluate("test2", PIDGains(2.4, 39.0, 0.0, 100.0), options, seeds=seeds)
-    base = content["tuning"]["baselines"]["base"]["actual"]["mean"]
-    assert base["iae"] == pytest.approx(pid.actual["mean"]["iae"], rel=1e-12)
-    assert base["cost"] == pytest.approx(pid.actual["mean"]["cost"], rel=1e-12)
-    open_loop = content["tuning"]["baselines"]["command_equals_reference"]["actual"]["mean"]
-    assert open_loop["iae"] > 2 * base["iae"]  # the servo alone lags and sticks
-    assert (tmp_path / "rl" / "controller-test2" / "best" / "model.zip").is_file()
-    assert (tmp_path / "test2" / "rl-controller.png").is_file()
+    pid = evaluate("test2", PIDGains_(2.4, 39.0, 0.0), options, seeds=sorted(held_out))
+    assert content["base"]["actual"]["mean"]["cost"] == pytest.approx(
+        pid.actual["mean"]["cost"], rel=1e-12
+    )
+    # the base PID's measured gain margin is its linear one (the probe's validation)
+    linear = stability_report("test2", PIDGains_(2.4, 39.0, 0.0)).gain_margin_db
+    assert content["base"]["measured_margins"]["gain_margin_db"] == pytest.approx(linear, abs=0.3)
+    assert set(content["measured_margins"]["per_seed"]) == {"0", "1"}
+    # per held-out seed, the row's cost is the mean over the training seeds
+    per_seed = np.array([[r["cost"] for r in e["plants"]["test2"]["runs"]]
+                         for e in study["seeds"]])  # fmt: skip
+    assert content["per_seed_cost"] == pytest.approx(per_seed.mean(axis=0).tolist())
+    # a saved agent loads alone and reproduces its held-out runs
+    agent = load_agent(tmp_path / "rl" / "controller-test2" / "seed-1" / "best")
+    assert agent.base is not None and agent.base.P == 2.4
+    inputs = cli.resolve(rl.build_parser().parse_args(
+        ["export", "--plant", "test2", "--eval-config", str(small_eval_config)]))  # fmt: skip
+    _, runs, _, _ = evaluate_policy(agent, inputs, agent_kwargs(agent), np.array(sorted(held_out)))
+    assert [r["cost"] for r in runs] == pytest.approx(
+        [r["cost"] for r in study["seeds"][1]["plants"]["test2"]["runs"]], rel=1e-9
+    )
+    assert (tmp_path / "rl" / "controller-test2" / "learning_curve.png").is_file()
+
+
+def PIDGains_(p, i, d):  # noqa: N802
+    from gripper_env.pid import PIDGains
+
+    return PIDGains(p, i, d, 100.0)
 
 
 def test_controller_base_pid_is_required_and_checked(tmp_path, capsys):
-    code = cli.run(rl.main, ["controller", "--plant", "test2", "--out", str(tmp_path)])
+    code = rl.main(["controller", "--plant", "test2", "--out", str(tmp_path)])
     assert code == 2 and "python -m tuners.optuna" in capsys.readouterr().err
-    code = cli.run(rl.main, ["controller", "--plant", "test2", "--base", "1,nan,0"])
+    code = rl.main(["controller", "--plant", "test2", "--base", "1,nan,0"])
     assert code == 2 and "--base" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", ["0", "1-", "a,b", "3,3", "-2"])
+def test_bad_seeds_are_one_line(bad, tmp_path, capsys):
+    code = rl.main(["train", "--plant", "test2", "--seeds", bad, "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "--seeds" in err and "Traceback" not in err
+
+
+def test_export_without_a_run_is_bad_input(tmp_path, capsys):
+    code = rl.main(["export", "--plant", "test2", "--out", str(tmp_path / "r")])
+    assert code == 2 and "no trained tuner" in capsys.readouterr().err
+
+
+def test_a_policy_on_a_step_by_step_env_trains_and_reports(tmp_path, capsys, small_eval_config):
+    code = rl.main(["train", "--plant", "test2", "--env", "gain-schedule", "--timesteps", "64",
+                    "--out", str(tmp_path), "--eval-config", str(small_eval_config),
+                    "--no-progress", "--json"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    content = json.loads(capsys.readouterr().out)
+    assert content["tuner"] == "rl-gain-schedule"
+    r = content["seeds"][0]
+    assert r["metrics"]["actual"]["n_seeds"] == 3 and math.isfinite(r["per_seed_cost"][0])
+    assert (tmp_path / "rl" / "gain-schedule-ppo-test2" / "seed-0" / "agent" / "agent.json").is_file()
+
+
+def test_play_runs_a_saved_agent_on_another_plant(tmp_path, capsys, small_eval_config):
+    code = rl.main(["train", "--plant", "test2", "--env", "servo", "--timesteps", "64",
+                    "--out", str(tmp_path), "--no-progress", "--json",
+                    "--eval-config", str(small_eval_config)])  # fmt: skip
+    assert code == 0
+    capsys.readouterr()
+    agent = tmp_path / "rl" / "servo-ppo-test2" / "seed-0" / "agent"
+    code = rl.main(["play", str(agent), "--plant", "test4", "--out", str(tmp_path),
+                    "--eval-config", str(small_eval_config)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0 and "agent on test4" in out
+    assert (tmp_path / "play" / "test4-actual" / "response.png").is_file()
+    code = rl.main(["play", str(tmp_path), "--plant", "test4"])
+    assert code == 2 and "no agent in" in capsys.readouterr().err
+
+
+def test_subprocess_entry_point_reports_bad_input_in_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "tuners.rl", "train", "--plant", "nope"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "nope" in proc.stderr

@@ -163,7 +163,7 @@ def _references(
 ) -> dict[str, Any]:
     refs: dict[str, Any] = {"command=reference": R.command_reference_row(inputs,
                                                                           bench.grip_scenario)}
-    if bench.references.limit:
+    if bench.references.limit and (bench.quick.limit or not quick):
         refs["limit"] = R.limit_row(inputs)
         log(f"  {inputs.plant.name} limit: IAE {refs['limit']['iae']:.4g} deg s")
     if bench.references.oracle:

@@ -32,7 +32,8 @@ class QuickPart(BaseModel):
     model_config = _STRICT
     plants: list[str] = ["test1", "test2"]
     robust: bool = False
-    skip: list[str] = []  # row names left out of the quick run
+    rows: list[str] | None = None  # the rows of the quick run (default: every per-plant row)
+    limit: bool = True
     oracle_seeds: int = Field(2, ge=1)
     pareto_points: int = Field(3, ge=0)
 

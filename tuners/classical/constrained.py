@@ -11,9 +11,9 @@ what that engineer does, with the searches' own yardstick:
 2. the designs that meet the objective's constraints on the loop as it runs (``Ms`` and gain
    margin with the servo's 20 ms hold, on every plant of the task) are scored on the searches'
    tuning seeds, with their cost;
-3. the best of them is refined between its grid neighbours (:func:`scipy.optimize.
-   minimize_scalar`, bounded), on the cost with the constraints folded in
-   (:meth:`gripper_env.objective.Objective.penalised`).
+3. the best of them is refined twice by a finer scan between its neighbours (the cost is
+   piecewise constant in some knobs and falls off a cliff at the constraints: no local
+   minimiser would do).
 
 The knob's value, the grid and the fixed-setting design are recorded; a knob that ends on the
 edge of its range is flagged like a search result on a bound.
@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import optimize
 
 from gripper_env.disturbances import Disturbance
 from gripper_env.pid import PIDGains
@@ -71,8 +70,10 @@ KNOBS: dict[str, Knob] = {
     "pidtune": Knob("pidtune_wc_hz", 0.2, 20.0, meaning="crossover frequency, Hz (PM 60 deg)"),
 }
 
-#: Grid points of the knob scan.
+#: Grid points of the knob scan, then of each of its refinements.
 GRID_POINTS = 25
+REFINE_POINTS = 17
+REFINEMENTS = 2
 #: A knob within this fraction of its range's edge is flagged as on a bound.
 BOUND_TOLERANCE = 0.02
 
@@ -151,26 +152,24 @@ def constrained_design(
 
     grid = knob.grid(GRID_POINTS)
     score(list(grid))
-    feasible = [v for v in grid if evaluated[v][1]]
-    if not feasible:
+    if not any(evaluated[v][1] for v in grid):
         raise ValueError(
             f"{method}: no setting of {knob.name} in [{knob.low:g}, {knob.high:g}] meets Ms <= "
             f"{lim.ms_max:g} and GM >= {lim.gm_min_db:g} dB on the loop as it runs"
         )
-    best = min(feasible, key=lambda v: evaluated[v][0])
-    i = int(np.flatnonzero(grid == best)[0])
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-
-    def refine(x: float) -> float:
-        v = float(math.exp(x) if knob.log else x)
-        if v not in evaluated:
-            score([v])
-        return evaluated[v][0]
-
-    bounds = (math.log(lo), math.log(hi)) if knob.log else (lo, hi)
-    if hi > lo:
-        optimize.minimize_scalar(refine, bounds=bounds, method="bounded",
-                                 options={"xatol": 1e-3, "maxiter": 12})  # fmt: skip
+    # refine twice between the best setting's neighbours: the cost is piecewise constant in
+    # some knobs (pidtune's crossover snaps to a frequency grid) and falls off a cliff at the
+    # constraints, so a finer scan, not a local minimiser
+    for _ in range(REFINEMENTS):
+        values = sorted(evaluated)
+        best = min((v for v in values if evaluated[v][1]), key=lambda v: evaluated[v][0])
+        i = values.index(best)
+        lo, hi = values[max(i - 1, 0)], values[min(i + 1, len(values) - 1)]
+        if knob.log:
+            fine = np.geomspace(lo, hi, REFINE_POINTS)
+        else:
+            fine = np.linspace(lo, hi, REFINE_POINTS)
+        score([float(v) for v in fine if float(v) not in evaluated])
     chosen = min((v for v, e in evaluated.items() if e[1]), key=lambda v: evaluated[v][0])
     gains = evaluated[chosen][2]
     assert gains is not None
