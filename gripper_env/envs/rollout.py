@@ -124,9 +124,7 @@ def policy_trajectory(
         env_kwargs.get("overshoot_weight", 1.0), env_kwargs.get("chatter_weight", 0.1),
         env._residual, record_true=True, min_delay_steps=longest,
     )  # fmt: skip
-    episodes = [
-        Episode(plant_index[b], dists[b], s.reference, int(seed_arr[b])) for b in range(n)
-    ]
+    episodes = [Episode(plant_index[b], dists[b], s.reference, int(seed_arr[b])) for b in range(n)]
     batch.reset_rows(range(n), episodes)
     n_sub = s.n_sub
     n_steps = int(batch.env[0, K.E_LEN])

@@ -162,7 +162,7 @@ def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins
     assert (tmp_path / "rl" / "controller-test2" / "learning_curve.png").is_file()
 
 
-def PIDGains_(p, i, d):  # noqa: N802
+def PIDGains_(p, i, d):
     from gripper_env.pid import PIDGains
 
     return PIDGains(p, i, d, 100.0)
@@ -196,7 +196,9 @@ def test_a_policy_on_a_step_by_step_env_trains_and_reports(tmp_path, capsys, sma
     assert content["tuner"] == "rl-gain-schedule"
     r = content["seeds"][0]
     assert r["metrics"]["actual"]["n_seeds"] == 3 and math.isfinite(r["per_seed_cost"][0])
-    assert (tmp_path / "rl" / "gain-schedule-ppo-test2" / "seed-0" / "agent" / "agent.json").is_file()
+    assert (
+        tmp_path / "rl" / "gain-schedule-ppo-test2" / "seed-0" / "agent" / "agent.json"
+    ).is_file()
 
 
 def test_play_runs_a_saved_agent_on_another_plant(tmp_path, capsys, small_eval_config):

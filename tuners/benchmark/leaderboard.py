@@ -276,10 +276,13 @@ def _plant_table(plant: str, pdata: dict[str, Any], info: dict[str, Any]) -> lis
         vs = (f"{test['verdict']} ({test['mean_cost_difference']:+.3g}, p={test['p_value']:.2g})"
               if test else ("-" if name != base else "(itself)"))  # fmt: skip
         rank = str(info["ranked"].index(name) + 1) if name in info["ranked"] else "-"
-        margins = (f"ρ = {_f(rb.get('max_pole_magnitude'))} | - | - | - |" if unstable else
-                   f"{_f(rb.get('ms'))} | {_f(rb.get('gain_margin_db'))} | "
-                   f"{_f(mm.get('gain_margin_db'))} | "
-                   f"{_f(None if mm.get('delay_margin_s') is None else 1e3 * mm['delay_margin_s'])} |")  # noqa: E501
+        margins = (
+            f"ρ = {_f(rb.get('max_pole_magnitude'))} | - | - | - |"
+            if unstable
+            else f"{_f(rb.get('ms'))} | {_f(rb.get('gain_margin_db'))} | "
+            f"{_f(mm.get('gain_margin_db'))} | "
+            f"{_f(None if mm.get('delay_margin_s') is None else 1e3 * mm['delay_margin_s'])} |"
+        )
         lines.append(
             f"| {rank} | {name} | {_f(r['P'], 4)} | {_f(r['I'], 4)} | {_f(r['D'], 3)} | "
             f"{_ci(a, 'cost')} | {_ci(a, 'iae')} | {frac(a['mean']['iae'])} | "

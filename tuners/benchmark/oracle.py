@@ -97,7 +97,9 @@ class MPCOracle:
         mx = np.zeros((self.h * n_j, n))
         mu = np.zeros((self.h * n_j, self.h))
         phi_i = np.eye(n)
-        conv = []  # state response at the start of frame i to a unit command in frame m < i
+        conv: list[
+            np.ndarray
+        ] = []  # state response at the start of frame i to a unit command in frame m < i
         for i in range(self.h):
             rows = slice(i * n_j, (i + 1) * n_j)
             mx[rows] = out_x @ phi_i
@@ -200,8 +202,10 @@ def run_oracle(
     commands = np.empty((n_runs, n_t))
     for start in range(0, n_t, per):
         steps = min(per, n_t - start)
-        future = padded[start + oracle.offsets] if oracle.settings.preview else np.full(
-            len(oracle.offsets), r[start]
+        future = (
+            padded[start + oracle.offsets]
+            if oracle.settings.preview
+            else np.full(len(oracle.offsets), r[start])
         )
         for b in range(n_runs):
             u_last[b] = oracle.command(z[b], future, u_last[b])
@@ -234,4 +238,3 @@ def oracle_record(settings: OracleSettings | None = None) -> dict[str, Any]:
         },
         "solver": "scipy.optimize.linprog(method='highs')",
     }
-

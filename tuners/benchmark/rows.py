@@ -51,6 +51,8 @@ def grip_summary(traj: Trajectory, inputs: cli.Inputs, preset: str) -> dict[str,
         left = np.flatnonzero(y[start:] > touch + 2.0)
         release.append(left[0] * inputs.plant.dt_s if len(left) else np.inf)
     rel = np.array(release)
+    assert traj.stall_s is not None and traj.contact_s is not None
+    assert traj.force_proxy is not None  # the core's trajectories have the counters
     return {
         "preset": preset,
         "stall_s": float(np.mean(traj.stall_s)),
@@ -132,9 +134,7 @@ def pid_row(
     }  # fmt: skip
 
 
-def policy_row(
-    inputs: cli.Inputs, name: str, tuned: Tuned, *, grip_preset: str
-) -> dict[str, Any]:
+def policy_row(inputs: cli.Inputs, name: str, tuned: Tuned, *, grip_preset: str) -> dict[str, Any]:
     """A learned controller's row on ``inputs``' plant from its study (over training seeds):
     metrics pooled over the seeds, per held-out seed the mean over them (for the paired tests),
     the worst seed's measured margins, the grip scenario of every seed's agent."""

@@ -50,7 +50,8 @@ def _tuners(bench: BenchmarkSettings, quick: bool, out: Path) -> list[Tuner]:
         if spec.get("family") in ("rl-tune", "rl-controller"):
             spec.setdefault("out", str(out))
         tuner = make_tuner(spec)
-        if quick and ((tuner.plants and not bench.quick.robust) or tuner.name in bench.quick.skip):
+        q = bench.quick
+        if quick and ((tuner.plants and not q.robust) or (q.rows and tuner.name not in q.rows)):
             continue
         tuners.append(tuner)
     return tuners
@@ -136,8 +137,15 @@ def run_benchmark(
                 evaluations[key] = {plant: row}
                 for other in robust_plants:
                     if other != plant and other in feasible:
-                        evaluations[key][other] = _row(_inputs(other, bench, ev, obj), tuner,
-                                                       tuned, [plant], bench, None, command)
+                        evaluations[key][other] = _row(
+                            _inputs(other, bench, ev, obj),
+                            tuner,
+                            tuned,
+                            [plant],
+                            bench,
+                            None,
+                            command,
+                        )
     robust_done: dict[str, Tuned] = {}
     for tuner in (t for t in tuners if t.plants):
         inputs = _inputs(robust_plants[0], bench, ev, obj)
@@ -161,8 +169,9 @@ def run_benchmark(
 def _references(
     inputs: cli.Inputs, bench: BenchmarkSettings, quick: bool, log: Callable[..., None]
 ) -> dict[str, Any]:
-    refs: dict[str, Any] = {"command=reference": R.command_reference_row(inputs,
-                                                                          bench.grip_scenario)}
+    refs: dict[str, Any] = {
+        "command=reference": R.command_reference_row(inputs, bench.grip_scenario)
+    }
     if bench.references.limit and (bench.quick.limit or not quick):
         refs["limit"] = R.limit_row(inputs)
         log(f"  {inputs.plant.name} limit: IAE {refs['limit']['iae']:.4g} deg s")

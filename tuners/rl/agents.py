@@ -134,7 +134,7 @@ def load_agent(folder: str | os.PathLike[str]) -> Agent:
     require_rl()
     from stable_baselines3 import PPO, SAC
 
-    algo = {"ppo": PPO, "sac": SAC}[meta.get("algo", "ppo")]
+    algo: Any = {"ppo": PPO, "sac": SAC}[meta.get("algo", "ppo")]
     model = algo.load(folder / "model.zip", device="cpu")
     normalizer = None
     if meta.get("normalized_observations"):

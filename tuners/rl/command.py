@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -67,9 +68,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timesteps", type=int, default=None,
                    help="training budget per seed, in environment steps (GripperPIDTune-v0: "
                         "episodes); default the config's")  # fmt: skip
-    p.add_argument("--plants", default=None,
-                   help="train across several identifications, e.g. test2,test3,test4 (one gain "
-                        "set, or one policy, for all); results are written for --plant")
+    p.add_argument(
+        "--plants",
+        default=None,
+        help="train across several identifications, e.g. test2,test3,test4 (one gain "
+        "set, or one policy, for all); results are written for --plant",
+    )
     p.add_argument("--config", type=Path, default=None, help="the recipe's settings file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -91,10 +95,18 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--env", choices=tuple(ENV_IDS), default="pid-tune",
                     help="pid-tune: gains per episode (the tuner); gain-schedule, servo: a "
                          "controller policy")  # fmt: skip
-    tr.add_argument("--algo", choices=("ppo", "sac"), default="ppo",
-                    help="algorithm for --env servo|gain-schedule (the tuner's recipe is PPO)")
-    tr.add_argument("--optuna-config", type=Path, default=None,
-                    help="where the tuning seeds come from (default configs/tuners/optuna.yaml)")
+    tr.add_argument(
+        "--algo",
+        choices=("ppo", "sac"),
+        default="ppo",
+        help="algorithm for --env servo|gain-schedule (the tuner's recipe is PPO)",
+    )
+    tr.add_argument(
+        "--optuna-config",
+        type=Path,
+        default=None,
+        help="where the tuning seeds come from (default configs/tuners/optuna.yaml)",
+    )
     ex = sub.add_parser(
         "export",
         help="write the best evaluated gains of a trained tuner as a gains file",
@@ -102,8 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
         "training (over every seed of the run), with the step and seed they came from.",
     )
     _shared(ex)
-    ex.add_argument("--run", default=None,
-                    help="run folder name under OUT/rl (default pid-tune-<plants>)")
+    ex.add_argument(
+        "--run", default=None, help="run folder name under OUT/rl (default pid-tune-<plants>)"
+    )
     co = sub.add_parser(
         "controller",
         help="train the RL controller (a residual policy) over seeds and measure it",
@@ -113,11 +126,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _shared(co)
     _common(co)
-    co.add_argument("--residual", choices=("pid", "reference"), default=None,
-                    help="what the policy corrects (default: the config's)")
-    co.add_argument("--base", default=None,
-                    help="the PID it corrects: a gains file, or P,I,D[,N] (default: "
-                         "OUT/<plant>/optuna.json, or optuna-robust.json with --plants)")
+    co.add_argument(
+        "--residual",
+        choices=("pid", "reference"),
+        default=None,
+        help="what the policy corrects (default: the config's)",
+    )
+    co.add_argument(
+        "--base",
+        default=None,
+        help="the PID it corrects: a gains file, or P,I,D[,N] (default: "
+        "OUT/<plant>/optuna.json, or optuna-robust.json with --plants)",
+    )
     pl = sub.add_parser(
         "play",
         help="run a saved agent on a plant and print its metrics",
@@ -131,13 +151,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _shared(p: argparse.ArgumentParser, plant_required: bool = True) -> None:
-    p.add_argument("--plant", required=plant_required, default=None,
-                   help="plant name (test1 ... test4) or a plant YAML file")
+    p.add_argument(
+        "--plant",
+        required=plant_required,
+        default=None,
+        help="plant name (test1 ... test4) or a plant YAML file",
+    )
     p.add_argument("--disturbance", default="actual", help="actual-gripper preset")
     p.add_argument("--profile", default="step", help="reference profile of the evaluation")
     p.add_argument("--seed", type=int, default=0, help="first training seed")
-    p.add_argument("--out", type=Path, default=cli.DEFAULT_OUT,
-                   help="output folder (runs under OUT/rl, results under OUT/<plant>)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=cli.DEFAULT_OUT,
+        help="output folder (runs under OUT/rl, results under OUT/<plant>)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--eval-config", type=Path, default=None, help="evaluation settings")
     p.add_argument("--objective", type=Path, default=None, help="the tuning objective")
@@ -216,9 +244,11 @@ def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]
     if held["median"] is not None:
         print(f"held-out cost over {held['n']} seeds: median {held['median']:.4g} (min "
               f"{held['min']:.4g}, max {held['max']:.4g})")  # fmt: skip
-    print(f"wrote {folder} (runs, summary.json, learning_curve.png); "
-          f"'python -m tuners.rl export --plant {inputs.plant.name}"
-          f"{' --run ' + folder.name if plants else ''} --out {args.out}' writes the gains file")
+    print(
+        f"wrote {folder} (runs, summary.json, learning_curve.png); "
+        f"'python -m tuners.rl export --plant {inputs.plant.name}"
+        f"{' --run ' + folder.name if plants else ''} --out {args.out}' writes the gains file"
+    )
     return 0
 
 
@@ -258,7 +288,7 @@ def _held_out(inputs: cli.Inputs, summary: dict[str, Any]) -> None:
     }
 
 
-def _tuner_summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
+def _tuner_summary(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
     per_seed = []
     for r in runs:
         best = r["best"]
@@ -345,9 +375,11 @@ def _train_policy(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str
         return 0
     for r in results:
         m = r["metrics"]["actual"]["mean"]
-        print(f"seed {r['seed']}: cost {m['cost']:.4g}, IAE {m['iae']:.4g} deg*s, overshoot "
-              f"{max(m['grip']['overshoot_pct'], m['ungrip']['overshoot_pct']):.3g} % (mean of "
-              f"{r['metrics']['actual']['n_seeds']} held-out seeds); agent in {r['agent']}")
+        print(
+            f"seed {r['seed']}: cost {m['cost']:.4g}, IAE {m['iae']:.4g} deg*s, overshoot "
+            f"{max(m['grip']['overshoot_pct'], m['ungrip']['overshoot_pct']):.3g} % (mean of "
+            f"{r['metrics']['actual']['n_seeds']} held-out seeds); agent in {r['agent']}"
+        )
     print(f"wrote {path}")
     return 0
 

@@ -306,7 +306,7 @@ def _paired(a: Sequence[float], b: Sequence[float]) -> dict[str, Any]:
 
 
 def reference_runs(inputs: cli.Inputs, plant: str | None = None) -> dict[str, Any]:
-    """"command = reference" (the servo commanded the reference, no controller) on ``plant``:
+    """ "command = reference" (the servo commanded the reference, no controller) on ``plant``:
     its metrics on both models and its held-out runs."""
     s = inputs.settings
     seeds = s.seeds.seeds()

@@ -104,18 +104,26 @@ def print_controller(content: dict[str, Any]) -> None:
     for seed, cost in tsc["per_seed"].items():
         d = content["vs_base_per_training_seed"][seed]
         m = mm["per_seed"][seed]
-        print(f"{seed:>6} {cost:>9.4g} {100 * d['cost_relative']:>+8.1f}% {d['p_value']:>7.3g} "
-              f"{d['better_on_seeds']:>10} {_f(m['gain_margin_db']):>7} "
-              f"{_f(None if m['delay_margin_s'] is None else 1e3 * m['delay_margin_s']):>9}")
+        print(
+            f"{seed:>6} {cost:>9.4g} {100 * d['cost_relative']:>+8.1f}% {d['p_value']:>7.3g} "
+            f"{d['better_on_seeds']:>10} {_f(m['gain_margin_db']):>7} "
+            f"{_f(None if m['delay_margin_s'] is None else 1e3 * m['delay_margin_s']):>9}"
+        )
     bm = content["base"].get("measured_margins") or {}
-    print(f"{'base':>6} {base:>9.4g} {'':>9} {'':>7} {'':>10} {_f(bm.get('gain_margin_db')):>7} "
-          f"{_f(None if bm.get('delay_margin_s') is None else 1e3 * bm['delay_margin_s']):>9}")
-    print(f"over seeds: mean {tsc['mean']:.4g} +/- {tsc['std']:.3g} (sd), worst seed "
-          f"{tsc['worst_seed']} at {tsc['max']:.4g}; the mean validation cost first beats the "
-          f"base at {content['learning_curve']['first_step_mean_beats_base']} steps")
-    print(f"measured gain margin (worst seed) {_f(mm['worst_gain_margin_db'])} dB against the "
-          f"{mm['required_gain_margin_db']:.3g} dB that Ms <= 1.6 guarantees a linear loop: "
-          f"{'deployable' if content['deployable'] else 'NOT deployable'}")
+    print(
+        f"{'base':>6} {base:>9.4g} {'':>9} {'':>7} {'':>10} {_f(bm.get('gain_margin_db')):>7} "
+        f"{_f(None if bm.get('delay_margin_s') is None else 1e3 * bm['delay_margin_s']):>9}"
+    )
+    print(
+        f"over seeds: mean {tsc['mean']:.4g} +/- {tsc['std']:.3g} (sd), worst seed "
+        f"{tsc['worst_seed']} at {tsc['max']:.4g}; the mean validation cost first beats the "
+        f"base at {content['learning_curve']['first_step_mean_beats_base']} steps"
+    )
+    print(
+        f"measured gain margin (worst seed) {_f(mm['worst_gain_margin_db'])} dB against the "
+        f"{mm['required_gain_margin_db']:.3g} dB that Ms <= 1.6 guarantees a linear loop: "
+        f"{'deployable' if content['deployable'] else 'NOT deployable'}"
+    )
     print(f"learning curve: {content['learning_curve_figure']}")
 
 
@@ -153,8 +161,10 @@ def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) 
     }
     write_json(folder / "metrics.json", json_ready(content))
     m = summary["mean"]
-    print(f"agent on {inputs.plant.name} ({inputs.disturbance_name}, {inputs.profile_name}, "
-          f"{len(seeds)} held-out seeds):")
+    print(
+        f"agent on {inputs.plant.name} ({inputs.disturbance_name}, {inputs.profile_name}, "
+        f"{len(seeds)} held-out seeds):"
+    )
     for label, value in (("cost", m["cost"]), ("IAE deg*s", m["iae"]),
                          ("grip overshoot %", m["grip"]["overshoot_pct"]),
                          ("un-grip overshoot %", m["ungrip"]["overshoot_pct"]),
