@@ -141,7 +141,7 @@ def test_the_wheel_installs_and_tunes_outside_the_source_tree(tmp_path):
 
     cmd = [python, "-m", "tuners.optuna", "--plant", "test2", "--trials", "16"]
     out = _run(cmd, cwd=work, env=env).stdout
-    assert "wrote results/test2/optuna.json" in out
-    content = json.loads((work / "results" / "test2" / "optuna.json").read_text())
+    assert "wrote runs/test2/optuna.json" in out  # users' runs: never the committed results/
+    content = json.loads((work / "runs" / "test2" / "optuna.json").read_text())
     assert content["format"] == "gripper-gains" and content["plant"] == "test2"
     assert content["robustness"]["meets_constraints"]
