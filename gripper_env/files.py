@@ -13,24 +13,31 @@ a ``.partial`` name and renamed when complete (:class:`gripper_env.hardware.expe
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import io
 import json
 import math
 import os
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 __all__ = [
+    "VOLATILE_KEYS",
+    "collect_provenance",
     "json_ready",
+    "provenance_path",
     "read_format_json",
     "save_figure",
+    "split_volatile",
     "write_atomic",
     "write_csv",
     "write_json",
+    "write_result_json",
 ]
 
 
@@ -94,6 +101,74 @@ def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
         ``obj`` holds something JSON cannot represent.
     """
     return write_atomic(path, json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n")
+
+
+#: Keys whose values change from run to run when the results do not (who ran it, when, how
+#: long): :func:`write_result_json` moves them to a provenance sidecar.
+VOLATILE_KEYS = frozenset(
+    {"git_commit", "date", "python", "wall_time_s", "train_wall_time_s", "search_wall_time_s"}
+)
+
+_SINK: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar(
+    "provenance_sink", default=None
+)
+
+
+def split_volatile(obj: Any, where: str = "") -> tuple[Any, dict[str, Any]]:
+    """``obj`` without any :data:`VOLATILE_KEYS` entry (at any depth), and what was taken out
+    as ``{JSON pointer: value}``."""
+    taken: dict[str, Any] = {}
+    if isinstance(obj, dict):
+        out = {}
+        for key, value in obj.items():
+            pointer = f"{where}/{key}"
+            if key in VOLATILE_KEYS:
+                taken[pointer] = value
+                continue
+            out[key], more = split_volatile(value, pointer)
+            taken.update(more)
+        return out, taken
+    if isinstance(obj, list):
+        items = []
+        for i, value in enumerate(obj):
+            item, more = split_volatile(value, f"{where}/{i}")
+            items.append(item)
+            taken.update(more)
+        return items, taken
+    return obj, taken
+
+
+def provenance_path(path: str | os.PathLike[str]) -> Path:
+    """``x.json`` -> ``x.provenance.json``: where a result's volatile provenance goes."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}.provenance{p.suffix or '.json'}")
+
+
+def write_result_json(path: str | os.PathLike[str], obj: Any) -> Path:
+    """Write a result as :func:`write_json` does, its volatile provenance (commit, date, wall
+    times: :data:`VOLATILE_KEYS`) apart: into the sink of an enclosing
+    :func:`collect_provenance`, else into :func:`provenance_path`. A rerun with equal numbers
+    then leaves the result file byte for byte unchanged."""
+    stable, volatile = split_volatile(json_ready(obj))
+    sink = _SINK.get()
+    if sink is not None:
+        sink[str(path)] = volatile
+    elif volatile:
+        write_json(provenance_path(path), volatile)
+    return write_json(path, stable)
+
+
+@contextlib.contextmanager
+def collect_provenance(path: str | os.PathLike[str], **extra: Any) -> Iterator[dict[str, Any]]:
+    """Gather the volatile provenance of every :func:`write_result_json` inside the block into
+    one sidecar at ``path`` (one per run), written when the block ends."""
+    sink: dict[str, Any] = {}
+    token = _SINK.set(sink)
+    try:
+        yield sink
+    finally:
+        _SINK.reset(token)
+        write_json(path, {**extra, "files": dict(sorted(sink.items()))})
 
 
 def read_format_json(

@@ -30,7 +30,10 @@
                                 and the worst case (``tuners.evaluation.cross_model``)
     tuning                      what the tuner wants to record (trials, best cost, study, search
                                 ranges, on_bound: gains within 2 % of a search bound, ...)
-    provenance                  command, config, seed, version, git_commit, date, wall_time_s
+    provenance                  command, config, seed, version (the commit, date, Python and
+                                wall times go to the sidecar ``<name>.provenance.json``, or
+                                the run's, :func:`gripper_env.files.write_result_json`: a rerun
+                                with equal numbers leaves the gains file unchanged)
 
 Infinite or undefined numbers (a run that never settles, an unstable run) are written as
 ``null``. Files are written atomically (:func:`gripper_env.files.write_json`), so a reader

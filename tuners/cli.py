@@ -22,7 +22,7 @@ from typing import Any
 
 from gripper_env.config import ConfigError
 from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.files import write_json
+from gripper_env.files import write_result_json
 from gripper_env.gains_file import GainsFileError, build_gains_file, provenance
 from gripper_env.objective import Objective, load_objective
 from gripper_env.pid import PIDGains, PIDOptions
@@ -243,7 +243,7 @@ def write_result(out: str | Path, inputs: Inputs, content: dict[str, Any], ev: E
         f"{content['sign_convention']}, profile {inputs.profile_name}"
     )
     response_plot(ev, title, folder / f"{tuner}.png")
-    return write_json(folder / f"{tuner}.json", content)
+    return write_result_json(folder / f"{tuner}.json", content)
 
 
 def publish(
@@ -259,8 +259,8 @@ def publish(
         inputs, seed=args.seed, command=getattr(args, "command", None), **kwargs
     )
     path = write_result(args.out, inputs, content, ev)
-    if args.json:
-        print(json.dumps(content, indent=2))
+    if args.json:  # the file as written: its volatile provenance is in the sidecar
+        print(path.read_text(), end="")
     else:
         for note in notes or []:
             print(note)

@@ -36,7 +36,9 @@ def test_quick_benchmark_writes_report_json_and_figures(quick):
         if row["controller"] == "pid":
             assert (out / "test2" / f"{name}.json").is_file()
     # provenance in its own file, not in the report
-    assert "git_commit" in json.loads((out / "benchmark.provenance.json").read_text())
+    sidecar = json.loads((out / "benchmark.provenance.json").read_text())
+    assert "git_commit" in sidecar["files"]["run"]
+    assert "git_commit" not in (out / "benchmark.json").read_text()
 
 
 def test_test1_is_reported_infeasible_with_the_bang_bang_bound(quick):

@@ -33,7 +33,9 @@ def test_paper_untuned_overshoots_and_tuned_does_not(tmp_path, capsys, small_eva
     for name in ("manual-paper-untuned", "manual-paper-tuned"):
         assert (tmp_path / "test2" / f"{name}.json").is_file()
         assert (tmp_path / "test2" / f"{name}.png").stat().st_size > 10_000
-    assert tuned["provenance"]["version"] and tuned["provenance"]["date"]
+    assert tuned["provenance"]["version"] and "date" not in tuned["provenance"]
+    sidecar = json.loads((tmp_path / "test2" / "manual-paper-tuned.provenance.json").read_text())
+    assert sidecar["/provenance/date"] and "/provenance/git_commit" in sidecar
 
 
 def test_hardware_gains_use_the_opposite_sign_and_say_so(tmp_path, capsys, small_eval_config):

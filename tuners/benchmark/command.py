@@ -13,9 +13,10 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from gripper_env.config import config_file
-from gripper_env.files import write_atomic, write_json
+from gripper_env.files import collect_provenance, write_atomic, write_result_json
 from gripper_env.gains_file import provenance
 from gripper_env.objective import load_objective
 from tuners import cli
@@ -73,8 +74,23 @@ def _main(argv: list[str] | None = None) -> int:
         raise ValueError(f"the benchmark needs at least 10 held-out seeds, got {ev.seeds.count}")
     objective = load_objective(args.objective)
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
-    data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log, command=args.command,
-                         objective=objective)  # fmt: skip
+    with collect_provenance(args.out / "benchmark.provenance.json") as sink:
+        data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log,
+                             command=args.command, objective=objective)  # fmt: skip
+        _report(args, bench, ev, objective, data)
+        sink["run"] = provenance(seed=bench.seed, wall_time_s=time.perf_counter() - start,
+                                 command=args.command)  # fmt: skip
+    if args.json:
+        print(json.dumps(json.loads((args.out / "benchmark.json").read_text()), indent=2))
+    else:
+        print(leaderboard.render_head(data))
+        print(f"wrote {args.out / 'benchmark.md'} and benchmark.json in "
+              f"{time.perf_counter() - start:.0f} s")  # fmt: skip
+    return 0
+
+
+def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data: Any) -> None:
+    """benchmark.json, benchmark.md and the figures."""
     meta = {
         "command": args.command,
         "profile": bench.profile,
@@ -86,15 +102,5 @@ def _main(argv: list[str] | None = None) -> int:
     }
     data["leaderboard"] = leaderboard.rank(data)
     leaderboard.figures(data, args.out)
-    write_json(args.out / "benchmark.json", {"meta": meta, **data})
+    write_result_json(args.out / "benchmark.json", {"meta": meta, **data})
     write_atomic(args.out / "benchmark.md", leaderboard.render_markdown(data, meta))
-    wall = time.perf_counter() - start
-    write_json(args.out / "benchmark.provenance.json",
-               provenance(config=meta["config"], seed=bench.seed, wall_time_s=wall,
-                          command=args.command))  # fmt: skip
-    if args.json:
-        print(json.dumps(json.loads((args.out / "benchmark.json").read_text()), indent=2))
-    else:
-        print(leaderboard.render_head(data))
-        print(f"wrote {args.out / 'benchmark.md'} and benchmark.json in {wall:.0f} s")
-    return 0

@@ -380,6 +380,7 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
             lines += ["", f"### {plant}", "", f"**Not ranked.** {plant}: {pdata['reason']}."]
             continue
         lines += _plant_table(plant, pdata, lb["per_plant"][plant])
+    lines += _rl_section(data)
     lines += _margin_check(data)
     lines += [
         "",
@@ -428,9 +429,28 @@ def _verdict_words(data: dict[str, Any]) -> list[str]:
     return ["In words:", "", *out] if out else []
 
 
+def _rl_rows(data: dict[str, Any]) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """``(where, row, optuna row or None)`` of every RL row: per plant, and the robust ones
+    (from their first plant's evaluation)."""
+    out = []
+    for plant, pdata in data["plants"].items():
+        for name in ("rl-tune", "rl-controller"):
+            if name in (pdata.get("rows") or {}):
+                out.append((plant, pdata["rows"][name], pdata["rows"].get("optuna")))
+    for key, per in (data.get("evaluations") or {}).items():
+        name, _, on = key.partition(" @ ")
+        if name in ("rl-tune-robust", "rl-controller-robust") and per:
+            optuna = next((v for k, v in data["evaluations"].items()
+                           if k.startswith("optuna-robust @")), None)  # fmt: skip
+            first = next(iter(per.values()))
+            out.append((on, first, None if optuna is None else next(iter(optuna.values()))))
+    return out
+
+
 def figures(data: dict[str, Any], out: Path) -> list[Path]:
-    """The Pareto figure (tracking against robustness) and the budget curves."""
-    from tuners.plotting import budget_plot, pareto_plot
+    """The Pareto figure, the budget curves and the RL learning curves (mean and band over the
+    training seeds, against Optuna's best or the base PID)."""
+    from tuners.plotting import budget_plot, learning_curve_plot, pareto_plot
 
     paths = [pareto_plot(data, out / "figures" / "benchmark_pareto.png")]
     for plant, pdata in data["plants"].items():
@@ -439,7 +459,82 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
                 pdata["curves"], f"{plant}: best feasible tuning cost vs simulated episodes",
                 out / "figures" / f"benchmark_budget_{plant}.png",
             ))  # fmt: skip
+    for where, row, optuna in _rl_rows(data):
+        t = row["tuning"]
+        if row["kind"] == "search" and t.get("curves"):
+            curves = [([p[0] for p in c], [math.nan if p[1] is None else p[1] for p in c])
+                      for c in t["curves"].values()]  # fmt: skip
+            lines = {}
+            if optuna is not None:
+                lines["Optuna (TPE) best tuning cost"] = optuna["tuning"]["best_value_tuning"]
+            paths.append(learning_curve_plot(
+                curves, out / "figures" / f"rl_tune_{where}.png",
+                f"{where}: RL PID tuner, the policy's gains on the tuning seeds "
+                f"({len(curves)} seeds)", "training episodes", "tuning cost", lines=lines,
+            ))  # fmt: skip
+        elif row["kind"] == "controller" and row.get("learning_curve"):
+            c = row["learning_curve"]
+            paths.append(learning_curve_plot(
+                [(c["steps"], v) for v in c["per_seed"].values()],
+                out / "figures" / f"rl_controller_{where}.png",
+                f"{where}: RL controller, validation cost ({len(c['per_seed'])} seeds)",
+                "training steps (20 ms)", "mean cost, validation seeds",
+                lines={"base PID": c["base"]}, labels=[f"seed {k}" for k in c["per_seed"]],
+            ))  # fmt: skip
     return paths
+
+
+def _rl_section(data: dict[str, Any]) -> list[str]:
+    """The RL rows as an RL researcher reads them: per training seed, with the spread."""
+    lines: list[str] = []
+    for where, row, optuna in _rl_rows(data):
+        t = row["tuning"]
+        if row["kind"] == "search":
+            ref = None if optuna is None else optuna["metrics"]["actual"]["mean"]["cost"]
+            held = t["held_out_cost"]
+            ratio = (
+                ""
+                if ref is None
+                else f" ({100 * (held['median'] / ref - 1):+.1f} % against Optuna's {ref:.4g})"
+            )
+            lines += ["", f"### RL PID tuner on {where}", "",
+                      f"Held-out cost of each seed's exported gains: median {held['median']:.4g}"
+                      f"{ratio}, range {held['min']:.4g}-{held['max']:.4g} over {held['n']} "
+                      f"seeds. Learning curve: `figures/rl_tune_{where}.png`.", "",
+                      "| seed | tuning cost | at episodes | held-out cost | constraints |",
+                      "|---|---|---|---|---|"]  # fmt: skip
+            for e in t["per_seed"]:
+                lines.append(f"| {e['seed']} | {_f(e['best_value_tuning'], 4)} | "
+                             f"{_f(e['at_episodes'])} | {_f(e['held_out_cost'], 4)} | "
+                             f"{'met' if e['meets_constraints'] else 'NOT met'} |")  # fmt: skip
+        elif row["kind"] == "controller":
+            c = row["learning_curve"]
+            tsc = row["training_seed_cost"]
+            mm = row["measured_margins"]
+            lines += [
+                "",
+                f"### RL controller on {where}",
+                "",
+                f"{len(tsc['per_seed'])} training seeds: held-out cost {tsc['mean']:.4g} "
+                f"± {tsc['std']:.3g} (sd over seeds), worst seed {tsc['worst_seed']} at "
+                f"{tsc['max']:.4g}. The mean validation cost first beats the base PID at "
+                f"{_f(c['first_step_mean_beats_base'])} steps. Learning curve: "
+                f"`figures/rl_controller_{where}.png`.",
+                "",
+                "| seed | held-out cost | vs base PID | p (Wilcoxon) | better on seeds | "
+                "measured GM dB | delay margin ms |",
+                "|---|---|---|---|---|---|---|",
+            ]
+            for seed, cost in tsc["per_seed"].items():
+                d = row["vs_base_per_training_seed"][seed]
+                m = mm["per_seed"][seed]
+                delay = None if m["delay_margin_s"] is None else 1e3 * m["delay_margin_s"]
+                lines.append(f"| {seed} | {cost:.4g} | {100 * d['cost_relative']:+.2f} % | "
+                             f"{d['p_value']:.2g} | {d['better_on_seeds']} | "
+                             f"{_f(m['gain_margin_db'])} | {_f(delay)} |")  # fmt: skip
+            lines.append(f"\nRequired measured gain margin: {mm['required_gain_margin_db']:.3g} dB "
+                         "(what Ms <= 1.6 guarantees a linear loop).")  # fmt: skip
+    return ["", "## Reinforcement learning, over training seeds", *lines] if lines else []
 
 
 README_START = "<!-- leaderboard:start"

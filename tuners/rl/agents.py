@@ -34,7 +34,7 @@ import numpy as np
 from gripper_env.files import write_json
 from gripper_env.pid import PIDGains
 
-__all__ = ["AGENT_FORMAT", "Agent", "agent_kwargs", "load_agent", "save_agent"]
+__all__ = ["AGENT_FORMAT", "Agent", "agent_kwargs", "load_agent", "save_agent", "save_model"]
 
 AGENT_FORMAT = "gripper-agent"
 
@@ -93,7 +93,7 @@ def save_agent(agent: Agent, folder: str | os.PathLike[str], facts: dict[str, An
     """Write ``agent`` into ``folder`` (see the module docstring); return the folder."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    agent.model.save(folder / "model.zip")
+    save_model(agent.model, folder / "model.zip")
     if agent.normalizer is not None:
         agent.normalizer.save(str(folder / "vecnormalize.pkl"))
     base = agent.base
@@ -110,6 +110,31 @@ def save_agent(agent: Agent, folder: str | os.PathLike[str], facts: dict[str, An
         },
     )
     return folder
+
+
+#: What a saved model leaves out: when training started and the episodes' wall times (the
+#: monitor's ``t``) - inference needs neither, and they would make every rerun's file differ.
+_UNSTABLE_PARAMS = ("start_time", "ep_info_buffer", "ep_success_buffer")
+
+
+def save_model(model: Any, path: str | os.PathLike[str]) -> Path:
+    """``model.save`` without the time-dependent parameters, as a zip whose entries carry a
+    fixed date: the same training gives the same bytes."""
+    import zipfile
+
+    path = Path(path)
+    model.save(path, exclude=list(_UNSTABLE_PARAMS))
+    with zipfile.ZipFile(path) as src:
+        entries = [(info, src.read(info)) for info in src.infolist()]
+    tmp = path.with_suffix(".tmp")
+    with zipfile.ZipFile(tmp, "w") as dst:
+        for info, data in entries:
+            fixed = zipfile.ZipInfo(info.filename, date_time=(1980, 1, 1, 0, 0, 0))
+            fixed.compress_type = info.compress_type
+            fixed.external_attr = info.external_attr
+            dst.writestr(fixed, data)
+    os.replace(tmp, path)
+    return path
 
 
 def load_agent(folder: str | os.PathLike[str]) -> Agent:

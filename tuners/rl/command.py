@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import write_json
+from gripper_env.files import write_result_json
 from gripper_env.pid import PIDGains
 from tuners import cli
 from tuners.rl.envs import ENV_IDS, require_rl
@@ -219,7 +219,7 @@ def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]
         ))  # fmt: skip
     summary = _tuner_summary(runs)
     _held_out(inputs, summary)
-    write_json(folder / "summary.json", summary)
+    write_result_json(folder / "summary.json", summary)
     from tuners.plotting import learning_curve_plot
 
     optuna_best = _optuna_best(args.out, inputs.plant.name, plants)
@@ -369,7 +369,7 @@ def _train_policy(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str
         "run": folder.name,
         "seeds": results,
     }
-    path = write_json(args.out / inputs.plant.name / f"rl-{args.env}.json", content)
+    path = write_result_json(args.out / inputs.plant.name / f"rl-{args.env}.json", content)
     if args.json:
         print(json.dumps(content, indent=2))
         return 0

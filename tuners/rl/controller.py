@@ -41,7 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from gripper_env.config import CONFIG_DIR, load_yaml, validate
 from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.files import json_ready, write_json
+from gripper_env.files import json_ready, write_result_json
 from gripper_env.pid import PIDGains
 from gripper_env.plants import load_plant
 from gripper_env.scoring import score_trajectory
@@ -270,7 +270,7 @@ def train_controller(
         "train_wall_time_s": wall,
         "settings": s.model_dump(),
     }
-    write_json(run_dir / "history.json", facts)
+    write_result_json(run_dir / "history.json", facts)
     log(
         f"  rl-controller {'+'.join(names)} seed {seed}: {model.num_timesteps} steps in "
         f"{wall:.0f} s; validation cost {best[0]:.4g} at {best[1]} steps (base {base_cost:.4g})"
@@ -500,4 +500,4 @@ def write_study(study: dict[str, Any], out: str | os.PathLike[str], name: str) -
         for p in e["plants"].values():
             p["runs"] = [{"cost": r["cost"], "iae": r["iae"], "stable": r["stable"]}
                          for r in p["runs"]]  # fmt: skip
-    return write_json(Path(out) / "rl" / name / "study.json", slim)
+    return write_result_json(Path(out) / "rl" / name / "study.json", slim)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import json_ready, write_json
+from gripper_env.files import write_result_json
 from gripper_env.gains_file import provenance
 from tuners import cli
 from tuners.evaluation import Evaluation, summarize_runs
@@ -83,7 +83,7 @@ def controller_file(
                 config={"rl_controller": study["settings"]}, wall_time_s=wall_s, command=command
             ),
         }
-        write_json(Path(out) / plant / f"{tuner}.json", json_ready(content))
+        write_result_json(Path(out) / plant / f"{tuner}.json", content)
         contents[plant] = content
     return contents.get(inputs.plant.name) or next(iter(contents.values()))
 
@@ -159,7 +159,7 @@ def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) 
         "per_seed_cost": [r["cost"] for r in runs],
         "command": command,
     }
-    write_json(folder / "metrics.json", json_ready(content))
+    write_result_json(folder / "metrics.json", content)
     m = summary["mean"]
     print(
         f"agent on {inputs.plant.name} ({inputs.disturbance_name}, {inputs.profile_name}, "

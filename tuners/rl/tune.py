@@ -37,10 +37,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from gripper_env.config import CONFIG_DIR, load_yaml, validate
-from gripper_env.files import write_json
+from gripper_env.files import write_result_json
 from gripper_env.pid import PIDGains
 from gripper_env.scoring import GainScorer
 from tuners import cli
+from tuners.rl.agents import save_model
 from tuners.rl.envs import ENV_IDS, LogExactPenalty, make_vec_env, progress_callback, require_rl
 from tuners.settings import ClassicalSettings, OptunaSettings, load_settings
 from tuners.tasks import make_scorer
@@ -253,7 +254,7 @@ def train_tuner(
     good = [e for e in evaluations if e["feasible"] and not e["on_bound"]]
     best = min(good, key=lambda e: e["tuning_cost"]) if good else None
     run_dir.mkdir(parents=True, exist_ok=True)
-    model.save(run_dir / "model.zip")
+    save_model(model, run_dir / "model.zip")
     run = TuneRun(
         env_id=ENV_IDS["pid-tune"],
         env_kwargs=_plain(kwargs),
@@ -268,7 +269,7 @@ def train_tuner(
         settings=s.model_dump(),
         context_free=robust,
     )
-    write_json(run_dir / "history.json", run)
+    write_result_json(run_dir / "history.json", run)
     run["gains"] = None if best is None else PIDGains(*best["gains"])
     if best is None:
         log(f"  {label}: no feasible gains off the map's bounds were evaluated")

@@ -54,7 +54,7 @@ class RLTuner:
             train_tuner(inputs, s, seed=seed + i, run_dir=folder / f"seed-{seed + i}",
                         plants=self.plants, episodes=episodes, progress=False,
                         log=lambda m: None)
-            for i in range(self.search_seeds)
+            for i in range(1 if budget.quick else self.search_seeds)
         ]  # fmt: skip
         good = [r for r in runs if r["best"] is not None]
         if not good:
@@ -81,9 +81,34 @@ class RLTuner:
                           "gains": None if r["best"] is None else r["best"]["gains"]}
                          for r in runs],
         }  # fmt: skip
+        _held_out(inputs, tuning["per_seed"], names)
+        held = [e["held_out_cost"] for e in tuning["per_seed"] if e["held_out_cost"] is not None]
+        tuning["held_out_cost"] = {"median": float(np.median(held)), "min": float(np.min(held)),
+                                   "max": float(np.max(held)), "n": len(held)}  # fmt: skip
+        tuning["curves"] = {str(r["seed"]): [[e["episodes"], e["tuning_cost"] if e["feasible"]
+                                              else None] for e in r["evaluations"]]
+                            for r in runs}  # fmt: skip
         used = sum(r["episodes"] + r["selection_episodes"] for r in runs)
         return Tuned(best["gains"], 1, tuning, episodes=int(used),
                      wall_s=time.perf_counter() - start, label=self.name)  # fmt: skip
+
+
+def _held_out(inputs: cli.Inputs, per_seed: list[dict[str, Any]], plants: list[str]) -> None:
+    """Each seed's gains on the held-out seeds of the actual model (mean over ``plants``): the
+    cost a gains file of that seed would report, and its constraint verdict on every plant."""
+    ideal_opts, actual_opts = inputs.settings.options(1)
+    for e in per_seed:
+        e["held_out_cost"] = e["meets_constraints"] = None
+        if e["gains"] is None:
+            continue
+        costs, meets = [], True
+        for plant in plants:
+            ev = cli.evaluate_inputs(inputs.for_plant(plant), PIDGains(*e["gains"]), actual_opts,
+                                     ideal_opts, cross=False)  # fmt: skip
+            costs.append(float(ev.actual["mean"]["cost"]))
+            meets = meets and bool(ev.robustness["meets_constraints"])
+        e["held_out_cost"] = float(np.mean(costs))
+        e["meets_constraints"] = meets
 
 
 def _best_so_far(run: Mapping[str, Any]) -> list[tuple[int, float]]:
