@@ -25,7 +25,8 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
 garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, host frames lost on
-the way to the board, a reset mid-run and a vanishing port. Its command line is :mod:`gripper_env.hardware.board_cli`.
+the way to the board, a reset mid-run and a vanishing port. Its command line is
+:mod:`gripper_env.hardware.board_cli`.
 
 Examples
 --------
