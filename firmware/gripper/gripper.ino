@@ -56,6 +56,18 @@ static const uint16_t TICK_TIMER_COUNTS = 2000; // Timer3 at clk/8 = 2 MHz: 1 ms
 static const uint16_t OVERRUN_LATE_US = 250;    // a tick starting this late is flagged
 static const uint8_t RESYNC_TICKS = 10;         // this far behind: skip ticks instead of bursting
 static const uint16_t ADC_CONVERSION_US = 104;  // 13 ADC clocks at 125 kHz
+// How long handling a valid frame may take, its answer included (measured under simavr: a
+// SETPOINT ~400 cycles; a STATUS answer ~3,400, ~4,400 with the receive interrupts of a busy
+// line; a CONFIGURE with its derived coefficients and STATUS ~9,000, 560 us; a FRAMES_LOST
+// report ~1,000 more). A valid frame is let in only when its handling ends before the next tick
+// is due (a rejected one costs nothing); one that waited for MAX_DEFERRED_TICKS ticks, or while
+// the receive ring filled past RX_DEFER_LIMIT bytes, goes in anyway: a late tick is flagged, a
+// byte lost would lose a command.
+static const uint16_t SETPOINT_BUDGET_US = 120;
+static const uint16_t FRAME_BUDGET_US = 300;
+static const uint16_t CONFIGURE_BUDGET_US = 600;
+static const uint8_t MAX_DEFERRED_TICKS = 2;
+static const uint8_t RX_DEFER_LIMIT = 96;
 // Timing marks (PORTB bits): high while the control path runs, and while telemetry is queued.
 static const uint8_t MARK_CONTROL = _BV(PB7); // pin 13
 static const uint8_t MARK_TELEMETRY = _BV(PB6); // pin 12
@@ -86,6 +98,7 @@ static uint8_t rx_lost[256];
 static volatile uint8_t rx_head = 0; // written by the interrupt
 static volatile uint8_t rx_tail = 0; // written by loop()
 static uint8_t rx_pending_lost = 0;  // interrupt only
+static uint8_t deferred_ticks = 0;   // ticks run while a complete frame waited for its turn
 
 static void uart_begin() {
     uint16_t ubrr = (uint16_t)((F_CPU / 4 / GRIPPER_BAUD - 1) / 2); // U2X: 1 Mbaud -> 1
@@ -236,13 +249,40 @@ static void run_tick() {
     tx_resume();
 }
 
+// Microseconds until the next tick falls due: now if it is due or its measurement is under way
+// (ADSC set: the conversion this period's compare match started), else at the end of the
+// conversion Timer3's next compare match starts (TCNT3 counts 0.5 us from the last one).
+static uint16_t us_to_next_tick() {
+    uint16_t counts;
+    bool converting;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        counts = TCNT3;
+        converting = (ADCSRA & _BV(ADSC)) != 0;
+    }
+    if (ticks_due || converting) return 0;
+    return (uint16_t)((TICK_TIMER_COUNTS - counts) / 2 + ADC_CONVERSION_US);
+}
+
+// Whether the frame that the delimiter at hand completes may be handled now: its handling ends
+// before the next tick, or it has waited long enough.
+static bool frame_fits() {
+    const gripper::StreamDecoder& rx = device.decoder();
+    if (!rx.pending_valid() || deferred_ticks >= MAX_DEFERRED_TICKS) return true;
+    if ((uint8_t)(rx_head - rx_tail) > RX_DEFER_LIMIT) return true;
+    uint8_t type = rx.pending_type();
+    uint16_t budget = type == gripper::MSG_SETPOINT    ? SETPOINT_BUDGET_US
+                      : type == gripper::MSG_CONFIGURE ? CONFIGURE_BUDGET_US
+                                                        : FRAME_BUDGET_US;
+    return us_to_next_tick() >= budget;
+}
+
 // Sleep (idle mode: timers, UART and ADC keep running) until the next interrupt, unless there is
 // work. Interrupts are off while deciding; `sei` then `sleep` run back to back, so an interrupt
 // arriving in between wakes the CPU at once instead of being slept through. (Transmission goes on
 // in the UART interrupt while the CPU sleeps.)
-static void idle() {
+static void idle(bool rx_waits) {
     cli();
-    bool work = ticks_due || rx_head != rx_tail;
+    bool work = ticks_due || (rx_head != rx_tail && !rx_waits);
     if (!work) {
         set_sleep_mode(SLEEP_MODE_IDLE);
         sleep_enable();
@@ -257,19 +297,33 @@ void loop() {
 #if GRIPPER_USE_HW_WATCHDOG
     wdt_reset();
 #endif
-    if (ticks_due) run_tick();
-
-    // Host bytes, until a tick falls due (a frame's handling runs to its end: a few thousand
-    // cycles at most, within the tick's slack).
-    uint32_t now = micros();
-    uint8_t tail = rx_tail;
-    while (tail != rx_head && !ticks_due) {
-        uint8_t lost = rx_lost[tail];
-        if (lost) device.rx_lost(lost);
-        device.receive(rx_ring[tail], now);
-        rx_tail = ++tail;
+    if (ticks_due) {
+        run_tick();
+        if (rx_head != rx_tail && deferred_ticks < 255) ++deferred_ticks;
     }
-    tx_resume(); // frames the host's commands were answered with
 
-    idle();
+    // Host bytes, until a tick falls due; a frame is completed (its delimiter let in, and the
+    // frame handled) only when its handling ends before the next tick (frame_fits).
+    bool rx_waits = false;
+    uint8_t tail = rx_tail;
+    if (tail != rx_head && !ticks_due) {
+        uint32_t now = micros();
+        while (tail != rx_head && !ticks_due) {
+            uint8_t byte = rx_ring[tail];
+            if (byte == 0) {
+                if (!frame_fits()) {
+                    rx_waits = true;
+                    break;
+                }
+                deferred_ticks = 0;
+            }
+            uint8_t lost = rx_lost[tail];
+            if (lost) device.rx_lost(lost);
+            device.receive(byte, now);
+            rx_tail = ++tail;
+        }
+        tx_resume(); // the answers to the host's frames
+    }
+
+    idle(rx_waits);
 }

@@ -81,11 +81,10 @@ inline bool reject(uint16_t field, uint16_t* bad_field) {
     return false;
 }
 
-// True when the calibration c gives the angle deg (in the hard jaw range) a pulse inside the hard
-// window w.
-inline bool pulse_inside(real_t deg, const ServoCalibration& c, real_t ticks_per_deg,
-                         PulseWindow w) {
-    uint16_t ticks = servo_pulse_ticks_raw<real_t>(deg, c, ticks_per_deg);
+// True when a calibration (base, ticks_per_deg) gives the angle deg (in the hard jaw range) a
+// pulse inside the hard window w.
+inline bool pulse_inside(real_t deg, real_t base, real_t ticks_per_deg, PulseWindow w) {
+    uint16_t ticks = servo_pulse_ticks_raw<real_t>(deg, base, ticks_per_deg);
     return ticks >= w.lo && ticks <= w.hi;
 }
 
@@ -125,8 +124,9 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     // or shifted mapping would move the jaw outside the hard range at a legal angle).
     ServoCalibration servo = {m.servo_us_at_0, m.servo_us_at_180};
     real_t tpd = servo_ticks_per_deg<real_t>(servo);
-    if (!pulse_inside(real_t(m.jaw_min), servo, tpd, w) ||
-        !pulse_inside(real_t(m.jaw_max), servo, tpd, w))
+    real_t base = servo_pulse_base<real_t>(servo);
+    if (!pulse_inside(real_t(m.jaw_min), base, tpd, w) ||
+        !pulse_inside(real_t(m.jaw_max), base, tpd, w))
         return reject(CF_SERVO_US_AT_0, bad_field);
     if (m.decimation > MAX_DECIMATION) return reject(CF_DECIMATION, bad_field);
     if (m.anti_windup > AW_BACK_CALCULATION) return reject(CF_ANTI_WINDUP, bad_field);
@@ -153,7 +153,7 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     c.decimation = m.decimation;
     c.batch = m.telemetry_batch;
     c.adc_slope = adc_slope<real_t>(c.adc);
-    c.servo_base = servo_pulse_base<real_t>(servo);
+    c.servo_base = base;
     c.servo_ticks_per_deg = tpd;
     pid_prepare<real_t>(c.gains, real_t(TICK_PERIOD_US) / real_t(1000000));
     *out = c;
@@ -187,30 +187,11 @@ class TxQueue {
         publish((uint16_t)(t + n));
         return true;
     }
-    // Queue the wire frame COBS(raw[0..n)) + 0x00, encoded straight into the queue (no frame
-    // buffer, no second copy). A raw frame is at most MAX_RAW_FRAME (< 254) bytes, so its COBS
-    // form is exactly n + 1 bytes: the same bytes as encode_frame() produces.
-    bool push_frame(const uint8_t* raw, size_t n) {
-        if (n >= 254 || n + 2 > free_space()) return false;
-        uint16_t w = tail_;
-        uint16_t code_at = w;
-        uint16_t o = (uint16_t)(w + 1);
-        uint8_t code = 1;
-        for (size_t i = 0; i < n; ++i) {
-            uint8_t b = raw[i];
-            if (b != 0) {
-                buf_[o++ & MASK] = b;
-                ++code;
-            } else {
-                buf_[code_at & MASK] = code;
-                code = 1;
-                code_at = o++;
-            }
-        }
-        buf_[code_at & MASK] = code;
-        buf_[o++ & MASK] = 0;
-        publish(o);
-        return true;
+    // Queue the wire frame COBS(body | crc16 LE) + 0x00 of body = seq | type | payload (n bytes):
+    // framed into a buffer on the stack (frame_body(), one pass for CRC and COBS), then copied.
+    bool push_frame(const uint8_t* body, size_t n) {
+        uint8_t wire[MAX_WIRE_FRAME];
+        return push(wire, frame_body(body, (uint8_t)n, wire));
     }
     // The consumer: the next byte into *out, or false if the queue is empty. On the board only
     // the UART interrupt calls it (interrupts are off there).
@@ -549,18 +530,17 @@ class Device {
         send(s);
     }
 
-    // Frame and queue a message: seq | type | payload | CRC built in place, then COBS-encoded
-    // into the transmit queue (the bytes of encode_message(), without its two buffer copies).
+    // Frame and queue a message: seq | type | payload built in place, then CRC-checked and
+    // COBS-encoded into the transmit queue (the bytes of encode_message(), without its buffers).
     template <typename Msg>
     void send(const Msg& m) {
-        uint8_t raw[MAX_RAW_FRAME];
-        raw[0] = tx_seq_;
-        raw[1] = (uint8_t)Msg::TYPE;
-        size_t n = m.encode(raw + 2);
-        put_u16(raw + 2 + n, crc16(raw, n + 2));
+        uint8_t body[MAX_RAW_FRAME - 2];
+        body[0] = tx_seq_;
+        body[1] = (uint8_t)Msg::TYPE;
+        size_t n = m.encode(body + 2);
         // The sequence number advances even for a dropped frame, so the host sees the gap.
         ++tx_seq_;
-        if (!tx.push_frame(raw, n + 4)) ++tx_dropped_;
+        if (!tx.push_frame(body, n + 2)) ++tx_dropped_;
     }
 
     // Start a new telemetry batch and decimation count (telemetry settings changed, or boot).

@@ -77,22 +77,44 @@ inline int16_t to_cdeg(double deg) {
     return cdeg_from_fields<uint64_t>((bits >> 63) != 0, e, m | 0x10000000000000ULL, 1075, 64);
 }
 
+// The wire frame COBS(body | crc16 LE) + 0x00 of body = seq | type | payload (n <= MAX_RAW_FRAME
+// - 2 bytes) into out (MAX_WIRE_FRAME bytes): the CRC and the COBS blocks in one pass. The raw
+// frame is under 254 bytes, so COBS adds exactly one byte; returns the length, n + 4.
+inline uint8_t frame_body(const uint8_t* body, uint8_t n, uint8_t* out) {
+    uint16_t crc = 0xFFFF;
+    uint8_t o = 1, code_at = 0, code = 1;
+    for (uint8_t i = 0; i < n + 2; ++i) {
+        uint8_t b;
+        if (i < n) {
+            b = body[i];
+            crc = crc16_update(crc, b);
+        } else {
+            b = i == n ? (uint8_t)(crc & 0xFF) : (uint8_t)(crc >> 8);
+        }
+        if (b != 0) {
+            out[o++] = b;
+            ++code;
+        } else {
+            out[code_at] = code;
+            code = 1;
+            code_at = o++;
+        }
+    }
+    out[code_at] = code;
+    out[o++] = 0;
+    return o;
+}
+
 // Build the wire frame COBS(seq | type | payload | crc16 LE) + 0x00 into out (capacity cap).
 // Returns its length, 0 if the payload is too long or out is too small.
 inline size_t encode_frame(uint8_t seq, uint8_t type, const uint8_t* payload, size_t n,
                            uint8_t* out, size_t cap) {
-    if (n > MAX_PAYLOAD) return 0;
-    uint8_t raw[MAX_RAW_FRAME];
-    raw[0] = seq;
-    raw[1] = type;
-    for (size_t k = 0; k < n; ++k) raw[2 + k] = payload[k];
-    uint16_t crc = crc16(raw, n + 2);
-    put_u16(raw + 2 + n, crc);
-    if (cap < 1) return 0;
-    size_t len = cobs_encode(raw, n + 4, out, cap - 1);
-    if (len == 0) return 0;
-    out[len] = 0;
-    return len + 1;
+    if (n > MAX_PAYLOAD || cap < n + 5) return 0;
+    uint8_t body[MAX_RAW_FRAME - 2];
+    body[0] = seq;
+    body[1] = type;
+    for (size_t k = 0; k < n; ++k) body[2 + k] = payload[k];
+    return frame_body(body, (uint8_t)(n + 2), out);
 }
 
 template <typename Msg>
@@ -176,6 +198,15 @@ class StreamDecoder {
         ++frames_ok;
         return FRAME;
     }
+
+    // What a delimiter pushed now would make of the frame being received: whether it would be
+    // accepted (exactly push()'s verdict), and its type. The sketch judges by them how long
+    // handling the frame may take before it lets the delimiter in (a rejected one: nothing).
+    bool pending_valid() const {
+        return len_ > 0 && !overflow_ && !damaged_ && remaining_ == 0 && out_ >= 4 &&
+               out_ <= MAX_RAW_FRAME && crc_ == get_u16(buf_ + out_ - 2);
+    }
+    uint8_t pending_type() const { return out_ >= 2 ? buf_[1] : 0; }
 
     uint8_t seq() const { return buf_[0]; }
     uint8_t type() const { return buf_[1]; }

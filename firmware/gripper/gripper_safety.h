@@ -141,8 +141,9 @@ struct AdcCalibration {
 // CONFIGURE, not at every tick (a soft-float division is ~500 cycles on the AVR).
 template <typename Real>
 inline Real adc_slope(const AdcCalibration& c) {
+    // the difference of two counts is exact as an integer and as a float: one conversion
     return (Real(CAL_ANGLE_HI_DEG) - Real(CAL_ANGLE_LO_DEG)) /
-           (Real(c.adc_at_hi) - Real(c.adc_at_lo));
+           Real((int16_t)c.adc_at_hi - (int16_t)c.adc_at_lo);
 }
 
 // Measured jaw angle (deg) from ADC counts, by the two-point calibration line of slope `slope`.
@@ -181,7 +182,9 @@ struct ServoCalibration {
 // Timer1 ticks (0.5 us) per degree of the servo calibration; computed once per CONFIGURE.
 template <typename Real>
 inline Real servo_ticks_per_deg(const ServoCalibration& c) {
-    return Real(2) * (Real(c.us_at_180) - Real(c.us_at_0)) / Real(SERVO_MAX_DEG - SERVO_MIN_DEG);
+    // 2 (us_at_180 - us_at_0) is exact as an integer and as a float: one conversion
+    return Real(2 * ((int32_t)c.us_at_180 - (int32_t)c.us_at_0)) /
+           Real(SERVO_MAX_DEG - SERVO_MIN_DEG);
 }
 
 // The servo pulse (Timer1 ticks of 0.5 us) a calibration gives an angle (deg) in [0, 180],
