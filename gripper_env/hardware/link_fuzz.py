@@ -50,7 +50,12 @@ HARD_WINDOW_US = (
     round(2 * (544 + 92 * 1856 / 180)) / 2,
 )
 ADC_COUNTS = 400  # the potentiometer, mid-range (the fuzz's configurations calibrate 200..600)
-FRAME_SPACING_US = 330  # a frame starts this long after the previous one (or its noise) began
+# A frame starts this long after the previous one began (or when the line is free after noise):
+# a setpoint stream's pace, and a host that waits for the answer to a command before the next
+# (the board takes ~0.4 ms to handle a command and send its answer; faster, it would fall behind
+# and its receive buffer overflow: counted and reported, see test_hw_emulated_fuzz)
+FRAME_SPACING_US = 330
+ANSWERED_SPACING_US = 1000
 CORRUPT_P = 0.3
 NOISE_P = 0.01
 _WILD = [math.nan, math.inf, -math.inf, 3.4e38, -3.4e38, 1e9, -1e9, 0.0, -0.0, 1e-45]
@@ -166,7 +171,7 @@ def _configure(rng: np.random.Generator) -> proto.Configure:
 
 
 def _message(rng: np.random.Generator, seq: int) -> bytes:
-    """One host frame, whole and CRC-valid."""
+    """One host frame, whole and CRC-valid; all but SETPOINT are answered (STATUS or ERROR)."""
     kind = rng.random()
     msg: proto.Message
     if kind < 0.45:
@@ -251,6 +256,7 @@ def fuzz_image(
     *,
     image: str | os.PathLike[str] | None = None,
     harness: str | os.PathLike[str] | None = None,
+    spacing_answered: int = ANSWERED_SPACING_US,
 ) -> FuzzResult:
     """Send ``n_frames`` fuzzed host frames to the image and measure (module docstring).
 
@@ -262,6 +268,9 @@ def fuzz_image(
         Seed of the fuzz (the run is deterministic: emulated time is the only clock).
     image, harness : path, optional
         The firmware image and the simavr harness (:class:`Mega2560`'s defaults).
+    spacing_answered : int
+        Microseconds from a frame the board answers to the next (:data:`ANSWERED_SPACING_US`;
+        less overloads the board).
 
     Returns
     -------
@@ -318,15 +327,18 @@ def fuzz_image(
             frame = _message(rng, seq)
             first_index[seq] = len(sent)
             sent.append(frame)
+            spacing = FRAME_SPACING_US
             if i == n_frames - 1 or rng.random() >= CORRUPT_P:
                 put(frame)
+                if frame[2] != proto.Setpoint.TYPE or len(frame) != 10:
+                    spacing = spacing_answered
             else:
                 damaged, kind = _damage(rng, frame)
                 out.damage_kinds[kind] = out.damage_kinds.get(kind, 0) + 1
                 out.damaged += 1
                 put(damaged)
             seq = (seq + 1) & 0xFF
-            next_at = max(next_at + FRAME_SPACING_US * CYCLES_PER_US, mega.rx_last_cycle)
+            next_at = max(next_at + spacing * CYCLES_PER_US, mega.rx_last_cycle)
             mega.run_until(next_at)
             if i % 64 == 63:
                 drain()
