@@ -194,8 +194,16 @@ def _message(rng: np.random.Generator, seq: int) -> bytes:
     return proto.encode_frame(seq, msg)
 
 
-_KINDS = ("bit flips", "byte replaced", "byte dropped", "byte repeated", "bytes swapped", "cut")
-_KINDS += ("delimiter lost", "stray bytes")
+_KINDS: tuple[str, ...] = (
+    "bit flips",
+    "byte replaced",
+    "byte dropped",
+    "byte repeated",
+    "bytes swapped",
+    "cut",
+    "delimiter lost",
+    "stray bytes",
+)
 
 
 def _damage(rng: np.random.Generator, frame: bytes) -> tuple[bytes, str]:
