@@ -5,65 +5,59 @@ fails loudly (CommandLost)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from virtual_support import SPEED, open_device
+from virtual_support import open_device
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.command_log import CommandLog
 from gripper_env.hardware.errors import CommandLost
 from gripper_env.hardware.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
-from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.references import Reference
 
 
-@pytest.fixture
-def virtual() -> Iterator[VirtualDevice]:
-    with VirtualDevice("test2", "actual", speed=SPEED, seed=2) as vd:
-        yield vd
-
-
-def test_a_lost_setpoint_is_sent_again_before_the_mode_starts(virtual) -> None:
-    with open_device(virtual) as dev:
+def test_a_lost_setpoint_is_sent_again_before_the_mode_starts(virtual_twin) -> None:
+    with open_device(virtual_twin) as dev:
         dev.configure()
-        virtual.lose_host_frames(proto.Setpoint.TYPE, 1)
+        virtual_twin.lose_host_frames(proto.Setpoint.TYPE, 1)
         dev.set_setpoint(40.0)  # lost on the way: the board still holds no setpoint
         status = dev.set_mode(Mode.OPEN_LOOP)
-        assert virtual.host_frames_lost == 1
+        assert virtual_twin.host_frames_lost == 1
         assert status.mode == Mode.OPEN_LOOP and status.setpoint_deg == 40.0
         assert dev.commands.lost >= 1 and dev.commands.resent >= 1
         dev.wait_telemetry(0.1)
-        assert virtual.firmware.command == 40.0  # not the safe position it would hold
+        assert virtual_twin.firmware.command == 40.0  # not the safe position it would hold
 
 
-def test_a_lost_mode_change_is_sent_again(virtual) -> None:
-    with open_device(virtual) as dev:
+def test_a_lost_mode_change_is_sent_again(virtual_twin) -> None:
+    with open_device(virtual_twin) as dev:
         dev.configure()
         dev.set_setpoint(50.0, confirm=True)
-        virtual.lose_host_frames(proto.SetMode.TYPE, 1)
+        virtual_twin.lose_host_frames(proto.SetMode.TYPE, 1)
         assert dev.set_mode(Mode.OPEN_LOOP).mode == Mode.OPEN_LOOP
-        assert virtual.host_frames_lost == 1 and dev.commands.lost == 1
+        assert virtual_twin.host_frames_lost == 1 and dev.commands.lost == 1
         dev.wait_telemetry(0.05)
-        assert virtual.firmware.mode == Mode.OPEN_LOOP and virtual.firmware.command == 50.0
+        assert (
+            virtual_twin.firmware.mode == Mode.OPEN_LOOP and virtual_twin.firmware.command == 50.0
+        )
 
 
-def test_a_setpoint_that_never_arrives_fails_loudly(virtual) -> None:
-    with open_device(virtual, retries=2, timeout_s=0.3) as dev:
+def test_a_setpoint_that_never_arrives_fails_loudly(virtual_twin) -> None:
+    with open_device(virtual_twin, retries=2, timeout_s=0.3) as dev:
         dev.configure()
-        virtual.lose_host_frames(proto.Setpoint.TYPE, 100)
+        virtual_twin.lose_host_frames(proto.Setpoint.TYPE, 100)
         with pytest.raises(CommandLost, match=r"does not hold SETPOINT 33 deg after 3 tries"):
             dev.set_setpoint(33.0, confirm=True)
         with pytest.raises(CommandLost, match="SETPOINT 33 deg"):
             dev.set_mode(Mode.OPEN_LOOP)  # not started from a setpoint the board lacks
-        assert virtual.firmware.mode == Mode.IDLE
-        virtual.lose_host_frames(proto.Setpoint.TYPE, 0)
+        assert virtual_twin.firmware.mode == Mode.IDLE
+        virtual_twin.lose_host_frames(proto.Setpoint.TYPE, 0)
 
 
 def test_streamed_setpoints_lost_mid_run_are_reported_and_the_run_follows_the_profile(
-    virtual,
+    virtual_twin,
 ) -> None:
     values = np.concatenate([np.full(300, 60.0), np.linspace(60.0, 30.0, 400), np.full(300, 30.0)])
     profile = Reference("ramp", 1e-3, values)
@@ -72,12 +66,12 @@ def test_streamed_setpoints_lost_mid_run_are_reported_and_the_run_follows_the_pr
     def lose_some(fraction: float) -> None:
         if not fired and fraction > 0.35:
             fired.append(fraction)
-            virtual.lose_host_frames(proto.Setpoint.TYPE, 3)
+            virtual_twin.lose_host_frames(proto.Setpoint.TYPE, 3)
 
-    with open_device(virtual) as dev:
+    with open_device(virtual_twin) as dev:
         dev.configure()
         rec = run_profile(dev, profile, Mode.OPEN_LOOP, progress=lose_some)
-    assert rec.complete and virtual.host_frames_lost == 3
+    assert rec.complete and virtual_twin.host_frames_lost == 3
     # every lost setpoint was reported by the board: sent again, or replaced by the next one
     assert rec.commands_lost == 3
     assert rec.commands_resent + dev.commands.superseded == 3
