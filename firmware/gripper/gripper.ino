@@ -101,7 +101,8 @@ static uint8_t rx_lost[256];
 static volatile uint8_t rx_head = 0; // written by the interrupt
 static volatile uint8_t rx_tail = 0; // written by loop()
 static uint8_t rx_pending_lost = 0;  // interrupt only
-static uint8_t deferred_ticks = 0;   // ticks run while a complete frame waited for its turn
+static bool frame_waits = false;     // a complete valid frame waits for the tick (frame_fits)
+static uint8_t deferred_ticks = 0;   // ticks run while it waited
 
 static void uart_begin() {
     uint16_t ubrr = (uint16_t)((F_CPU / 4 / GRIPPER_BAUD - 1) / 2); // U2X: 1 Mbaud -> 1
@@ -252,18 +253,22 @@ static void run_tick() {
     tx_resume();
 }
 
-// Microseconds until the next tick falls due: now if it is due or its measurement is under way
-// (ADSC set: the conversion this period's compare match started), else at the end of the
-// conversion Timer3's next compare match starts (TCNT3 counts 0.5 us from the last one).
+// Microseconds until the next tick falls due: when this period's measurement is ready (TCNT3
+// counts 0.5 us from the compare match that started it, 104 us of conversion), or the next's.
+// A compare match whose interrupt is still pending (OCF3A) or a conversion under way (ADSC) means
+// the tick is imminent (found under simavr: reading only TCNT3, a frame was let in just after a
+// compare match and the tick behind it started 164 us late).
 static uint16_t us_to_next_tick() {
     uint16_t counts;
-    bool converting;
+    bool imminent;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         counts = TCNT3;
-        converting = (ADCSRA & _BV(ADSC)) != 0;
+        imminent = (TIFR3 & _BV(OCF3A)) || (ADCSRA & _BV(ADSC));
     }
-    if (ticks_due || converting) return 0;
-    return (uint16_t)((TICK_TIMER_COUNTS - counts) / 2 + ADC_CONVERSION_US);
+    const uint16_t ready = 2 * ADC_CONVERSION_US + 16; // counts: conversion + interrupt latency
+    if (ticks_due || imminent) return 0;
+    if (counts < ready) return (uint16_t)((ready - counts) / 2);
+    return (uint16_t)((TICK_TIMER_COUNTS - counts + ready) / 2);
 }
 
 // Whether the frame that the delimiter at hand completes may be handled now: its handling ends
@@ -283,9 +288,9 @@ static bool frame_fits() {
 // work. Interrupts are off while deciding; `sei` then `sleep` run back to back, so an interrupt
 // arriving in between wakes the CPU at once instead of being slept through. (Transmission goes on
 // in the UART interrupt while the CPU sleeps.)
-static void idle(bool rx_waits) {
+static void idle(bool frame_waits) {
     cli();
-    bool work = ticks_due || (rx_head != rx_tail && !rx_waits);
+    bool work = ticks_due || (rx_head != rx_tail && !frame_waits);
     if (!work) {
         set_sleep_mode(SLEEP_MODE_IDLE);
         sleep_enable();
@@ -302,22 +307,19 @@ void loop() {
 #endif
     if (ticks_due) {
         run_tick();
-        if (rx_head != rx_tail && deferred_ticks < 255) ++deferred_ticks;
+        if (frame_waits && deferred_ticks < 255) ++deferred_ticks;
     }
 
     // Host bytes, until a tick falls due; a frame is completed (its delimiter let in, and the
     // frame handled) only when its handling ends before the next tick (frame_fits).
-    bool rx_waits = false;
     uint8_t tail = rx_tail;
     if (tail != rx_head && !ticks_due) {
         uint32_t now = micros();
         while (tail != rx_head && !ticks_due) {
             uint8_t byte = rx_ring[tail];
             if (byte == 0) {
-                if (!frame_fits()) {
-                    rx_waits = true;
-                    break;
-                }
+                frame_waits = !frame_fits();
+                if (frame_waits) break;
                 deferred_ticks = 0;
             }
             uint8_t lost = rx_lost[tail];
@@ -328,5 +330,5 @@ void loop() {
         tx_resume(); // the answers to the host's frames
     }
 
-    idle(rx_waits);
+    idle(frame_waits);
 }
