@@ -9,9 +9,10 @@ in emulated cycles or microseconds, counted by the firmware-in-the-loop harness
 * a closed-loop run of ``--duration`` s (tuned paper gains on test2, the actual gripper, the
   paper's step profile repeated, 1 kHz telemetry in batches of 10, the host traffic of
   ``rig.deploy``: the reference every 20 ms, a heartbeat every 200 ms), scripted on emulated
-  time: cycles of the control path (ADC, safety, PID, servo update: pin 13 high) and of a
-  telemetry frame (pin 12 high), the worst tick, the headroom at 1 kHz, the CPU's busy share
-  (it sleeps when idle), the start jitter of the ticks, overruns, telemetry frames lost;
+  time: cycles of the control path (safety, PID, servo update: pin 13 high) and of the
+  telemetry (a tick's sample, and the frame's completion every batch: pin 12 high), the worst
+  tick, the headroom at 1 kHz, the CPU's busy share (it sleeps when idle), the start jitter of
+  the ticks, overruns, telemetry frames lost;
 * the same run through the pseudo-terminal with the host's own stack (``GripperDevice``,
   ``run_profile``): frames lost, samples missing;
 * latency from a SETPOINT's last byte to the servo: to the output-compare register, to the
@@ -347,8 +348,8 @@ def _memory_section(result: dict[str, Any]) -> list[str]:
         f"`python -m benchmarks.firmware_speed --duration {result['duration_s']:g}`: the compiled "
         "image (`firmware/build.sh`) under simavr at 16 MHz (`firmware/emulator`). Every figure "
         "but the last is counted in emulated cycles, the same on any machine; timings come from "
-        "the firmware's own marks (pin 13 high while the control path runs, pin 12 while a "
-        "telemetry frame is queued).",
+        "the firmware's own marks (pin 13 high while the control path runs, pin 12 while the "
+        "tick's telemetry sample is encoded and, every batch, the frame completed and queued).",
         "",
         "## Memory",
         "",
