@@ -531,7 +531,7 @@ class Device {
     }
 
     // Frame and queue a message: seq | type | payload built in place, then CRC-checked and
-    // COBS-encoded into the transmit queue (the bytes of encode_message(), without its buffers).
+    // COBS-encoded into the transmit queue (the bytes of encode_message()).
     template <typename Msg>
     void send(const Msg& m) {
         uint8_t body[MAX_RAW_FRAME - 2];

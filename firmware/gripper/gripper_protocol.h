@@ -41,7 +41,7 @@ inline int16_t cdeg_from_fields(bool negative, int e, U m, int shift0, int width
     int k = shift0 - e;   // right shift that turns m * 100 into centi-degrees
     U c;
     if (k <= 0) {
-        c = 32767; // |deg| >= 2^23 (or infinite): saturated
+        c = 32767; // huge (2^23 and more for a float) or infinite: saturated
     } else if (k > width) {
         c = 0; // m * 100 < 2^(width - 1): rounds to 0
     } else {

@@ -14,7 +14,7 @@
 //   encode TYPE SEQ field...     -> frame HEX | ERR reason
 //   pid dt P I D N umin umax aw kb sign dmeas xi0 xf0 n r1 y1 ... rn yn
 //                                -> u1 v1 ... un vn xi xf
-//   clamp x lo hi safe           -> real
+//   clamp x lo hi safe           -> real            cdeg x -> int (to_cdeg of a real)
 //   adc2deg adc lo hi            -> real            deg2adc deg lo hi -> int
 //   pulse deg us0 us180          -> int ticks (clamped into the hard window)
 //   window                       -> lo hi (the hard pulse window, ticks)
@@ -383,6 +383,10 @@ std::string handle(const std::string& line) {
         in >> a >> b >> c >> d;
         return real_str((double)clamp_jaw<real_t>((real_t)real_parse(a), (real_t)real_parse(b),
                                                   (real_t)real_parse(c), (real_t)real_parse(d)));
+    }
+    if (cmd == "cdeg") {
+        in >> a;
+        return std::to_string(to_cdeg((real_t)real_parse(a)));
     }
     if (cmd == "adc2deg" || cmd == "deg2adc") {
         in >> a >> b >> c;

@@ -38,6 +38,30 @@ def test_clamp_never_leaves_the_jaw_range(harness, harness_f32, x: float) -> Non
             assert got == pytest.approx(x, rel=1e-7)
 
 
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.floats(-400, 400),
+        st.integers(-40000, 40000).map(lambda c: c / 100 + 0.005),  # halfway cases
+    )
+)
+def test_centi_degrees_round_half_away_from_zero_like_the_twin(harness, harness_f32, x) -> None:
+    from fractions import Fraction
+
+    from gripper_env.hardware.firmware import _to_cdeg
+
+    for h, value in ((harness, x), (harness_f32, _f32(x) if abs(x) < 3.4e38 else x)):
+        got = int(h("cdeg", float(value).hex()))
+        assert got == _to_cdeg(value)
+        if math.isnan(value):
+            assert got == proto.CDEG_NONE
+        else:  # independent truth: the exact product, rounded half away from zero, saturated
+            c = Fraction(32767) if math.isinf(value) else abs(Fraction(value) * 100)
+            want = min(int(c + Fraction(1, 2)), 32767)
+            assert got == (-want if value < 0 else want)
+
+
 def test_adc_angle_conversion_is_the_two_point_line(harness) -> None:
     assert float.fromhex(harness("adc2deg", 200, *CAL)) == 21.0
     assert float.fromhex(harness("adc2deg", 600, *CAL)) == 92.0
