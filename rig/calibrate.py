@@ -42,7 +42,7 @@ def measure_counts(
     n : int
         Samples averaged.
     """
-    device.set_setpoint(angle_deg)
+    device.set_setpoint(angle_deg, confirm=True)  # one command, not a stream: it must arrive
     device.wait_telemetry(settle_s)
     block = device.wait_telemetry(average_s)
     active = block.adc[block.mode == Mode.OPEN_LOOP]

@@ -14,10 +14,20 @@
 #include "gripper_protocol.h"
 #include "gripper_safety.h"
 
+// The transmit queue is filled by the main loop and drained by the UART's interrupt on the board:
+// the indices one side writes are read by the other with interrupts off (a 16-bit access is two
+// instructions on the AVR). On the host there is one thread and nothing to guard.
+#if defined(__AVR__)
+#include <util/atomic.h>
+#define GRIPPER_ATOMIC ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+#else
+#define GRIPPER_ATOMIC
+#endif
+
 namespace gripper {
 
 const uint8_t FIRMWARE_VERSION_MAJOR = 0;
-const uint8_t FIRMWARE_VERSION_MINOR = 1;
+const uint8_t FIRMWARE_VERSION_MINOR = 2;
 const uint8_t FIRMWARE_VERSION_PATCH = 0;
 const uint32_t TICK_PERIOD_US = 1000; // control period (1 kHz)
 const uint16_t MAX_DECIMATION = 1000;
@@ -30,6 +40,7 @@ struct DeviceConfig {
     AdcCalibration adc;
     ServoCalibration servo;
     real_t adc_slope;           // deg per count, from adc (derived)
+    real_t servo_base;          // 2 us_at_0 + 1/2 Timer1 ticks, from servo (derived)
     real_t servo_ticks_per_deg; // Timer1 ticks per deg, from servo (derived)
     uint16_t decimation;
     uint8_t batch;
@@ -56,7 +67,9 @@ inline DeviceConfig default_config() {
     c.decimation = 1;
     c.batch = 10;
     c.adc_slope = adc_slope<real_t>(c.adc);
+    c.servo_base = servo_pulse_base<real_t>(c.servo);
     c.servo_ticks_per_deg = servo_ticks_per_deg<real_t>(c.servo);
+    pid_prepare<real_t>(c.gains, real_t(TICK_PERIOD_US) / real_t(1000000));
     return c;
 }
 
@@ -68,10 +81,19 @@ inline bool reject(uint16_t field, uint16_t* bad_field) {
     return false;
 }
 
-// Validate a CONFIGURE. On success fill *out and return true; otherwise set *bad_field to the
-// first offending ConfigureField. The effective PID limits are the intersection of the
-// requested limits with the jaw range, so anti-windup acts on the real actuator limits.
-inline bool validate_configure(const Configure& m, DeviceConfig* out, uint16_t* bad_field) {
+// True when a calibration (base, ticks_per_deg) gives the angle deg (in the hard jaw range) a
+// pulse inside the hard window w.
+inline bool pulse_inside(real_t deg, real_t base, real_t ticks_per_deg, PulseWindow w) {
+    uint16_t ticks = servo_pulse_ticks_raw<real_t>(deg, base, ticks_per_deg);
+    return ticks >= w.lo && ticks <= w.hi;
+}
+
+// Validate a CONFIGURE against the image's hard limits (the jaw range and the pulse window w). On
+// success fill *out and return true; otherwise set *bad_field to the first offending
+// ConfigureField. The effective PID limits are the intersection of the requested limits with
+// the jaw range, so anti-windup acts on the real actuator limits.
+inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* out,
+                               uint16_t* bad_field) {
     if (!finite_f(m.p)) return reject(CF_P, bad_field);
     if (!finite_f(m.i)) return reject(CF_I, bad_field);
     if (!finite_f(m.d)) return reject(CF_D, bad_field);
@@ -82,9 +104,9 @@ inline bool validate_configure(const Configure& m, DeviceConfig* out, uint16_t* 
     if (m.u_max != m.u_max || m.u_max == -__builtin_inff() || !(m.u_min < m.u_max))
         return reject(CF_U_MAX, bad_field);
     if (!finite_f(m.kb)) return reject(CF_KB, bad_field);
-    if (!finite_f(m.jaw_min) || m.jaw_min < SERVO_MIN_DEG || m.jaw_min > SERVO_MAX_DEG)
+    if (!finite_f(m.jaw_min) || m.jaw_min < JAW_HARD_MIN_DEG || m.jaw_min > JAW_HARD_MAX_DEG)
         return reject(CF_JAW_MIN, bad_field);
-    if (!finite_f(m.jaw_max) || m.jaw_max < SERVO_MIN_DEG || m.jaw_max > SERVO_MAX_DEG ||
+    if (!finite_f(m.jaw_max) || m.jaw_max < JAW_HARD_MIN_DEG || m.jaw_max > JAW_HARD_MAX_DEG ||
         !(m.jaw_min < m.jaw_max))
         return reject(CF_JAW_MAX, bad_field);
     // The PID limits must overlap the jaw range.
@@ -98,6 +120,14 @@ inline bool validate_configure(const Configure& m, DeviceConfig* out, uint16_t* 
     if (m.servo_us_at_180 < SERVO_PULSE_MIN_US || m.servo_us_at_180 > SERVO_PULSE_MAX_US ||
         abs_diff_u16(m.servo_us_at_0, m.servo_us_at_180) < SERVO_MIN_CAL_SPAN_US)
         return reject(CF_SERVO_US_AT_180, bad_field);
+    // The mapping must give both ends of the jaw range pulses inside the hard window (a reversed
+    // or shifted mapping would move the jaw outside the hard range at a legal angle).
+    ServoCalibration servo = {m.servo_us_at_0, m.servo_us_at_180};
+    real_t tpd = servo_ticks_per_deg<real_t>(servo);
+    real_t base = servo_pulse_base<real_t>(servo);
+    if (!pulse_inside(real_t(m.jaw_min), base, tpd, w) ||
+        !pulse_inside(real_t(m.jaw_max), base, tpd, w))
+        return reject(CF_SERVO_US_AT_0, bad_field);
     if (m.decimation > MAX_DECIMATION) return reject(CF_DECIMATION, bad_field);
     if (m.anti_windup > AW_BACK_CALCULATION) return reject(CF_ANTI_WINDUP, bad_field);
     if (m.sign != 1 && m.sign != -1) return reject(CF_SIGN, bad_field);
@@ -119,80 +149,81 @@ inline bool validate_configure(const Configure& m, DeviceConfig* out, uint16_t* 
     c.jaw_max = m.jaw_max;
     c.adc.adc_at_lo = m.adc_at_lo;
     c.adc.adc_at_hi = m.adc_at_hi;
-    c.servo.us_at_0 = m.servo_us_at_0;
-    c.servo.us_at_180 = m.servo_us_at_180;
+    c.servo = servo;
     c.decimation = m.decimation;
     c.batch = m.telemetry_batch;
     c.adc_slope = adc_slope<real_t>(c.adc);
-    c.servo_ticks_per_deg = servo_ticks_per_deg<real_t>(c.servo);
+    c.servo_base = base;
+    c.servo_ticks_per_deg = tpd;
+    pid_prepare<real_t>(c.gains, real_t(TICK_PERIOD_US) / real_t(1000000));
     *out = c;
     return true;
 }
 
 inline uint16_t sat_u16(uint32_t v) { return v > 0xFFFF ? 0xFFFF : (uint16_t)v; }
 
-// Transmit queue: whole frames go in or are dropped; the sketch drains it byte by byte as the
-// UART has room, so the control loop never blocks on serial output.
+// Transmit queue: whole frames go in or are dropped. A single-producer, single-consumer ring:
+// the device pushes (the main loop on the board), the UART's data-register-empty interrupt pops,
+// so the control loop never blocks on serial output and a byte costs one short interrupt. Each
+// side writes only its own index and reads the other's with interrupts off (GRIPPER_ATOMIC).
 class TxQueue {
   public:
     enum { CAPACITY = 512, MASK = CAPACITY - 1 }; // a power of two: indices wrap with a mask
-    TxQueue() : head_(0), count_(0) {}
-    size_t free_space() const { return CAPACITY - count_; }
-    size_t size() const { return count_; }
+    TxQueue() : head_(0), tail_(0) {}
+    size_t size() const {
+        uint16_t h;
+        GRIPPER_ATOMIC { h = head_; }
+        return (uint16_t)(tail_ - h);
+    }
+    size_t free_space() const { return CAPACITY - size(); }
+    // Queue n bytes (a whole wire frame), or nothing if they do not fit.
     bool push(const uint8_t* data, size_t n) {
         if (n > free_space()) return false;
-        uint16_t w = (uint16_t)(head_ + count_);
-        for (size_t k = 0; k < n; ++k) buf_[(w + k) & MASK] = data[k];
-        count_ = (uint16_t)(count_ + n);
+        uint16_t t = tail_;
+        size_t at = t & MASK;
+        size_t first = n < CAPACITY - at ? n : CAPACITY - at;
+        memcpy(buf_ + at, data, first);
+        memcpy(buf_, data + first, n - first);
+        publish((uint16_t)(t + n));
         return true;
     }
-    // Queue the wire frame COBS(raw[0..n)) + 0x00, encoded straight into the queue (no frame
-    // buffer, no second copy). A raw frame is at most MAX_RAW_FRAME (< 254) bytes, so its COBS
-    // form is exactly n + 1 bytes: the same bytes as encode_frame() produces.
-    bool push_frame(const uint8_t* raw, size_t n) {
-        if (n >= 254 || n + 2 > free_space()) return false;
-        uint16_t w = (uint16_t)(head_ + count_);
-        uint16_t code_at = w;
-        uint16_t o = (uint16_t)(w + 1);
-        uint8_t code = 1;
-        for (size_t i = 0; i < n; ++i) {
-            uint8_t b = raw[i];
-            if (b != 0) {
-                buf_[o++ & MASK] = b;
-                ++code;
-            } else {
-                buf_[code_at & MASK] = code;
-                code = 1;
-                code_at = o++;
-            }
-        }
-        buf_[code_at & MASK] = code;
-        buf_[o++ & MASK] = 0;
-        count_ = (uint16_t)(count_ + (uint16_t)(o - w));
-        return true;
+    // Queue the wire frame COBS(body | crc16 LE) + 0x00 of body = seq | type | payload (n bytes):
+    // framed into a buffer on the stack (frame_body(), one pass for CRC and COBS), then copied.
+    bool push_frame(const uint8_t* body, size_t n) {
+        uint8_t wire[MAX_WIRE_FRAME];
+        return push(wire, frame_body(body, (uint8_t)n, wire));
     }
-    uint8_t pop() {
-        uint8_t b = buf_[head_];
-        head_ = (uint16_t)((head_ + 1) & MASK);
-        --count_;
-        return b;
+    // The consumer: the next byte into *out, or false if the queue is empty. On the board only
+    // the UART interrupt calls it (interrupts are off there).
+    bool pop(uint8_t* out) {
+        uint16_t h = head_;
+        if (h == tail_) return false;
+        *out = buf_[h & MASK];
+        head_ = (uint16_t)(h + 1);
+        return true;
     }
 
   private:
+    void publish(uint16_t tail) {
+        GRIPPER_ATOMIC { tail_ = tail; }
+    }
+
     uint8_t buf_[CAPACITY];
-    uint16_t head_;
-    uint16_t count_;
+    volatile uint16_t head_; // written by the consumer only
+    volatile uint16_t tail_; // written by the producer only
 };
 
 // The device: protocol session, modes, PID, safety and telemetry. Hardware-free: the sketch feeds
-// it received bytes and 1 kHz ticks with the ADC reading, applies servo_pulse_ticks() when
-// servo_enabled(), and drains tx. The host harness does the same with a simulated clock.
+// it received bytes (and tells it when bytes were lost before it), 1 kHz ticks with the ADC
+// reading, applies servo_ticks() when servo_enabled(), and lets the UART drain tx. The host
+// harness does the same with a simulated clock.
 class Device {
   public:
     Device() { begin(0xFFFFFFFFUL, 0); }
 
     void begin(uint32_t device_id, uint32_t now_us) {
         device_id_ = device_id;
+        window_ = hard_pulse_window<real_t>();
         rx_.reset();
         tx_seq_ = 0;
         session_ = false;
@@ -211,15 +242,25 @@ class Device {
         now_us_ = now_us;
         echo_ = 0;
         last_rx_seq_ = 0;
-        refused_ = tx_dropped_ = overruns_ = 0;
+        refused_ = tx_dropped_ = overruns_ = rx_overflow_ = 0;
         rail_ticks_ = 0;
+        sample_pending_ = false;
         clear_telemetry();
     }
 
     // Feed one received byte at device time now_us.
     void receive(uint8_t byte, uint32_t now_us) {
-        now_us_ = now_us;
-        if (rx_.push(byte) == StreamDecoder::FRAME) handle_frame();
+        if (rx_.push(byte) == StreamDecoder::FRAME) {
+            now_us_ = now_us;
+            handle_frame();
+        }
+    }
+
+    // n host bytes were lost before the next byte fed to receive() (the receive buffer was full,
+    // the UART overran): count them, and drop the frame they belonged to whatever its CRC says.
+    void rx_lost(uint8_t n) {
+        rx_overflow_ += n;
+        rx_.abort_frame();
     }
 
     // One control period: control() then finish_tick(). now_us is the device time, adc the
@@ -229,8 +270,8 @@ class Device {
         finish_tick();
     }
 
-    // The time-critical half of a tick: safety checks, PID, servo command, telemetry sample. The
-    // sketch applies the servo output right after it, then calls finish_tick().
+    // The time-critical half of a tick: safety checks, PID, servo command. The sketch applies the
+    // servo output right after it, then calls finish_tick().
     void control(uint32_t now_us, uint16_t adc, bool overrun) {
         now_us_ = now_us;
         if (overrun) ++overruns_;
@@ -245,7 +286,7 @@ class Device {
         if (entry_pending_) enter_mode(y);
         if (mode_ != MODE_IDLE) {
             reference_ = clamp_jaw<real_t>(setpoint_, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
-            if (have_setpoint_ && reference_ != setpoint_) sample_flags |= SAMPLE_CLAMPED;
+            if (have_setpoint_ && !same(reference_, setpoint_)) sample_flags |= SAMPLE_CLAMPED;
         }
         if (mode_ == MODE_OPEN_LOOP) {
             command_ = reference_;
@@ -256,7 +297,7 @@ class Device {
             if (!is_finite(v) || !is_finite(pid_state_[0]) || !is_finite(pid_state_[1])) {
                 safe_stop(FAULT_NUMERIC);
             } else {
-                if (u != v) sample_flags |= SAMPLE_SATURATED;
+                if (!same(u, v)) sample_flags |= SAMPLE_SATURATED;
                 command_ = clamp_jaw<real_t>(u, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
             }
         }
@@ -264,20 +305,22 @@ class Device {
             reference_ = safe_deg();
             command_ = safe_deg();
         }
-        record_sample(adc, sample_flags);
+        take_sample(adc, sample_flags);
     }
 
-    // The rest of a tick: queue the telemetry frame if the batch is complete. Encoding a frame
-    // (CRC, COBS) costs several thousand cycles; done after the servo update it delays no output.
+    // The rest of a tick: encode this tick's telemetry sample into the frame being built, and
+    // queue the frame once the batch is complete. Done after the servo update, it delays no
+    // output.
     void finish_tick() {
-        if (telemetry_full_) flush_telemetry();
+        if (sample_pending_) record_sample();
     }
 
     // Outputs for the sketch.
     bool servo_enabled() const { return servo_on_; }
     real_t servo_command_deg() const { return command_; }
     uint16_t servo_ticks() const {
-        return servo_pulse_ticks<real_t>(command_, cfg_.servo, cfg_.servo_ticks_per_deg);
+        return servo_pulse_ticks<real_t>(command_, cfg_.servo_base, cfg_.servo_ticks_per_deg,
+                                         window_);
     }
 
     // State, for STATUS and tests.
@@ -286,6 +329,8 @@ class Device {
     bool session() const { return session_; }
     real_t jaw_min() const { return cfg_.jaw_min; }
     real_t jaw_max() const { return cfg_.jaw_max; }
+    PulseWindow pulse_window() const { return window_; }
+    uint32_t rx_overflow() const { return rx_overflow_; }
     const StreamDecoder& decoder() const { return rx_; }
 
     TxQueue tx;
@@ -329,6 +374,9 @@ class Device {
         uint8_t type = rx_.type();
         const uint8_t* p = rx_.payload();
         size_t n = rx_.payload_len();
+        // Host frames missing before this one (a HELLO starts a new sequence): say so at once,
+        // so the host can resend a command it is waiting on instead of timing out.
+        if (session_ && type != MSG_HELLO && rx_.last_gap()) report_lost();
         if (type == MSG_ESTOP) { // honoured with or without a session
             Estop m;
             if (!m.decode(p, n)) return refuse(ERR_BAD_LENGTH, (uint16_t)n);
@@ -355,7 +403,7 @@ class Device {
             if (!m.decode(p, n)) return refuse(ERR_BAD_LENGTH, (uint16_t)n);
             DeviceConfig c;
             uint16_t field = 0;
-            if (!validate_configure(m, &c, &field)) return refuse(ERR_BAD_VALUE, field);
+            if (!validate_configure(m, window_, &c, &field)) return refuse(ERR_BAD_VALUE, field);
             apply_config(c);
             send_status();
             return;
@@ -420,6 +468,10 @@ class Device {
         info.tick_period_us = (uint16_t)TICK_PERIOD_US;
         info.max_batch = TELEMETRY_MAX_SAMPLES;
         info.max_payload = (uint8_t)MAX_PAYLOAD;
+        info.hard_jaw_min_deg = JAW_HARD_MIN_DEG;
+        info.hard_jaw_max_deg = JAW_HARD_MAX_DEG;
+        info.hard_pulse_min_us = window_.lo * 0.5f;
+        info.hard_pulse_max_us = window_.hi * 0.5f;
         send(info);
     }
 
@@ -427,7 +479,10 @@ class Device {
         bool structure_changed = c.gains.sign != cfg_.gains.sign ||
                                  c.gains.d_on_meas != cfg_.gains.d_on_meas;
         bool telemetry_changed = c.decimation != cfg_.decimation || c.batch != cfg_.batch;
-        if (telemetry_changed) flush_telemetry();
+        if (telemetry_changed) {
+            flush_telemetry();
+            clear_telemetry();
+        }
         cfg_ = c;
         configured_ = true;
         // A new sign or derivative input changes what xf means: re-enter bumplessly.
@@ -436,10 +491,20 @@ class Device {
 
     void refuse(uint8_t code, uint16_t detail) {
         ++refused_;
+        send_error(code, rx_.type(), rx_.seq(), detail);
+    }
+
+    // FRAMES_LOST: last_gap() host frames are missing before this one (not a refusal).
+    void report_lost() {
+        uint8_t gap = rx_.last_gap();
+        send_error(ERR_FRAMES_LOST, 0, (uint8_t)(rx_.seq() - gap), gap);
+    }
+
+    void send_error(uint8_t code, uint8_t type, uint8_t seq, uint16_t detail) {
         Error e;
         e.code = code;
-        e.msg_type = rx_.type();
-        e.seq = rx_.seq();
+        e.msg_type = type;
+        e.seq = seq;
         e.detail = detail;
         send(e);
     }
@@ -456,70 +521,100 @@ class Device {
         s.frames_ok = rx_.frames_ok;
         s.frames_lost = sat_u16(rx_.lost);
         s.bad_crc = sat_u16(rx_.bad_crc);
-        s.bad_frame = sat_u16(rx_.bad_cobs + rx_.truncated + rx_.oversized);
+        s.bad_frame = sat_u16(rx_.bad_cobs + rx_.truncated + rx_.oversized + rx_.damaged);
         s.refused = sat_u16(refused_);
         s.tx_dropped = sat_u16(tx_dropped_);
         s.overruns = sat_u16(overruns_);
+        s.rx_overflow = sat_u16(rx_overflow_);
+        s.setpoint_deg = have_setpoint_ ? (float)setpoint_ : __builtin_nanf("");
         send(s);
     }
 
-    // Frame and queue a message: seq | type | payload | CRC built in place, then COBS-encoded
-    // into the transmit queue (the bytes of encode_message(), without its two buffer copies).
+    // Frame and queue a message: seq | type | payload built in place, then CRC-checked and
+    // COBS-encoded into the transmit queue (the bytes of encode_message()).
     template <typename Msg>
     void send(const Msg& m) {
-        uint8_t raw[MAX_RAW_FRAME];
-        raw[0] = tx_seq_;
-        raw[1] = (uint8_t)Msg::TYPE;
-        size_t n = m.encode(raw + 2);
-        put_u16(raw + 2 + n, crc16(raw, n + 2));
+        uint8_t body[MAX_RAW_FRAME - 2];
+        body[0] = tx_seq_;
+        body[1] = (uint8_t)Msg::TYPE;
+        size_t n = m.encode(body + 2);
         // The sequence number advances even for a dropped frame, so the host sees the gap.
         ++tx_seq_;
-        if (!tx.push_frame(raw, n + 4)) ++tx_dropped_;
+        if (!tx.push_frame(body, n + 2)) ++tx_dropped_;
     }
 
+    // Start a new telemetry batch and decimation count (telemetry settings changed, or boot).
     void clear_telemetry() {
-        telemetry_.count = 0;
+        sample_pending_ = false;
         decimation_count_ = 0;
-        telemetry_full_ = false;
+        telemetry_.clear();
     }
 
+    // Queue the telemetry frame with the samples taken so far (the batch is complete, or the
+    // telemetry settings change).
     void flush_telemetry() {
-        if (telemetry_.count > 0) send(telemetry_);
-        clear_telemetry();
+        if (sample_pending_) record_sample(); // control() without finish_tick(): keep its sample
+        if (telemetry_.count() == 0) return;
+        size_t n = telemetry_.finish(tx_seq_);
+        ++tx_seq_; // as in send(): a dropped frame still takes its sequence number
+        if (!tx.push(telemetry_.data(), n)) ++tx_dropped_;
     }
 
-    void record_sample(uint16_t adc, uint8_t flags) {
+    // In control(): whether this tick is sampled (decimation), and its sample's state; the
+    // encoding waits for finish_tick().
+    void take_sample(uint16_t adc, uint8_t flags) {
         if (!session_ || cfg_.decimation == 0) return;
         if (decimation_count_ > 0) {
             --decimation_count_;
             return;
         }
         decimation_count_ = (uint16_t)(cfg_.decimation - 1);
-        if (telemetry_full_) flush_telemetry(); // control() twice without finish_tick()
-        if (telemetry_.count == 0) {
-            telemetry_.t0_us = now_us_;
-            telemetry_.decimation = cfg_.decimation;
-        }
-        TelemetrySample& s = telemetry_.samples[telemetry_.count++];
-        s.reference_cdeg = to_cdeg(reference_);
-        s.command_cdeg = servo_on_ ? to_cdeg(command_) : CDEG_NONE;
-        s.adc = adc;
-        s.flags = (uint8_t)(flags | (mode_ & SAMPLE_MODE_MASK) | (faults_ ? SAMPLE_FAULT : 0) |
-                            (servo_on_ ? SAMPLE_SERVO_ON : 0));
-        if (telemetry_.count >= cfg_.batch) telemetry_full_ = true;
+        if (sample_pending_) record_sample(); // control() twice without finish_tick()
+        pending_.t_us = now_us_;
+        pending_.reference = reference_;
+        pending_.command = command_;
+        pending_.adc = adc;
+        pending_.servo_on = servo_on_;
+        pending_.flags = (uint8_t)(flags | (mode_ & SAMPLE_MODE_MASK) |
+                                   (faults_ ? SAMPLE_FAULT : 0) | (servo_on_ ? SAMPLE_SERVO_ON : 0));
+        sample_pending_ = true;
     }
 
+    // Add the pending sample to the frame being built; queue the frame when the batch is full.
+    void record_sample() {
+        sample_pending_ = false;
+        if (telemetry_.count() == 0) telemetry_.start(pending_.t_us, cfg_.decimation, cfg_.batch);
+        TelemetrySample s;
+        s.reference_cdeg = to_cdeg(pending_.reference);
+        s.command_cdeg = pending_.servo_on ? to_cdeg(pending_.command) : CDEG_NONE;
+        s.adc = pending_.adc;
+        s.flags = pending_.flags;
+        telemetry_.add(s);
+        if (telemetry_.count() >= cfg_.batch) flush_telemetry();
+    }
+
+    // A tick's telemetry sample between control() and finish_tick().
+    struct PendingSample {
+        uint32_t t_us;
+        real_t reference, command;
+        uint16_t adc;
+        uint8_t flags;
+        bool servo_on;
+    };
+
     StreamDecoder rx_;
-    Telemetry telemetry_;
+    TelemetryFrame telemetry_;
+    PendingSample pending_;
     DeviceConfig cfg_;
+    PulseWindow window_;
     real_t pid_state_[2];
     real_t setpoint_, reference_, command_;
     uint32_t device_id_;
     uint32_t last_rx_us_, now_us_, echo_;
-    uint32_t refused_, tx_dropped_, overruns_;
+    uint32_t refused_, tx_dropped_, overruns_, rx_overflow_;
     uint16_t decimation_count_, rail_ticks_;
     uint8_t tx_seq_, mode_, faults_, last_rx_seq_;
-    bool session_, configured_, servo_on_, entry_pending_, have_setpoint_, telemetry_full_;
+    bool session_, configured_, servo_on_, entry_pending_, have_setpoint_, sample_pending_;
 };
 
 } // namespace gripper

@@ -17,7 +17,7 @@
 
 namespace gripper {
 
-const uint16_t PROTOCOL_VERSION = 1; // bumped by any incompatible change
+const uint16_t PROTOCOL_VERSION = 2; // bumped by any incompatible change
 const size_t MAX_PAYLOAD = 240; // bytes of payload in one frame
 const uint8_t TELEMETRY_MAX_SAMPLES = 32; // samples in one TELEMETRY frame
 const uint8_t PROFILE_CHUNK_MAX_SAMPLES = 100; // samples in one PROFILE_CHUNK frame
@@ -86,7 +86,8 @@ enum ErrorCode {
     ERR_UNKNOWN_TYPE = 5, // the type id
     ERR_FAULT_LATCHED = 6, // the latched fault bits
     ERR_NOT_CONFIGURED = 7, // 0
-    ERR_UNSUPPORTED = 8 // 0
+    ERR_UNSUPPORTED = 8, // 0
+    ERR_FRAMES_LOST = 9 // host frames missing from the sequence, `seq` being the first of them (a report, not a refusal)
 };
 
 // Field indices of CONFIGURE (ERROR.detail of BAD_VALUE), in wire order.
@@ -121,7 +122,7 @@ struct TelemetrySample {
 // HELLO (0x01, host -> device)
 struct Hello {
     enum { TYPE = MSG_HELLO, SIZE = 2 };
-    uint16_t protocol_version; // the protocol version the host speaks (= 1)
+    uint16_t protocol_version; // the protocol version the host speaks (= 2)
     size_t encode(uint8_t* b) const {
         put_u16(b, protocol_version);
         return SIZE;
@@ -143,11 +144,11 @@ struct Configure {
     float u_min; // deg, not NaN, not +inf
     float u_max; // deg, not NaN, not -inf, `> u_min`
     float kb; // 1/s, finite
-    float jaw_min; // deg, in [0, 180]
-    float jaw_max; // deg, in [0, 180], `> jaw_min`; the safe (open) position
+    float jaw_min; // deg, inside the image's hard jaw range (INFO: 21..92 by default)
+    float jaw_max; // deg, inside the hard jaw range, `> jaw_min`; the safe (open) position
     uint16_t adc_at_lo; // ADC counts with the jaw at 21 deg, in [4, 1019]
     uint16_t adc_at_hi; // ADC counts at 92 deg, in [4, 1019], at least 20 counts from `adc_at_lo`
-    uint16_t servo_us_at_0; // servo pulse (us) for 0 deg, in [400, 2600]
+    uint16_t servo_us_at_0; // servo pulse (us) for 0 deg, in [400, 2600]; the pulses of `jaw_min` and `jaw_max` must lie in the hard pulse window (INFO)
     uint16_t servo_us_at_180; // pulse for 180 deg, in [400, 2600], at least 500 us from the other
     uint16_t decimation; // telemetry sample every `decimation` ticks, 0 = off, at most 1000
     uint8_t anti_windup; // 0 none, 1 clamping, 2 back-calculation
@@ -283,7 +284,7 @@ struct Estop {
 
 // INFO (0x81, device -> host)
 struct Info {
-    enum { TYPE = MSG_INFO, SIZE = 13 };
+    enum { TYPE = MSG_INFO, SIZE = 29 };
     uint16_t protocol_version; // the firmware's protocol version
     uint8_t fw_major; // firmware version (informational)
     uint8_t fw_minor; // firmware version
@@ -292,6 +293,10 @@ struct Info {
     uint16_t tick_period_us; // the control period (1000)
     uint8_t max_batch; // largest `telemetry_batch` (32)
     uint8_t max_payload; // largest payload in bytes (240)
+    float hard_jaw_min_deg; // the hard jaw range compiled into the image: no CONFIGURE can move the jaw outside it (21)
+    float hard_jaw_max_deg; // (92)
+    float hard_pulse_min_us; // the hard pulse window: every servo pulse lies in it, the pulses of the hard jaw range under the servo mapping the image was built for (760.5 us for 21 deg with 544/2400 us)
+    float hard_pulse_max_us; // (1492.5 us for 92 deg)
     size_t encode(uint8_t* b) const {
         put_u16(b, protocol_version);
         b[2] = fw_major;
@@ -301,6 +306,10 @@ struct Info {
         put_u16(b + 9, tick_period_us);
         b[11] = max_batch;
         b[12] = max_payload;
+        put_f32(b + 13, hard_jaw_min_deg);
+        put_f32(b + 17, hard_jaw_max_deg);
+        put_f32(b + 21, hard_pulse_min_us);
+        put_f32(b + 25, hard_pulse_max_us);
         return SIZE;
     }
     bool decode(const uint8_t* b, size_t len) {
@@ -313,6 +322,10 @@ struct Info {
         tick_period_us = get_u16(b + 9);
         max_batch = b[11];
         max_payload = b[12];
+        hard_jaw_min_deg = get_f32(b + 13);
+        hard_jaw_max_deg = get_f32(b + 17);
+        hard_pulse_min_us = get_f32(b + 21);
+        hard_pulse_max_us = get_f32(b + 25);
         return true;
     }
 };
@@ -357,7 +370,7 @@ struct Telemetry {
 
 // STATUS (0x83, device -> host)
 struct Status {
-    enum { TYPE = MSG_STATUS, SIZE = 28 };
+    enum { TYPE = MSG_STATUS, SIZE = 34 };
     uint32_t device_time_us; // device time (micros()) when the STATUS was built
     uint32_t echo; // token of the last HEARTBEAT
     uint8_t mode; // 0 IDLE, 1 OPEN_LOOP, 2 CLOSED_LOOP
@@ -367,10 +380,12 @@ struct Status {
     uint32_t frames_ok; // valid host frames since reset
     uint16_t frames_lost; // host frames missing from the sequence
     uint16_t bad_crc; // host frames with a CRC mismatch
-    uint16_t bad_frame; // invalid COBS, truncated or oversized
+    uint16_t bad_frame; // invalid COBS, truncated, oversized, or damaged by bytes lost on the receive path
     uint16_t refused; // commands answered by ERROR
     uint16_t tx_dropped; // device frames dropped for lack of transmit buffer
     uint16_t overruns; // control ticks that started more than 250 us late
+    uint16_t rx_overflow; // host bytes lost before the decoder (receive buffer full, UART overrun or framing error)
+    float setpoint_deg; // the setpoint the device holds (deg, as received, before the jaw clamp); NaN before any
     size_t encode(uint8_t* b) const {
         put_u32(b, device_time_us);
         put_u32(b + 4, echo);
@@ -385,6 +400,8 @@ struct Status {
         put_u16(b + 22, refused);
         put_u16(b + 24, tx_dropped);
         put_u16(b + 26, overruns);
+        put_u16(b + 28, rx_overflow);
+        put_f32(b + 30, setpoint_deg);
         return SIZE;
     }
     bool decode(const uint8_t* b, size_t len) {
@@ -402,6 +419,8 @@ struct Status {
         refused = get_u16(b + 22);
         tx_dropped = get_u16(b + 24);
         overruns = get_u16(b + 26);
+        rx_overflow = get_u16(b + 28);
+        setpoint_deg = get_f32(b + 30);
         return true;
     }
 };

@@ -90,7 +90,14 @@ const uint16_t CRC16_TABLE[256] GRIPPER_FLASH = {
     0x6E17, 0x7E36, 0x4E55, 0x5E74, 0x2E93, 0x3EB2, 0x0ED1, 0x1EF0,
 };
 
-inline uint16_t crc16_update(uint16_t crc, uint8_t data) {
+// Always inlined: on the AVR the call alone costs as much as the table step.
+#if defined(__GNUC__)
+#define GRIPPER_ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define GRIPPER_ALWAYS_INLINE inline
+#endif
+
+GRIPPER_ALWAYS_INLINE uint16_t crc16_update(uint16_t crc, uint8_t data) {
     return (uint16_t)((crc << 8) ^ GRIPPER_FLASH_WORD(&CRC16_TABLE[(uint8_t)(crc >> 8) ^ data]));
 }
 
@@ -98,6 +105,23 @@ inline uint16_t crc16_update(uint16_t crc, uint8_t data) {
 inline uint16_t crc16(const uint8_t* data, size_t n, uint16_t crc = 0xFFFF) {
     for (size_t i = 0; i < n; ++i) crc = crc16_update(crc, data[i]);
     return crc;
+}
+
+// The CRC register is linear in its initial value: the CRC of a message from init I is the CRC
+// from init 0 XOR (I * x^(8 n) mod P), n the message's length in bytes. crc16_mulmod multiplies
+// two 16-bit polynomials modulo P = x^16 + x^12 + x^5 + 1; crc16_update(1, 0) repeated n times,
+// or a power of x^8 by mulmod, gives x^(8 n) mod P. The telemetry encoder uses it to finish a
+// frame's CRC once its sequence number, the first byte, is known (TelemetryFrame).
+inline uint16_t crc16_mulmod(uint16_t a, uint16_t b) {
+    uint16_t r = 0;
+    for (uint8_t k = 0; k < 16; ++k) { // a's bits from the top: r = r * x + bit * b
+        bool carry = (r & 0x8000) != 0;
+        r = (uint16_t)(r << 1);
+        if (carry) r ^= 0x1021;
+        if (a & 0x8000) r ^= b;
+        a = (uint16_t)(a << 1);
+    }
+    return r;
 }
 
 // COBS-encode n bytes into out (capacity cap). Returns the encoded length, 0 if it does not fit.

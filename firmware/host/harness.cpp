@@ -14,15 +14,19 @@
 //   encode TYPE SEQ field...     -> frame HEX | ERR reason
 //   pid dt P I D N umin umax aw kb sign dmeas xi0 xf0 n r1 y1 ... rn yn
 //                                -> u1 v1 ... un vn xi xf
-//   clamp x lo hi safe           -> real
+//   clamp x lo hi safe           -> real            cdeg x -> int (to_cdeg of a real)
 //   adc2deg adc lo hi            -> real            deg2adc deg lo hi -> int
-//   pulse deg us0 us180          -> int ticks       wd now last timeout -> 0 | 1
+//   pulse deg us0 us180          -> int ticks (clamped into the hard window)
+//   window                       -> lo hi (the hard pulse window, ticks)
+//   wd now last timeout          -> 0 | 1
 //   dev_begin id now             -> OK   (the simulated clock is set to now)
 //   dev_rx HEX                   -> bytes the device transmitted, HEX
+//   dev_lost n                   -> OK   (n bytes lost before the next byte received)
 //   dev_tick n adc               -> SUMMARY (n ticks, 1 ms apart, constant ADC reading)
 //   dev_sim n tau_ms lo hi       -> SUMMARY y (first-order servo with time constant tau_ms whose
 //                                   angle is read through the calibration lo/hi)
-//   dev_counters                 -> frames_ok bad_cobs bad_crc truncated oversized lost discarded
+//   dev_counters                 -> frames_ok bad_cobs bad_crc truncated oversized damaged lost
+//                                   discarded rx_overflow
 //
 // SUMMARY = mode faults servo_on_at_end ticks_on cmd_min cmd_max pulse_min pulse_max jaw_min
 //           jaw_max TX_HEX, where cmd/pulse extremes are over the ticks with the servo on.
@@ -148,12 +152,16 @@ void load(Estop&, Fields&) {}
 void dump(const Info& m, Fields& o) {
     o.i(m.protocol_version), o.i(m.fw_major), o.i(m.fw_minor), o.i(m.fw_patch);
     o.i(m.device_id), o.i(m.tick_period_us), o.i(m.max_batch), o.i(m.max_payload);
+    o.f(m.hard_jaw_min_deg), o.f(m.hard_jaw_max_deg), o.f(m.hard_pulse_min_us);
+    o.f(m.hard_pulse_max_us);
 }
 void load(Info& m, Fields& o) {
     m.protocol_version = (uint16_t)o.gi(), m.fw_major = (uint8_t)o.gi();
     m.fw_minor = (uint8_t)o.gi(), m.fw_patch = (uint8_t)o.gi();
     m.device_id = (uint32_t)o.gi(), m.tick_period_us = (uint16_t)o.gi();
     m.max_batch = (uint8_t)o.gi(), m.max_payload = (uint8_t)o.gi();
+    m.hard_jaw_min_deg = o.gf(), m.hard_jaw_max_deg = o.gf(), m.hard_pulse_min_us = o.gf();
+    m.hard_pulse_max_us = o.gf();
 }
 
 void dump(const Telemetry& m, Fields& o) {
@@ -175,7 +183,8 @@ void load(Telemetry& m, Fields& o) {
 void dump(const Status& m, Fields& o) {
     o.i(m.device_time_us), o.i(m.echo), o.i(m.mode), o.i(m.faults), o.i(m.flags);
     o.i(m.last_rx_seq), o.i(m.frames_ok), o.i(m.frames_lost), o.i(m.bad_crc);
-    o.i(m.bad_frame), o.i(m.refused), o.i(m.tx_dropped), o.i(m.overruns);
+    o.i(m.bad_frame), o.i(m.refused), o.i(m.tx_dropped), o.i(m.overruns), o.i(m.rx_overflow);
+    o.f(m.setpoint_deg);
 }
 void load(Status& m, Fields& o) {
     m.device_time_us = (uint32_t)o.gi(), m.echo = (uint32_t)o.gi(), m.mode = (uint8_t)o.gi();
@@ -183,6 +192,7 @@ void load(Status& m, Fields& o) {
     m.frames_ok = (uint32_t)o.gi(), m.frames_lost = (uint16_t)o.gi();
     m.bad_crc = (uint16_t)o.gi(), m.bad_frame = (uint16_t)o.gi(), m.refused = (uint16_t)o.gi();
     m.tx_dropped = (uint16_t)o.gi(), m.overruns = (uint16_t)o.gi();
+    m.rx_overflow = (uint16_t)o.gi(), m.setpoint_deg = o.gf();
 }
 
 void dump(const Error& m, Fields& o) {
@@ -280,6 +290,7 @@ std::string pid_run(std::istringstream& in) {
     g.p = (real_t)a[1], g.i = (real_t)a[2], g.d = (real_t)a[3], g.n = (real_t)a[4];
     g.u_min = (real_t)a[5], g.u_max = (real_t)a[6], g.anti_windup = (uint8_t)a[7];
     g.kb = (real_t)a[8], g.sign = (real_t)a[9], g.d_on_meas = a[10] != 0;
+    pid_prepare<real_t>(g, dt);
     real_t state[2] = {(real_t)a[11], (real_t)a[12]};
     size_t n = (size_t)a[13];
     if (a.size() != 14 + 2 * n) return "ERR args";
@@ -300,7 +311,8 @@ double sim_y = JAW_OPEN_DEG; // angle of the simulated servo (deg), reset by dev
 
 std::string drain_tx() {
     Bytes b;
-    while (device.tx.size() > 0) b.push_back(device.tx.pop());
+    uint8_t byte;
+    while (device.tx.pop(&byte)) b.push_back(byte);
     return to_hex(b.data(), b.size());
 }
 
@@ -372,6 +384,10 @@ std::string handle(const std::string& line) {
         return real_str((double)clamp_jaw<real_t>((real_t)real_parse(a), (real_t)real_parse(b),
                                                   (real_t)real_parse(c), (real_t)real_parse(d)));
     }
+    if (cmd == "cdeg") {
+        in >> a;
+        return std::to_string(to_cdeg((real_t)real_parse(a)));
+    }
     if (cmd == "adc2deg" || cmd == "deg2adc") {
         in >> a >> b >> c;
         AdcCalibration cal = {(uint16_t)int_parse(b), (uint16_t)int_parse(c)};
@@ -382,6 +398,10 @@ std::string handle(const std::string& line) {
         in >> a >> b >> c;
         ServoCalibration cal = {(uint16_t)int_parse(b), (uint16_t)int_parse(c)};
         return std::to_string(servo_pulse_ticks<real_t>((real_t)real_parse(a), cal));
+    }
+    if (cmd == "window") {
+        PulseWindow w = hard_pulse_window<real_t>();
+        return std::to_string(w.lo) + " " + std::to_string(w.hi);
     }
     if (cmd == "wd") {
         in >> a >> b >> c;
@@ -402,6 +422,11 @@ std::string handle(const std::string& line) {
         in >> a;
         for (uint8_t byte : from_hex(a)) device.receive(byte, now_us);
         return drain_tx();
+    }
+    if (cmd == "dev_lost") {
+        in >> a;
+        device.rx_lost((uint8_t)int_parse(a));
+        return "OK";
     }
     if (cmd == "dev_tick") {
         long n = 0, adc = 0;
@@ -434,7 +459,8 @@ std::string handle(const std::string& line) {
         const StreamDecoder& r = device.decoder();
         std::ostringstream o;
         o << r.frames_ok << " " << r.bad_cobs << " " << r.bad_crc << " " << r.truncated << " "
-          << r.oversized << " " << r.lost << " " << r.discarded_bytes;
+          << r.oversized << " " << r.damaged << " " << r.lost << " " << r.discarded_bytes << " "
+          << device.rx_overflow();
         return o.str();
     }
     return "ERR unknown_command";

@@ -8,7 +8,8 @@ module:
 * the host's side of a board:
 
   * :mod:`~gripper_env.hardware.device`: :class:`GripperDevice`, the host's session with a
-    board, over :mod:`~gripper_env.hardware.serial_port` (the pyserial port);
+    board, over :mod:`~gripper_env.hardware.serial_port` (the pyserial port), with
+    :mod:`~gripper_env.hardware.command_log` (what the board reported lost, what to resend);
   * :mod:`~gripper_env.hardware.errors`: :class:`DeviceError` and its kinds;
   * :mod:`~gripper_env.hardware.telemetry`: telemetry as arrays on one device clock;
   * :mod:`~gripper_env.hardware.configuration`: the CONFIGURE for gains and a calibration;
@@ -27,7 +28,8 @@ module:
     (:mod:`~gripper_env.hardware.mega2560`, built by :mod:`~gripper_env.hardware.firmware_build`),
     on a pty too (``python -m gripper_env.hardware.emulator``);
   * :mod:`~gripper_env.hardware.scripted`: a scripted host on emulated time, and the agreement of
-    the emulated board, the Python twin and the simulation core.
+    the emulated board, the Python twin and the simulation core;
+  * :mod:`~gripper_env.hardware.link_fuzz`: fuzzed host traffic against the compiled image.
 """
 
 from gripper_env.hardware.protocol import (

@@ -7,6 +7,15 @@ the board's PID, limits and calibration, switches modes, streams setpoints and c
 batched telemetry into arrays. Used as a context manager it always leaves the device stopped in
 the safe (open) position, whatever happened inside the block.
 
+Nothing the host sends is lost silently. Requests (HELLO, CONFIGURE, SET_MODE, HEARTBEAT) are
+answered, and sent again when the answer does not come or the board reports the frame lost; a
+mode change is checked against the mode the board reports. Setpoints are streamed without an
+answer (50 Hz during a run); the board reports any host frame it missed (ERROR FRAMES_LOST) and
+:class:`~gripper_env.hardware.command_log.CommandLog` sends a lost setpoint again unless a newer
+one replaced it. The setpoint a mode change starts from is confirmed before the mode changes (it
+is read back from STATUS), as is any setpoint sent with ``confirm=True``; a command that does not
+take after every retry raises :class:`~gripper_env.hardware.errors.CommandLost`.
+
 Every failure is a :class:`~gripper_env.hardware.errors.DeviceError` subclass that says what
 happened (:mod:`gripper_env.hardware.errors` lists them); telemetry arrives as
 :class:`~gripper_env.hardware.telemetry.TelemetryBlock` s.
@@ -26,10 +35,14 @@ import math
 import time
 from typing import Any
 
+import numpy as np
+
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.calibration import Calibration
+from gripper_env.hardware.command_log import CommandLog, lost_sequence
 from gripper_env.hardware.configuration import configure_message
 from gripper_env.hardware.errors import (
+    CommandLost,
     DeviceError,
     DeviceFault,
     DeviceReset,
@@ -70,7 +83,8 @@ class GripperDevice:
     timeout_s : float
         How long to wait for each answer (s).
     retries : int
-        How many times a command whose answer did not come is sent again.
+        How many times a command whose answer did not come (or that the board reports lost, or
+        a setpoint it does not hold) is sent again.
     baudrate : int
         Line rate (the firmware uses 1 000 000).
     open : bool
@@ -110,6 +124,8 @@ class GripperDevice:
         self._clock = TelemetryClock()
         self._token = 0
         self._last_rx_wall = time.monotonic()
+        self.commands = CommandLog()
+        self._setpoint_confirmed = False
         if open:
             self.open()
 
@@ -160,6 +176,8 @@ class GripperDevice:
         if info.protocol_version != proto.PROTOCOL_VERSION:
             raise version_mismatch(self.port, info.protocol_version)
         self.info = info
+        self.commands.new_session()
+        self._setpoint_confirmed = False
         self._session = True
         self._mode = Mode.IDLE
         self.faults = 0
@@ -188,12 +206,21 @@ class GripperDevice:
             Replaces the device's calibration (default: the one given at construction).
         jaw_deg : (float, float)
             Jaw range (deg) every command is clamped into; the upper end is the safe position.
+            It must lie inside the board's hard range (``info.hard_jaw_min_deg`` ..
+            ``hard_jaw_max_deg``, 21-92 deg by default).
         decimation : int
             One telemetry sample every ``decimation`` ticks (1 = 1 kHz).
         telemetry_batch : int
             Samples per telemetry frame (1..32).
         servo_us : (int, int)
-            Servo pulse widths (us) at 0 and 180 deg.
+            Servo pulse widths (us) at 0 and 180 deg; they must give the jaw range pulses inside
+            the board's hard window (``info.hard_pulse_min_us`` .. ``hard_pulse_max_us``).
+
+        Raises
+        ------
+        ValueError
+            A jaw range or pulse mapping outside the board's hard limits (checked here, before
+            anything is sent, and by the board again).
         """
         gains = gains or PIDGains(0.0, 0.0, 0.0)
         options = options or PIDOptions()
@@ -201,6 +228,7 @@ class GripperDevice:
             self.calibration = calibration
         if self.calibration is None:
             raise ValueError("configure needs a calibration (python -m rig.calibrate)")
+        self._check_hard_limits((float(jaw_deg[0]), float(jaw_deg[1])), servo_us)
         msg = configure_message(
             gains,
             options,
@@ -215,18 +243,81 @@ class GripperDevice:
         return self._request(msg, proto.Status)
 
     def set_mode(self, mode: int) -> proto.Status:
-        """Switch to IDLE (safe position, acknowledges faults), OPEN_LOOP or CLOSED_LOOP."""
+        """Switch to IDLE (safe position, acknowledges faults), OPEN_LOOP or CLOSED_LOOP.
+
+        Before an active mode, the last setpoint sent is confirmed (:meth:`confirm_setpoint`),
+        so the mode never starts from a setpoint that was lost; the board's answer must report
+        the new mode.
+
+        Raises
+        ------
+        CommandLost
+            If the setpoint or the mode does not take after every retry.
+        """
+        if mode != Mode.IDLE and self.commands.latest_setpoint and not self._setpoint_confirmed:
+            self.confirm_setpoint()
         status = self._request(proto.SetMode(mode), proto.Status)
+        if status.mode != mode:
+            raise CommandLost(
+                f"device on {self.port} answered SET_MODE({mode}) in mode {status.mode}"
+            )
         self._mode = mode
         if mode == Mode.IDLE:
             self.faults = 0
         return status
 
-    def set_setpoint(self, angle_deg: float) -> None:
-        """Send the open-loop command or closed-loop reference (deg); no answer is awaited."""
+    def set_setpoint(self, angle_deg: float, *, confirm: bool = False) -> None:
+        """Send the open-loop command or closed-loop reference (deg).
+
+        Parameters
+        ----------
+        angle_deg : float
+            The setpoint (deg); the board clamps it into the jaw range.
+        confirm : bool
+            Wait until the board holds it (:meth:`confirm_setpoint`). Without, no answer is
+            awaited (the 50 Hz stream of a run); a setpoint the board reports lost is sent again
+            unless a newer one replaced it, and the one a mode change starts from is confirmed
+            by :meth:`set_mode`.
+        """
         if not math.isfinite(angle_deg):
             raise ValueError(f"setpoint must be a finite angle, got {angle_deg}")
         self._send(proto.Setpoint(float(angle_deg)))
+        self._setpoint_confirmed = False
+        if confirm:
+            self.confirm_setpoint()
+
+    def confirm_setpoint(self) -> proto.Status:
+        """Make sure the board holds the last setpoint sent: read it back from a STATUS (one
+        HEARTBEAT round trip), sending it again while it does not.
+
+        Returns
+        -------
+        Status
+            The STATUS that shows it.
+
+        Raises
+        ------
+        ValueError
+            If no setpoint was sent in this session.
+        CommandLost
+            If the board does not hold it after :attr:`retries` more tries.
+        """
+        msg = self.commands.latest_setpoint
+        if msg is None:
+            raise ValueError("no setpoint was sent in this session")
+        want = np.float32(msg.angle_deg)
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self._send(msg)
+                self.commands.resent += 1
+            status, _ = self.heartbeat()
+            if np.float32(status.setpoint_deg) == want:
+                self._setpoint_confirmed = True
+                return status
+        raise CommandLost(
+            f"device on {self.port} does not hold SETPOINT {msg.angle_deg:g} deg after "
+            f"{self.retries + 1} tries (it holds {status.setpoint_deg:g} deg)" + self.link_summary()
+        )
 
     def heartbeat(self) -> tuple[proto.Status, float]:
         """A HEARTBEAT round trip: return the STATUS and the round-trip time (s)."""
@@ -349,7 +440,13 @@ class GripperDevice:
     def frames_lost(self) -> int:
         """Device frames missing from the sequence, plus frames rejected by the checks."""
         s = self.decoder.stats
-        return s.lost + s.bad_cobs + s.bad_crc + s.truncated + s.oversized
+        return s.lost + s.bad_cobs + s.bad_crc + s.truncated + s.oversized + s.damaged
+
+    @property
+    def commands_lost(self) -> int:
+        """Host frames the board reported missing (each resent, superseded, or of no
+        consequence: :mod:`~gripper_env.hardware.command_log`)."""
+        return self.commands.lost
 
     # ---- internals -----------------------------------------------------------------------------
 
@@ -369,7 +466,30 @@ class GripperDevice:
         seq = self._seq
         self._write(proto.encode_frame(seq, msg))
         self._seq = (seq + 1) & 0xFF
+        self.commands.sent(seq, msg)
         return seq
+
+    def _check_hard_limits(self, jaw: tuple[float, float], servo_us: tuple[int, int]) -> None:
+        """Refuse a jaw range or pulse mapping outside the board's hard limits (INFO), naming
+        the limit, before anything is sent."""
+        info = self.info
+        if info is None:
+            return
+        lo, hi = info.hard_jaw_min_deg, info.hard_jaw_max_deg
+        if not lo <= jaw[0] < jaw[1] <= hi:
+            raise ValueError(
+                f"jaw_deg {jaw[0]:g}..{jaw[1]:g} deg lies outside the board's hard range "
+                f"{lo:g}..{hi:g} deg (compiled into its firmware)"
+            )
+        us0, us180 = servo_us
+        for deg in jaw:
+            us = ((2 * us0 + 0.5) + deg * 2 * (us180 - us0) / 180.0) // 1 / 2
+            if not info.hard_pulse_min_us <= us <= info.hard_pulse_max_us:
+                raise ValueError(
+                    f"servo_us {us0}/{us180} gives {deg:g} deg a pulse of {us:g} us, outside "
+                    f"the board's hard window {info.hard_pulse_min_us:g}.."
+                    f"{info.hard_pulse_max_us:g} us"
+                )
 
     def _read(self, timeout_s: float) -> bytes:
         try:
@@ -409,6 +529,8 @@ class GripperDevice:
                     f"device on {self.port} reset: it sent INFO unasked"
                 )
             elif isinstance(msg, proto.ErrorReport):
+                for command in self.commands.to_resend(msg):  # FRAMES_LOST: a lost command
+                    self._send(command)
                 if msg.code == ErrorCode.NO_SESSION and self._session:
                     problem = problem or DeviceReset(
                         f"device on {self.port} reset: it lost the session (answered NO_SESSION); "
@@ -449,9 +571,18 @@ class GripperDevice:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     break
-                for answer in self._pump(
-                    min(remaining, 0.05), strict=not isinstance(msg, proto.Hello)
+                answers = self._pump(min(remaining, 0.05), strict=not isinstance(msg, proto.Hello))
+                if any(
+                    seq in lost_sequence(a) for a in answers if isinstance(a, proto.ErrorReport)
                 ):
+                    self.commands.resent += 1
+                    break  # the board reports it lost: send it again now
+                for answer in answers:
+                    if (
+                        isinstance(answer, proto.ErrorReport)
+                        and answer.code == ErrorCode.FRAMES_LOST
+                    ):
+                        continue  # a report on other frames, not an answer
                     if isinstance(answer, proto.ErrorReport) and answer.seq == seq:
                         self._refused(msg, answer)
                     if isinstance(answer, expect):

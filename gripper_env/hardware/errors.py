@@ -3,6 +3,7 @@
 =====================  ============================================================================
 :class:`DeviceTimeout`  no valid answer in time (a silent device)
 :class:`LinkError`      answers arrived but were corrupted (CRC, COBS, truncated frames)
+:class:`CommandLost`    the board does not hold a command the host sent, after every retry
 :class:`DeviceReset`    the board restarted (it lost the session: NO_SESSION, unsolicited INFO)
 :class:`PortVanished`   the serial port disappeared (cable pulled)
 :class:`DeviceRefused`  the board answered ERROR (``VersionMismatch`` for a protocol mismatch)
@@ -21,6 +22,7 @@ from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.protocol import ErrorCode, Fault
 
 __all__ = [
+    "CommandLost",
     "DeviceError",
     "DeviceFault",
     "DeviceRefused",
@@ -55,6 +57,11 @@ class DeviceTimeout(DeviceError, TimeoutError):
 
 class LinkError(DeviceError, proto.ProtocolError):
     """Frames arrived but failed their checks (CRC, COBS, length), so no valid answer came."""
+
+
+class CommandLost(DeviceError):
+    """A command did not take on the board (a setpoint it does not hold, a mode it is not in)
+    after every retry: lost on the way each time."""
 
 
 class DeviceReset(DeviceError):

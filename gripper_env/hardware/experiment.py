@@ -3,9 +3,13 @@
 :func:`run_profile` streams a :class:`~gripper_env.references.Reference` to the board as
 SETPOINT frames at the servo's 50 Hz (every 20 ms of *device* time, paced by the telemetry, so
 it works at any speed of the virtual device), heartbeats every 200 ms, and collects the 1 kHz
-telemetry. Rows go to a :class:`CsvLog` as they arrive and are flushed every host period; the
-log is written as ``NAME.partial.csv`` and renamed to ``NAME.csv`` only when the run completes,
-so a failed run leaves its partial log, named as such, never a file that looks complete.
+telemetry. The profile's first value is confirmed on the board before the mode changes
+(:meth:`~gripper_env.hardware.device.GripperDevice.set_mode`); a streamed value the board reports
+lost is sent again unless the next one already replaced it, and the run counts them
+(:attr:`Recording.commands_lost`). Rows go to a :class:`CsvLog` as they arrive and are flushed
+every host period; the log is written as ``NAME.partial.csv`` and renamed to ``NAME.csv`` only
+when the run completes, so a failed run leaves its partial log, named as such, never a file that
+looks complete.
 
 :class:`Recording` turns the samples into a uniform 1 ms trajectory (gaps from lost frames
 interpolated and counted) with the fields :func:`gripper_env.metrics.compute_metrics` reads.
@@ -122,6 +126,12 @@ class Recording:
         The run reached the end of the profile.
     host_periods, missed_deadlines : int
         Host-loop iterations, and those that came later than a period after the previous one.
+    frames_lost : int
+        Device frames lost or rejected on the way to the host.
+    commands_lost, commands_resent : int
+        Host frames the board reported missing during the run, and how many of them were sent
+        again (a lost setpoint that a newer one replaced is not; see
+        :mod:`~gripper_env.hardware.command_log`).
     """
 
     samples: TelemetryBlock
@@ -131,6 +141,8 @@ class Recording:
     host_periods: int = 0
     missed_deadlines: int = 0
     frames_lost: int = 0
+    commands_lost: int = 0
+    commands_resent: int = 0
     extra: dict[str, object] = field(default_factory=dict)
 
     def trajectory(self) -> RecordedTrajectory:
@@ -310,6 +322,7 @@ def run_profile(
     t0_us: int | None = None
     periods = missed = 0
     frames_lost_before = device.frames_lost
+    commands_before = (device.commands.lost, device.commands.resent)
     try:
         device.set_setpoint(float(values[0]))
         device.set_mode(mode)
@@ -362,6 +375,8 @@ def run_profile(
         host_periods=periods,
         missed_deadlines=missed,
         frames_lost=device.frames_lost - frames_lost_before,
+        commands_lost=device.commands.lost - commands_before[0],
+        commands_resent=device.commands.resent - commands_before[1],
     )
     rec.extra["log"] = str(where) if where else None
     return rec

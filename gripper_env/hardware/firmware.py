@@ -25,6 +25,8 @@ Examples
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from gripper_env.hardware import protocol as proto
@@ -34,14 +36,16 @@ from gripper_env.hardware.firmware_config import (
     validate_configure,
 )
 from gripper_env.hardware.firmware_safety import (
+    HARD_PULSE_TICKS,
+    JAW_HARD_MAX_DEG,
+    JAW_HARD_MIN_DEG,
     JAW_OPEN_DEG,
     SENSOR_FAULT_TICKS,
-    SERVO_PULSE_MAX_US,
-    SERVO_PULSE_MIN_US,
     WATCHDOG_TIMEOUT_US,
     adc_at_rail,
     adc_to_deg,
     clamp_jaw,
+    servo_pulse_ticks,
 )
 from gripper_env.hardware.firmware_safety import finite as _finite
 from gripper_env.hardware.protocol.reports import SAMPLE_STRUCT, TELEMETRY_HEADER_STRUCT
@@ -49,22 +53,23 @@ from gripper_env.pid import pid_update
 
 __all__ = ["TX_QUEUE_CAPACITY", "UART_BYTES_PER_TICK", "Firmware"]
 
-FIRMWARE_VERSION = (0, 1, 0)  # the C++ FIRMWARE_VERSION_MAJOR/MINOR/PATCH
+FIRMWARE_VERSION = (0, 2, 0)  # the C++ FIRMWARE_VERSION_MAJOR/MINOR/PATCH
 TX_QUEUE_CAPACITY = 512  # bytes in the board's transmit queue
 UART_BYTES_PER_TICK = 100  # 1 Mbaud 8N1 drains 100 bytes per 1 ms tick
 _DT_S = TICK_PERIOD_US / 1e6
 
 
 def _to_cdeg(deg: float) -> int:
-    """Saturating conversion to centi-degrees (i16), NaN to CDEG_NONE (C++ ``to_cdeg``)."""
+    """Centi-degrees (i16) of an angle: ``deg * 100`` rounded half away from zero, exactly,
+    saturated to +-32767; NaN to CDEG_NONE (C++ ``to_cdeg``)."""
     if deg != deg:
         return proto.CDEG_NONE
-    c = deg * 100.0
-    if c >= 32767.0:
-        return 32767
-    if c <= -32767.0:
-        return -32767
-    return int(c - 0.5) if c < 0 else int(c + 0.5)
+    if math.isinf(deg):
+        return 32767 if deg > 0 else -32767
+    num, den = deg.as_integer_ratio()  # exact; den is a power of two
+    c = (2 * abs(num) * 100 + den) // (2 * den)  # floor(|deg| * 100 + 1/2)
+    c = min(c, 32767)
+    return -c if num < 0 else c
 
 
 class Firmware:
@@ -112,7 +117,7 @@ class Firmware:
         self.now_us = now_us & 0xFFFFFFFF
         self.echo = 0
         self.last_rx_seq = 0
-        self.refused = self.tx_dropped = self.overruns = 0
+        self.refused = self.tx_dropped = self.overruns = self.rx_overflow = 0
         self.rail_ticks = 0
         self._samples: list[bytes] = []
         self._t0_us = 0
@@ -126,8 +131,14 @@ class Firmware:
     def receive(self, data: bytes, now_us: int) -> None:
         """Feed bytes received from the host at device time ``now_us``."""
         self.now_us = now_us & 0xFFFFFFFF
-        for seq, type_id, payload, _gap in self.rx.split(data):
-            self._handle_frame(seq, type_id, payload)
+        for seq, type_id, payload, gap in self.rx.split(data):
+            self._handle_frame(seq, type_id, payload, gap)
+
+    def rx_lost(self, n: int) -> None:
+        """``n`` host bytes were lost before the next byte received (a full receive buffer, a
+        UART overrun): counted, and the frame they belonged to is dropped (C++ ``rx_lost``)."""
+        self.rx_overflow += n
+        self.rx.abort_frame()
 
     def tick(self, now_us: int, adc: int, overrun: bool = False) -> None:
         """One 1 ms control period at device time ``now_us`` with the ADC reading ``adc``."""
@@ -184,12 +195,10 @@ class Firmware:
         return self.command
 
     def servo_pulse_us(self) -> float:
-        """Servo pulse width (us, 0.5 us resolution) for the current command, hard-clamped."""
+        """Servo pulse width (us, 0.5 us resolution) for the current command, clamped into the
+        hard pulse window."""
         cfg = self.cfg
-        deg = clamp_jaw(self.command, 0.0, 180.0, JAW_OPEN_DEG)
-        ticks_per_deg = 2.0 * (cfg.servo_us_at_180 - cfg.servo_us_at_0) / 180.0
-        ticks = int(2 * cfg.servo_us_at_0 + deg * ticks_per_deg + 0.5)
-        return min(max(ticks, 2 * SERVO_PULSE_MIN_US), 2 * SERVO_PULSE_MAX_US) / 2.0
+        return servo_pulse_ticks(self.command, cfg.servo_us_at_0, cfg.servo_us_at_180) / 2.0
 
     def take_tx(self) -> bytes:
         """All queued transmit bytes (the queue is emptied)."""
@@ -221,10 +230,12 @@ class Firmware:
             frames_ok=rx.frames & 0xFFFFFFFF,
             frames_lost=min(rx.lost, 0xFFFF),
             bad_crc=min(rx.bad_crc, 0xFFFF),
-            bad_frame=min(rx.bad_cobs + rx.truncated + rx.oversized, 0xFFFF),
+            bad_frame=min(rx.bad_cobs + rx.truncated + rx.oversized + rx.damaged, 0xFFFF),
             refused=min(self.refused, 0xFFFF),
             tx_dropped=min(self.tx_dropped, 0xFFFF),
             overruns=min(self.overruns, 0xFFFF),
+            rx_overflow=min(self.rx_overflow, 0xFFFF),
+            setpoint_deg=float(np.float32(self.setpoint)) if self.have_setpoint else math.nan,
         )
 
     # ---- internals (the C++ private methods, same names) ---------------------------------------
@@ -260,11 +271,14 @@ class Firmware:
         self.have_setpoint = True
         self.servo_on = True
 
-    def _handle_frame(self, seq: int, type_id: int, payload: bytes) -> None:
+    def _handle_frame(self, seq: int, type_id: int, payload: bytes, gap: int) -> None:
         self.last_rx_seq = seq
         self.last_rx_us = self.now_us
         self._rx_type, self._rx_seq = type_id, seq
         n = len(payload)
+        # Host frames missing before this one (a HELLO starts a new sequence): said at once.
+        if self.session and type_id != proto.Hello.TYPE and gap:
+            self._send(proto.ErrorReport(proto.ErrorCode.FRAMES_LOST, 0, (seq - gap) & 0xFF, gap))
         if type_id == proto.Estop.TYPE:
             if n != 0:
                 return self._refuse(proto.ErrorCode.BAD_LENGTH, n)
@@ -340,6 +354,10 @@ class Firmware:
                 TICK_PERIOD_US,
                 proto.TELEMETRY_MAX_SAMPLES,
                 proto.MAX_PAYLOAD,
+                JAW_HARD_MIN_DEG,
+                JAW_HARD_MAX_DEG,
+                HARD_PULSE_TICKS[0] / 2.0,
+                HARD_PULSE_TICKS[1] / 2.0,
             )
         )
 
@@ -348,6 +366,7 @@ class Firmware:
         structure_changed = c.sign != old.sign or c.d_on_meas != old.d_on_meas
         if c.decimation != old.decimation or c.batch != old.batch:
             self._flush_telemetry()
+            self._decimation_count = 0
         self.cfg = c
         self.configured = True
         # A new sign or derivative input changes what xf means: re-enter bumplessly.
@@ -380,7 +399,6 @@ class Firmware:
             )
             self._send_raw(proto.Telemetry.TYPE, header + b"".join(self._samples))
         self._samples = []
-        self._decimation_count = 0
 
     def _record_sample(self, adc: int, flags: int) -> None:
         cfg = self.cfg

@@ -10,12 +10,16 @@ import numpy as np
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.firmware_safety import (
     ADC_MIN_CAL_SPAN,
+    HARD_PULSE_TICKS,
     JAW_CLOSED_DEG,
+    JAW_HARD_MAX_DEG,
+    JAW_HARD_MIN_DEG,
     JAW_OPEN_DEG,
     SERVO_MIN_CAL_SPAN_US,
     SERVO_PULSE_MAX_US,
     SERVO_PULSE_MIN_US,
     adc_at_rail,
+    servo_pulse_ticks_raw,
 )
 from gripper_env.hardware.firmware_safety import finite as _finite
 
@@ -64,8 +68,22 @@ class FirmwareConfig:
         self.batch = 10
 
 
+def _pulses_inside(m: proto.Configure) -> bool:
+    """The mapping gives both ends of the jaw range pulses inside the hard window."""
+    lo, hi = HARD_PULSE_TICKS
+    return all(
+        lo <= servo_pulse_ticks_raw(deg, m.servo_us_at_0, m.servo_us_at_180) <= hi
+        for deg in (m.jaw_min, m.jaw_max)
+    )
+
+
 def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
-    """Check a CONFIGURE like the firmware: ``(config, 0)`` or ``(None, first bad field index)``."""
+    """Check a CONFIGURE like the firmware: ``(config, 0)`` or ``(None, first bad field index)``.
+
+    Besides each field's own rule, the jaw range must lie inside the hard range compiled into the
+    image and the servo mapping must give it pulses inside the hard window (field 11,
+    ``servo_us_at_0``, names the mapping).
+    """
     n_dt = np.float32(m.n) * np.float32(TICK_PERIOD_US * 1e-6)  # float32, as on the board
     checks = (
         _finite(m.p),
@@ -75,8 +93,10 @@ def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
         m.u_min == m.u_min and m.u_min != math.inf,
         m.u_max == m.u_max and m.u_max != -math.inf and m.u_min < m.u_max,
         _finite(m.kb),
-        _finite(m.jaw_min) and 0.0 <= m.jaw_min <= 180.0,
-        _finite(m.jaw_max) and 0.0 <= m.jaw_max <= 180.0 and m.jaw_min < m.jaw_max,
+        _finite(m.jaw_min) and JAW_HARD_MIN_DEG <= m.jaw_min <= JAW_HARD_MAX_DEG,
+        _finite(m.jaw_max)
+        and JAW_HARD_MIN_DEG <= m.jaw_max <= JAW_HARD_MAX_DEG
+        and m.jaw_min < m.jaw_max,
     )
     for index, ok in enumerate(checks):
         if not ok:
@@ -100,6 +120,8 @@ def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
     for index, ok in enumerate(rest, start=9):
         if not ok:
             return None, index
+        if index == 12 and not _pulses_inside(m):
+            return None, 11
     c = FirmwareConfig()
     c.p, c.i, c.d, c.n = m.p, m.i, m.d, m.n
     c.u_min = max(m.u_min, m.jaw_min)

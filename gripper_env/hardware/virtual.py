@@ -24,8 +24,9 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
-garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, a reset mid-run
-and a vanishing port. Its command line is :mod:`gripper_env.hardware.board_cli`.
+garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, host frames lost on
+the way to the board, a reset mid-run and a vanishing port. Its command line is
+:mod:`gripper_env.hardware.board_cli`.
 
 Examples
 --------
@@ -139,6 +140,8 @@ class VirtualDevice:
         self._paced_since = 0.0
         self._garbage = bytearray()
         self._reset_before: int | None = None
+        self._lose: dict[int, int] = {}  # host frames to lose on the way in, by message type
+        self.host_frames_lost = 0
         self.resets = 0
         self.error: BaseException | None = None
         self.bytes_sent = self.bytes_received = 0
@@ -216,6 +219,17 @@ class VirtualDevice:
         """Cut each of the next ``n`` frames to the host down to its first two bytes."""
         with self.lock:
             self._truncate += n
+
+    def lose_host_frames(self, message_type: int, n: int = 1) -> None:
+        """Lose the next ``n`` host frames of ``message_type`` before they reach the board (line
+        noise that destroys them; the board sees a gap in the host's sequence numbers). Replaces
+        what was armed for that type; 0 disarms. :attr:`host_frames_lost` counts the frames
+        lost so far."""
+        with self.lock:
+            if n > 0:
+                self._lose[int(message_type)] = n
+            else:
+                self._lose.pop(int(message_type), None)
 
     def go_silent(self, silent: bool = True) -> None:
         """Stop (or resume) transmitting: the board runs and listens, the host hears nothing."""
@@ -318,6 +332,8 @@ class VirtualDevice:
                 if self._reset_before is not None and self._carries(data, self._reset_before):
                     self._reset_before = None
                     self._reset_board()
+                if self._lose:
+                    data = self._lose_frames(data)
                 self.board.receive(data, self._now_us())
 
     @staticmethod
@@ -331,6 +347,28 @@ class VirtualDevice:
             if len(raw) >= 2 and raw[1] == message_type:
                 return True
         return False
+
+    def _lose_frames(self, data: bytes) -> bytes:
+        """``data`` without the whole host frames :meth:`lose_host_frames` armed."""
+        chunks = data.split(b"\x00")
+        kept = []
+        for k, chunk in enumerate(chunks):
+            whole = k < len(chunks) - 1  # ended by a delimiter in this read
+            type_id = -1
+            if whole and chunk:
+                try:
+                    raw = proto.cobs_decode(chunk)
+                    type_id = raw[1] if len(raw) >= 2 else -1
+                except proto.CobsError:
+                    pass
+            if self._lose.get(type_id, 0) > 0:
+                self._lose[type_id] -= 1
+                if not self._lose[type_id]:
+                    del self._lose[type_id]
+                self.host_frames_lost += 1
+                continue
+            kept.append(chunk + (b"\x00" if whole else b""))
+        return b"".join(kept)
 
     def _emit(self, data: bytes) -> None:
         """Pass bytes the UART sent through the armed faults to the line."""

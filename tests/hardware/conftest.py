@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from gripper_env.hardware.virtual import VirtualDevice
+
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE = REPO / "firmware"
 HARNESS_SOURCE = FIRMWARE / "host" / "harness.cpp"
@@ -81,6 +83,15 @@ def harness_f32(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Harness]:
     h = Harness(_build(tmp_path_factory.mktemp("harness_f32"), "float"))
     yield h
     h.close()
+
+
+@pytest.fixture
+def virtual_twin() -> Iterator[VirtualDevice]:
+    """The Python twin of the firmware on a pseudo-terminal, device time at ``SPEED``."""
+    from virtual_support import SPEED
+
+    with VirtualDevice("test2", "actual", speed=SPEED, seed=2) as vd:
+        yield vd
 
 
 @pytest.fixture(scope="session")

@@ -12,8 +12,10 @@ from hypothesis import strategies as st
 
 from gripper_env.hardware import protocol as proto
 
-JAW = (21.0, 92.0)
-PULSE_HARD = (800, 5200)  # 400..2600 us in 0.5 us ticks
+JAW = (21.0, 92.0)  # the default jaw range, and the hard range compiled into the image
+# The hard pulse window in 0.5 us ticks: 21 and 92 deg with the build's 544/2400 us mapping,
+# rounded to the nearest tick (computed here from the datasheet mapping, not by the firmware).
+PULSE_HARD = (round(2 * (544 + 21 * 1856 / 180)), round(2 * (544 + 92 * 1856 / 180)))
 CAL = (200, 600)  # ADC counts at 21 and 92 deg in these tests
 
 
@@ -34,6 +36,30 @@ def test_clamp_never_leaves_the_jaw_range(harness, harness_f32, x: float) -> Non
             assert got == 92.0  # NaN goes to the safe open position
         elif JAW[0] <= x <= JAW[1]:
             assert got == pytest.approx(x, rel=1e-7)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.floats(-400, 400),
+        st.integers(-40000, 40000).map(lambda c: c / 100 + 0.005),  # halfway cases
+    )
+)
+def test_centi_degrees_round_half_away_from_zero_like_the_twin(harness, harness_f32, x) -> None:
+    from fractions import Fraction
+
+    from gripper_env.hardware.firmware import _to_cdeg
+
+    for h, value in ((harness, x), (harness_f32, _f32(x) if abs(x) < 3.4e38 else x)):
+        got = int(h("cdeg", float(value).hex()))
+        assert got == _to_cdeg(value)
+        if math.isnan(value):
+            assert got == proto.CDEG_NONE
+        else:  # independent truth: the exact product, rounded half away from zero, saturated
+            c = Fraction(32767) if math.isinf(value) else abs(Fraction(value) * 100)
+            want = min(int(c + Fraction(1, 2)), 32767)
+            assert got == (-want if value < 0 else want)
 
 
 def test_adc_angle_conversion_is_the_two_point_line(harness) -> None:
@@ -62,10 +88,17 @@ def test_servo_pulse_stays_inside_hard_limits(
     assert PULSE_HARD[0] <= ticks <= PULSE_HARD[1]
 
 
-def test_servo_pulse_resolution_is_half_a_microsecond(harness_f32) -> None:
-    assert int(harness_f32("pulse", "0", 544, 2400)) == 1088
-    assert int(harness_f32("pulse", "180", 544, 2400)) == 4800
-    assert int(harness_f32("pulse", "92", 544, 2400)) == round(2 * (544 + 92 * 1856 / 180))
+def test_servo_pulse_resolution_is_half_a_microsecond(harness, harness_f32) -> None:
+    assert PULSE_HARD == (1521, 2985)  # 760.5 and 1492.5 us
+    for h in (harness, harness_f32):
+        assert h("window") == f"{PULSE_HARD[0]} {PULSE_HARD[1]}"
+    assert int(harness_f32("pulse", "21", 544, 2400)) == PULSE_HARD[0]
+    assert int(harness_f32("pulse", "92", 544, 2400)) == PULSE_HARD[1]
+    assert int(harness_f32("pulse", "56", 544, 2400)) == round(2 * (544 + 56 * 1856 / 180))
+    # Outside the hard range the pulse stops at the window, whatever the mapping.
+    assert int(harness_f32("pulse", "0", 544, 2400)) == PULSE_HARD[0]
+    assert int(harness_f32("pulse", "180", 544, 2400)) == PULSE_HARD[1]
+    assert int(harness_f32("pulse", "21", 2400, 544)) == PULSE_HARD[1]  # reversed: 2183 us
     # 0.05 deg more is 0.5 us more: one timer tick.
     a = int(harness_f32("pulse", "45", 1000, 2000))
     b = int(harness_f32("pulse", "45.09", 1000, 2000))
@@ -169,14 +202,16 @@ def test_handshake_info_and_refusals_before_hello(harness) -> None:
     host = Host(harness, device_id=0x12345678)
     err = _only(host.send(proto.SetMode(proto.Mode.OPEN_LOOP)), proto.ErrorReport)
     assert err.code == proto.ErrorCode.NO_SESSION and err.msg_type == proto.SetMode.TYPE
-    err = _only(host.send(proto.Hello(protocol_version=2)), proto.ErrorReport)
+    err = _only(host.send(proto.Hello(protocol_version=1)), proto.ErrorReport)
     assert err.code == proto.ErrorCode.VERSION_MISMATCH and err.detail == proto.PROTOCOL_VERSION
     err = _only(host.send(proto.Setpoint(40.0)), proto.ErrorReport)
     assert err.code == proto.ErrorCode.NO_SESSION
     summary = host.tick(50)
     assert not summary.servo_on and summary.ticks_on == 0 and summary.replies == []
     info = _only(host.send(proto.Hello()), proto.Info)
-    assert info == proto.Info(proto.PROTOCOL_VERSION, 0, 1, 0, 0x12345678, 1000, 32, 240)
+    assert info == proto.Info(
+        proto.PROTOCOL_VERSION, 0, 2, 0, 0x12345678, 1000, 32, 240, 21.0, 92.0, 760.5, 1492.5
+    )
 
 
 def test_commands_are_validated(harness) -> None:
@@ -190,6 +225,14 @@ def test_commands_are_validated(harness) -> None:
         (proto.Configure(u_min=50.0, u_max=40.0), 5),
         (proto.Configure(jaw_min=-5.0), 7),
         (proto.Configure(jaw_max=181.0), 8),
+        # the hard jaw range: no wider range, at either end, however consistent
+        (proto.Configure(jaw_min=0.0, jaw_max=180.0), 7),
+        (proto.Configure(jaw_min=20.9), 7),
+        (proto.Configure(jaw_max=92.1), 8),
+        # the pulse mapping must keep the jaw range's pulses in the hard window
+        (proto.Configure(servo_us_at_0=2400, servo_us_at_180=544), 11),  # reversed: 159 deg
+        (proto.Configure(servo_us_at_0=500, servo_us_at_180=2400), 11),  # 21 deg -> 743 us
+        (proto.Configure(servo_us_at_0=544, servo_us_at_180=2600), 11),  # 92 deg -> 1595 us
         (proto.Configure(adc_at_lo=0), 9),
         (proto.Configure(adc_at_lo=500, adc_at_hi=510), 10),
         (proto.Configure(servo_us_at_180=3000), 12),
@@ -213,7 +256,24 @@ def test_commands_are_validated(harness) -> None:
     assert err.code == proto.ErrorCode.UNKNOWN_TYPE
     host.seq += 1
     status = _only(host.send(proto.Heartbeat(token=77)), proto.Status)
-    assert status.echo == 77 and status.refused == 18 and status.frames_lost == 0
+    assert status.echo == 77 and status.refused == 24 and status.frames_lost == 0
+    assert math.isclose(status.setpoint_deg, 50.0) and status.rx_overflow == 0
+
+
+def test_a_mapping_that_narrows_the_range_is_accepted_and_pulses_stay_inside(harness) -> None:
+    host = Host(harness)
+    host.send(proto.Hello())
+    # 550/2390 us: 21 deg -> 764.5 us, 92 deg -> 1490.4 us, both inside the window
+    status = _only(
+        host.send(proto.Configure(servo_us_at_0=550, servo_us_at_180=2390)), proto.Status
+    )
+    assert status.flags & proto.StatusFlag.CONFIGURED
+    host.send(proto.Setpoint(10.0))
+    host.send(proto.SetMode(proto.Mode.OPEN_LOOP))
+    s = host.tick(5)
+    assert s.cmd_min == s.cmd_max == 21.0
+    assert s.pulse_min == s.pulse_max == int(2 * 550 + 0.5 + 21 * 2 * 1840 / 180)
+    assert PULSE_HARD[0] <= s.pulse_min
 
 
 def test_open_loop_command_is_clamped_and_telemetry_reports_it(harness) -> None:
@@ -332,12 +392,44 @@ def test_device_counts_link_errors(harness) -> None:
     frame = bytearray(proto.cobs_decode(proto.encode_frame(host.seq, proto.Setpoint(30.0))[:-1]))
     frame[3] ^= 0xFF
     host.raw(proto.cobs_encode(bytes(frame)) + b"\x00")  # bad CRC: lost frame
+    lost_from = host.seq
     host.seq += 3  # and two more never sent
-    status = _only(host.send(proto.Heartbeat(9)), proto.Status)
+    lost, status = host.send(proto.Heartbeat(9))
+    # the device says at once which frames it missed, then answers the HEARTBEAT
+    assert lost == proto.ErrorReport(proto.ErrorCode.FRAMES_LOST, 0, lost_from, 3)
     assert status.bad_crc == 1 and status.bad_frame == 1 and status.frames_lost == 3
     assert status.frames_ok == 2 and status.last_rx_seq == host.seq - 1
-    frames_ok, bad_cobs, bad_crc, truncated, oversized, lost, _ = host.counters()
-    assert (frames_ok, bad_crc, lost) == (2, 1, 3) and bad_cobs + truncated + oversized == 1
+    assert status.refused == 0  # a loss report is not a refusal
+    counts = host.counters()
+    frames_ok, bad_cobs, bad_crc, truncated, oversized, damaged, lost_frames = counts[:7]
+    assert (frames_ok, bad_crc, lost_frames, damaged) == (2, 1, 3, 0)
+    assert bad_cobs + truncated + oversized == 1
+
+
+def test_bytes_lost_before_the_decoder_drop_their_frame_and_are_counted(harness) -> None:
+    host = Host(harness)
+    host.send(proto.Hello())
+    frame = proto.encode_frame(host.seq, proto.Setpoint(30.0))
+    host.seq += 1
+    # two bytes lost in the middle of the frame (a full receive buffer): even if what is left
+    # passed the CRC, the frame is dropped
+    host.raw(frame[:3])
+    assert harness("dev_lost", 2) == "OK"
+    host.raw(frame[5:])
+    lost, status = host.send(proto.Heartbeat(1))
+    assert isinstance(lost, proto.ErrorReport) and lost.code == proto.ErrorCode.FRAMES_LOST
+    assert (lost.seq, lost.detail) == (host.seq - 2, 1)
+    assert status.rx_overflow == 2 and status.bad_frame == 1 and math.isnan(status.setpoint_deg)
+    # a loss right after a delimiter drops the frame that follows, intact as it is
+    host.raw(b"\x00")
+    assert harness("dev_lost", 1) == "OK"
+    assert host.send(proto.Setpoint(40.0)) == []
+    lost, status = host.send(proto.Heartbeat(2))
+    assert lost.code == proto.ErrorCode.FRAMES_LOST and (lost.seq, lost.detail) == (
+        host.seq - 2,
+        1,
+    )
+    assert status.rx_overflow == 3 and status.bad_frame == 2 and math.isnan(status.setpoint_deg)
 
 
 # ---- property: nothing the host sends moves the servo outside the jaw range -------------------
@@ -433,7 +525,7 @@ def actions(jaw: st.SearchStrategy, valid_jaw: st.SearchStrategy) -> st.SearchSt
     ).map(lambda t: t[0] + t[1])
 
 
-def _run_and_check(h, steps: list, hard_jaw: tuple[float, float]) -> None:
+def _run_and_check(h, steps: list, hard_jaw: tuple[float, float] = JAW) -> None:
     host = Host(h)
     expected_jaw = JAW
     for msg, (n_ticks, adc) in steps:
@@ -460,12 +552,19 @@ def _run_and_check(h, steps: list, hard_jaw: tuple[float, float]) -> None:
 def test_random_host_traffic_never_leaves_the_jaw_range(harness_f32, steps: list) -> None:
     # Configurations whose jaw range lies inside [21, 92] (or is rejected): the commands stay
     # inside [21, 92] whatever else arrives.
-    _run_and_check(harness_f32, steps, hard_jaw=JAW)
+    _run_and_check(harness_f32, steps)
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
-    actions(st.one_of(st.floats(-10, 200, width=32), finite_or_wild), st.floats(0, 140, width=32))
+    actions(
+        st.one_of(st.floats(-10, 200, width=32), finite_or_wild),
+        st.one_of(st.floats(0, 140, width=32), st.floats(21.0, 52.0, width=32)),
+    )
 )
-def test_random_host_traffic_respects_any_accepted_jaw_range(harness, steps: list) -> None:
-    _run_and_check(harness, steps, hard_jaw=(0.0, 180.0))
+def test_no_jaw_range_or_mapping_moves_the_servo_outside_the_hard_range(
+    harness, steps: list
+) -> None:
+    # Wider or shifted jaw ranges and any pulse mapping: refused, so the commands and the pulses
+    # stay inside the hard range compiled into the image, and inside any accepted range.
+    _run_and_check(harness, steps)

@@ -132,6 +132,6 @@ def test_the_streaming_decoder_judges_line_noise_like_the_python_twin(harness, c
         fw.receive(data, 0)
         assert fw.take_tx().hex() == _hex(harness("dev_rx", data.hex() or "-"))
     rx = fw.rx.stats
-    expected = [rx.frames, rx.bad_cobs, rx.bad_crc, rx.truncated, rx.oversized, rx.lost]
-    expected.append(rx.discarded_bytes)
+    expected = [rx.frames, rx.bad_cobs, rx.bad_crc, rx.truncated, rx.oversized, rx.damaged]
+    expected += [rx.lost, rx.discarded_bytes, fw.rx_overflow]
     assert [int(x) for x in harness("dev_counters").split()] == expected

@@ -112,8 +112,8 @@ def test_payload_sizes_match_protocol_md() -> None:
         proto.Setpoint: 4,
         proto.Heartbeat: 4,
         proto.Estop: 0,
-        proto.Info: 13,
-        proto.Status: 28,
+        proto.Info: 29,
+        proto.Status: 34,
         proto.ErrorReport: 5,
     }
     for cls, size in sizes.items():

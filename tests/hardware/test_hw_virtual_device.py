@@ -36,8 +36,8 @@ def test_handshake_reports_the_firmware_and_refuses_another_version(virtual) -> 
         assert dev.info.tick_period_us == 1000
         status, rtt = dev.heartbeat()
         assert status.flags & proto.StatusFlag.SESSION and 0 < rtt < 0.5
-        with pytest.raises(VersionMismatch, match="protocol version 1"):
-            dev._request(proto.Hello(protocol_version=2), proto.Info)
+        with pytest.raises(VersionMismatch, match="protocol version 2"):
+            dev._request(proto.Hello(protocol_version=1), proto.Info)
 
 
 def test_open_loop_step_matches_the_simulation(virtual, tmp_path) -> None:
@@ -115,8 +115,16 @@ def test_estop_latches_until_idle(virtual) -> None:
 
 def test_bad_configuration_is_refused_with_the_field_name(virtual) -> None:
     with open_device(virtual) as dev:
-        with pytest.raises(DeviceRefused, match="field jaw_max"):
+        # the board's hard limits (INFO), checked by the host before anything is sent
+        with pytest.raises(ValueError, match=r"jaw_deg 21\.\.200 deg .* hard range 21\.\.92 deg"):
             dev.configure(jaw_deg=(21.0, 200.0))
+        with pytest.raises(ValueError, match=r"servo_us 2400/544 gives 21 deg a pulse of 2183\.5"):
+            dev.configure(servo_us=(2400, 544))
+        # and by the board, whatever the host: the refusal names the field
+        with pytest.raises(DeviceRefused, match="field jaw_max"):
+            dev._request(proto.Configure(jaw_max=200.0), proto.Status)
+        with pytest.raises(DeviceRefused, match="field decimation"):
+            dev.configure(decimation=5000)
         with pytest.raises(DeviceRefused, match="NOT_CONFIGURED"):
             dev.set_mode(Mode.CLOSED_LOOP)
 

@@ -23,7 +23,7 @@ __all__ = [
     "StatusFlag",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 MAX_PAYLOAD = 240  # bytes of payload in one frame
 MAX_RAW_FRAME = MAX_PAYLOAD + 4  # seq + type + payload + crc16
 MAX_ENCODED_FRAME = MAX_RAW_FRAME + 2  # COBS-encoded, without the delimiter
@@ -88,3 +88,4 @@ class ErrorCode:
     FAULT_LATCHED = 6
     NOT_CONFIGURED = 7
     UNSUPPORTED = 8
+    FRAMES_LOST = 9  # a report: host frames missing from the sequence, ``seq`` the first

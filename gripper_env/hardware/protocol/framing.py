@@ -170,6 +170,9 @@ class DecoderStats:
         Bytes thrown away: rejected frames and bytes skipped while resynchronising.
     bad_cobs, bad_crc, truncated, oversized : int
         Frames rejected for each reason.
+    damaged : int
+        Frames dropped because bytes of them were lost before the decoder
+        (:meth:`FrameSplitter.abort_frame`).
     bad_message : int
         CRC-valid frames with an unknown type or a payload that does not fit it.
     lost : int
@@ -185,6 +188,7 @@ class DecoderStats:
     bad_crc: int = 0
     truncated: int = 0
     oversized: int = 0
+    damaged: int = 0
     bad_message: int = 0
     lost: int = 0
     gaps: int = 0
@@ -192,7 +196,14 @@ class DecoderStats:
     @property
     def rejected(self) -> int:
         """Frames rejected for any reason."""
-        return self.bad_cobs + self.bad_crc + self.truncated + self.oversized + self.bad_message
+        return (
+            self.bad_cobs
+            + self.bad_crc
+            + self.truncated
+            + self.oversized
+            + self.damaged
+            + self.bad_message
+        )
 
 
 class FrameSplitter:
@@ -225,12 +236,18 @@ class FrameSplitter:
         self._max = max_encoded
         self._buffer = bytearray()
         self._overflow = False
+        self._damaged = False
         self._synced = synced
         self._last_seq: int | None = None
 
     def reset_sequence(self) -> None:
         """Forget the last sequence number (after a device reset): no gap is counted next."""
         self._last_seq = None
+
+    def abort_frame(self) -> None:
+        """Bytes were lost before the next byte fed (a full receive buffer): the frame they
+        belonged to is dropped at its delimiter whatever its CRC says (counted as ``damaged``)."""
+        self._damaged = True
 
     def forgive_last_gap(self) -> None:
         """Take the last gap back out of the counts (the sender started a new sequence)."""
@@ -277,8 +294,17 @@ class FrameSplitter:
     def _finish(self) -> tuple[int, int, bytes, int] | None:
         encoded = bytes(self._buffer)
         overflow = self._overflow
+        damaged = self._damaged
         self._buffer.clear()
         self._overflow = False
+        self._damaged = False
+        if damaged:
+            self._reject(
+                "damaged",
+                FrameLengthError("bytes of the frame were lost before the decoder"),
+                len(encoded),
+            )
+            return None
         if overflow:
             self._reject(
                 "oversized", FrameLengthError(f"frame longer than {self._max} bytes"), len(encoded)

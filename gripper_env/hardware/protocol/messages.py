@@ -110,12 +110,15 @@ class Configure(FixedMessage):
     kb : float
         Back-calculation gain (1/s).
     jaw_min, jaw_max : float
-        Jaw range (deg) every servo command is clamped into; inside [0, 180]. ``jaw_max`` is the
-        safe (open) position.
+        Jaw range (deg) every servo command is clamped into; inside the image's hard jaw range
+        (:attr:`Info.hard_jaw_min_deg` .. ``hard_jaw_max_deg``, 21..92 by default). ``jaw_max``
+        is the safe (open) position.
     adc_at_lo, adc_at_hi : int
         ADC counts (u16, 4..1019) read with the jaw at 21 deg and at 92 deg.
     servo_us_at_0, servo_us_at_180 : int
-        Servo pulse widths (us, u16, 400..2600) for 0 and 180 deg.
+        Servo pulse widths (us, u16, 400..2600) for 0 and 180 deg; the pulses they give
+        ``jaw_min`` and ``jaw_max`` must lie in the image's hard pulse window
+        (:attr:`Info.hard_pulse_min_us` .. ``hard_pulse_max_us``).
     decimation : int
         One telemetry sample every ``decimation`` control ticks (u16, 0 = telemetry off).
     anti_windup : int

@@ -32,7 +32,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Info(FixedMessage):
-    """Device -> host, type 0x81: answer to a matching HELLO (13 bytes).
+    """Device -> host, type 0x81: answer to a matching HELLO (29 bytes).
 
     Parameters
     ----------
@@ -48,10 +48,16 @@ class Info(FixedMessage):
         Largest ``telemetry_batch`` the firmware accepts (u8).
     max_payload : int
         Largest payload in bytes (u8).
+    hard_jaw_min_deg, hard_jaw_max_deg : float
+        The hard jaw range compiled into the image (deg, f32): no CONFIGURE can move the jaw
+        outside it.
+    hard_pulse_min_us, hard_pulse_max_us : float
+        The hard pulse window (us, f32, 0.5 us steps): every servo pulse lies in it; the pulses
+        of the hard jaw range under the servo mapping the image was built for.
     """
 
     TYPE: ClassVar[int] = 0x81
-    _FORMAT: ClassVar[str] = "HBBBIHBB"
+    _FORMAT: ClassVar[str] = "HBBBIHBBffff"
     protocol_version: int = PROTOCOL_VERSION
     fw_major: int = 0
     fw_minor: int = 0
@@ -60,6 +66,10 @@ class Info(FixedMessage):
     tick_period_us: int = 1000
     max_batch: int = TELEMETRY_MAX_SAMPLES
     max_payload: int = MAX_PAYLOAD
+    hard_jaw_min_deg: float = 21.0
+    hard_jaw_max_deg: float = 92.0
+    hard_pulse_min_us: float = 760.5
+    hard_pulse_max_us: float = 1492.5
 
 
 @dataclass(frozen=True)
@@ -167,7 +177,7 @@ class Telemetry(Message):
 
 @dataclass(frozen=True)
 class Status(FixedMessage):
-    """Device -> host, type 0x83: state and link health (28 bytes).
+    """Device -> host, type 0x83: state and link health (34 bytes).
 
     Sent in answer to CONFIGURE, SET_MODE, HEARTBEAT and ESTOP, and by itself when a fault
     latches. Error counters saturate at 65535.
@@ -193,17 +203,24 @@ class Status(FixedMessage):
     bad_crc : int
         Host frames dropped for a CRC mismatch (u16).
     bad_frame : int
-        Host frames dropped as invalid COBS, truncated or oversized (u16).
+        Host frames dropped as invalid COBS, truncated, oversized, or damaged by bytes lost on
+        the receive path (u16).
     refused : int
         Host commands answered by ERROR (u16).
     tx_dropped : int
         Device frames dropped for lack of transmit buffer (u16).
     overruns : int
         Control ticks that started late (u16).
+    rx_overflow : int
+        Host bytes lost before the decoder: receive buffer full, UART overrun or framing error
+        (u16).
+    setpoint_deg : float
+        The setpoint the device holds (deg, f32, as received, before the jaw clamp); NaN before
+        any. The host confirms a setpoint by reading it back here.
     """
 
     TYPE: ClassVar[int] = 0x83
-    _FORMAT: ClassVar[str] = "IIBBBBIHHHHHH"
+    _FORMAT: ClassVar[str] = "IIBBBBIHHHHHHHf"
     device_time_us: int = 0
     echo: int = 0
     mode: int = Mode.IDLE
@@ -217,24 +234,26 @@ class Status(FixedMessage):
     refused: int = 0
     tx_dropped: int = 0
     overruns: int = 0
+    rx_overflow: int = 0
+    setpoint_deg: float = math.nan
 
 
 @dataclass(frozen=True)
 class ErrorReport(FixedMessage):
-    """Device -> host, type 0x84: a command was refused (5 bytes).
+    """Device -> host, type 0x84: a command was refused, or host frames were lost (5 bytes).
 
     Parameters
     ----------
     code : int
         :class:`ErrorCode` (u8).
     msg_type : int
-        Type id of the refused frame (u8).
+        Type id of the refused frame (u8); 0 for FRAMES_LOST.
     seq : int
-        Sequence number of the refused frame (u8).
+        Sequence number of the refused frame (u8); for FRAMES_LOST, the first missing one.
     detail : int
         Code-specific (u16): the device's protocol version for VERSION_MISMATCH, the received
         payload length for BAD_LENGTH, the field index for BAD_VALUE, the fault bits for
-        FAULT_LATCHED.
+        FAULT_LATCHED, the number of frames missing for FRAMES_LOST.
     """
 
     TYPE: ClassVar[int] = 0x84
