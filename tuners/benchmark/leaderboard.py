@@ -211,7 +211,7 @@ def rank(data: dict[str, Any]) -> dict[str, Any]:
 
 def _name(key: str) -> str:
     row, _, on = key.partition(" @ ")
-    return f"{row} (tuned on {on})"
+    return f"{row} (tuned on {on})" if on else row
 
 
 def render_head(data: dict[str, Any]) -> str:

@@ -119,7 +119,7 @@ def pid_row(
                               inputs.disturbance)  # fmt: skip
     return {
         "kind": kind,
-        "tuned_on": tuned_on,
+        "tuned_on": [] if kind == "manual" else tuned_on,
         "controller": "pid",
         "P": gains.P, "I": gains.I, "D": gains.D, "N": gains.N, "sign": sign,
         "robustness": robustness,

@@ -132,8 +132,9 @@ def run_benchmark(
             if tuned.tuning.get("history"):
                 data["plants"][plant]["curves"][tuner.name] = tuned.tuning["history"]
             _log_row(log, plant, tuner.name, row)
-            if tuned.gains is not None and plant in robust_plants:
-                key = f"{tuner.name} @ {plant}"
+            # the same gains everywhere (the paper's): one candidate, not one per plant
+            key = tuner.name if tuner.kind == "manual" else f"{tuner.name} @ {plant}"
+            if tuned.gains is not None and plant in robust_plants and key not in evaluations:
                 evaluations[key] = {plant: row}
                 for other in robust_plants:
                     if other != plant and other in feasible:
