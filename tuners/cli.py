@@ -95,6 +95,11 @@ def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
         default=None,
         help="the tuning objective and its constraints; default configs/objective.yaml",
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a result in OUT even if it came from a larger budget",
+    )
     return parser
 
 
@@ -200,8 +205,11 @@ def make_result(
     seed: int | None = None,
     wall_time_s: float | None = None,
     command: str | None = None,
+    budget_episodes: int = 0,
 ) -> tuple[dict[str, Any], Evaluation]:
-    """Evaluate gains on both models, check the nominal loop, and build the gains file.
+    """Evaluate gains on both models, check the nominal loop, and build the gains file
+    (``budget_episodes``: the simulated episodes the tuning used, recorded so that a result is
+    not silently replaced by one from a smaller budget, :func:`guard_overwrite`).
 
     Returns
     -------
@@ -230,13 +238,40 @@ def make_result(
         sample_time_s=inputs.plant.dt_s,
         plant_model=inputs.plant,
     )
+    content["budget_episodes"] = int(budget_episodes)
     return content, ev
 
 
-def write_result(out: str | Path, inputs: Inputs, content: dict[str, Any], ev: Evaluation) -> Path:
-    """Write ``<out>/<plant>/<tuner>.png`` and ``.json`` (atomically); return the JSON path."""
+def guard_overwrite(path: Path, budget: int, force: bool, key: str = "budget_episodes") -> None:
+    """Refuse to replace the result at ``path`` by one from a smaller budget unless ``force``.
+
+    Raises
+    ------
+    ValueError
+        ``path`` holds a result whose ``key`` exceeds ``budget``: one line that names the file,
+        both budgets and the two ways out (``--force``, ``--out``).
+    """
+    if force or not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text()).get(key)
+    except (OSError, ValueError, AttributeError):
+        return  # not a result of ours: the writer's own checks decide
+    if isinstance(old, int | float) and old > budget:
+        raise ValueError(
+            f"{path} holds a result from a larger budget ({old:g} > {budget:g} "
+            f"{key.removeprefix('budget_')}); pass --force to replace it, or --out another folder"
+        )
+
+
+def write_result(
+    out: str | Path, inputs: Inputs, content: dict[str, Any], ev: Evaluation, force: bool = False
+) -> Path:
+    """Write ``<out>/<plant>/<tuner>.png`` and ``.json`` (atomically); return the JSON path.
+    A result from a larger budget is kept unless ``force`` (:func:`guard_overwrite`)."""
     folder = Path(out) / inputs.plant.name
     tuner, label = content["tuner"], content.get("label", "")
+    guard_overwrite(folder / f"{tuner}.json", int(content.get("budget_episodes", 0)), force)
     title = (
         f"{inputs.plant.name}, {tuner}{f' ({label})' if label and label != tuner else ''}: "
         f"P={content['P']:.4g} I={content['I']:.4g} D={content['D']:.4g} N={content['N']:.4g}, "
@@ -258,7 +293,7 @@ def publish(
     content, ev = make_result(
         inputs, seed=args.seed, command=getattr(args, "command", None), **kwargs
     )
-    path = write_result(args.out, inputs, content, ev)
+    path = write_result(args.out, inputs, content, ev, force=getattr(args, "force", False))
     if args.json:  # the file as written: its volatile provenance is in the sidecar
         print(path.read_text(), end="")
     else:

@@ -39,9 +39,16 @@ def _printed_commands() -> list[str]:
     return out
 
 
+def _git_status() -> str:
+    return subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True,
+                          text=True).stdout  # fmt: skip
+
+
 def test_the_readme_rl_commands_run_as_printed(tmp_path):
     """Issue 19: every RL command the README and docs print exits 0 from a fresh directory,
-    progress shown, with only its budget shortened (``--timesteps``, documented)."""
+    progress shown, with only its budget shortened (``--timesteps``, documented). Issue 21: the
+    walk-through changes nothing in the repository (runs go to ./runs)."""
+    before = _git_status()
     commands = _printed_commands()
     assert any(" tuners.rl train" in c for c in commands)
     assert any(" tuners.rl controller" in c for c in commands)
@@ -57,6 +64,7 @@ def test_the_readme_rl_commands_run_as_printed(tmp_path):
         assert "Traceback" not in proc.stderr, command
         if key in ("train", "controller"):
             assert "step/s" in proc.stderr or "it/s" in proc.stderr or "%|" in proc.stderr
+    assert (tmp_path / "runs").is_dir() and _git_status() == before
 
 
 def test_a_missing_rl_extra_is_one_line(monkeypatch, capsys):

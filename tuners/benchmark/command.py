@@ -73,10 +73,13 @@ def _main(argv: list[str] | None = None) -> int:
     if ev.seeds.count < 10:
         raise ValueError(f"the benchmark needs at least 10 held-out seeds, got {ev.seeds.count}")
     objective = load_objective(args.objective)
+    if args.quick:  # a smoke run never replaces a full one by accident
+        cli.guard_overwrite(args.out / "benchmark.json", 0, args.force)
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     with collect_provenance(args.out / "benchmark.provenance.json") as sink:
         data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log,
-                             command=args.command, objective=objective)  # fmt: skip
+                             command=args.command, objective=objective,
+                             force=args.force)  # fmt: skip
         _report(args, bench, ev, objective, data)
         sink["run"] = provenance(seed=bench.seed, wall_time_s=time.perf_counter() - start,
                                  command=args.command)  # fmt: skip
@@ -102,5 +105,8 @@ def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data:
     }
     data["leaderboard"] = leaderboard.rank(data)
     leaderboard.figures(data, args.out)
-    write_result_json(args.out / "benchmark.json", {"meta": meta, **data})
+    budget = sum(r["episodes"] for p in data["plants"].values() for r in (p.get("rows") or {})
+                 .values())  # fmt: skip
+    write_result_json(args.out / "benchmark.json", {"meta": meta, "budget_episodes": budget,
+                                                    **data})  # fmt: skip
     write_atomic(args.out / "benchmark.md", leaderboard.render_markdown(data, meta))

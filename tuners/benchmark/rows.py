@@ -90,17 +90,20 @@ def pid_row(
     out: Path | None,
     command: str | None = None,
     seed: int = 0,
+    force: bool = False,
 ) -> dict[str, Any]:
     """Evaluate PID gains on ``inputs``' plant: a full row. With ``out``, the gains file and
-    its response plot are written (``<out>/<plant>/<name>.json``)."""
+    its response plot are written (``<out>/<plant>/<name>.json``; ``force``: even over a
+    result from a larger budget)."""
     assert tuned.gains is not None
     gains, sign = tuned.gains, tuned.sign
     if out is not None:
         content, ev = cli.make_result(
             inputs, tuner=name, gains=gains, sign=sign, label=tuned.label, seed=seed,
             tuning=tuned.tuning, wall_time_s=tuned.wall_s, command=command,
+            budget_episodes=tuned.episodes,
         )  # fmt: skip
-        cli.write_result(out, inputs, content, ev)
+        cli.write_result(out, inputs, content, ev, force=force)
         robustness, metrics = content["robustness"], content["metrics"]
         runs = ev.actual_runs
     else:  # another identification's evaluation of the same gains: no file

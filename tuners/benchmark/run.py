@@ -77,13 +77,13 @@ def _tune(
 
 def _row(
     inputs: cli.Inputs, tuner: Tuner, tuned: Tuned, tuned_on: list[str], bench: BenchmarkSettings,
-    out: Path | None, command: str | None,
+    out: Path | None, command: str | None, force: bool = False,
 ) -> dict[str, Any]:  # fmt: skip
     if tuned.gains is None:
         return R.policy_row(inputs, tuner.name, tuned, grip_preset=bench.grip_scenario)
     return R.pid_row(inputs, tuner.name, tuner.kind, tuned, tuned_on=tuned_on,
                      grip_preset=bench.grip_scenario, out=out, command=command,
-                     seed=bench.seed)  # fmt: skip
+                     seed=bench.seed, force=force)  # fmt: skip
 
 
 def run_benchmark(
@@ -94,8 +94,10 @@ def run_benchmark(
     log: Callable[..., None] = print,
     command: str | None = None,
     objective: Any = None,
+    force: bool = False,
 ) -> dict[str, Any]:
-    """Run every row on every plant; write the gains files and return the benchmark's data."""
+    """Run every row on every plant; write the gains files and return the benchmark's data
+    (``force``: over results from larger budgets)."""
     from gripper_env.objective import load_objective
 
     obj = objective or load_objective()
@@ -127,7 +129,7 @@ def run_benchmark(
             if tuned is None:
                 continue
             done[tuner.name] = tuned
-            row = _row(inputs, tuner, tuned, [plant], bench, out, command)
+            row = _row(inputs, tuner, tuned, [plant], bench, out, command, force)
             data["plants"][plant]["rows"][tuner.name] = row
             if tuned.tuning.get("history"):
                 data["plants"][plant]["curves"][tuner.name] = tuned.tuning["history"]
@@ -158,7 +160,7 @@ def run_benchmark(
         evaluations[key] = {}
         for plant in robust_plants:
             row = _row(_inputs(plant, bench, ev, obj), tuner, tuned, robust_plants, bench,
-                       out if tuned.gains is not None else None, command)  # fmt: skip
+                       out if tuned.gains is not None else None, command, force)  # fmt: skip
             evaluations[key][plant] = row
             _log_row(log, plant, tuner.name, row)
     data["evaluations"] = evaluations

@@ -95,6 +95,7 @@ def _main(argv: list[str] | None = None) -> int:
             sign=1,
             label=method,
             tuning=tuning,
+            budget_episodes=int(tuning.get("episodes", 0)),
             config={"classical": settings.model_dump()},
             wall_time_s=time.perf_counter() - start,
             notes=notes,

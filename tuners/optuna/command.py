@@ -285,6 +285,7 @@ def _main(argv: list[str] | None = None) -> int:
         wall_time_s=time.perf_counter() - start,
         notes=notes,
         label=names[chosen],
+        budget_episodes=sum(r.n_complete * r.episodes_per_trial for r in results),
     )
     if _interrupted(plan, results):
         print(notes[-1], file=sys.stderr)

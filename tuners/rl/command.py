@@ -169,6 +169,11 @@ def _shared(p: argparse.ArgumentParser, plant_required: bool = True) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--eval-config", type=Path, default=None, help="evaluation settings")
     p.add_argument("--objective", type=Path, default=None, help="the tuning objective")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a result in OUT even if it came from a larger budget",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -332,6 +337,8 @@ def _export(args: argparse.Namespace, inputs: cli.Inputs) -> int:
         args, inputs,
         tuner="rl-tune-robust" if robust else "rl-tune",
         gains=gains, sign=1, label=run, notes=notes,
+        budget_episodes=int(sum(r["episodes"] + r["selection_episodes"]
+                                for r in summary["per_seed"])),
         tuning={
             "run": run,
             "trained_on": summary["plants"],
