@@ -238,8 +238,10 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     through the simulation core with the Simulink-style PID of :mod:`gripper_env.pid`. The reward
     is minus the cost of the shared tuning objective (``configs/objective.yaml``,
     :meth:`gripper_env.objective.Objective.cost`), the same cost that the Optuna tuner minimises,
-    and ``info`` holds every metric. With several plants, ``randomize`` and
-    ``reference="random"`` one policy learns to tune many grippers.
+    and ``info`` holds every metric. With the defaults (one plant, the ``step`` reference,
+    ``randomize=False``) every episode has the same observation and only the sensor noise
+    changes: a bandit per plant. With several plants, ``randomize`` and ``reference="random"``
+    the context varies and one policy learns to tune many grippers (a contextual bandit).
 
     ## Action Space
 
@@ -247,6 +249,9 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     :func:`gripper_env.envs.spaces.action_to_gains`,
     ``g = sign(a) * g_max * (10**(3 |a|) - 1) / 999`` (``gain_scaling="linear"``:
     ``g = a * g_max``); the paper's tuned gains (1, 9, -0.001) are about (0.668, 0.752, -0.347).
+    ``gain_scaling="relative"`` maps log-gains around a design ``gain_center=(P0, I0, D0)``:
+    ``P = P0 10**(d a_P)``, ``I = I0 10**(d a_I)``, ``D = D0 + a_D g_max[2]`` with
+    ``d = gain_decades``; the zero action is that design.
 
     | Num | Action | Min | Max | Gain at -1 / +1 (default ``gain_max``)          |
     |-----|--------|-----|-----|-------------------------------------------------|
@@ -312,7 +317,8 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     )
     ```
 
-    Also ``episode_s`` (length of random references, s).
+    Also ``episode_s`` (length of random references, s), ``gain_center`` and ``gain_decades``
+    (the ``relative`` gain map).
 
     ## Version History
 
