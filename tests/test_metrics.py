@@ -105,3 +105,24 @@ def test_unstable_runs_get_inf_and_no_warnings():
     values = [v for v in d.values() if isinstance(v, float)]
     assert not any(math.isnan(v) for v in values)
     assert m.as_dict(1)["stable"] is True
+
+
+def test_a_loop_that_swings_between_the_stops_is_classified_as_diverged():
+    """A loop unstable with the hold but bounded by the command range and the stops never
+    leaves the divergence bound; its sustained swing classifies it (issue 20)."""
+    from gripper_env.metrics import OSCILLATION_LIMIT_DEG
+    from gripper_env.pid import PIDOptions
+    from gripper_env.sim import simulate
+
+    options = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
+    seeds = np.arange(100000, 100004)
+    unstable = simulate("test4", "step", np.repeat([[3.43, 67.5, -0.0087, 100.0]], 4, 0),
+                        "actual", seeds=seeds, randomize=True, pid_options=options)  # fmt: skip
+    assert unstable.stable.all()  # the core sees bounded states
+    m = compute_metrics(unstable, "true")
+    assert np.all(m.run["oscillation_deg"] > OSCILLATION_LIMIT_DEG) and not m.stable.any()
+    assert np.all(np.isinf(m.run["iae"]))
+    settled = simulate("test4", "step", np.repeat([[0.33, 28.5, 0.0, 100.0]], 4, 0), "actual",
+                       seeds=seeds, randomize=True, pid_options=options)  # fmt: skip
+    ms = compute_metrics(settled, "true")
+    assert ms.stable.all() and np.all(ms.run["oscillation_deg"] < 4.0)  # friction hunting only

@@ -114,3 +114,37 @@ def test_gain_map_round_trip_and_sign():
     np.testing.assert_allclose(action_to_gains([1, -1, 1]), [10.0, -50.0, 0.1])
     np.testing.assert_allclose(action_to_gains([0.5, 0.5, 0.5], scaling="linear"),
                                [5.0, 25.0, 0.05])  # fmt: skip
+
+
+def test_the_relative_gain_map_centres_on_a_design():
+    """``gain_scaling="relative"``: the zero action is the design, a unit action a decade, and
+    the inverse map gives the action back."""
+    import gymnasium as gym
+
+    from gripper_env.envs.spaces import action_to_gains, gains_to_action
+
+    center = (2.4, 39.0, 0.001)
+    env = gym.make("gripper_env/GripperPIDTune-v0", gain_scaling="relative", gain_center=center,
+                   gain_decades=1.0, gain_max=(1.0, 1.0, 0.02))  # fmt: skip
+    env.reset(seed=0)
+    info = env.step(np.zeros(3, np.float32))[4]
+    assert (info["gains"]["P"], info["gains"]["I"], info["gains"]["D"]) == pytest.approx(center)
+    a = np.array([[1.0, -0.5, -1.0]])
+    g = action_to_gains(a, (1.0, 1.0, 0.02), "relative", center, 1.0)
+    assert g[0] == pytest.approx([24.0, 39.0 / 10**0.5, 0.001 - 0.02])
+    assert gains_to_action(g, (1.0, 1.0, 0.02), "relative", center, 1.0) == pytest.approx(a)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"gain_scaling": "relative"}, "gain_center"),
+     ({"gain_scaling": "relative", "gain_center": (0.0, 1.0, 0.0)}, "nonzero"),
+     ({"gain_scaling": "relative", "gain_center": (1.0, 1.0, 0.0), "gain_decades": 9}, "decades")],
+)  # fmt: skip
+def test_a_bad_relative_map_is_one_line(kwargs, match):
+    import gymnasium as gym
+
+    from gripper_env.config import ConfigError
+
+    with pytest.raises(ConfigError, match=match):
+        gym.make("gripper_env/GripperPIDTune-v0", **kwargs)
