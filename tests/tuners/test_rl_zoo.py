@@ -1,0 +1,56 @@
+"""The shipped rl-zoo3 hyperparameter files run through rl-zoo3's own train and enjoy."""
+
+import subprocess
+import sys
+
+import gymnasium as gym
+import pytest
+import yaml
+
+pytest.importorskip("rl_zoo3")
+
+from gripper_env.config import CONFIG_DIR  # noqa: E402
+
+ZOO = CONFIG_DIR / "rl_zoo"
+IDS = ("gripper_env/GripperServo-v0", "gripper_env/GripperGainSchedule-v0",
+       "gripper_env/GripperPIDTune-v0")  # fmt: skip
+
+
+def _load(setting: str, algo: str) -> dict:
+    return yaml.load((ZOO / setting / f"{algo}.yml").read_text(), Loader=yaml.UnsafeLoader)
+
+
+@pytest.mark.parametrize("setting", ["default", "randomized"])
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_every_environment_has_a_recipe_that_makes_its_environment(setting, algo):
+    import gripper_env.envs  # noqa: F401
+
+    recipes = _load(setting, algo)
+    assert set(recipes) == set(IDS)
+    for env_id, params in recipes.items():
+        assert params["policy"] == "MlpPolicy" and params["n_timesteps"] > 0
+        env = gym.make(env_id, **params.get("env_kwargs", {}))
+        env.reset(seed=0)
+        env.close()
+        if setting == "randomized":
+            assert params["env_kwargs"]["randomize"] is True
+
+
+def _zoo(*args, cwd, timeout=600):
+    return subprocess.run([sys.executable, "-m", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout)  # fmt: skip
+
+
+def test_rl_zoo3_trains_with_the_shipped_file_then_enjoys(tmp_path):
+    env_id, algo, steps = "gripper_env/GripperServo-v0", "ppo", 2048
+    conf = str(ZOO / "randomized" / f"{algo}.yml")
+    common = ["--algo", algo, "--env", env_id, "--gym-packages", "gripper_env"]
+    train = _zoo("rl_zoo3.train", *common, "-conf", conf, "-n", str(steps), "-f", "logs",
+                 "--seed", "0", "--eval-freq", "-1", cwd=tmp_path)  # fmt: skip
+    assert train.returncode == 0, train.stderr[-2000:]
+    name = env_id.replace("/", "-")
+    assert (tmp_path / "logs" / algo / f"{name}_1" / f"{name}.zip").is_file()
+    enjoy = _zoo("rl_zoo3.enjoy", *common, "-f", "logs", "-n", "200", "--no-render",
+                 cwd=tmp_path)  # fmt: skip
+    assert enjoy.returncode == 0, enjoy.stderr[-2000:]
+    assert "Loading" in enjoy.stdout
