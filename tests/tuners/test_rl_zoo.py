@@ -9,7 +9,7 @@ import yaml
 
 pytest.importorskip("rl_zoo3")
 
-from gripper_env.config import CONFIG_DIR  # noqa: E402
+from gripper_env.config import CONFIG_DIR
 
 ZOO = CONFIG_DIR / "rl_zoo"
 IDS = ("gripper_env/GripperServo-v0", "gripper_env/GripperGainSchedule-v0",
