@@ -61,6 +61,8 @@ COMMANDS: tuple[Command, ...] = (
             "the paper's Table-1 identification experiments on the simulated gripper"),
     Command("benchmark", _py("-m", "tuners.benchmark", "--out", RESULTS),
             "every tuner and learned controller on every plant: the verdict"),
+    Command("reference-scores", _py("-m", "tuners.rl.reference_scores", "--out", RESULTS),
+            "what random, doing nothing, the best PID, PPO and SAC score on each environment"),
     Command("speed", _py("-m", "benchmarks.speed", "--repeats", "21", "--slow-repeats", "3",
                          "--envs-repeats", "11", "--out", RESULTS),
             "the simulation core's and the environments' speed"),
