@@ -5,9 +5,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from gripper_env.pid import PIDGains, PIDOptions  # noqa: E402
-from gripper_env.sim import simulate  # noqa: E402
-from tuners.rl import reference_scores as rs  # noqa: E402
+from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.sim import simulate
+from tuners.rl import reference_scores as rs
 
 PID = PIDGains(3.43, 67.5, -0.0087)
 

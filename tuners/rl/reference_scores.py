@@ -15,9 +15,9 @@ environment, and its score is the mean episode return:
 * ``best PID``: the best deployable PID of the benchmark (``--pid``), run through the
   environment: constant actions that map to its gains (``GripperGainSchedule-v0``,
   ``GripperPIDTune-v0``; the action map's ``gain_max`` widened where the gains lie beyond it -
-  the map changes, not the task or the reward); for ``GripperServo-v0`` the PID inside the environment
-  (``residual="pid"``) with the zero correction - the reward depends only on the reference,
-  the jaw and the command, so its return compares;
+  the map changes, not the task or the reward); for ``GripperServo-v0`` the PID inside the
+  environment (``residual="pid"``) with the zero correction - the reward depends only on the
+  reference, the jaw and the command, so its return compares;
 * ``PPO`` and ``SAC`` trained with the shipped rl-zoo3 recipes (``configs/rl_zoo/``: the same
   hyperparameters; trained here on :class:`gripper_env.sb3.NativeVecEnv`, step for step a
   ``DummyVecEnv``'s equal but faster), mean and standard deviation over ``--seeds`` training
@@ -149,7 +149,8 @@ def _pid_policy(env_id: str, kwargs: dict[str, Any], gains: Any) -> tuple[Policy
     s = _settings(env_id, kwargs)
     g = np.array([gains.P, gains.I, gains.D])
     # widen the action map where the gains lie beyond it: the map changes, the task does not
-    gain_max = tuple(float(x) for x in np.maximum(s.gain_max, 1.01 * np.abs(g)))
+    widest = np.maximum(s.gain_max, 1.01 * np.abs(g))
+    gain_max = (float(widest[0]), float(widest[1]), float(widest[2]))
     action = gains_to_action(g, gain_max, s.gain_scaling)
     return _fixed(np.asarray(action, dtype=float)), dict(kwargs, gain_max=gain_max)
 
