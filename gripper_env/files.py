@@ -32,6 +32,7 @@ __all__ = [
     "json_ready",
     "provenance_path",
     "read_format_json",
+    "record_provenance",
     "save_figure",
     "split_volatile",
     "write_atomic",
@@ -150,12 +151,18 @@ def write_result_json(path: str | os.PathLike[str], obj: Any) -> Path:
     :func:`collect_provenance`, else into :func:`provenance_path`. A rerun with equal numbers
     then leaves the result file byte for byte unchanged."""
     stable, volatile = split_volatile(json_ready(obj))
+    record_provenance(path, volatile)
+    return write_json(path, stable)
+
+
+def record_provenance(path: str | os.PathLike[str], volatile: dict[str, Any]) -> None:
+    """Put a result's volatile provenance where :func:`write_result_json` puts it: the sink of
+    an enclosing :func:`collect_provenance`, else the sidecar :func:`provenance_path`."""
     sink = _SINK.get()
     if sink is not None:
         sink[str(path)] = volatile
     elif volatile:
         write_json(provenance_path(path), volatile)
-    return write_json(path, stable)
 
 
 @contextlib.contextmanager

@@ -37,10 +37,13 @@ class Budget:
         The smoke-test budget (each tuner's ``quick`` settings).
     scale : float
         Multiplies the tuner's own budget (trials, episodes, steps).
+    engine : str, optional
+        Where independent runs (training seeds) go (:func:`tuners.engine.engine`).
     """
 
     quick: bool = False
     scale: float = 1.0
+    engine: str | None = None
 
 
 @dataclass

@@ -79,7 +79,7 @@ def _main(argv: list[str] | None = None) -> int:
     with collect_provenance(args.out / "benchmark.provenance.json") as sink:
         data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log,
                              command=args.command, objective=objective,
-                             force=args.force)  # fmt: skip
+                             force=args.force, engine=args.engine)  # fmt: skip
         _report(args, bench, ev, objective, data)
         sink["run"] = provenance(seed=bench.seed, wall_time_s=time.perf_counter() - start,
                                  command=args.command)  # fmt: skip

@@ -95,15 +95,17 @@ def run_benchmark(
     command: str | None = None,
     objective: Any = None,
     force: bool = False,
+    engine: str | None = None,
 ) -> dict[str, Any]:
     """Run every row on every plant; write the gains files and return the benchmark's data
-    (``force``: over results from larger budgets)."""
+    (``force``: over results from larger budgets; ``engine``: where the RL rows' training seeds
+    run, :mod:`tuners.engine`)."""
     from gripper_env.objective import load_objective
 
     obj = objective or load_objective()
     plants = bench.quick.plants if quick else bench.plants
     robust_plants = [p for p in bench.robust_plants if p in plants or not quick]
-    budget = Budget(quick=quick)
+    budget = Budget(quick=quick, engine=engine)
     tuners = _tuners(bench, quick, out)
     data: dict[str, Any] = {"plants": {}, "robust_plants": robust_plants, "quick": quick}
     feasible = []

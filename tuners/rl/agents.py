@@ -118,17 +118,28 @@ _UNSTABLE_PARAMS = ("start_time", "ep_info_buffer", "ep_success_buffer")
 
 
 def save_model(model: Any, path: str | os.PathLike[str]) -> Path:
-    """``model.save`` without the time-dependent parameters, as a zip whose entries carry a
-    fixed date: the same training gives the same bytes."""
+    """``model.save`` whose bytes depend on the training only, not on the process or the clock:
+    without the time-dependent parameters, with the spaces saved without a random generator,
+    the memory addresses in the zip's readable ``data`` (``<function ... at 0x7f...>``)
+    dropped, and entries dated 1980. The same training gives the same file on every engine."""
+    import re
     import zipfile
 
+    import gymnasium as gym
+
     path = Path(path)
+    for name in ("observation_space", "action_space"):  # a space saved with its sampler's state
+        space = getattr(model, name)
+        if isinstance(space, gym.spaces.Box):
+            setattr(model, name, gym.spaces.Box(space.low, space.high, space.shape, space.dtype))
     model.save(path, exclude=list(_UNSTABLE_PARAMS))
     with zipfile.ZipFile(path) as src:
         entries = [(info, src.read(info)) for info in src.infolist()]
     tmp = path.with_suffix(".tmp")
     with zipfile.ZipFile(tmp, "w") as dst:
         for info, data in entries:
+            if info.filename == "data":
+                data = re.sub(rb" at 0x[0-9a-f]+>", b">", data)
             fixed = zipfile.ZipInfo(info.filename, date_time=(1980, 1, 1, 0, 0, 0))
             fixed.compress_type = info.compress_type
             fixed.external_attr = info.external_attr

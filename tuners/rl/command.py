@@ -28,6 +28,7 @@ import numpy as np
 from gripper_env.files import write_result_json
 from gripper_env.pid import PIDGains
 from tuners import cli
+from tuners.engine import ENGINE_HELP
 from tuners.rl.envs import ENV_IDS, require_rl
 
 __all__ = ["build_parser", "main", "parse_seeds"]
@@ -76,6 +77,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--config", type=Path, default=None, help="the recipe's settings file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--engine", default=None, help=ENGINE_HELP)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -207,7 +209,7 @@ def _run_name(env: str, plants: list[str], plant: str) -> str:
 
 
 def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]) -> int:
-    from tuners.rl.tune import load_tune_settings, train_tuner
+    from tuners.rl.tune import load_tune_settings, train_seeds
     from tuners.settings import OptunaSettings, check_disjoint, load_settings
 
     s = load_tune_settings(args.config)
@@ -215,13 +217,9 @@ def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]
     check_disjoint(opt.tuning_seeds, inputs.settings.seeds)
     seeds = _seeds(args)
     folder = args.out / "rl" / _run_name("pid-tune", plants, inputs.plant.name)
-    runs = []
-    for k in seeds:
-        runs.append(train_tuner(
-            inputs, s, seed=k, run_dir=folder / f"seed-{k}", plants=plants,
-            episodes=args.timesteps, optuna_settings=opt, progress=not args.no_progress,
-            log=(lambda m: None) if args.json else print,
-        ))  # fmt: skip
+    runs = train_seeds(inputs, s, seeds, folder, plants=plants, episodes=args.timesteps,
+                       optuna_settings=opt, progress=not args.no_progress,
+                       engine_spec=args.engine)  # fmt: skip
     summary = _tuner_summary(runs)
     _held_out(inputs, summary)
     write_result_json(folder / "summary.json", summary)
@@ -435,7 +433,7 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str])
     study = controller_study(
         inputs, base, seeds=_seeds(args), settings=s, plants=plants, out=args.out,
         timesteps=args.timesteps, progress=not args.no_progress,
-        log=(lambda m: None) if args.json else print,
+        log=(lambda m: None) if args.json else print, engine_spec=args.engine,
     )  # fmt: skip
     name = f"controller-{'+'.join(plants or [inputs.plant.name])}"
     write_study(study, args.out, name)

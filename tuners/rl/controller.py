@@ -33,6 +33,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -47,6 +48,7 @@ from gripper_env.plants import load_plant
 from gripper_env.scoring import score_trajectory
 from gripper_env.sim import Trajectory, simulate
 from tuners import cli
+from tuners.engine import engine, write_files
 from tuners.evaluation import summarize_runs, with_cost
 from tuners.rl.agents import Agent, save_agent
 from tuners.rl.envs import progress_callback, require_rl
@@ -333,6 +335,7 @@ def controller_study(
     timesteps: int | None = None,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    engine_spec: str | None = None,
 ) -> dict[str, Any]:
     """Train the RL controller with every seed and evaluate it as an RL researcher would.
 
@@ -352,6 +355,9 @@ def controller_study(
         The runs go to ``<out>/rl/controller-<plants>/seed-<k>/``.
     timesteps : int, optional
         Training budget per seed (default the settings').
+    engine_spec : str, optional
+        Where the seeds train (:func:`tuners.engine.engine`: serial, local worker processes,
+        a Dask cluster); the results are the same.
 
     Returns
     -------
@@ -361,7 +367,7 @@ def controller_study(
         metrics, ``per_seed_cost`` averaged over the training seeds, the base's and command =
         reference's), ``curve`` (the learning curve's mean and range) and ``summary``.
     """
-    from tuners.probe import measure_margins, pid_runner, policy_runner
+    from tuners.probe import measure_margins, pid_runner
 
     s = settings or load_controller_settings()
     names = list(plants) or [inputs.plant.name]
@@ -378,33 +384,80 @@ def controller_study(
                             inputs.disturbance).as_dict() for p in eval_plants}
         if base is not None else {}
     )  # fmt: skip
+    tasks = [
+        _SeedTask(inputs, base, s, names, int(k), timesteps, kwargs, progress and engine_spec
+                  in (None, "serial"))
+        for k in seeds
+    ]  # fmt: skip
     per_seed: list[dict[str, Any]] = []
-    for k in seeds:
+    with engine(engine_spec) as eng:
+        for task, result in zip(tasks, eng.map(_run_seed, tasks), strict=True):
+            write_files(folder / f"seed-{task.seed}", result["files"])
+            entry = result["entry"]
+            for p in eval_plants:
+                base_runs = base_eval[p][1]
+                runs = entry["plants"][p]["runs"]
+                entry["plants"][p]["vs_base"] = _paired(
+                    [r["cost"] for r in runs], [r["cost"] for r in base_runs]
+                )
+            per_seed.append(entry)
+            log(result["message"])
+    wall = time.perf_counter() - t0
+    study = _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
+    study["requested_timesteps"] = s.timesteps if timesteps is None else int(timesteps)
+    return study
+
+
+@dataclass(frozen=True)
+class _SeedTask:
+    """One training seed of a study: what a worker needs (picklable)."""
+
+    inputs: cli.Inputs
+    base: PIDGains | None
+    settings: ControllerSettings
+    plants: list[str]
+    seed: int
+    timesteps: int | None
+    kwargs: dict[str, Any]
+    progress: bool
+
+
+def _run_seed(task: _SeedTask) -> dict[str, Any]:
+    """Train one seed in a scratch folder and evaluate its kept agent on the held-out seeds of
+    every plant, with its measured margins; return the figures and the agent's files."""
+    import tempfile
+
+    from tuners.engine import gather_files
+    from tuners.probe import measure_margins, policy_runner
+
+    inputs = task.inputs
+    held_out = inputs.settings.seeds.seeds()
+    with tempfile.TemporaryDirectory() as tmp:
         agent, facts = train_controller(
-            inputs, base, s, folder / f"seed-{k}", seed=int(k), plants=names,
-            timesteps=timesteps, progress=progress, log=log,
+            inputs, task.base, task.settings, tmp, seed=task.seed, plants=task.plants,
+            timesteps=task.timesteps, progress=task.progress, log=lambda m: None,
         )  # fmt: skip
-        entry: dict[str, Any] = {"seed": int(k), "training": facts, "plants": {}}
-        for p in eval_plants:
-            ideal, runs, _, _ = evaluate_policy(agent, inputs, kwargs, held_out, p)
+        entry: dict[str, Any] = {"seed": task.seed, "training": facts, "plants": {}}
+        for p in task.plants:
+            ideal, runs, _, _ = evaluate_policy(agent, inputs, task.kwargs, held_out, p)
             margins = measure_margins(
-                policy_runner(agent, dict(kwargs, plant=p), inputs.reference), p,
+                policy_runner(agent, dict(task.kwargs, plant=p), inputs.reference), p,
                 inputs.disturbance,
             )  # fmt: skip
-            base_runs = base_eval[p][1]
             entry["plants"][p] = {
                 "ideal": ideal,
                 "runs": runs,
                 "mean_cost": float(np.mean([r["cost"] for r in runs])),
                 "stable_fraction": float(np.mean([r["stable"] for r in runs])),
-                "vs_base": _paired([r["cost"] for r in runs], [r["cost"] for r in base_runs]),
                 "measured_margins": margins.as_dict(),
             }
-        per_seed.append(entry)
-    wall = time.perf_counter() - t0
-    study = _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
-    study["requested_timesteps"] = s.timesteps if timesteps is None else int(timesteps)
-    return study
+        files = gather_files(tmp)
+    message = (
+        f"  rl-controller {'+'.join(task.plants)} seed {task.seed}: {facts['timesteps']} steps; "
+        f"validation cost {facts['best_validation_cost']:.4g} at "
+        f"{facts['kept_checkpoint_timesteps']} steps (base {facts['base_validation_cost']:.4g})"
+    )
+    return {"entry": entry, "files": files, "message": message}
 
 
 def _summarise(

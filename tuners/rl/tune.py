@@ -30,6 +30,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,7 @@ from tuners.rl.envs import ENV_IDS, LogExactPenalty, make_vec_env, progress_call
 from tuners.settings import ClassicalSettings, OptunaSettings, load_settings
 from tuners.tasks import make_scorer
 
-__all__ = ["RLTuneSettings", "TuneRun", "load_tune_settings", "train_tuner"]
+__all__ = ["RLTuneSettings", "TuneRun", "load_tune_settings", "train_seeds", "train_tuner"]
 
 #: An action this close to +/-1 (in any gain) is on the map's bound.
 BOUND_ACTION = 0.98
@@ -277,6 +278,61 @@ def train_tuner(
         log(f"  {label}: best tuning cost {best['tuning_cost']:.4g} at {best['episodes']} "
             f"episodes; {total} episodes in {wall:.0f} s")  # fmt: skip
     return run
+
+
+@dataclass(frozen=True)
+class _TuneTask:
+    """One training seed of the tuner: what a worker needs (picklable)."""
+
+    inputs: cli.Inputs
+    settings: RLTuneSettings
+    seed: int
+    plants: tuple[str, ...]
+    episodes: int | None
+    optuna_settings: OptunaSettings | None
+    progress: bool
+
+
+def _tune_seed(task: _TuneTask) -> tuple[TuneRun, dict[str, bytes]]:
+    """Train one seed in a scratch folder; return the run and its files."""
+    import tempfile
+
+    from tuners.engine import gather_files
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = train_tuner(
+            task.inputs, task.settings, seed=task.seed, run_dir=tmp, plants=task.plants,
+            episodes=task.episodes, optuna_settings=task.optuna_settings,
+            progress=task.progress, log=lambda m: None,
+        )  # fmt: skip
+        return run, gather_files(tmp)
+
+
+def train_seeds(
+    inputs: cli.Inputs,
+    s: RLTuneSettings,
+    seeds: Sequence[int],
+    folder: str | os.PathLike[str],
+    *,
+    plants: Sequence[str] = (),
+    episodes: int | None = None,
+    optuna_settings: OptunaSettings | None = None,
+    progress: bool = True,
+    engine_spec: str | None = None,
+) -> list[TuneRun]:
+    """:func:`train_tuner` for every seed, through an engine (:mod:`tuners.engine`); each run
+    in ``<folder>/seed-<k>``. The same seeds give the same runs on every engine."""
+    from tuners.engine import engine, write_files
+
+    serial = engine_spec in (None, "serial")
+    tasks = [_TuneTask(inputs, s, int(k), tuple(plants), episodes, optuna_settings,
+                       progress and serial) for k in seeds]  # fmt: skip
+    runs = []
+    with engine(engine_spec) as eng:
+        for task, (run, files) in zip(tasks, eng.map(_tune_seed, tasks), strict=True):
+            write_files(Path(folder) / f"seed-{task.seed}", files)
+            runs.append(run)
+    return runs
 
 
 def _plain(kwargs: dict[str, Any]) -> dict[str, Any]:

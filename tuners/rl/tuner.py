@@ -43,19 +43,17 @@ class RLTuner:
         self.out = Path(out)
 
     def tune(self, inputs: cli.Inputs, budget: Budget, seed: int) -> Tuned:
-        from tuners.rl.tune import load_tune_settings, train_tuner
+        from tuners.rl.tune import load_tune_settings, train_seeds
 
         s = load_tune_settings()
         episodes = s.quick_episodes if budget.quick else round(s.episodes * budget.scale)
         names = list(self.plants) or [inputs.plant.name]
         folder = self.out / "rl" / f"pid-tune-{'+'.join(names)}"
         start = time.perf_counter()
-        runs = [
-            train_tuner(inputs, s, seed=seed + i, run_dir=folder / f"seed-{seed + i}",
-                        plants=self.plants, episodes=episodes, progress=False,
-                        log=lambda m: None)
-            for i in range(1 if budget.quick else self.search_seeds)
-        ]  # fmt: skip
+        n = 1 if budget.quick else self.search_seeds
+        runs = train_seeds(inputs, s, range(seed, seed + n), folder, plants=self.plants,
+                           episodes=episodes, progress=False,
+                           engine_spec=budget.engine)  # fmt: skip
         good = [r for r in runs if r["best"] is not None]
         if not good:
             raise ValueError(f"{self.name} on {'+'.join(names)}: no seed evaluated feasible "
@@ -179,7 +177,7 @@ class RLControllerTuner:
         if study is None:
             study = controller_study(inputs, base, seeds=seeds, settings=s, plants=self.plants,
                                      out=self.out, timesteps=steps, progress=False,
-                                     log=lambda m: None)  # fmt: skip
+                                     log=lambda m: None, engine_spec=budget.engine)  # fmt: skip
             write_study(study, self.out, name)
             study = json.loads(path.read_text())
         tuning = {
