@@ -229,3 +229,20 @@ def test_subprocess_entry_point_reports_bad_input_in_one_line(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "tuners.rl", "train", "--plant", "nope"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "nope" in proc.stderr
+
+
+def test_a_tuner_run_with_the_same_recipe_is_reused_not_retrained(tmp_path, small_eval_config):
+    from tuners.rl.tune import load_tune_settings, train_seeds
+
+    args = ["--plant", "test2", "--eval-config", str(small_eval_config)]
+    inputs = cli.resolve(rl.build_parser().parse_args(["export", *args]))
+    s = load_tune_settings().model_copy(update={"eval_every": 128})
+    first = train_seeds(inputs, s, [0], tmp_path, episodes=256, progress=False, reuse=True)
+    history = tmp_path / "seed-0" / "history.json"
+    stamp = history.stat().st_mtime_ns
+    again = train_seeds(inputs, s, [0], tmp_path, episodes=256, progress=False, reuse=True)
+    assert history.stat().st_mtime_ns == stamp  # read, not trained again
+    assert again[0]["best"] == first[0]["best"] and again[0]["gains"] == first[0]["gains"]
+    other = s.model_copy(update={"learning_rate": 3e-4})  # another recipe: trained again
+    train_seeds(inputs, other, [0], tmp_path, episodes=256, progress=False, reuse=True)
+    assert history.stat().st_mtime_ns != stamp

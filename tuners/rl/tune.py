@@ -26,6 +26,7 @@ Settings: ``configs/tuners/rl_tune.yaml`` (:class:`RLTuneSettings`).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -319,20 +320,54 @@ def train_seeds(
     optuna_settings: OptunaSettings | None = None,
     progress: bool = True,
     engine_spec: str | None = None,
+    reuse: bool = False,
 ) -> list[TuneRun]:
     """:func:`train_tuner` for every seed, through an engine (:mod:`tuners.engine`); each run
-    in ``<folder>/seed-<k>``. The same seeds give the same runs on every engine."""
+    in ``<folder>/seed-<k>``. The same seeds give the same runs on every engine. With
+    ``reuse``, a seed whose ``history.json`` was made with the same settings, budget,
+    environment (centre design included) and tuning seeds is read, not trained again."""
     from tuners.engine import engine, write_files
 
+    folder = Path(folder)
     serial = engine_spec in (None, "serial")
+    done: dict[int, TuneRun] = {}
+    if reuse:
+        names = list(plants) or [inputs.plant.name]
+        scorer = make_scorer(inputs, optuna_settings, names if len(names) > 1 else ())
+        center, _ = design_center(inputs, s, names, scorer)
+        wanted = json.loads(json.dumps(_plain(env_kwargs(inputs, names, s, center))))
+        for k in seeds:
+            run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted)
+            if run is not None:
+                done[int(k)] = run
     tasks = [_TuneTask(inputs, s, int(k), tuple(plants), episodes, optuna_settings,
-                       progress and serial) for k in seeds]  # fmt: skip
-    runs = []
+                       progress and serial) for k in seeds if int(k) not in done]  # fmt: skip
     with engine(engine_spec) as eng:
         for task, (run, files) in zip(tasks, eng.map(_tune_seed, tasks), strict=True):
-            write_files(Path(folder) / f"seed-{task.seed}", files)
-            runs.append(run)
-    return runs
+            write_files(folder / f"seed-{task.seed}", files)
+            done[task.seed] = run
+    return [done[int(k)] for k in seeds]
+
+
+def _reusable_run(
+    path: Path, s: RLTuneSettings, episodes: int | None, kwargs: dict[str, Any]
+) -> TuneRun | None:
+    """The run at ``path`` if it was made with these settings, budget and environment."""
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    budget = s.episodes if episodes is None else int(episodes)
+    same = (
+        old.get("settings") == json.loads(json.dumps(s.model_dump()))
+        and old.get("env_kwargs") == kwargs
+        and old.get("episodes", -1) >= budget > old.get("episodes", 0) - s.n_envs * s.n_steps
+    )
+    if not same:
+        return None
+    run = TuneRun(old)
+    run["gains"] = None if run["best"] is None else PIDGains(*run["best"]["gains"])
+    return run
 
 
 def _plain(kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -30,13 +30,21 @@ class RLTuner:
         Training seeds.
     out : path
         Where the runs go (``<out>/rl/pid-tune-<plants>/seed-<k>``).
+    reuse : bool
+        Read a seed's run instead of training it again when it was made with the same
+        settings, budget and environment (:func:`tuners.rl.tune.train_seeds`).
     """
 
     kind = "search"
 
     def __init__(
-        self, plants: list[str] | None = None, search_seeds: int = 3, out: str = "runs"
+        self,
+        plants: list[str] | None = None,
+        search_seeds: int = 3,
+        out: str = "runs",
+        reuse: bool = True,
     ) -> None:
+        self.reuse = reuse
         self.plants = tuple(plants or ())
         self.name = "rl-tune-robust" if self.plants else "rl-tune"
         self.search_seeds = int(search_seeds)
@@ -52,8 +60,8 @@ class RLTuner:
         start = time.perf_counter()
         n = 1 if budget.quick else self.search_seeds
         runs = train_seeds(inputs, s, range(seed, seed + n), folder, plants=self.plants,
-                           episodes=episodes, progress=False,
-                           engine_spec=budget.engine)  # fmt: skip
+                           episodes=episodes, progress=False, engine_spec=budget.engine,
+                           reuse=self.reuse)  # fmt: skip
         good = [r for r in runs if r["best"] is not None]
         if not good:
             raise ValueError(f"{self.name} on {'+'.join(names)}: no seed evaluated feasible "
