@@ -277,7 +277,8 @@ def write_result(
         f"P={content['P']:.4g} I={content['I']:.4g} D={content['D']:.4g} N={content['N']:.4g}, "
         f"{content['sign_convention']}, profile {inputs.profile_name}"
     )
-    response_plot(ev, title, folder / f"{tuner}.png")
+    band = inputs.objective.settling_band_deg(inputs.disturbance)
+    response_plot(ev, title, folder / f"{tuner}.png", settling_band_deg=band)
     return write_result_json(folder / f"{tuner}.json", content)
 
 

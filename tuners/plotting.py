@@ -23,52 +23,118 @@ from gripper_env.files import save_figure
 __all__ = ["budget_plot", "learning_curve_plot", "pareto_plot", "response_plot"]
 
 
-def response_plot(evaluation: Any, title: str, path: str | os.PathLike[str]) -> Path:
-    """Reference, model (ideal) response and actual-model responses over time, with commands.
+def response_plot(
+    evaluation: Any,
+    title: str,
+    path: str | os.PathLike[str],
+    settling_band_deg: float = 0.0,
+) -> Path:
+    """The response as a control engineer reads it.
 
-    The actual model is drawn for its first held-out seed (solid) and the spread of the others
-    (thin lines); the lower panel shows the controller outputs (servo commands).
+    * **Overview** (20 s): the reference, the ideal model's response, and the actual model's
+      over the held-out seeds as a band (min to max) with the median seed drawn.
+    * **Zoom on each move** (the first grip and un-grip, from 50 ms before the step to 0.6 s
+      after): the same curves, every seed thin, the settling band (``max(2 %, band)`` of the
+      move, the objective's) shaded, and the actual model's mean overshoot, rise (10-90 %) and
+      settling time annotated.
+    * **Command**: the controller's output for the ideal model and the median seed, unclipped
+      (its spikes are where it saturates), with the servo's range marked.
 
     Parameters
     ----------
     evaluation : tuners.evaluation.Evaluation
-        What to draw.
+        What to draw (trajectories and metrics).
     title : str
         Figure title.
     path : path
         PNG file to write.
+    settling_band_deg : float
+        The objective's settling-band floor (deg).
     """
     ideal, actual = evaluation.ideal_trajectory, evaluation.actual_trajectory
     t = ideal.t
-    fig, (ax, axu) = plt.subplots(
-        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
-    )
-    ax.plot(t, ideal.r[0], color="k", lw=1.2, ls="--", label="reference")
-    for i in range(1, len(actual)):
-        ax.plot(t, actual.y_true[i], color="tab:orange", lw=0.5, alpha=0.35)
-    ax.plot(t, ideal.y_true[0], color="tab:blue", lw=1.4, label="model (ideal TF)")
-    ax.plot(
-        t,
-        actual.y_true[0],
-        color="tab:orange",
-        lw=1.2,
-        label=f"actual model (seed {evaluation.seeds[0]}; thin: {len(actual) - 1} more seeds)",
-    )
+    y = actual.y_true
+    finite = np.isfinite(y).all(axis=1)
+    iae = np.array([np.sum(np.abs(row - ideal.r[0])) if ok else np.inf
+                    for row, ok in zip(y, finite, strict=True)])  # fmt: skip
+    median = int(np.argsort(iae)[len(iae) // 2])
+    fig = plt.figure(figsize=(10, 8.6))
+    grid = fig.add_gridspec(3, 2, height_ratios=[2.2, 2.2, 1.3], hspace=0.42, wspace=0.2)
+    ax = fig.add_subplot(grid[0, :])
+    segments = list(ideal.reference.segments)
+    ax.plot(t, ideal.r[0], color="k", lw=1.1, ls="--", label="reference")
+    if finite.any():
+        ax.fill_between(t, np.nanmin(y[finite], axis=0), np.nanmax(y[finite], axis=0),
+                        color="tab:orange", alpha=0.25, lw=0,
+                        label=f"actual model, {int(finite.sum())} seeds (min-max)")  # fmt: skip
+    ax.plot(t, y[median], color="tab:orange", lw=1.0,
+            label=f"actual, median seed ({evaluation.seeds[median]})")  # fmt: skip
+    ax.plot(t, ideal.y_true[0], color="tab:blue", lw=1.2, label="model (ideal TF)")
+    for seg in segments[:2]:
+        ax.axvspan(t[seg.start] - 0.05, t[seg.start] + 0.6, color="0.85", alpha=0.5, lw=0)
     ax.set_ylabel("jaw angle (deg)")
     ax.set_title(title, fontsize=10)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="best", fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
+    mean = evaluation.actual.get("mean", {}) if isinstance(evaluation.actual, dict) else {}
+    firsts = {seg.kind: seg for seg in reversed(segments)}
+    for col, kind in enumerate(("grip", "ungrip")):
+        seg = firsts.get(kind)
+        axz = fig.add_subplot(grid[1, col])
+        if seg is None:
+            axz.set_visible(False)
+            continue
+        _zoom(axz, t, ideal, y, finite, median, seg, settling_band_deg, mean.get(kind) or {})
+    axu = fig.add_subplot(grid[2, :], sharex=ax)
     axu.plot(t, ideal.u[0], color="tab:blue", lw=0.8, label="command, model")
-    axu.plot(t, actual.u[0], color="tab:orange", lw=0.6, alpha=0.8, label="command, actual")
+    axu.plot(t, actual.u[median], color="tab:orange", lw=0.6, alpha=0.9,
+             label="command, actual (median seed)")  # fmt: skip
+    for edge in (0.0, 180.0):
+        axu.axhline(edge, color="tab:red", lw=0.6, ls=":")
     axu.set_xlabel("time (s)")
     axu.set_ylabel("command (deg)")
-    lo = np.nanpercentile(np.concatenate([ideal.u[0], actual.u[0]]), [0.5, 99.5])
-    if np.all(np.isfinite(lo)) and lo[1] > lo[0]:
-        pad = 0.1 * (lo[1] - lo[0])
-        axu.set_ylim(lo[0] - pad, lo[1] + pad)
     axu.grid(alpha=0.3)
-    axu.legend(loc="best", fontsize=7)
+    axu.legend(loc="best", fontsize=7, title="unclipped; dotted: the servo's range",
+               title_fontsize=7)  # fmt: skip
     return save_figure(fig, path, bbox_inches="tight")
+
+
+def _zoom(
+    ax: Any, t: np.ndarray, ideal: Any, y: np.ndarray, finite: np.ndarray, median: int, seg: Any,
+    band_floor: float, metrics: dict[str, Any],
+) -> None:  # fmt: skip
+    """One move, zoomed: every seed, the settling band, the metrics annotated."""
+    dt = float(t[1] - t[0])
+    i0 = max(0, seg.start - round(0.05 / dt))
+    i1 = min(len(t), seg.start + round(0.6 / dt))
+    tz = t[i0:i1] - t[seg.start]
+    move = seg.final_deg - seg.initial_deg
+    band = max(0.02 * abs(move), band_floor)
+    ax.axhspan(seg.final_deg - band, seg.final_deg + band, color="tab:green", alpha=0.12,
+               lw=0, label=f"settling band +/-{band:.2g} deg")  # fmt: skip
+    ax.plot(tz, ideal.r[0, i0:i1], color="k", lw=1.0, ls="--")
+    for b in np.flatnonzero(finite):
+        ax.plot(tz, y[b, i0:i1], color="tab:orange", lw=0.5, alpha=0.45)
+    ax.plot(tz, y[median, i0:i1], color="tab:orange", lw=1.2, label="actual seeds (median bold)")
+    ax.plot(tz, ideal.y_true[0, i0:i1], color="tab:blue", lw=1.2, label="model (ideal TF)")
+    words = []
+    for key, label, unit, scale in (("overshoot_pct", "overshoot", "%", 1.0),
+                                    ("rise_time_s", "rise", "ms", 1e3),
+                                    ("settling_time_s", "settling", "ms", 1e3)):  # fmt: skip
+        value = metrics.get(key)
+        if value is None or not np.isfinite(value):
+            words.append(f"{label}: never" if key != "overshoot_pct" else f"{label}: -")
+            continue
+        words.append(f"{label} {value * scale:.3g} {unit}")
+        if key == "settling_time_s":  # settled for good from here (time from the step)
+            ax.axvline(value, color="tab:green", lw=0.8, ls=":")
+    ax.text(0.98, 0.5, "actual, mean of seeds\n(dotted: settled):\n" + "\n".join(words), transform=ax.transAxes,
+            ha="right", va="center", fontsize=7,
+            bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.9})  # fmt: skip
+    ax.set_title(f"{seg.kind}: {seg.initial_deg:g} -> {seg.final_deg:g} deg", fontsize=9)
+    ax.set_xlabel("time from the step (s)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left" if move > 0 else "upper left", fontsize=6)
 
 
 def budget_plot(
