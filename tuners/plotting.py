@@ -128,7 +128,8 @@ def _zoom(
         words.append(f"{label} {value * scale:.3g} {unit}")
         if key == "settling_time_s":  # settled for good from here (time from the step)
             ax.axvline(value, color="tab:green", lw=0.8, ls=":")
-    ax.text(0.98, 0.5, "actual, mean of seeds\n(dotted: settled):\n" + "\n".join(words), transform=ax.transAxes,
+    text = "actual, mean of seeds\n(dotted: settled):\n" + "\n".join(words)
+    ax.text(0.98, 0.5, text, transform=ax.transAxes,
             ha="right", va="center", fontsize=7,
             bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.9})  # fmt: skip
     ax.set_title(f"{seg.kind}: {seg.initial_deg:g} -> {seg.final_deg:g} deg", fontsize=9)
