@@ -155,3 +155,43 @@ def test_bad_benchmark_config(tmp_path, capsys):
     bad.write_text("tuners: [{family: nosuch}]\n")
     code = benchmark.main(["--config", str(bad), "--out", str(tmp_path / "r")])
     assert code == 2 and "unknown tuner family 'nosuch'" in capsys.readouterr().err
+
+
+def _committed():
+    from tests.tuners.conftest import REPO
+
+    return REPO, json.loads((REPO / "results" / "benchmark.json").read_text())
+
+
+def test_the_readme_head_is_the_committed_reports_head():
+    repo, _ = _committed()
+    readme = (repo / "README.md").read_text()
+    start = readme.index("\n", readme.index(leaderboard.README_START)) + 1
+    block = readme[start : readme.index(leaderboard.README_END)].strip()
+    assert block == leaderboard.head_of((repo / "results" / "benchmark.md").read_text())
+
+
+def test_every_committed_verdict_recomputes_from_the_per_seed_costs():
+    """Issue 20: every row keeps its per-seed costs; the paired tests recompute from them."""
+    _, data = _committed()
+    checked = 0
+    for plant, info in data["leaderboard"]["per_plant"].items():
+        rows = data["plants"][plant]["rows"]
+        best = info["best_baseline"]
+        for name, tests in info["tests"].items():
+            if best not in tests:
+                continue
+            diff, p = leaderboard.paired_test(rows[name]["per_seed_cost"],
+                                              rows[best]["per_seed_cost"])  # fmt: skip
+            assert tests[best]["p_value"] == pytest.approx(p, rel=1e-9)
+            assert tests[best]["mean_cost_difference"] == pytest.approx(diff, rel=1e-9)
+            checked += 1
+    h = data["leaderboard"]["headline"]
+    for key in h["order"]:
+        e = h["entries"][key]
+        if "vs_best_baseline" in e:
+            b = h["entries"][h["best_baseline"]]
+            _, p = leaderboard.paired_test(e["per_seed_cost"], b["per_seed_cost"])
+            assert e["vs_best_baseline"]["p_value"] == pytest.approx(p, rel=1e-9)
+            checked += 1
+    assert checked >= 10
