@@ -195,3 +195,32 @@ def test_every_committed_verdict_recomputes_from_the_per_seed_costs():
             assert e["vs_best_baseline"]["p_value"] == pytest.approx(p, rel=1e-9)
             checked += 1
     assert checked >= 10
+
+
+def test_a_row_whose_runs_diverge_is_reported_not_a_crash(quick):
+    """A row whose held-out runs diverge has its metrics written as null: it is listed with
+    its reason and the report renders."""
+    import copy
+
+    _, data = quick
+    data = copy.deepcopy(data)
+    rows = data["plants"]["test2"]["rows"]
+    bad = copy.deepcopy(rows["manual-paper-tuned"])
+    for key in ("cost", "iae"):
+        bad["metrics"]["actual"]["mean"][key] = None
+    bad["metrics"]["actual"]["stable_fraction"] = 0.0
+    rows["manual-paper-diverging"] = bad
+    data["leaderboard"] = leaderboard.rank(data)
+    why = data["leaderboard"]["per_plant"]["test2"]["not_ranked"]["manual-paper-diverging"]
+    assert "10 of 10 held-out runs diverge" in why
+    md = leaderboard.render_markdown(
+        data,
+        {
+            "command": "x",
+            "profile": "step",
+            "disturbance": "actual",
+            "n_seeds": 10,
+            "objective": {"weights": {}, "constraints": {"ms_max": 1.6, "gm_min_db": 6}},
+        },
+    )
+    assert "manual-paper-diverging" in md

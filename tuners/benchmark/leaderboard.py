@@ -110,7 +110,9 @@ def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
 
 
 def _cost(row: dict[str, Any]) -> float:
-    return float(row["metrics"]["actual"]["mean"]["cost"])
+    """The row's mean cost; ``inf`` for a row whose runs diverged (written as ``null``)."""
+    cost = row["metrics"]["actual"]["mean"]["cost"]
+    return math.inf if cost is None else float(cost)
 
 
 def _test(a: list[float], b: list[float]) -> dict[str, Any]:
@@ -246,8 +248,8 @@ def _plant_table(plant: str, pdata: dict[str, Any], info: dict[str, Any]) -> lis
     limit = refs.get("limit")
     ref_iae = refs["command=reference"]["metrics"]["actual"]["mean"]["iae"]
 
-    def frac(iae: float) -> str:
-        if limit is None or not math.isfinite(iae) or ref_iae <= limit["iae"]:
+    def frac(iae: float | None) -> str:
+        if limit is None or iae is None or not math.isfinite(iae) or ref_iae <= limit["iae"]:
             return "-"
         return f"{100 * (ref_iae - iae) / (ref_iae - limit['iae']):.0f} %"
 

@@ -195,7 +195,11 @@ def _log_row(log: Callable[..., None], plant: str, name: str, row: dict[str, Any
     m = row["metrics"]["actual"]["mean"]
     rb = row["robustness"]
     ms = rb.get("ms")
-    log(f"  {plant:6s} {name:28s} cost {m['cost']:8.3f}  IAE {m['iae']:8.3f}  "
+
+    def num(x: float | None) -> str:  # a diverged run's metrics are written as null
+        return "     inf" if x is None else f"{x:8.3f}"
+
+    log(f"  {plant:6s} {name:28s} cost {num(m['cost'])}  IAE {num(m['iae'])}  "
         f"Ms {'-' if ms is None else f'{ms:5.2f}'}  "
         f"{'stable' if rb.get('stable') else 'UNSTABLE'}")  # fmt: skip
 
