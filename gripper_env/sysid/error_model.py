@@ -24,12 +24,14 @@ import math
 from typing import Literal
 
 import numpy as np
+from scipy.ndimage import median_filter
 
 __all__ = [
     "LOSSES",
     "OUTLIER_SIGMAS",
     "Loss",
     "check_loss",
+    "despike",
     "loss_cost",
     "outlier_note",
     "parameter_covariance",
@@ -59,6 +61,14 @@ def robust_std(x: np.ndarray) -> float:
     """Standard deviation from the median absolute deviation (insensitive to outliers)."""
     x = np.asarray(x, dtype=float)
     return float(_MAD_TO_STD * np.median(np.abs(x - np.median(x))))
+
+
+def despike(y: np.ndarray, scale: float, width: int = 7) -> np.ndarray:
+    """``y`` with the samples more than :data:`OUTLIER_SIGMAS` ``scale`` (deg) from their
+    running median (``width`` samples) replaced by it: a Hampel filter. The starts of a robust
+    fit use it, whose least-squares steps spikes would otherwise lead astray."""
+    med = median_filter(np.asarray(y, dtype=float), size=width, mode="nearest")
+    return np.where(np.abs(y - med) > OUTLIER_SIGMAS * scale, med, y)
 
 
 def _psi(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:

@@ -158,8 +158,8 @@ def fresh_starts(
     delays_s: list[float] | None = None,
     refined: int = REFINED,
 ) -> tuple[list[Start], list[DelayCandidate]]:
-    """The best ``refined`` SVF starts (with the delay fixed) or delay-search starts (estimated), and the
-    global delay search's candidates (empty with the delay fixed).
+    """The best ``refined`` SVF starts (with the delay fixed) or delay-search starts (with it
+    estimated), and the global delay search's candidates (empty with the delay fixed).
 
     Parameters
     ----------

@@ -61,7 +61,14 @@ from gripper_env.sysid.diagnostics import (
     diagnose,
     lower_order_hint,
 )
-from gripper_env.sysid.error_model import Loss, check_loss, loss_cost, outlier_note, robust_std
+from gripper_env.sysid.error_model import (
+    Loss,
+    check_loss,
+    despike,
+    loss_cost,
+    outlier_note,
+    robust_std,
+)
 from gripper_env.sysid.estimate import (
     FitOnData,
     TFEstimate,
@@ -419,9 +426,13 @@ def _fit(
     """The open-loop estimate of order ``n/m`` and its notes; ``hint``: delays (s) to refit
     instead of the global delay scan."""
     lower = [e for e in start_from if _contains((n, m), (e.n_poles, e.n_zeros))]
+    # the least-squares starts of a robust fit see the record without its spikes
+    start_data = data
+    if opts.loss != "linear":
+        start_data = dataclasses.replace(data, y=despike(data.y, opts.f_scale))
     # a lower order fitted as a start (``hint`` given) gets one start of its own
     starts, search = fresh_starts(
-        data, n, m, opts.svf_lambda, opts.delay, opts.max_delay, delays_s=hint,
+        start_data, n, m, opts.svf_lambda, opts.delay, opts.max_delay, delays_s=hint,
         refined=REFINED if hint is None else 1,
     )  # fmt: skip
     pred = nested_order(n, m)
@@ -446,7 +457,7 @@ def _fit(
     for start in starts:
         if start.refit:
             theta, tau, n_iv = _srivc_with_delay(
-                data, n, m, start, opts.delay, opts.max_delay, opts.max_iter_srivc,
+                start_data, n, m, start, opts.delay, opts.max_delay, opts.max_iter_srivc,
                 opts.srivc_tol,
             )  # fmt: skip
         else:  # a start from another estimate keeps its delay as the start
