@@ -8,18 +8,18 @@ path, friction, the transfer function, stops, sensor), by running the simulation
 
 1. **Sensor** from the measured values alone (:mod:`gripper_env.sysid.sensor`): ADC resolution
    and offset, noise.
-2. **Friction by profile likelihood.** Friction acts on the held servo command, upstream of the
-   servo's linear dynamics, so for each candidate ``(S, J)`` the core computes the position the
-   servo is asked to follow (its *friction output*; the core run with an instantaneous servo),
-   and the transfer function from it to the measured angle is fitted by SRIVC. The candidate's
-   cost is that fit's squared error. The friction output only changes on the servo's refresh
-   ticks, so these inner fits run exactly on the tick grid (20x fewer samples at a 20 ms
-   refresh). A coarse grid finds the region, a fine one the optimum.
-3. **Timing**: the refresh phase (where the servo's 20 ms frames fall in the log) and the
-   sensor delay (whole physics steps, as the core has it), by scanning the full model in the
-   core.
-4. **Dynamics**: :func:`gripper_env.sysid.tfest` (with delay) from the friction output of the
-   chosen ``(S, J)`` to the measured angle, at the full rate.
+2. **Friction, coarse** (:func:`gripper_env.sysid.friction_profile.coarse_friction`): for each
+   candidate ``(S, J)`` of a 1-degree grid the core computes the position the servo is asked to
+   follow (its *friction output*) and a transfer function is fitted from it to the measured
+   angle on the servo's refresh ticks; the best candidate locates the region.
+3. **Timing** (:mod:`gripper_env.sysid.refresh_timing`): for every refresh phase the transfer
+   function *with its delay* is refitted, and the phases and delays consistent with the data
+   are kept: the sensor delay with its 95 % interval, and the servo's dynamics with their
+   standard errors.
+4. **Friction, profile likelihood** (:func:`gripper_env.sysid.friction_profile.profile_friction`)
+   at that timing: ``S`` and ``J`` as continuous parameters, the transfer function refitted for
+   each, the 95 % intervals' ends found by bisection; then the timing once more when the
+   friction output changed.
 5. **Check**: the identified model (transfer function behind the identified preset, noise off)
    simulated by the core against the log: fit % and residual RMS, which should be about the
    measurement noise.
@@ -27,11 +27,9 @@ path, friction, the transfer function, stops, sensor), by running the simulation
 What the data can tell: with whole-degree servo commands (``Servo.write``) the command moves in
 1-degree steps, so the jaw breaks free after a whole number of degrees of travel. ``S`` and ``J``
 are then known only to the degree bracket their travel thresholds fall in, while ``S - J`` (the
-offset while moving) is known continuously. Every candidate whose cost is within the 95 %
-likelihood-ratio bound of the best is *consistent with the data*; the estimate is the middle of
-that set and the set's extent is reported (:class:`FrictionEstimate`). With finer commands
-(``writeMicroseconds``) the bound is narrow. A step record hardly excites ``S`` or ``J``: their
-sets then span the whole grid, and the report says so.
+offset while moving) is known continuously. The intervals say so, and ``identified`` is true only
+for an informative interval (:meth:`ActualEstimate.identified`). A step record hardly excites
+``S`` or ``J``: their intervals then span most of the range considered, and the report says so.
 """
 
 from __future__ import annotations
@@ -41,90 +39,56 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from threadpoolctl import threadpool_limits
 
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.metrics import fit_percent
 from gripper_env.plants import Plant
-from gripper_env.sysid.core_batches import (
-    CHI2_95,
-    MAX_SENSOR_DELAY_S,
-    CoreRuns,
-    consistent,
-    phase_scan,
-    profile,
-    tick_index,
-    timing,
-)
+from gripper_env.sysid.core_batches import CoreRuns, phase_scan
 from gripper_env.sysid.data import prepare_data
+from gripper_env.sysid.diagnostics import CHI2_95
+from gripper_env.sysid.estimate import json_float
+from gripper_env.sysid.friction_profile import (
+    FINE_STEP_DEG,
+    FrictionEstimate,
+    TickCost,
+    coarse_friction,
+    profile_friction,
+)
 from gripper_env.sysid.orders import Record
+from gripper_env.sysid.output_error import refine_output_error
+from gripper_env.sysid.refresh_timing import (
+    MAX_SENSOR_DELAY_S,
+    PhaseFit,
+    TimingEstimate,
+    estimate_timing,
+    full_rate,
+    phase_fits,
+)
 from gripper_env.sysid.sensor import SensorEstimate, estimate_sensor
-from gripper_env.sysid.srivc import split_params
 from gripper_env.sysid.tfest import ESTIMATE, TFEstimate, diagnose, tfest
 
-__all__ = ["ActualEstimate", "FrictionEstimate", "identify_actual", "response_on"]
+__all__ = [
+    "FINE_STEP_DEG",
+    "MAX_FRICTION_DEG",
+    "ActualEstimate",
+    "FrictionEstimate",
+    "identify_actual",
+    "response_on",
+]
 
 #: Friction candidates span [0, this] deg for S and J unless told otherwise.
 MAX_FRICTION_DEG = 8.0
-#: Spacing of the fine friction grid (deg): the resolution of ``S`` and ``J`` and their ranges.
-FINE_STEP_DEG = 0.25
-
-
-@dataclass(frozen=True)
-class FrictionEstimate:
-    """Friction parameters and what the data can tell about them.
-
-    Attributes
-    ----------
-    model : str
-        ``"choudhury"`` or ``"kano"``.
-    S_deg, J_deg : float
-        The estimate (deg): the middle of the values consistent with the data.
-    S_range_deg, J_range_deg : (float, float)
-        The values consistent with the data (cost within the 95 % likelihood-ratio bound).
-    best_S_deg, best_J_deg : float
-        The single best grid point (deg).
-    grid_S_deg, grid_J_deg, grid_cost : ndarray
-        The fine grid and its profile costs (deg^2, inner fits on the tick grid).
-    """
-
-    model: str
-    S_deg: float
-    J_deg: float
-    S_range_deg: tuple[float, float]
-    J_range_deg: tuple[float, float]
-    best_S_deg: float
-    best_J_deg: float
-    grid_S_deg: np.ndarray = field(repr=False)
-    grid_J_deg: np.ndarray = field(repr=False)
-    grid_cost: np.ndarray = field(repr=False)
-
-    def identified(self) -> dict[str, bool]:
-        """Whether each parameter is pinned down: its consistent range is within +/- 50 % of the
-        estimate (or 0.5 deg wide)."""
-        out = {}
-        for key, value, (lo, hi) in (
-            ("S_deg", self.S_deg, self.S_range_deg),
-            ("J_deg", self.J_deg, self.J_range_deg),
-        ):
-            out[key] = hi - lo <= max(value, 0.5)
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "model": self.model,
-            "S_deg": self.S_deg,
-            "J_deg": self.J_deg,
-            "S_range_deg": list(self.S_range_deg),
-            "J_range_deg": list(self.J_range_deg),
-            "best_S_deg": self.best_S_deg,
-            "best_J_deg": self.best_J_deg,
-            "identified": self.identified(),
-        }
+#: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
+DELAY_INFORMATIVE_S = 0.005
+#: Timing hypotheses (refresh phases spread over the servo's frame) at which the friction is
+#: profiled before the best is kept.
+HYPOTHESES = 4
 
 
 @dataclass(frozen=True)
@@ -140,10 +104,13 @@ class ActualEstimate:
     sensor : SensorEstimate
         ADC and noise.
     delay_s : float
-        Sensor delay (s, whole physics steps): dead time between the servo and the log.
+        Sensor delay (s): dead time between the servo and the log, a continuous estimate (the
+        preset rounds it to whole physics steps, as the core has it).
     delay_range_s : (float, float)
-        Delays consistent with the data (s): on a slow ramp a later servo refresh tick and a
-        longer delay look alike.
+        Its 95 % interval (s), over every refresh phase consistent with the data: on a slow
+        ramp a later servo refresh tick and a longer delay look alike.
+    delay_std_s : float
+        Standard error of the delay at the chosen phase (s).
     refresh_phase_steps : int
         Physics steps from the log's first sample to the servo's first refresh tick after it
         (a property of the log, not of the gripper).
@@ -184,6 +151,20 @@ class ActualEstimate:
     elapsed_s: float = 0.0
     validation: dict[str, Any] | None = None
     warnings: tuple[str, ...] = ()
+    delay_std_s: float = 0.0
+
+    @property
+    def delay_steps(self) -> int:
+        """The delay in whole physics steps, as the core simulates it."""
+        return round(self.delay_s / self.dt_s)
+
+    def identified(self) -> dict[str, bool]:
+        """Whether each interval is informative: ``S`` and ``J`` (see
+        :meth:`FrictionEstimate.identified`) and the delay (an interval narrower than the larger
+        of half the estimate and 5 ms)."""
+        lo, hi = self.delay_range_s
+        delay_ok = hi - lo <= max(0.5 * self.delay_s, DELAY_INFORMATIVE_S)
+        return {**self.friction.identified(), "delay_s": bool(delay_ok)}
 
     def plant(self, name: str = "identified") -> Plant:
         """The servo's transfer function as a plant (absolute angles, physics step ``dt_s``)."""
@@ -203,7 +184,7 @@ class ActualEstimate:
         f, s = self.friction, self.sensor
         sensor: dict[str, Any] = {
             "noise_std_deg": round(s.noise_std_deg, 4),
-            "delay_s": round(self.delay_s, 6),
+            "delay_s": round(self.delay_steps * self.dt_s, 6),
         }
         if s.quantised:
             bits = self.base.sensor.adc_bits or 10
@@ -238,17 +219,29 @@ class ActualEstimate:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        dyn = self.dynamics
         return {
             "plant": {
-                "num": [float(c) for c in self.dynamics.num],
-                "den": [float(c) for c in self.dynamics.den],
-                "paper_form": self.dynamics.paper_form(),
-                "poles": [[float(p.real), float(p.imag)] for p in self.dynamics.poles],
+                "num": [float(c) for c in dyn.num],
+                "den": [float(c) for c in dyn.den],
+                "paper_form": dyn.paper_form(),
+                "poles": [[float(p.real), float(p.imag)] for p in dyn.poles],
+                "params": {k: float(v) for k, v in zip(dyn.param_names, dyn.params, strict=True)},
+                "params_std": {
+                    k: json_float(v) for k, v in zip(dyn.param_names, dyn.params_std, strict=True)
+                },
+                "intervals_95": {
+                    k: [json_float(lo), json_float(hi)]
+                    for k, (lo, hi) in dyn.intervals().items()
+                    if k != "input_delay_s"
+                },
             },
             "friction": self.friction.to_dict(),
             "sensor": self.sensor.to_dict(),
             "delay_s": self.delay_s,
+            "delay_std_s": self.delay_std_s,
             "delay_range_s": list(self.delay_range_s),
+            "identified": self.identified(),
             "refresh_phase_steps": self.refresh_phase_steps,
             "offset_deg": self.offset_deg,
             "fit_pct": self.fit_pct,
@@ -266,6 +259,7 @@ class ActualEstimate:
 # The fit
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost (20x)
 def identify_actual(
     time_s: float | ArrayLike,
     u: ArrayLike,
@@ -329,47 +323,56 @@ def identify_actual(
     sigma2 = max(sensor.noise_std_deg**2 + sensor.lsb_deg**2 / 12.0, 1e-12)
 
     # 1. coarse friction grid, refresh phase 0, no delay
-    coarse = np.concatenate([[0.0], np.arange(0.5, max_friction_deg, 1.0)])
-    pairs = [(s, j) for s in coarse for j in coarse]
-    costs, thetas = profile(core, pairs, model, 0, 0.0, n_poles, n_zeros)
-    best = int(np.argmin(costs))
-    s_best, j_best = pairs[best]
-    say(f"friction, coarse grid of {len(pairs)}: S {s_best:g}, J {j_best:g} deg")
-
-    # 2. timing with that friction and its transfer function
-    num, den = split_params(thetas[best], n_poles)
-    cand = Plant.from_coefficients(list(num), list(den), name="candidate", dt_s=dt)
-    phase, steps, _ = timing(core, cand, s_best, j_best, model)
-    tau = steps * dt
-    say(f"timing: refresh phase {phase} steps, delay {1e3 * tau:g} ms")
-
-    # 3. fine friction grid
-    friction = _fine_friction(
-        core, model, phase, tau, (s_best, j_best), (np.array(pairs), costs), n_poles, n_zeros, say
+    s0, j0 = coarse_friction(core, model, max_friction_deg, n_poles, n_zeros)
+    quantum = base_d.command.quantum_deg
+    say(f"friction, coarse grid: S {s0:g}, J {j0:g} deg")
+    # 2. timing hypotheses with that friction: the best refresh phase and phases spread over the
+    # frame, each with its own transfer function and delay (a wrong friction can prefer a wrong
+    # phase: the friction and the timing are refined together below)
+    fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros)
+    by_phase = {f.phase: f for f in fits}
+    r = core.refresh
+    picks = [(fits[0].phase + k * r // HYPOTHESES) % r for k in range(HYPOTHESES)] if r > 1 else [0]
+    hypotheses = [by_phase[p] for p in dict.fromkeys(picks) if p in by_phase]
+    # 3. the friction's profile likelihood at each, scored at the full rate
+    tried = []
+    for hyp in hypotheses:
+        cost = TickCost(core, model, hyp.phase, hyp.estimate.input_delay_s, hyp.estimate.params,
+                        n_poles, n_zeros)  # fmt: skip
+        fr = profile_friction(cost, model, (s0, j0), max_friction_deg, quantum)
+        tried.append((_full_cost(core, fr, hyp, cost, n_poles, n_zeros), hyp, fr))
+    tried.sort(key=lambda t: t[0])
+    _, hyp, friction = tried[0]
+    say(
+        f"friction at refresh phase {hyp.phase}: S {friction.S_deg:.3g} deg "
+        f"[{friction.S_range_deg[0]:.3g}, {friction.S_range_deg[1]:.3g}], J "
+        f"{friction.J_deg:.3g} deg [{friction.J_range_deg[0]:.3g}, {friction.J_range_deg[1]:.3g}]"
     )
-
-    # 4. the servo's dynamics at full rate, from the friction output
-    v = core.friction_outputs([(friction.S_deg, friction.J_deg)], model, phase)[0]
-    dyn = _dynamics(dt, v, data.y, n_poles, n_zeros)
+    # 4. the timing at that friction, with the delay's interval and the servo's dynamics
+    timing = _timing(core, friction.S_deg, friction.J_deg, model, n_poles, n_zeros, say)
+    bound = tried[0][0] * (1.0 + CHI2_95 / core.n)
+    others = [fr for c, _, fr in tried[1:] if c <= bound]
+    if others:  # other timings fit about as well: their friction is consistent too
+        friction = _union(friction, others)
+    dyn = _reduced(core, timing, friction, model, n_poles, n_zeros)
     say(f"dynamics: {dyn.paper_form()}")
 
-    # 5. the whole model in the core: its timing once more, then the check
+    # 5. the whole model in the core: the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
-    dyn = dataclasses.replace(dyn, input_delay_s=0.0)  # the delay lives in the preset
-    phase, steps, delay_range = timing(core, plant, friction.S_deg, friction.J_deg, model)
-    y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)], [phase],
-                     measured=True)[0]  # fmt: skip
+    steps = round(timing.delay_s / dt)
+    y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)],
+                     [timing.phase_steps], measured=True)[0]  # fmt: skip
     offset = float(np.mean(data.y - y_sim))
     resid = data.y - y_sim - offset
     notes = _notes(friction, sensor, float(np.sqrt(np.mean(resid**2))), sigma2)
     notes += list(dyn.warnings)
     est = ActualEstimate(
-        dynamics=dyn,
+        dynamics=dataclasses.replace(dyn, input_delay_s=0.0),  # the delay lives in the preset
         friction=friction,
         sensor=sensor,
-        delay_s=steps * dt,
-        delay_range_s=delay_range,
-        refresh_phase_steps=phase,
+        delay_s=timing.delay_s,
+        delay_range_s=timing.delay_range_s,
+        refresh_phase_steps=timing.phase_steps,
         offset_deg=offset,
         fit_pct=float(fit_percent(data.y, y_sim + offset)),
         residual_rms_deg=float(np.sqrt(np.mean(resid**2))),
@@ -378,73 +381,75 @@ def identify_actual(
         n_samples=data.n_samples,
         elapsed_s=time.perf_counter() - started,
         warnings=tuple(notes),
+        delay_std_s=timing.delay_std_s,
     )
+    if not est.identified()["delay_s"]:
+        lo, hi = est.delay_range_s
+        notes.append(
+            f"the sensor delay is not pinned down by this record (consistent with "
+            f"{1e3 * lo:.3g}..{1e3 * hi:.3g} ms: a later servo tick looks alike); a record with "
+            "steps at several instants within the 20 ms servo frame pins it down"
+        )
+        est = dataclasses.replace(est, warnings=tuple(notes))
     if validation is not None:
         est = _with_validation(est, validation)
     return est
 
 
-def _fine_friction(
-    core: CoreRuns,
-    model: str,
-    phase: int,
-    tau: float,
-    coarse_best: tuple[float, float],
-    coarse: tuple[np.ndarray, np.ndarray],
-    n_poles: int,
-    n_zeros: int,
-    say: Callable[[str], None],
-) -> FrictionEstimate:
-    """Friction on a fine grid around the coarse grid's best ``(S, J)``, with the values
-    consistent with the data on both grids (``coarse``: its pairs and costs)."""
-    s_best, j_best = coarse_best
-    step = FINE_STEP_DEG
-    s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
-    j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
-    pairs = [(s, j) for s in s_vals for j in j_vals]
-    costs, _ = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
-    grid = costs.reshape(s_vals.size, j_vals.size)
-    n_tick = tick_index(core.n, core.refresh, phase).size
-    bound = float(costs.min()) + CHI2_95 * float(costs.min()) / max(n_tick, 1)
-    # the consistent set, on both grids (the fine one may not reach its edges)
-    all_pairs = np.concatenate([np.array(pairs), coarse[0]])
-    all_costs = np.concatenate([costs, coarse[1]])
-    s_rng = consistent(all_pairs[:, 0], all_costs, bound)
-    j_rng = consistent(all_pairs[:, 1], all_costs, bound)
-    i_best = int(np.argmin(costs))
-    s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
-    si, ji = int(np.argmin(np.abs(s_vals - s_est))), int(np.argmin(np.abs(j_vals - j_est)))
-    if grid[si, ji] > bound:  # the middles are not jointly consistent: keep the best point
-        s_est, j_est = pairs[i_best]
-    say(
-        f"friction, fine grid of {len(pairs)}: S {s_est:.3g} deg {s_rng}, J {j_est:.3g} deg {j_rng}"
-    )
-    return FrictionEstimate(
-        model=model,
-        S_deg=float(s_est),
-        J_deg=float(j_est),
-        S_range_deg=s_rng,
-        J_range_deg=j_rng,
-        best_S_deg=float(pairs[i_best][0]),
-        best_J_deg=float(pairs[i_best][1]),
-        grid_S_deg=s_vals,
-        grid_J_deg=j_vals,
-        grid_cost=grid,
-    )
-
-
-def _dynamics(dt: float, v: np.ndarray, y: np.ndarray, n: int, m: int) -> TFEstimate:
-    """The transfer function from the friction output; one pole/zero pair fewer when they
-    cancel and Akaike's criterion agrees."""
+def _full_cost(
+    core: CoreRuns, fr: FrictionEstimate, hyp: PhaseFit, cost: TickCost, n: int, m: int
+) -> float:
+    """Squared error at the full rate of a timing hypothesis with its best friction (the
+    transfer function and delay refined from the tick-grid fit)."""
+    v = core.friction_outputs([(fr.best_S_deg, fr.best_J_deg)], fr.model, hyp.phase)[0]
+    theta = cost.thetas.get((fr.best_S_deg, fr.best_J_deg), hyp.estimate.params)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = tfest(dt, v, y, n, m, input_delay_s=ESTIMATE, max_delay_s=MAX_SENSOR_DELAY_S,
-                    check_feedback=False)  # fmt: skip
-        if n > 1 and m > 0 and any("nearly cancel" in w for w in diagnose(est)):
-            low = tfest(dt, v, y, n - 1, m - 1, input_delay_s=ESTIMATE,
+        oe = refine_output_error(
+            full_rate(core, v), n, m, theta, delay_s=hyp.estimate.input_delay_s,
+            estimate_delay=True, max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12,
+            ftol=0.02 / core.n,
+        )  # fmt: skip
+    return float(oe.residuals @ oe.residuals)
+
+
+def _union(fr: FrictionEstimate, others: list[FrictionEstimate]) -> FrictionEstimate:
+    """``fr`` with its ranges widened to cover those of ``others``."""
+    s_lo = min([fr.S_range_deg[0]] + [o.S_range_deg[0] for o in others])
+    s_hi = max([fr.S_range_deg[1]] + [o.S_range_deg[1] for o in others])
+    j_lo = min([fr.J_range_deg[0]] + [o.J_range_deg[0] for o in others])
+    j_hi = max([fr.J_range_deg[1]] + [o.J_range_deg[1] for o in others])
+    return dataclasses.replace(fr, S_range_deg=(s_lo, s_hi), J_range_deg=(j_lo, j_hi))
+
+
+def _timing(
+    core: CoreRuns, s: float, j: float, model: str, n: int, m: int, say: Callable[[str], None]
+) -> TimingEstimate:
+    timing = estimate_timing(core, s, j, model, n, m)
+    lo, hi = timing.delay_range_s
+    say(
+        f"timing: refresh phase {timing.phase_steps} steps (consistent: "
+        f"{', '.join(str(p) for p in timing.consistent_phases)}), delay "
+        f"{1e3 * timing.delay_s:.3g} ms [{1e3 * lo:.3g}, {1e3 * hi:.3g}]"
+    )
+    return timing
+
+
+def _reduced(
+    core: CoreRuns, timing: TimingEstimate, friction: FrictionEstimate, model: str, n: int, m: int
+) -> TFEstimate:
+    """The timing's transfer function, or one pole/zero pair fewer when they cancel and
+    Akaike's criterion agrees (fitted at the same phase)."""
+    est = timing.dynamics
+    if n > 1 and m > 0 and any("nearly cancel" in w for w in diagnose(est)):
+        v = core.friction_outputs([(friction.S_deg, friction.J_deg)], model,
+                                  timing.phase_steps)[0]  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            low = tfest(core.dt, v, core.y, n - 1, m - 1, input_delay_s=ESTIMATE,
                         max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False)  # fmt: skip
-            if low.aic <= est.aic + 2.0 and low.stable:
-                est = low
+        if low.aic <= est.aic + 2.0 and low.stable:
+            est = low
     return est
 
 
@@ -456,8 +461,10 @@ def _notes(
         if not ok:
             lo, hi = friction.S_range_deg if key == "S_deg" else friction.J_range_deg
             notes.append(
-                f"{key[0]} is hardly excited by this record (consistent with {lo:g}..{hi:g} deg): "
-                "identify from a slow slope (--profile slope60), not a step"
+                f"{key[0]} is not pinned down (consistent with {lo:.3g}..{hi:.3g} deg): either "
+                "hardly excited by this record (identify from a slow slope, --profile slope60, "
+                "not a step) or known only to the command's resolution (whole-degree commands "
+                "tell S and J to their degree bracket)"
             )
     if rms > 1.5 * math.sqrt(sigma2):
         notes.append(
