@@ -100,11 +100,16 @@ class TickRuns:
         base = core.base.with_overrides({"command": {"refresh_period_s": 2.0 * dt}})
         u = np.repeat(core.u[self.idx], 2)
         self.runs = CoreRuns(u, u, dt, base)
-        self.preset = core.preset
+        self._done: dict[tuple[float, float, str], np.ndarray] = {}
 
     def friction_outputs(self, pairs: list[tuple[float, float]], model: str) -> np.ndarray:
-        """Friction output (deg) of each ``(S, J)`` at the ticks (rows)."""
-        return self.runs.friction_outputs(pairs, model, 0)[:, ::2]
+        """Friction output (deg) of each ``(S, J)`` at the ticks (rows), each run once."""
+        todo = list(dict.fromkeys(p for p in pairs if (*p, model) not in self._done))
+        if todo:
+            for pair, v in zip(todo, self.runs.friction_outputs(todo, model, 0)[:, ::2],
+                               strict=True):  # fmt: skip
+                self._done[(*pair, model)] = v
+        return np.array([self._done[(*p, model)] for p in pairs])
 
 
 def tick_index(n: int, refresh: int, phase: int) -> np.ndarray:

@@ -1,32 +1,35 @@
-"""Friction of the grey-box model by profile likelihood: ``S`` and ``J`` as continuous
-parameters, and the values consistent with the data.
+"""Friction of the grey-box model: ``S`` and ``J`` as continuous parameters, and the values
+consistent with the data.
 
 Friction acts on the held servo command, upstream of the servo's linear dynamics, so for each
 candidate ``(S, J)`` the core computes the position the servo is asked to follow (the *friction
 output*), and the transfer function from it to the measured angle is refitted; the candidate's
 cost is that fit's sum of squared errors. The friction output only changes on the servo's
 refresh ticks, so the fits run on the tick grid (exact, 20x fewer samples), and the core runs two
-steps per tick (:class:`gripper_env.sysid.core_batches.TickRuns`).
+steps per tick (:class:`gripper_env.sysid.core_batches.TickRuns`). Each refit
+(:class:`TickCost`) is one Gauss-Newton step from a reference model: the numerator, the initial
+state and the offset exactly, the poles and the delay linearised -- a least-squares problem.
 
 1. :func:`coarse_friction`: a 1-degree grid over ``[0, max]^2`` finds the region;
-2. :func:`profile_friction`: around it, at a given timing, every candidate on a lattice as fine as
-   the servo's command (:func:`lattice_step`) is scored with the transfer function's poles held
-   (its numerator, initial state and offset refitted: a linear least-squares problem), the
-   lattice following the cost downhill; the candidates near the best are then refitted with the
-   poles free (output error) -- the profile likelihood proper -- and every candidate within the
-   95 % likelihood-ratio bound (``V <= V_min (1 + 3.84 / (N - p))``) is consistent with the data;
-   the consistent set grows until its neighbours are all outside, and its ends along ``S`` and
-   ``J`` are located by bisection, to :data:`EDGE_TOL_DEG`.
+2. :func:`locate_friction`: around it, at a given timing, lattices as fine as the servo's
+   command (:func:`lattice_step`) follow the cost downhill; ``S - J`` (which moves the jaw
+   continuously) is scanned finely across the best candidates; :func:`refine_friction` then
+   moves the reference model to the best one and scores the lattice again;
+3. :func:`friction_ranges`: the region ``V <= V_min + t sigma^2`` and the ends of its projections
+   on ``S`` and ``J``, by bisection on the profile (the other parameter minimised), to
+   :data:`EDGE_TOL_DEG`.
 
 The cost is a step function of ``(S, J)``: a command quantised to ``q`` degrees makes the jaw
 break free after a whole number of quanta of travel, so whole brackets of ``S`` and ``J`` give
 the same friction output. A lattice coarser than ``q`` steps over brackets (with
 ``writeMicroseconds`` one bracket is 0.1 deg wide, and the next one's cost can be a thousand noise
-variances higher), which is why its step follows the command. With whole-degree commands
+variances higher), which is why its step follows the command. The minimum over many brackets
+also chases the noise more than a smooth two-parameter fit would, so the chi-square threshold
+(3.84) would make the region too small: ``t`` is the 95 % quantile of the likelihood ratio of the
+estimate against the best candidate in data simulated from the estimate
+(:func:`bootstrap_threshold`, a parametric bootstrap). With whole-degree commands
 (``Servo.write``) ``S`` and ``J`` are known to their bracket: ``J = 0.3`` is reported as the
-interval ``[0, 1)`` it shares with every ``J`` below one degree. ``S - J`` (the offset while
-moving) acts continuously. The interval of each parameter is the projection of the consistent
-set: its profile-likelihood interval.
+interval ``[0, 1)`` it shares with every ``J`` below one degree.
 """
 
 from __future__ import annotations
@@ -40,9 +43,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.sysid.core_batches import CoreRuns, TickRuns
-from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.diagnostics import CHI2_95
-from gripper_env.sysid.output_error import refine_output_error
 from gripper_env.sysid.srivc import split_params
 from gripper_env.sysid.tfest import ESTIMATE, tfest
 from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
@@ -51,10 +52,16 @@ __all__ = [
     "EDGE_TOL_DEG",
     "FINE_STEP_DEG",
     "FrictionEstimate",
+    "FrictionFit",
+    "LinearFit",
     "TickCost",
+    "bootstrap_threshold",
     "coarse_friction",
+    "friction_ranges",
     "lattice_step",
-    "profile_friction",
+    "locate_friction",
+    "refine_friction",
+    "scan_friction",
 ]
 
 #: Largest step of the lattice (deg): whole-degree commands and coarser.
@@ -63,13 +70,16 @@ FINE_STEP_DEG = 0.25
 SMOOTH_STEP_DEG = 0.1
 #: Resolution of the ends of the consistent ranges (deg).
 EDGE_TOL_DEG = 0.02
-#: Output-error evaluations of each refit with the poles free (from the timing's model).
-INNER_NFEV = 8
-#: Candidates refitted with the poles free: those within this many noise variances of the best
-#: with the poles held (holding them costs a little; far candidates cannot come back).
-REFIT_MARGIN = 30.0
-#: Most rounds the lattice and the consistent set may grow.
+#: Most rounds a lattice may follow the cost.
 MAX_GROWTH = 40
+#: Lattice candidates (the best) whose ``S - J`` is scanned finely.
+OFFSET_SCANS = 3
+#: Reach of the local lattice around the best candidate (deg).
+LOCAL_RADIUS_DEG = 0.3
+#: Bootstrap replicates of the likelihood-ratio threshold, and the candidates that take part:
+#: those within this many noise variances of the best (farther ones never win a replicate).
+BOOTSTRAP_REPLICATES = 200
+BOOTSTRAP_MARGIN = 60.0
 
 
 def lattice_step(quantum_deg: float) -> float:
@@ -94,7 +104,8 @@ class FrictionEstimate:
         The estimate (deg): the middle of the values consistent with the data (the best
         candidate when the middles are not jointly consistent).
     S_range_deg, J_range_deg : (float, float)
-        The values consistent with the data: the 95 % profile-likelihood interval, its ends
+        The values consistent with the data: the 95 % interval (the projection of the
+        likelihood-ratio region, its threshold calibrated by a parametric bootstrap), its ends
         located to :data:`EDGE_TOL_DEG`.
     best_S_deg, best_J_deg : float
         The candidate with the smallest cost (deg).
@@ -102,6 +113,9 @@ class FrictionEstimate:
         Largest value considered (deg): an interval that reaches it is open upwards.
     grid_S_deg, grid_J_deg, grid_cost : ndarray
         The evaluated candidates and their costs (deg^2, fits on the tick grid).
+    threshold : float
+        The region's likelihood-ratio threshold, in noise variances (3.84 for one smooth
+        parameter; more where the cost is a step function: :func:`bootstrap_threshold`).
     """
 
     model: str
@@ -115,16 +129,17 @@ class FrictionEstimate:
     grid_S_deg: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     grid_J_deg: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     grid_cost: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    threshold: float = CHI2_95
 
     def identified(self) -> dict[str, bool]:
-        """Whether each interval is informative: narrower than the larger of half the estimate
-        and 0.5 deg, and not reaching the largest value considered."""
+        """Whether each interval is informative: within +/- 50 % of the estimate (or 0.5 deg
+        wide), and not reaching the largest value considered."""
         out = {}
         for key, value, (lo, hi) in (
             ("S_deg", self.S_deg, self.S_range_deg),
             ("J_deg", self.J_deg, self.J_range_deg),
         ):
-            out[key] = bool(hi - lo <= max(0.5 * value, 0.5) and hi < self.max_deg - 1e-9)
+            out[key] = bool(hi - lo <= max(value, 0.5) and hi < self.max_deg - 1e-9)
         return out
 
     def to_dict(self) -> dict[str, Any]:
@@ -136,6 +151,7 @@ class FrictionEstimate:
             "J_range_deg": list(self.J_range_deg),
             "best_S_deg": self.best_S_deg,
             "best_J_deg": self.best_J_deg,
+            "threshold": self.threshold,
             "identified": self.identified(),
         }
 
@@ -144,36 +160,75 @@ class FrictionEstimate:
 # The cost of a candidate
 
 
+@dataclass(frozen=True)
+class LinearFit:
+    """A candidate's transfer function, one Gauss-Newton step from the reference model.
+
+    Attributes
+    ----------
+    cost : float
+        Sum of squared errors on the tick grid (deg^2).
+    theta : ndarray
+        ``[a_{n-1}..a_0, b_m..b_0]``.
+    delay_s : float
+        Sensor delay (s).
+    unit_std : ndarray
+        Standard errors of ``[theta, delay]`` per unit noise standard deviation
+        (``sqrt(diag((X^T X)^-1))``).
+    """
+
+    cost: float
+    theta: np.ndarray
+    delay_s: float
+    unit_std: np.ndarray
+
+
 class TickCost:
-    """Cost of friction candidates on one refresh phase's tick grid, at a fixed sensor delay:
-    each candidate's friction output (core), and the transfer function refitted to it from a
-    given model -- with its poles held (:meth:`linear`) or free (:meth:`__call__`)."""
+    """Cost of friction candidates on one refresh phase's tick grid, from a reference transfer
+    function and delay: each candidate's friction output (core), and the model refitted to it
+    by one Gauss-Newton step (numerator, initial state and offset exact; poles and delay
+    linearised)."""
 
     def __init__(
         self,
-        core: CoreRuns,
+        ticks: TickRuns,
+        y: np.ndarray,
+        dt_s: float,
         model: str,
-        phase: int,
-        delay_s: float,
         theta: np.ndarray,
+        delay_s: float,
         n: int,
         m: int,
     ) -> None:
-        self.model, self.phase, self.delay_s = model, phase, delay_s
-        self.theta, self.n, self.m = np.asarray(theta, dtype=float), n, m
-        self.ticks = TickRuns(core, phase)
-        self.y = core.y[self.ticks.idx]
-        self.dt = core.dt * core.refresh
-        self.cache: dict[tuple[float, float], float] = {}
-        self.thetas: dict[tuple[float, float], np.ndarray] = {}
-        self._outputs: dict[tuple[float, float], np.ndarray] = {}
-        self._linear: dict[tuple[float, float], float] = {}
-        self._by_output: dict[bytes, tuple[float, np.ndarray]] = {}
-        _, den = split_params(self.theta, n)
-        self._den = den
-        zero = np.zeros(self.y.size)
-        free = [zoh_response([1.0], den, zero, self.dt, x0=np.eye(n)[i]) for i in range(n)]
-        self._free = np.column_stack([*free, np.ones(self.y.size)])
+        self.ticks, self.y, self.dt, self.model = ticks, y, dt_s, model
+        self.theta, self.delay_s = np.asarray(theta, dtype=float), float(delay_s)
+        self.n, self.m = n, m
+        self.num, self.den = split_params(self.theta, n)
+        zero = np.zeros(y.size)
+        free = [zoh_response([1.0], self.den, zero, dt_s, x0=np.eye(n)[i]) for i in range(n)]
+        self._free = np.column_stack([*free, np.ones(y.size)])
+        self.fits: dict[tuple[float, float], LinearFit] = {}
+        self._by_output: dict[bytes, LinearFit] = {}
+
+    @classmethod
+    def at_phase(
+        cls,
+        core: CoreRuns,
+        phase: int,
+        model: str,
+        theta: np.ndarray,
+        delay_s: float,
+        n: int,
+        m: int,
+    ) -> TickCost:
+        """The cost on ``phase``'s ticks of the log in ``core``."""
+        ticks = TickRuns(core, phase)
+        return cls(ticks, core.y[ticks.idx], core.dt * core.refresh, model, theta, delay_s, n, m)
+
+    def recentred(self, fit: LinearFit) -> TickCost:
+        """The same candidates from another reference model (the friction outputs are kept)."""
+        return TickCost(self.ticks, self.y, self.dt, self.model, fit.theta,
+                        min(max(fit.delay_s, 0.0), 0.05), self.n, self.m)  # fmt: skip
 
     @property
     def n_ticks(self) -> int:
@@ -182,57 +237,59 @@ class TickCost:
 
     @property
     def n_params(self) -> int:
-        """Parameters of a refit: coefficients, initial state, output offset."""
-        return self.n + self.m + 1 + self.n + 1
+        """Parameters of a fit: coefficients, delay, initial state, output offset."""
+        return self.n + self.m + 1 + 1 + self.n + 1
 
-    def outputs(self, pairs: list[tuple[float, float]]) -> list[np.ndarray]:
-        """Friction outputs (deg) at the ticks, computed once per candidate."""
-        todo = list(dict.fromkeys(p for p in pairs if p not in self._outputs))
-        if todo:
-            for pair, v in zip(todo, self.ticks.friction_outputs(todo, self.model), strict=True):
-                self._outputs[pair] = v
-        return [self._outputs[p] for p in pairs]
+    def basis(self, v: np.ndarray) -> np.ndarray:
+        """Regressors of the step for the friction output ``v`` (ticks): the numerator's
+        ``s^k / A v`` (delayed), the poles' and the delay's sensitivities, the initial state's
+        free responses and a constant."""
+        n, m = self.n, self.m
+        forced = filtered_derivatives(self.den, v - v[0], self.dt, "zoh", self.delay_s)
+        y0 = forced[:, : m + 1] @ self.num[::-1]
+        d_a = filtered_derivatives(self.den, y0, self.dt, "foh")[:, n - 1 :: -1] * -1.0
+        # d/dtau of B/A v(t - tau) = -B s/A v: the next filtered derivatives (m < n)
+        d_tau = -(forced[:, 1 : m + 2] @ self.num[::-1]) if m < n else np.zeros(v.size)
+        return np.column_stack([d_a, forced[:, m::-1], d_tau, self._free])
 
     def linear(self, pairs: list[tuple[float, float]]) -> np.ndarray:
-        """Costs (deg^2) with the poles held: numerator, initial state and offset refitted."""
-        out = []
-        for pair, v in zip(pairs, self.outputs(pairs), strict=True):
-            if pair not in self._linear:
-                self._linear[pair] = self._held_poles(v)
-            out.append(self._linear[pair])
-        return np.array(out)
+        """Costs (deg^2) of ``pairs`` of ``(S, J)`` (deg), each computed once."""
+        todo = list(dict.fromkeys(p for p in pairs if p not in self.fits))
+        if todo:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for pair, v in zip(todo, self.ticks.friction_outputs(todo, self.model),
+                                   strict=True):  # fmt: skip
+                    key = v.tobytes()
+                    if key not in self._by_output:
+                        self._by_output[key] = self._fit(v)
+                    self.fits[pair] = self._by_output[key]
+        return np.array([self.fits[p].cost for p in pairs])
 
-    def _held_poles(self, v: np.ndarray) -> float:
+    def _fit(self, v: np.ndarray) -> LinearFit:
+        k = self.n + self.m + 1
         if np.ptp(v) == 0:
-            return float(np.sum((self.y - self.y.mean()) ** 2))
-        forced = filtered_derivatives(self._den, v - v[0], self.dt, "zoh", self.delay_s)
-        basis = np.column_stack([forced[:, : self.m + 1], self._free])
-        coef, *_ = np.linalg.lstsq(basis, self.y, rcond=None)
-        r = self.y - basis @ coef
-        return float(r @ r)
+            cost = float(np.sum((self.y - self.y.mean()) ** 2))
+            return LinearFit(cost, self.theta, self.delay_s, np.full(k + 1, np.inf))
+        x = self.basis(v)
+        q, r = np.linalg.qr(x)
+        coef = np.linalg.lstsq(r, q.T @ self.y, rcond=None)[0]
+        resid = self.y - x @ coef
+        theta = np.concatenate([self.theta[: self.n] + coef[: self.n], coef[self.n : k]])
+        try:
+            r_inv = np.linalg.inv(r)
+            unit = np.sqrt(np.einsum("ij,ij->i", r_inv, r_inv))[: k + 1]
+        except np.linalg.LinAlgError:
+            unit = np.full(k + 1, np.inf)
+        return LinearFit(float(resid @ resid), theta, self.delay_s + float(coef[k]), unit)
 
-    def __call__(self, pairs: list[tuple[float, float]]) -> np.ndarray:
-        """Costs (deg^2) with the poles free (output error from the given model)."""
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            for pair, v in zip(pairs, self.outputs(pairs), strict=True):
-                if pair in self.cache:
-                    continue
-                key = v.tobytes()
-                if key not in self._by_output:
-                    self._by_output[key] = self._refit(v)
-                self.cache[pair], self.thetas[pair] = self._by_output[key]
-        return np.array([self.cache[p] for p in pairs])
-
-    def _refit(self, v: np.ndarray) -> tuple[float, np.ndarray]:
+    def residual_matrix(self, pair: tuple[float, float]) -> np.ndarray:
+        """Orthonormal basis of the candidate's regressors (for :func:`bootstrap_threshold`)."""
+        v = self.ticks.friction_outputs([pair], self.model)[0]
         if np.ptp(v) == 0:
-            return float(np.sum((self.y - self.y.mean()) ** 2)), self.theta
-        data = prepare_data(self.dt, v, self.y, offset="initial")
-        oe = refine_output_error(
-            data, self.n, self.m, self.theta, delay_s=self.delay_s, max_nfev=INNER_NFEV,
-            ftol=0.02 / data.n_samples,
-        )  # fmt: skip
-        return float(oe.residuals @ oe.residuals), oe.theta
+            return np.ones((v.size, 1)) / math.sqrt(v.size)
+        q, _ = np.linalg.qr(self.basis(v))
+        return q
 
 
 # ----------------------------------------------------------------------------------------------
@@ -243,14 +300,12 @@ def coarse_friction(
     core: CoreRuns, model: str, max_deg: float, n: int, m: int
 ) -> tuple[float, float]:
     """The best ``(S, J)`` of a 1-degree grid over ``[0, max_deg]^2`` (deg), refresh phase 0,
-    scored with the poles of a transfer function (delay estimated) fitted at the grid's
-    middle."""
+    scored from a transfer function (delay estimated) fitted at the grid's middle."""
     values = np.concatenate([[0.0], np.arange(0.5, max_deg, 1.0)])
     pairs = [(float(s), float(j)) for s in values for j in values]
     ticks = TickRuns(core, 0)
     y, dt = core.y[ticks.idx], core.dt * core.refresh
     middle = (float(values[len(values) // 2]), float(values[min(1, len(values) - 1)]))
-    theta, tau = np.zeros(n + m + 1), 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for pair in (middle, (0.0, 0.0)):
@@ -258,81 +313,214 @@ def coarse_friction(
             if np.ptp(v) > 0:
                 est = tfest(dt, v, y, n, m, input_delay_s=ESTIMATE, max_delay_s=0.05,
                             check_feedback=False, nested_starts=False)  # fmt: skip
-                theta, tau = est.params, est.input_delay_s
                 break
         else:
             raise ValueError("the friction output never moves: the log does not excite the servo")
-    cost = TickCost(core, model, 0, tau, theta, n, m)
+    cost = TickCost(ticks, y, dt, model, est.params, est.input_delay_s, n, m)
     costs = cost.linear(pairs)
     return pairs[int(np.argmin(costs))]
 
 
 # ----------------------------------------------------------------------------------------------
-# The profile
+# The minimum
 
 
 def _snap(x: float) -> float:
     return round(float(x), 9)
 
 
-def profile_friction(
-    cost: TickCost,
-    model: str,
-    start: tuple[float, float],
-    max_deg: float,
-    quantum_deg: float,
-    say: Callable[[str], None] = lambda _m: None,
-) -> FrictionEstimate:
-    """The friction estimate and its consistent ranges around ``start`` (see the module
-    docstring); ``max_deg`` bounds ``S`` and ``J`` (deg), ``quantum_deg`` is the command's
-    resolution (deg; 0 for none)."""
-    h = lattice_step(quantum_deg)
-    axis = np.round(np.arange(0.0, max_deg + 1e-9, h), 9)
-    dof = max(cost.n_ticks - cost.n_params, 1)
+@dataclass(frozen=True)
+class FrictionFit:
+    """Where the cost's minimum is (:func:`locate_friction`).
 
-    def near(p: tuple[float, float], reach: int) -> list[tuple[float, float]]:
-        i, j = (int(np.argmin(np.abs(axis - c))) for c in p)
-        si = axis[max(0, i - reach) : i + reach + 1]
-        sj = axis[max(0, j - reach) : j + reach + 1]
-        return [(float(a), float(b)) for a in si for b in sj]
+    Attributes
+    ----------
+    cost : TickCost
+        The cost, from the best candidate's model.
+    best : (float, float)
+        The candidate ``(S, J)`` with the smallest cost (deg).
+    candidates : list of (float, float)
+        Every candidate scored.
+    step_deg : float
+        The lattice's step (deg).
+    """
 
-    # 1. the lattice with the poles held, following the cost downhill
-    reach = max(1, math.ceil(1.0 / h))  # a window of +/- 1 deg
-    pairs = near(start, reach)
+    cost: TickCost
+    best: tuple[float, float]
+    candidates: list[tuple[float, float]]
+    step_deg: float
+
+    @property
+    def best_fit(self) -> LinearFit:
+        return self.cost.fits[self.best]
+
+    @property
+    def sigma2(self) -> float:
+        """Noise variance of the best fit (deg^2)."""
+        return self.best_fit.cost / max(self.cost.n_ticks - self.cost.n_params, 1)
+
+
+def _axis(step: float, max_deg: float) -> np.ndarray:
+    return np.round(np.arange(0.0, max_deg + 1e-9, step), 9)
+
+
+def _near(p: tuple[float, float], reach: int, axis: np.ndarray) -> list[tuple[float, float]]:
+    i, j = (int(np.argmin(np.abs(axis - c))) for c in p)
+    si = axis[max(0, i - reach) : i + reach + 1]
+    sj = axis[max(0, j - reach) : j + reach + 1]
+    return [(float(a), float(b)) for a in si for b in sj]
+
+
+def _offset_scan(p: tuple[float, float], h: float, max_deg: float) -> list[tuple[float, float]]:
+    """Candidates around ``p`` with ``S + J`` held and ``S - J`` changed by up to ``h`` either
+    way in steps of ``h / 8``."""
+    out = []
+    for d in np.arange(-4, 5) * (h / 16.0):
+        q = (_snap(p[0] + d), _snap(p[1] - d))
+        if 0.0 <= q[0] <= max_deg and 0.0 <= q[1] <= max_deg:
+            out.append(q)
+    return out
+
+
+def _downhill(
+    cost: TickCost, start: tuple[float, float], step: float, radius: float, max_deg: float
+) -> tuple[tuple[float, float], list[tuple[float, float]]]:
+    """A lattice of ``step`` (deg), ``radius`` around the best candidate so far, scored until
+    the best stops moving; returns the best and the lattice."""
+    axis = _axis(step, max_deg)
+    reach = max(1, math.ceil(radius / step))
+    pairs = _near(start, reach, axis)
+    have = set(pairs)
+    best = start
     for _ in range(MAX_GROWTH):
         lin = cost.linear(pairs)
         best = pairs[int(np.argmin(lin))]
-        new = [q for q in near(best, reach) if q not in set(pairs)]
+        new = [q for q in _near(best, reach, axis) if q not in have]
         if not new:
             break
         pairs += new
+        have.update(new)
+    return best, pairs
+
+
+def locate_friction(
+    cost: TickCost,
+    start: tuple[float, float],
+    max_deg: float,
+    quantum_deg: float,
+    radius_deg: float = LOCAL_RADIUS_DEG,
+) -> FrictionFit:
+    """The cost's minimum near ``start`` (found by :func:`scan_friction`): a lattice at the
+    command's resolution following the cost downhill, ``radius_deg`` around the best, and a
+    fine scan of ``S - J`` across the best few; ``max_deg`` bounds ``S`` and ``J`` (deg),
+    ``quantum_deg`` is the command's resolution (deg; 0 for none)."""
+    h = lattice_step(quantum_deg)
+    _, pairs = _downhill(cost, start, h, radius_deg, max_deg)
+    return _with_offsets(cost, pairs, h, max_deg)
+
+
+def _with_offsets(
+    cost: TickCost, pairs: list[tuple[float, float]], h: float, max_deg: float
+) -> FrictionFit:
+    """The candidates, a fine scan of ``S - J`` across the best few, and the best of all."""
     lin = cost.linear(pairs)
-    sigma2 = float(lin.min()) / dof
-    close = [p for p, c in zip(pairs, lin, strict=True) if c <= lin.min() + REFIT_MARGIN * sigma2]
-    # 2. the poles free near the best; the consistent set and its neighbours
-    done: set[tuple[float, float]] = set()
-    todo = close
-    for _ in range(MAX_GROWTH):
-        cost(todo)
-        done.update(todo)
-        pts = sorted(done)
-        costs = cost(pts)
-        bound = float(costs.min()) * (1.0 + CHI2_95 / dof)
-        ok = [p for p, c in zip(pts, costs, strict=True) if c <= bound]
-        todo = [q for p in ok for q in near(p, 1) if q not in done]
-        todo = list(dict.fromkeys(todo))
-        if not todo:
-            break
-    best = pts[int(np.argmin(costs))]
-    s_rng = _edges(cost, ok, bound, 0, h, max_deg)
-    j_rng = _edges(cost, ok, bound, 1, h, max_deg)
+    for i in np.argsort(lin)[:OFFSET_SCANS]:
+        pairs += _offset_scan(pairs[int(i)], h, max_deg)
+    pairs = list(dict.fromkeys(pairs))
+    lin = cost.linear(pairs)
+    return FrictionFit(cost, pairs[int(np.argmin(lin))], pairs, h)
+
+
+def scan_friction(
+    cost: TickCost, start: tuple[float, float], max_deg: float, quantum_deg: float
+) -> tuple[float, float]:
+    """A global search: whole lines of the lattice (every ``J`` at the best ``S``, then every
+    ``S`` at the best ``J``, twice) from ``start``, first at :data:`FINE_STEP_DEG`, then at the
+    command's resolution. With commands quantised finer than the lattice the cost is a needle
+    in a haystack along ``J`` (the number of quanta the jaw travels before it slips sets the
+    whole staircase of a ramp): no local search finds it, a line does."""
+    best = start
+    steps = dict.fromkeys((FINE_STEP_DEG, lattice_step(quantum_deg)))
+    for step in steps:
+        axis = _axis(step, max_deg)
+        for _ in range(2):
+            for k in (1, 0):
+                line = [(best[0], float(a)) if k == 1 else (float(a), best[1]) for a in axis]
+                line.append(best)
+                best = line[int(np.argmin(cost.linear(line)))]
+    return best
+
+
+def refine_friction(
+    fit: FrictionFit, max_deg: float, radius_deg: float = LOCAL_RADIUS_DEG
+) -> FrictionFit:
+    """:func:`locate_friction`'s result from the best candidate's model (a second Gauss-Newton
+    step for every candidate), the lattice following the cost once more."""
+    cost = fit.cost.recentred(fit.best_fit)
+    _, lattice = _downhill(cost, fit.best, fit.step_deg, radius_deg, max_deg)
+    return _with_offsets(cost, list(dict.fromkeys(fit.candidates + lattice)), fit.step_deg,
+                         max_deg)  # fmt: skip
+
+
+# ----------------------------------------------------------------------------------------------
+# The region and its projections
+
+
+def bootstrap_threshold(
+    fit: FrictionFit, seed: int = 0, replicates: int = BOOTSTRAP_REPLICATES
+) -> float:
+    """95 % quantile of the likelihood ratio ``(V(estimate) - min_c V(c)) / sigma^2`` over the
+    scored candidates, in data simulated from the estimate (its fitted output plus Gaussian
+    noise of the fit's variance): the region's threshold (at least 3.84)."""
+    cost = fit.cost
+    lin = cost.linear(fit.candidates)
+    s2 = fit.sigma2
+    near = [p for p, c in zip(fit.candidates, lin, strict=True)
+            if c <= lin.min() + BOOTSTRAP_MARGIN * s2]  # fmt: skip
+    if len(near) < 2:
+        return CHI2_95
+    q_best = cost.residual_matrix(fit.best)
+    y_hat = q_best @ (q_best.T @ cost.y)  # the estimate's fitted output
+    rng = np.random.default_rng(seed)
+    ys = y_hat[:, None] + math.sqrt(s2) * rng.standard_normal((cost.n_ticks, replicates))
+    total = np.einsum("ij,ij->j", ys, ys)
+
+    def rss(q: np.ndarray) -> np.ndarray:
+        proj = q.T @ ys
+        return total - np.einsum("ij,ij->j", proj, proj)
+
+    at_best = rss(q_best)
+    lowest = at_best.copy()
+    for p in near:
+        if p != fit.best:
+            lowest = np.minimum(lowest, rss(cost.residual_matrix(p)))
+    ratio = (at_best - lowest) / s2
+    return max(CHI2_95, float(np.quantile(ratio, 0.95)))
+
+
+def friction_ranges(
+    fit: FrictionFit,
+    model: str,
+    max_deg: float,
+    threshold: float,
+    say: Callable[[str], None] = lambda _m: None,
+) -> FrictionEstimate:
+    """The estimate and the 95 % intervals of ``S`` and ``J``: the projections of the region
+    ``V <= V_min + threshold sigma^2``, their ends by bisection on the profile (the other
+    parameter minimised), to :data:`EDGE_TOL_DEG`."""
+    cost = fit.cost
+    bound = fit.best_fit.cost + threshold * fit.sigma2
+    lin = cost.linear(fit.candidates)
+    ok = [p for p, c in zip(fit.candidates, lin, strict=True) if c <= bound]
+    s_rng = _profile_ends(cost, ok, bound, 0, fit.step_deg, max_deg)
+    j_rng = _profile_ends(cost, ok, bound, 1, fit.step_deg, max_deg)
     s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
-    if cost([(_snap(s_est), _snap(j_est))])[0] > bound:  # the middles are not jointly consistent
-        s_est, j_est = best
-    grid = np.array(list(cost.cache.keys()))
+    if cost.linear([(_snap(s_est), _snap(j_est))])[0] > bound:  # not jointly consistent
+        s_est, j_est = fit.best
+    grid = np.array(list(cost.fits.keys()))
     say(
-        f"friction, {len(cost.cache)} refits: S {s_est:.3g} deg [{s_rng[0]:.3g}, {s_rng[1]:.3g}],"
-        f" J {j_est:.3g} deg [{j_rng[0]:.3g}, {j_rng[1]:.3g}]"
+        f"friction, {len(cost.fits)} candidates: S {s_est:.3g} deg "
+        f"[{s_rng[0]:.3g}, {s_rng[1]:.3g}], J {j_est:.3g} deg [{j_rng[0]:.3g}, {j_rng[1]:.3g}]"
     )
     return FrictionEstimate(
         model=model,
@@ -340,16 +528,24 @@ def profile_friction(
         J_deg=float(j_est),
         S_range_deg=s_rng,
         J_range_deg=j_rng,
-        best_S_deg=float(best[0]),
-        best_J_deg=float(best[1]),
+        best_S_deg=float(fit.best[0]),
+        best_J_deg=float(fit.best[1]),
         max_deg=float(max_deg),
         grid_S_deg=grid[:, 0],
         grid_J_deg=grid[:, 1],
-        grid_cost=np.array(list(cost.cache.values())),
+        grid_cost=np.array([f.cost for f in cost.fits.values()]),
+        threshold=float(threshold),
     )
 
 
-def _edges(
+def consistent_fits(fit: FrictionFit, threshold: float) -> list[LinearFit]:
+    """Every scored candidate in the region ``V <= V_min + threshold sigma^2``: the friction
+    values the transfer function's and the delay's intervals must allow for."""
+    bound = fit.best_fit.cost + threshold * fit.sigma2
+    return [f for f in fit.cost.fits.values() if f.cost <= bound]
+
+
+def _profile_ends(
     cost: TickCost,
     ok: list[tuple[float, float]],
     bound: float,
@@ -357,34 +553,49 @@ def _edges(
     h: float,
     max_deg: float,
 ) -> tuple[float, float]:
-    """Ends of the consistent set along coordinate ``k`` (0: S, 1: J): from the outermost
-    consistent point, bisected toward its inconsistent neighbour along the axis and along both
-    diagonals (the set is a strip along ``S - J``, which moves the jaw continuously); the
-    farthest reach, to the inconsistent side of the last step."""
+    """Ends of the projection of the region on coordinate ``k`` (0: S, 1: J).
+
+    A value ``x`` is inside when some value of the other coordinate is: a scan of it (steps of
+    ``h / 2``, then ``h / 16`` around the best two, since it moves ``S - J`` continuously) below
+    the bound. From the outermost candidate inside, the interval is walked outward a lattice step
+    at a time while it stays inside (the scan following the strip of ``S - J``), then the last
+    step is bisected; the outside end of the last step is reported."""
+    other = 1 - k
+    lo = min(p[other] for p in ok)
+    hi = max(p[other] for p in ok)
+
+    def point(x: float, o: float) -> tuple[float, float]:
+        return (_snap(x), _snap(o)) if k == 0 else (_snap(o), _snap(x))
+
+    def inside(x: float, span: list[float]) -> bool:
+        a, b = max(0.0, span[0] - 2 * h), min(max_deg, span[1] + 2 * h)
+        pts = [point(x, o) for o in np.arange(a, b + 1e-9, 0.5 * h)]
+        lin = cost.linear(pts)
+        for i in np.argsort(lin)[:2]:
+            o0 = pts[int(i)][other]
+            pts += [point(x, o) for o in o0 + np.arange(-4, 5) * (h / 16.0) if 0 <= o <= max_deg]
+        lin = cost.linear(pts)
+        i = int(np.argmin(lin))
+        if lin[i] <= bound:
+            span[0], span[1] = min(span[0], pts[i][other]), max(span[1], pts[i][other])
+            return True
+        return False
+
     ends = []
     for sign in (-1.0, 1.0):
-        edge = max(ok, key=lambda p: p[k]) if sign > 0 else min(ok, key=lambda p: p[k])
-        reach = edge[k]
-        for slant in (0.0, 1.0, -1.0):
-            step = np.zeros(2)
-            step[k], step[1 - k] = sign * h, slant * h
-            inner, outer = 0.0, 1.0
-
-            def at(t: float, edge: tuple[float, float] = edge, step: np.ndarray = step):
-                return _snap(edge[0] + t * step[0]), _snap(edge[1] + t * step[1])
-
-            far = at(outer)
-            if min(far) < 0.0 or max(far) > max_deg:
-                if slant == 0.0:
-                    reach = 0.0 if sign < 0 else max_deg
-                continue
-            while (outer - inner) * h > EDGE_TOL_DEG:
-                mid = 0.5 * (inner + outer)
-                if cost([at(mid)])[0] <= bound:
-                    inner = mid
-                else:
-                    outer = mid
-            x = at(outer)[k]
-            reach = min(reach, x) if sign < 0 else max(reach, x)
-        ends.append(float(reach))
+        span = [lo, hi]
+        inner = (max if sign > 0 else min)(p[k] for p in ok)
+        outer = inner + sign * h
+        while 0.0 <= outer <= max_deg and inside(outer, span):
+            inner, outer = outer, outer + sign * h
+        if not 0.0 <= outer <= max_deg:
+            ends.append(0.0 if sign < 0 else max_deg)
+            continue
+        while abs(outer - inner) > EDGE_TOL_DEG:
+            mid = 0.5 * (inner + outer)
+            if inside(mid, list(span)):
+                inner = mid
+            else:
+                outer = mid
+        ends.append(float(outer))
     return float(ends[0]), float(ends[1])

@@ -39,7 +39,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -56,9 +56,15 @@ from gripper_env.sysid.estimate import json_float
 from gripper_env.sysid.friction_profile import (
     FINE_STEP_DEG,
     FrictionEstimate,
+    FrictionFit,
     TickCost,
+    bootstrap_threshold,
     coarse_friction,
-    profile_friction,
+    consistent_fits,
+    friction_ranges,
+    locate_friction,
+    refine_friction,
+    scan_friction,
 )
 from gripper_env.sysid.orders import Record
 from gripper_env.sysid.output_error import refine_output_error
@@ -86,9 +92,11 @@ __all__ = [
 MAX_FRICTION_DEG = 8.0
 #: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
 DELAY_INFORMATIVE_S = 0.005
-#: Timing hypotheses (refresh phases spread over the servo's frame) at which the friction is
-#: profiled before the best is kept.
-HYPOTHESES = 4
+#: Phases next to the best one where the friction is located too (a phase a few steps off, its
+#: delay making up for it, is the usual confusion).
+NEIGHBOURS = (-2, -1, 1, 2)
+#: Standard normal quantile of the 95 % intervals.
+Z95 = 1.959963984540054
 
 
 @dataclass(frozen=True)
@@ -110,7 +118,7 @@ class ActualEstimate:
         Its 95 % interval (s), over every refresh phase consistent with the data: on a slow
         ramp a later servo refresh tick and a longer delay look alike.
     delay_std_s : float
-        Standard error of the delay at the chosen phase (s).
+        Standard error of the delay at the chosen phase and friction (s).
     refresh_phase_steps : int
         Physics steps from the log's first sample to the servo's first refresh tick after it
         (a property of the log, not of the gripper).
@@ -134,6 +142,10 @@ class ActualEstimate:
         Fit on a validation log (``fit_pct``, ``residual_rms_deg``, ``n_samples``, ``source``).
     warnings : tuple of str
         What the report should say.
+    dynamics_intervals : dict of str to (float, float)
+        95 % intervals of the servo's coefficients (by :attr:`TFEstimate.param_names`): the
+        fit's own, widened to hold every friction consistent with the data (the standard errors
+        of :attr:`dynamics` hold the friction fixed).
     """
 
     dynamics: TFEstimate
@@ -152,6 +164,7 @@ class ActualEstimate:
     validation: dict[str, Any] | None = None
     warnings: tuple[str, ...] = ()
     delay_std_s: float = 0.0
+    dynamics_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def delay_steps(self) -> int:
@@ -232,8 +245,7 @@ class ActualEstimate:
                 },
                 "intervals_95": {
                     k: [json_float(lo), json_float(hi)]
-                    for k, (lo, hi) in dyn.intervals().items()
-                    if k != "input_delay_s"
+                    for k, (lo, hi) in self.dynamics_intervals.items()
                 },
             },
             "friction": self.friction.to_dict(),
@@ -326,36 +338,56 @@ def identify_actual(
     s0, j0 = coarse_friction(core, model, max_friction_deg, n_poles, n_zeros)
     quantum = base_d.command.quantum_deg
     say(f"friction, coarse grid: S {s0:g}, J {j0:g} deg")
-    # 2. timing hypotheses with that friction: the best refresh phase and phases spread over the
-    # frame, each with its own transfer function and delay (a wrong friction can prefer a wrong
-    # phase: the friction and the timing are refined together below)
+    # 2. the best refresh phase at that friction (each with its own transfer function and delay)
     fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros)
+    first = fits[0]
+    # 3. a global search of the friction there, then the timing at that friction
+    cost = TickCost.at_phase(core, first.phase, model, first.estimate.params,
+                             first.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+    s1, j1 = scan_friction(cost, (s0, j0), max_friction_deg, quantum)
+    say(f"friction, line scans at refresh phase {first.phase}: S {s1:.3g}, J {j1:.3g} deg")
+    fits, _ = phase_fits(core, s1, j1, model, n_poles, n_zeros)
+    # the friction located at the best phases and their neighbours, scored at the full rate (a
+    # phase a few steps off, its delay making up for it, is the usual confusion)
     by_phase = {f.phase: f for f in fits}
     r = core.refresh
-    picks = [(fits[0].phase + k * r // HYPOTHESES) % r for k in range(HYPOTHESES)] if r > 1 else [0]
-    hypotheses = [by_phase[p] for p in dict.fromkeys(picks) if p in by_phase]
-    # 3. the friction's profile likelihood at each, scored at the full rate
-    tried = []
-    for hyp in hypotheses:
-        cost = TickCost(core, model, hyp.phase, hyp.estimate.input_delay_s, hyp.estimate.params,
-                        n_poles, n_zeros)  # fmt: skip
-        fr = profile_friction(cost, model, (s0, j0), max_friction_deg, quantum)
-        tried.append((_full_cost(core, fr, hyp, cost, n_poles, n_zeros), hyp, fr))
-    tried.sort(key=lambda t: t[0])
-    _, hyp, friction = tried[0]
+    picks = [(fits[0].phase + k) % r for k in (0, *NEIGHBOURS)] if r > 1 else [0]
+    picks += [f.phase for f in fits[:2]]
+    refined = []
+    for phase in dict.fromkeys(picks):
+        if phase not in by_phase:
+            continue
+        hyp = by_phase[phase]
+        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+        fit = refine_friction(locate_friction(cost, (s1, j1), max_friction_deg, quantum),
+                              max_friction_deg)  # fmt: skip
+        refined.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
+    refined.sort(key=lambda t: t[0])
+    # 4. the region at the best timing (its threshold calibrated by a parametric bootstrap);
+    # other timings that fit about as well add their regions
+    bound = refined[0][0] * (1.0 + CHI2_95 / core.n)
+    kept = [(hyp, fit) for full, hyp, fit in refined if full <= bound]
+    hyp, fit = kept[0]
+    threshold = bootstrap_threshold(fit)
+    friction = friction_ranges(fit, model, max_friction_deg, threshold)
     say(
         f"friction at refresh phase {hyp.phase}: S {friction.S_deg:.3g} deg "
         f"[{friction.S_range_deg[0]:.3g}, {friction.S_range_deg[1]:.3g}], J "
         f"{friction.J_deg:.3g} deg [{friction.J_range_deg[0]:.3g}, {friction.J_range_deg[1]:.3g}]"
+        f" (threshold {threshold:.3g} noise variances)"
     )
-    # 4. the timing at that friction, with the delay's interval and the servo's dynamics
-    timing = _timing(core, friction.S_deg, friction.J_deg, model, n_poles, n_zeros, say)
-    bound = tried[0][0] * (1.0 + CHI2_95 / core.n)
-    others = [fr for c, _, fr in tried[1:] if c <= bound]
-    if others:  # other timings fit about as well: their friction is consistent too
+    others = [friction_ranges(f, model, max_friction_deg, threshold) for _, f in kept[1:]]
+    if others:
         friction = _union(friction, others)
+    # 5. the timing at that friction, with the delay's interval and the servo's dynamics
+    timing = _timing(core, friction.S_deg, friction.J_deg, model, n_poles, n_zeros, say,
+                     near=hyp.phase)  # fmt: skip
     dyn = _reduced(core, timing, friction, model, n_poles, n_zeros)
     say(f"dynamics: {dyn.paper_form()}")
+    # the intervals of the delay and of the servo's coefficients allow for every friction in the
+    # region: the union of each consistent candidate's 95 % intervals (tick grid)
+    delay_range, coef_ranges = _nuisance_ranges(kept, threshold, timing, dyn)
 
     # 5. the whole model in the core: the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
@@ -371,7 +403,7 @@ def identify_actual(
         friction=friction,
         sensor=sensor,
         delay_s=timing.delay_s,
-        delay_range_s=timing.delay_range_s,
+        delay_range_s=delay_range,
         refresh_phase_steps=timing.phase_steps,
         offset_deg=offset,
         fit_pct=float(fit_percent(data.y, y_sim + offset)),
@@ -382,6 +414,7 @@ def identify_actual(
         elapsed_s=time.perf_counter() - started,
         warnings=tuple(notes),
         delay_std_s=timing.delay_std_s,
+        dynamics_intervals=coef_ranges,
     )
     if not est.identified()["delay_s"]:
         lo, hi = est.delay_range_s
@@ -396,21 +429,43 @@ def identify_actual(
     return est
 
 
-def _full_cost(
-    core: CoreRuns, fr: FrictionEstimate, hyp: PhaseFit, cost: TickCost, n: int, m: int
-) -> float:
+def _full_cost(core: CoreRuns, fit: FrictionFit, model: str, phase: int, n: int, m: int) -> float:
     """Squared error at the full rate of a timing hypothesis with its best friction (the
     transfer function and delay refined from the tick-grid fit)."""
-    v = core.friction_outputs([(fr.best_S_deg, fr.best_J_deg)], fr.model, hyp.phase)[0]
-    theta = cost.thetas.get((fr.best_S_deg, fr.best_J_deg), hyp.estimate.params)
+    v = core.friction_outputs([fit.best], model, phase)[0]
+    best = fit.best_fit
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         oe = refine_output_error(
-            full_rate(core, v), n, m, theta, delay_s=hyp.estimate.input_delay_s,
-            estimate_delay=True, max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12,
-            ftol=0.02 / core.n,
+            full_rate(core, v), n, m, best.theta,
+            delay_s=min(max(best.delay_s, 0.0), MAX_SENSOR_DELAY_S), estimate_delay=True,
+            max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12, ftol=0.02 / core.n,
         )  # fmt: skip
     return float(oe.residuals @ oe.residuals)
+
+
+def _nuisance_ranges(
+    kept: list[tuple[PhaseFit, FrictionFit]],
+    threshold: float,
+    timing: TimingEstimate,
+    dyn: TFEstimate,
+) -> tuple[tuple[float, float], dict[str, tuple[float, float]]]:
+    """95 % intervals of the delay (s) and of the servo's coefficients: the timing's and the
+    final fit's, widened to hold each friction candidate's in the region."""
+    lo, hi = timing.delay_range_s
+    coefs = {k: v for k, v in dyn.intervals().items() if k != "input_delay_s"}
+    same_order = len(coefs) == kept[0][1].cost.theta.size
+    for _, fit in kept:
+        sigma = math.sqrt(fit.sigma2)
+        for f in consistent_fits(fit, threshold):
+            half = Z95 * sigma * f.unit_std
+            if np.isfinite(half[-1]):
+                lo, hi = min(lo, f.delay_s - half[-1]), max(hi, f.delay_s + half[-1])
+            if same_order:
+                for i, name in enumerate(dyn.param_names):
+                    a, b = coefs[name]
+                    coefs[name] = (min(a, f.theta[i] - half[i]), max(b, f.theta[i] + half[i]))
+    return (max(0.0, lo), min(MAX_SENSOR_DELAY_S, hi)), coefs
 
 
 def _union(fr: FrictionEstimate, others: list[FrictionEstimate]) -> FrictionEstimate:
@@ -423,9 +478,16 @@ def _union(fr: FrictionEstimate, others: list[FrictionEstimate]) -> FrictionEsti
 
 
 def _timing(
-    core: CoreRuns, s: float, j: float, model: str, n: int, m: int, say: Callable[[str], None]
+    core: CoreRuns,
+    s: float,
+    j: float,
+    model: str,
+    n: int,
+    m: int,
+    say: Callable[[str], None],
+    near: int | None = None,
 ) -> TimingEstimate:
-    timing = estimate_timing(core, s, j, model, n, m)
+    timing = estimate_timing(core, s, j, model, n, m, near=near)
     lo, hi = timing.delay_range_s
     say(
         f"timing: refresh phase {timing.phase_steps} steps (consistent: "

@@ -57,6 +57,8 @@ Z95 = 1.959963984540054
 REFINE_MARGIN = 20.0
 MIN_REFINED = 3
 MAX_REFINED = 6
+#: Phases either side of a given one that :func:`estimate_timing` looks at when told where.
+NEAR_PHASES = 4
 
 
 @dataclass(frozen=True)
@@ -130,9 +132,16 @@ def _tick_fit(
 
 
 def phase_fits(
-    core: CoreRuns, s_deg: float, j_deg: float, model: str, n: int, m: int
+    core: CoreRuns,
+    s_deg: float,
+    j_deg: float,
+    model: str,
+    n: int,
+    m: int,
+    phases: list[int] | None = None,
 ) -> tuple[list[PhaseFit], np.ndarray]:
-    """Every refresh phase's fit (best first) and the friction outputs of all phases (rows)."""
+    """Each refresh phase's fit (best first; all phases unless ``phases``) and the friction
+    outputs of all phases (rows)."""
     r = core.refresh
     dists = [core.preset(s_deg, j_deg, model, stops=False)] * r
     outputs = core.run(core.instant, dists, list(range(r)), measured=False)
@@ -140,7 +149,7 @@ def phase_fits(
     svf: dict[str, float] = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # candidates' diagnostics are not the user's business
-        for phase in range(r):
+        for phase in range(r) if phases is None else phases:
             est = _tick_fit(core, outputs[phase], phase, n, m, svf)
             if est is None:
                 continue
@@ -159,11 +168,22 @@ def phase_fits(
 
 
 def estimate_timing(
-    core: CoreRuns, s_deg: float, j_deg: float, model: str, n: int, m: int
+    core: CoreRuns,
+    s_deg: float,
+    j_deg: float,
+    model: str,
+    n: int,
+    m: int,
+    near: int | None = None,
 ) -> TimingEstimate:
     """Refresh phase, sensor delay and the servo's transfer function for the friction
-    ``(s_deg, j_deg)`` of ``model`` (see the module docstring)."""
-    fits, outputs = phase_fits(core, s_deg, j_deg, model, n, m)
+    ``(s_deg, j_deg)`` of ``model`` (see the module docstring); ``near``: only the phases within
+    :data:`NEAR_PHASES` of this one (the others already ruled out)."""
+    r = core.refresh
+    phases = None
+    if near is not None and r > 2 * NEAR_PHASES + 1:
+        phases = [(near + k) % r for k in range(-NEAR_PHASES, NEAR_PHASES + 1)]
+    fits, outputs = phase_fits(core, s_deg, j_deg, model, n, m, phases)
     sigma2 = fits[0].full_cost / core.n
     margin = REFINE_MARGIN * (n + m + 2) * sigma2
     refined = []
