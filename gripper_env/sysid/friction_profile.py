@@ -432,15 +432,24 @@ def _with_offsets(
 
 
 def scan_friction(
-    cost: TickCost, start: tuple[float, float], max_deg: float, quantum_deg: float
+    cost: TickCost,
+    start: tuple[float, float],
+    max_deg: float,
+    quantum_deg: float,
+    stages: str = "both",
 ) -> tuple[float, float]:
     """A global search: whole lines of the lattice (every ``J`` at the best ``S``, then every
     ``S`` at the best ``J``, twice) from ``start``, first at :data:`FINE_STEP_DEG`, then at the
     command's resolution. With commands quantised finer than the lattice the cost is a needle
     in a haystack along ``J`` (the number of quanta the jaw travels before it slips sets the
-    whole staircase of a ramp): no local search finds it, a line does."""
+    whole staircase of a ramp): no local search finds it, a line does. ``stages``: ``"coarse"``
+    or ``"fine"`` runs one of the two lattices only."""
     best = start
-    steps = dict.fromkeys((FINE_STEP_DEG, lattice_step(quantum_deg)))
+    steps = list(dict.fromkeys((FINE_STEP_DEG, lattice_step(quantum_deg))))
+    if stages == "coarse":
+        steps = steps[:1]
+    elif stages == "fine":
+        steps = steps[-1:]
     for step in steps:
         axis = _axis(step, max_deg)
         for _ in range(2):
@@ -538,11 +547,14 @@ def friction_ranges(
     )
 
 
-def consistent_fits(fit: FrictionFit, threshold: float) -> list[LinearFit]:
-    """Every scored candidate in the region ``V <= V_min + threshold sigma^2``: the friction
-    values the transfer function's and the delay's intervals must allow for."""
+def consistent_fits(
+    fit: FrictionFit, threshold: float
+) -> list[tuple[tuple[float, float], LinearFit]]:
+    """Every scored candidate ``(S, J)`` in the region ``V <= V_min + threshold sigma^2``, with
+    its fit: the friction values the transfer function's and the delay's intervals must allow
+    for."""
     bound = fit.best_fit.cost + threshold * fit.sigma2
-    return [f for f in fit.cost.fits.values() if f.cost <= bound]
+    return [(p, f) for p, f in fit.cost.fits.items() if f.cost <= bound]
 
 
 def _profile_ends(

@@ -92,6 +92,8 @@ __all__ = [
 MAX_FRICTION_DEG = 8.0
 #: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
 DELAY_INFORMATIVE_S = 0.005
+#: Refresh phases, spread over the servo's frame, where the friction is searched globally.
+SPREAD = 4
 #: Phases next to the best one where the friction is located too (a phase a few steps off, its
 #: delay making up for it, is the usual confusion).
 NEIGHBOURS = (-2, -1, 1, 2)
@@ -338,21 +340,41 @@ def identify_actual(
     s0, j0 = coarse_friction(core, model, max_friction_deg, n_poles, n_zeros)
     quantum = base_d.command.quantum_deg
     say(f"friction, coarse grid: S {s0:g}, J {j0:g} deg")
-    # 2. the best refresh phase at that friction (each with its own transfer function and delay)
+    # 2. each refresh phase with its own transfer function and delay, at that friction
     fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros)
-    first = fits[0]
-    # 3. a global search of the friction there, then the timing at that friction
-    cost = TickCost.at_phase(core, first.phase, model, first.estimate.params,
-                             first.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
-    s1, j1 = scan_friction(cost, (s0, j0), max_friction_deg, quantum)
-    say(f"friction, line scans at refresh phase {first.phase}: S {s1:.3g}, J {j1:.3g} deg")
+    by_phase = {f.phase: f for f in fits}
+    r = core.refresh
+    # 3. a global search of the friction (lines of the lattice) at phases spread over the
+    # frame: a friction found at the wrong phase prefers that phase, and the other way round
+    spread = [(fits[0].phase + k * r // SPREAD) % r for k in range(SPREAD)] if r > 1 else [0]
+    scans = []
+    for phase in dict.fromkeys(spread):
+        if phase not in by_phase:
+            continue
+        hyp = by_phase[phase]
+        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+        pair = scan_friction(cost, (s0, j0), max_friction_deg, quantum, stages="coarse")
+        fit = locate_friction(cost, pair, max_friction_deg, FINE_STEP_DEG)
+        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, cost, pair))
+    scans.sort(key=lambda t: t[0])
+    best_scan = None
+    for _, phase, cost, pair in scans[:2]:  # the best two at the command's resolution
+        pair = scan_friction(cost, pair, max_friction_deg, quantum, stages="fine")
+        fit = locate_friction(cost, pair, max_friction_deg, quantum)
+        full = _full_cost(core, fit, model, phase, n_poles, n_zeros)
+        if best_scan is None or full < best_scan[0]:
+            best_scan = (full, phase, fit.best)
+    assert best_scan is not None
+    _, phase1, (s1, j1) = best_scan
+    say(f"friction, line scans: S {s1:.3g}, J {j1:.3g} deg at refresh phase {phase1}")
     fits, _ = phase_fits(core, s1, j1, model, n_poles, n_zeros)
     # the friction located at the best phases and their neighbours, scored at the full rate (a
     # phase a few steps off, its delay making up for it, is the usual confusion)
     by_phase = {f.phase: f for f in fits}
     r = core.refresh
     picks = [(fits[0].phase + k) % r for k in (0, *NEIGHBOURS)] if r > 1 else [0]
-    picks += [f.phase for f in fits[:2]]
+    picks += [f.phase for f in fits[:2]] + [phase1]
     refined = []
     for phase in dict.fromkeys(picks):
         if phase not in by_phase:
@@ -387,7 +409,7 @@ def identify_actual(
     say(f"dynamics: {dyn.paper_form()}")
     # the intervals of the delay and of the servo's coefficients allow for every friction in the
     # region: the union of each consistent candidate's 95 % intervals (tick grid)
-    delay_range, coef_ranges = _nuisance_ranges(kept, threshold, timing, dyn)
+    delay_range, coef_ranges = _nuisance_ranges(core, model, kept, threshold, timing, dyn)
 
     # 5. the whole model in the core: the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
@@ -445,26 +467,41 @@ def _full_cost(core: CoreRuns, fit: FrictionFit, model: str, phase: int, n: int,
 
 
 def _nuisance_ranges(
+    core: CoreRuns,
+    model: str,
     kept: list[tuple[PhaseFit, FrictionFit]],
     threshold: float,
     timing: TimingEstimate,
     dyn: TFEstimate,
 ) -> tuple[tuple[float, float], dict[str, tuple[float, float]]]:
     """95 % intervals of the delay (s) and of the servo's coefficients: the timing's and the
-    final fit's, widened to hold each friction candidate's in the region."""
+    final fit's, widened to hold the full-rate fits of the region's extreme candidates (the
+    smallest and largest delay and ``S - J``, which trade against each other on a ramp)."""
     lo, hi = timing.delay_range_s
     coefs = {k: v for k, v in dyn.intervals().items() if k != "input_delay_s"}
-    same_order = len(coefs) == kept[0][1].cost.theta.size
-    for _, fit in kept:
-        sigma = math.sqrt(fit.sigma2)
-        for f in consistent_fits(fit, threshold):
-            half = Z95 * sigma * f.unit_std
+    for hyp, fit in kept:
+        cands = consistent_fits(fit, threshold)
+        picks = [fit.best]
+        for key in (lambda c: c[1].delay_s, lambda c: c[0][0] - c[0][1]):
+            picks += [min(cands, key=key)[0], max(cands, key=key)[0]]
+        n, m = fit.cost.n, fit.cost.m
+        for pair in dict.fromkeys(picks):
+            f = fit.cost.fits[pair]
+            v = core.friction_outputs([pair], model, hyp.phase)[0]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                oe = refine_output_error(
+                    full_rate(core, v), n, m, f.theta,
+                    delay_s=min(max(f.delay_s, 0.0), MAX_SENSOR_DELAY_S), estimate_delay=True,
+                    max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12, ftol=0.02 / core.n,
+                )  # fmt: skip
+            half = Z95 * np.sqrt(np.clip(np.diag(oe.cov), 0.0, None))
             if np.isfinite(half[-1]):
-                lo, hi = min(lo, f.delay_s - half[-1]), max(hi, f.delay_s + half[-1])
-            if same_order:
+                lo, hi = min(lo, oe.delay_s - half[-1]), max(hi, oe.delay_s + half[-1])
+            if len(coefs) == oe.theta.size:
                 for i, name in enumerate(dyn.param_names):
                     a, b = coefs[name]
-                    coefs[name] = (min(a, f.theta[i] - half[i]), max(b, f.theta[i] + half[i]))
+                    coefs[name] = (min(a, oe.theta[i] - half[i]), max(b, oe.theta[i] + half[i]))
     return (max(0.0, lo), min(MAX_SENSOR_DELAY_S, hi)), coefs
 
 
