@@ -51,7 +51,6 @@ from gripper_env.metrics import fit_percent
 from gripper_env.plants import Plant
 from gripper_env.sysid.core_batches import CoreRuns, phase_scan
 from gripper_env.sysid.data import prepare_data
-from gripper_env.sysid.diagnostics import CHI2_95
 from gripper_env.sysid.estimate import json_float
 from gripper_env.sysid.friction_profile import (
     FINE_STEP_DEG,
@@ -370,28 +369,36 @@ def identify_actual(
     say(f"friction, line scans: S {s1:.3g}, J {j1:.3g} deg at refresh phase {phase1}")
     fits, _ = phase_fits(core, s1, j1, model, n_poles, n_zeros)
     # the friction located at the best phases and their neighbours, scored at the full rate (a
-    # phase a few steps off, its delay making up for it, is the usual confusion)
+    # phase a few steps off, its delay making up for it, is the usual confusion), the phases
+    # following the cost until the best one's neighbours are all scored
     by_phase = {f.phase: f for f in fits}
     r = core.refresh
-    picks = [(fits[0].phase + k) % r for k in (0, *NEIGHBOURS)] if r > 1 else [0]
-    picks += [f.phase for f in fits[:2]] + [phase1]
-    refined = []
-    for phase in dict.fromkeys(picks):
-        if phase not in by_phase:
-            continue
-        hyp = by_phase[phase]
-        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
-                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
-        fit = refine_friction(locate_friction(cost, (s1, j1), max_friction_deg, quantum),
-                              max_friction_deg)  # fmt: skip
-        refined.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
+    picks = [f.phase for f in fits[:2]] + [phase1]
+    refined: list[tuple[float, PhaseFit, FrictionFit]] = []
+    done: set[int] = set()
+    for _ in range(r):
+        best = min(refined, key=lambda t: t[0])[1].phase if refined else fits[0].phase
+        todo = [(best + k) % r for k in (0, *NEIGHBOURS)] + picks if r > 1 else [0]
+        todo = [p for p in dict.fromkeys(todo) if p not in done and p in by_phase]
+        if not todo:
+            break
+        for phase in todo:
+            done.add(phase)
+            hyp = by_phase[phase]
+            cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                     hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+            fit = refine_friction(locate_friction(cost, (s1, j1), max_friction_deg, quantum),
+                                  max_friction_deg)  # fmt: skip
+            refined.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
     refined.sort(key=lambda t: t[0])
     # 4. the region at the best timing (its threshold calibrated by a parametric bootstrap);
     # other timings that fit about as well add their regions
-    bound = refined[0][0] * (1.0 + CHI2_95 / core.n)
+    # the same threshold decides which timings are consistent: the choice of a refresh phase
+    # chases the noise as the choice of a friction bracket does
+    threshold = bootstrap_threshold(refined[0][2])
+    bound = refined[0][0] * (1.0 + threshold / core.n)
     kept = [(hyp, fit) for full, hyp, fit in refined if full <= bound]
     hyp, fit = kept[0]
-    threshold = bootstrap_threshold(fit)
     friction = friction_ranges(fit, model, max_friction_deg, threshold)
     say(
         f"friction at refresh phase {hyp.phase}: S {friction.S_deg:.3g} deg "
