@@ -439,7 +439,7 @@ def scan_friction(
     stages: str = "both",
 ) -> tuple[float, float]:
     """A global search: whole lines of the lattice (every ``J`` at the best ``S``, then every
-    ``S`` at the best ``J``, twice) from ``start``, first at :data:`FINE_STEP_DEG`, then at the
+    ``S`` at the best ``J``) from ``start``, twice at :data:`FINE_STEP_DEG`, then once at the
     command's resolution. With commands quantised finer than the lattice the cost is a needle
     in a haystack along ``J`` (the number of quanta the jaw travels before it slips sets the
     whole staircase of a ramp): no local search finds it, a line does. ``stages``: ``"coarse"``
@@ -452,7 +452,8 @@ def scan_friction(
         steps = steps[-1:]
     for step in steps:
         axis = _axis(step, max_deg)
-        for _ in range(2):
+        # twice on the first lattice (from a coarse start), once on a finer one (from its best)
+        for _ in range(2 if step == steps[0] and stages != "fine" else 1):
             for k in (1, 0):
                 line = [(best[0], float(a)) if k == 1 else (float(a), best[1]) for a in axis]
                 line.append(best)

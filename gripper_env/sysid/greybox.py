@@ -367,17 +367,15 @@ def identify_actual(
     assert best_scan is not None
     _, phase1, (s1, j1) = best_scan
     say(f"friction, line scans: S {s1:.3g}, J {j1:.3g} deg at refresh phase {phase1}")
-    fits, _ = phase_fits(core, s1, j1, model, n_poles, n_zeros)
     # the friction located at the best phases and their neighbours, scored at the full rate (a
     # phase a few steps off, its delay making up for it, is the usual confusion), the phases
-    # following the cost until the best one's neighbours are all scored
-    by_phase = {f.phase: f for f in fits}
-    r = core.refresh
-    picks = [f.phase for f in fits[:2]] + [phase1]
+    # following the cost until the best one's neighbours are all scored (each phase's reference
+    # model is its fit at the coarse friction: the refit moves it)
+    picks = [phase1, *(sc[1] for sc in scans[:2])]
     refined: list[tuple[float, PhaseFit, FrictionFit]] = []
     done: set[int] = set()
     for _ in range(r):
-        best = min(refined, key=lambda t: t[0])[1].phase if refined else fits[0].phase
+        best = min(refined, key=lambda t: t[0])[1].phase if refined else phase1
         todo = [(best + k) % r for k in (0, *NEIGHBOURS)] + picks if r > 1 else [0]
         todo = [p for p in dict.fromkeys(todo) if p not in done and p in by_phase]
         if not todo:
