@@ -468,8 +468,17 @@ def refine_friction(
     step for every candidate), the lattice following the cost once more."""
     cost = fit.cost.recentred(fit.best_fit)
     _, lattice = _downhill(cost, fit.best, fit.step_deg, radius_deg, max_deg)
-    return _with_offsets(cost, list(dict.fromkeys(fit.candidates + lattice)), fit.step_deg,
-                         max_deg)  # fmt: skip
+    pairs = list(dict.fromkeys(fit.candidates + lattice))
+    # a fine square around the best two: the best value can be a sliver where an S bracket, a
+    # J bracket and the strip of S - J meet, between the lattice's points
+    h = fit.step_deg
+    lin = cost.linear(pairs)
+    offsets = np.arange(-3, 4) * (h / 6.0)
+    for i in np.argsort(lin)[:2]:
+        s0, j0 = pairs[int(i)]
+        pairs += [(_snap(s0 + a), _snap(j0 + b)) for a in offsets for b in offsets
+                  if 0.0 <= s0 + a <= max_deg and 0.0 <= j0 + b <= max_deg]  # fmt: skip
+    return _with_offsets(cost, list(dict.fromkeys(pairs)), h, max_deg)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -93,9 +93,12 @@ MAX_FRICTION_DEG = 8.0
 DELAY_INFORMATIVE_S = 0.005
 #: Refresh phases, spread over the servo's frame, where the friction is searched globally.
 SPREAD = 4
-#: Phases next to the best one where the friction is located too (a phase a few steps off, its
-#: delay making up for it, is the usual confusion).
-NEIGHBOURS = (-2, -1, 1, 2)
+#: Noise variances added to the friction's threshold for the timings consistent with the data:
+#: chi-square's 95 % quantile for two parameters less that for one (5.99 - 3.84).
+PHASE_ALLOWANCE = 2.15
+#: Reach of the friction lattice at every refresh phase (deg), and the phases refined after.
+SWEEP_RADIUS = 0.2
+REFINED_PHASES = 4
 #: Standard normal quantile of the 95 % intervals.
 Z95 = 1.959963984540054
 
@@ -353,48 +356,38 @@ def identify_actual(
         hyp = by_phase[phase]
         cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
                                  hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
-        pair = scan_friction(cost, (s0, j0), max_friction_deg, quantum, stages="coarse")
-        fit = locate_friction(cost, pair, max_friction_deg, FINE_STEP_DEG)
-        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, cost, pair))
-    scans.sort(key=lambda t: t[0])
-    best_scan = None
-    for _, phase, cost, pair in scans[:2]:  # the best two at the command's resolution
-        pair = scan_friction(cost, pair, max_friction_deg, quantum, stages="fine")
+        # both lattices at every phase: a coarse lattice cannot rank phases when the command
+        # is finer than it (the cost between its points is a needle, see scan_friction)
+        pair = scan_friction(cost, (s0, j0), max_friction_deg, quantum)
         fit = locate_friction(cost, pair, max_friction_deg, quantum)
-        full = _full_cost(core, fit, model, phase, n_poles, n_zeros)
-        if best_scan is None or full < best_scan[0]:
-            best_scan = (full, phase, fit.best)
-    assert best_scan is not None
+        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, fit.best))
+    scans.sort(key=lambda t: t[0])
+    best_scan = scans[0]
     _, phase1, (s1, j1) = best_scan
     say(f"friction, line scans: S {s1:.3g}, J {j1:.3g} deg at refresh phase {phase1}")
-    # the friction located at the best phases and their neighbours, scored at the full rate (a
-    # phase a few steps off, its delay making up for it, is the usual confusion), the phases
-    # following the cost until the best one's neighbours are all scored (each phase's reference
-    # model is its fit at the coarse friction: the refit moves it)
-    picks = [phase1, *(sc[1] for sc in scans[:2])]
+    # every phase: the friction located near that one (a small lattice), scored at the full
+    # rate -- phases and brackets form clusters, and the true phase can sit next to one whose
+    # cost is a thousand noise variances worse; then the best few refined
+    swept = []
+    for phase in by_phase:
+        hyp = by_phase[phase]
+        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+        fit = locate_friction(cost, (s1, j1), max_friction_deg, quantum, radius_deg=SWEEP_RADIUS)
+        swept.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
+    swept.sort(key=lambda t: t[0])
     refined: list[tuple[float, PhaseFit, FrictionFit]] = []
-    done: set[int] = set()
-    for _ in range(r):
-        best = min(refined, key=lambda t: t[0])[1].phase if refined else phase1
-        todo = [(best + k) % r for k in (0, *NEIGHBOURS)] + picks if r > 1 else [0]
-        todo = [p for p in dict.fromkeys(todo) if p not in done and p in by_phase]
-        if not todo:
-            break
-        for phase in todo:
-            done.add(phase)
-            hyp = by_phase[phase]
-            cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
-                                     hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
-            fit = refine_friction(locate_friction(cost, (s1, j1), max_friction_deg, quantum),
-                                  max_friction_deg)  # fmt: skip
-            refined.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
+    for _, hyp, fit in swept[:REFINED_PHASES]:
+        fit = refine_friction(locate_friction(fit.cost, fit.best, max_friction_deg, quantum),
+                              max_friction_deg)  # fmt: skip
+        refined.append((_full_cost(core, fit, model, hyp.phase, n_poles, n_zeros), hyp, fit))
     refined.sort(key=lambda t: t[0])
     # 4. the region at the best timing (its threshold calibrated by a parametric bootstrap);
     # other timings that fit about as well add their regions
-    # the same threshold decides which timings are consistent: the choice of a refresh phase
-    # chases the noise as the choice of a friction bracket does
+    # the timings within the same threshold and PHASE_ALLOWANCE more are consistent: the phase
+    # is one more discrete parameter chosen by the fit, and chases the noise as a bracket does
     threshold = bootstrap_threshold(refined[0][2])
-    bound = refined[0][0] * (1.0 + threshold / core.n)
+    bound = refined[0][0] * (1.0 + (threshold + PHASE_ALLOWANCE) / core.n)
     kept = [(hyp, fit) for full, hyp, fit in refined if full <= bound]
     hyp, fit = kept[0]
     friction = friction_ranges(fit, model, max_friction_deg, threshold)
