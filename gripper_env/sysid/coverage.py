@@ -306,8 +306,8 @@ class Coverage:
         return float(np.mean(v)) if v else math.nan
 
 
-def _covers(lo: float, hi: float, truth: float, tol: float = 0.0) -> bool:
-    return lo - tol <= truth <= hi + tol
+def _covers(interval: tuple[float, float], truth: float, tol: float = 0.0) -> bool:
+    return interval[0] - tol <= truth <= interval[1] + tol
 
 
 def tf_coverage(
@@ -337,11 +337,11 @@ def tf_coverage(
             est = tfest(rec.dt_s, rec.u, rec.y, 2, 1, input_delay_s=ESTIMATE,
                         max_delay_s=max_delay)  # fmt: skip
         iv = est.intervals()
-        hits = [_covers(*iv[nm], float(t)) for nm, t in zip(names, rec.params, strict=True)]
+        hits = [_covers(iv[nm], float(t)) for nm, t in zip(names, rec.params, strict=True)]
         for nm, ok in zip(names, hits, strict=True):
             cov.add(nm, ok)
         cov.add("all coefficients", all(hits))
-        cov.add("delay", _covers(*iv["input_delay_s"], rec.delay_s, 1e-9))
+        cov.add("delay", _covers(iv["input_delay_s"], rec.delay_s, 1e-9))
         cov.rows.append(
             {"seed": rec.seed, "noise_deg": noise, "delay_s": rec.delay_s,
              "estimate": est.params.tolist(), "std": est.params_std.tolist(),
@@ -392,12 +392,12 @@ def greybox_coverage(
             warnings.simplefilter("ignore")
             est = identify_actual(rec.dt_s, rec.u, rec.y, base=rec.base, n_poles=2, n_zeros=0)
         f, t = est.friction, rec.truth
-        cov.add("S", _covers(*f.S_range_deg, t["S_deg"]))
-        cov.add("J", _covers(*f.J_range_deg, t["J_deg"]))
-        cov.add("delay", _covers(*est.delay_range_s, t["delay_s"], 1e-9))
+        cov.add("S", _covers(f.S_range_deg, t["S_deg"]))
+        cov.add("J", _covers(f.J_range_deg, t["J_deg"]))
+        cov.add("delay", _covers(est.delay_range_s, t["delay_s"], 1e-9))
         iv = est.dynamics_intervals
         hits = [
-            _covers(*iv[nm], float(v))
+            _covers(iv[nm], float(v))
             for nm, v in zip(est.dynamics.param_names, t["params"], strict=True)
         ]
         for nm, ok in zip(est.dynamics.param_names, hits, strict=True):

@@ -187,11 +187,12 @@ class TickCost:
     """Cost of friction candidates on one refresh phase's tick grid, from a reference transfer
     function and delay: each candidate's friction output (core), and the model refitted to it
     by one Gauss-Newton step (numerator, initial state and offset exact; poles and delay
-    linearised)."""
+    linearised). Without ``ticks`` it scores given friction outputs (:meth:`fit_output`), at
+    any rate."""
 
     def __init__(
         self,
-        ticks: TickRuns,
+        ticks: TickRuns | None,
         y: np.ndarray,
         dt_s: float,
         model: str,
@@ -256,17 +257,19 @@ class TickCost:
         """Costs (deg^2) of ``pairs`` of ``(S, J)`` (deg), each computed once."""
         todo = list(dict.fromkeys(p for p in pairs if p not in self.fits))
         if todo:
+            assert self.ticks is not None, "a TickCost without ticks scores outputs only"
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 for pair, v in zip(todo, self.ticks.friction_outputs(todo, self.model),
                                    strict=True):  # fmt: skip
                     key = v.tobytes()
                     if key not in self._by_output:
-                        self._by_output[key] = self._fit(v)
+                        self._by_output[key] = self.fit_output(v)
                     self.fits[pair] = self._by_output[key]
         return np.array([self.fits[p].cost for p in pairs])
 
-    def _fit(self, v: np.ndarray) -> LinearFit:
+    def fit_output(self, v: np.ndarray) -> LinearFit:
+        """The step's fit to the friction output ``v`` (deg, one value per sample of ``y``)."""
         k = self.n + self.m + 1
         if np.ptp(v) == 0:
             cost = float(np.sum((self.y - self.y.mean()) ** 2))
@@ -285,6 +288,7 @@ class TickCost:
 
     def residual_matrix(self, pair: tuple[float, float]) -> np.ndarray:
         """Orthonormal basis of the candidate's regressors (for :func:`bootstrap_threshold`)."""
+        assert self.ticks is not None
         v = self.ticks.friction_outputs([pair], self.model)[0]
         if np.ptp(v) == 0:
             return np.ones((v.size, 1)) / math.sqrt(v.size)

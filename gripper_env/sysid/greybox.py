@@ -275,7 +275,6 @@ class ActualEstimate:
 # The fit
 
 
-@threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost (20x)
 def identify_actual(
     time_s: float | ArrayLike,
     u: ArrayLike,
@@ -321,6 +320,24 @@ def identify_actual(
     ValueError
         Bad data or options.
     """
+    # small dense solves: BLAS threads only cost (an SVD of 2650x8: 11 ms with two, 0.55 with one)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _identify(time_s, u, y, base, n_poles, n_zeros, friction_model,
+                         max_friction_deg, validation, progress)  # fmt: skip
+
+
+def _identify(
+    time_s: float | ArrayLike,
+    u: ArrayLike,
+    y: ArrayLike,
+    base: str | Mapping[str, Any] | Disturbance,
+    n_poles: int,
+    n_zeros: int,
+    friction_model: str | None,
+    max_friction_deg: float,
+    validation: Record | None,
+    progress: Callable[[str], None] | None,
+) -> ActualEstimate:
     started = time.perf_counter()
     say = progress or (lambda _m: None)
     base_d = load_disturbance(base)
@@ -450,18 +467,17 @@ def identify_actual(
 
 
 def _full_cost(core: CoreRuns, fit: FrictionFit, model: str, phase: int, n: int, m: int) -> float:
-    """Squared error at the full rate of a timing hypothesis with its best friction (the
-    transfer function and delay refined from the tick-grid fit)."""
+    """Squared error at the full rate of a timing hypothesis with its best friction: two
+    Gauss-Newton steps from the tick-grid fit (:class:`TickCost` on every sample)."""
     v = core.friction_outputs([fit.best], model, phase)[0]
-    best = fit.best_fit
+    step = fit.best_fit
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        oe = refine_output_error(
-            full_rate(core, v), n, m, best.theta,
-            delay_s=min(max(best.delay_s, 0.0), MAX_SENSOR_DELAY_S), estimate_delay=True,
-            max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12, ftol=0.02 / core.n,
-        )  # fmt: skip
-    return float(oe.residuals @ oe.residuals)
+        for _ in range(2):
+            full = TickCost(None, core.y, core.dt, model, step.theta,
+                            min(max(step.delay_s, 0.0), MAX_SENSOR_DELAY_S), n, m)  # fmt: skip
+            step = full.fit_output(v)
+    return step.cost
 
 
 def _nuisance_ranges(
@@ -544,7 +560,8 @@ def _reduced(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             low = tfest(core.dt, v, core.y, n - 1, m - 1, input_delay_s=ESTIMATE,
-                        max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False)  # fmt: skip
+                        max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False,
+                        nested_starts=False)  # fmt: skip
         if low.aic <= est.aic + 2.0 and low.stable:
             est = low
     return est

@@ -203,9 +203,10 @@ def estimate_timing(
             std = math.sqrt(max(float(oe.cov[-1, -1]), 0.0))
             refined.append((float(oe.residuals @ oe.residuals), fit.phase, oe.delay_s, std))
         best_cost, phase = min(refined)[:2]
+        # the phases' fits are its starts already: no chain of lower orders
         dyn = tfest(
             core.dt, outputs[phase], core.y, n, m, input_delay_s=ESTIMATE,
-            max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False,
+            max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False, nested_starts=False,
         )  # fmt: skip
     bound = min(best_cost, float(dyn.residuals @ dyn.residuals)) * (1.0 + CHI2_95 / core.n)
     ends = [dyn.input_delay_s - Z95 * dyn.input_delay_std_s]
