@@ -434,7 +434,8 @@ def _identify(
     offset = float(np.mean(data.y - y_sim))
     resid = data.y - y_sim - offset
     notes = _notes(friction, sensor, float(np.sqrt(np.mean(resid**2))), sigma2)
-    notes += list(dyn.warnings)
+    # the delay's interval is this fit's own (the friction output's tfest knows no friction)
+    notes += [w for w in dyn.warnings if "delay" not in w]
     est = ActualEstimate(
         dynamics=dataclasses.replace(dyn, input_delay_s=0.0),  # the delay lives in the preset
         friction=friction,
