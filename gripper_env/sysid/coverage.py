@@ -37,6 +37,7 @@ __all__ = [
     "Coverage",
     "GreyboxRecord",
     "SweepRow",
+    "SyntheticRecord",
     "TFRecord",
     "delay_sweep",
     "greybox_coverage",
@@ -83,8 +84,8 @@ def _lsim(num: Sequence[float], den: Sequence[float], u: np.ndarray, dt_s: float
 
 
 @dataclass(frozen=True)
-class TFRecord:
-    """A transfer-function record and its truth.
+class SyntheticRecord:
+    """A simulated record.
 
     Attributes
     ----------
@@ -92,12 +93,6 @@ class TFRecord:
         Command and measured angle (deg), every ``dt_s``.
     dt_s : float
         Sample interval (s).
-    params : ndarray
-        True ``[a1, a0, b1, b0]`` of ``(b1 s + b0) / (s^2 + a1 s + a0)``.
-    delay_s : float
-        True input delay (s).
-    noise_deg : float
-        Standard deviation of the noise before the ADC (deg).
     seed : int
         Noise and command seed.
     """
@@ -105,10 +100,18 @@ class TFRecord:
     u: np.ndarray
     y: np.ndarray
     dt_s: float
-    params: np.ndarray
-    delay_s: float
-    noise_deg: float
     seed: int
+
+
+@dataclass(frozen=True)
+class TFRecord(SyntheticRecord):
+    """A transfer-function record and its truth: ``params``, the true ``[a1, a0, b1, b0]`` of
+    ``(b1 s + b0) / (s^2 + a1 s + a0)``; ``delay_s``, the true input delay (s); ``noise_deg``,
+    the noise's standard deviation before the ADC (deg)."""
+
+    params: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    delay_s: float = 0.0
+    noise_deg: float = 0.0
 
 
 def tf_record(
@@ -127,34 +130,18 @@ def tf_record(
     y = 92.0 + _lsim(PLANT_NUM, PLANT_DEN, late - 92.0, dt_s)
     y = ADC_LSB_DEG * np.round((y + rng.normal(0.0, noise_deg, u.size)) / ADC_LSB_DEG)
     params = np.array([PLANT_DEN[1], PLANT_DEN[2], PLANT_NUM[0], PLANT_NUM[1]])
-    return TFRecord(u, y, dt_s, params, d * dt_s, noise_deg, seed)
+    return TFRecord(u, y, dt_s, seed, params, d * dt_s, noise_deg)
 
 
 @dataclass(frozen=True)
-class GreyboxRecord:
-    """A log of the simulated actual gripper and its truth.
+class GreyboxRecord(SyntheticRecord):
+    """A log of the simulated actual gripper and its truth: ``truth`` holds ``S_deg``,
+    ``J_deg``, ``delay_s``, ``noise_deg``, ``quantization`` and ``params`` (the servo's ``[a1,
+    a0, b0]``); ``base`` is the preset an identification keeps the known blocks of (command path,
+    stops, ADC)."""
 
-    Attributes
-    ----------
-    u, y : ndarray
-        Command and measured angle (deg), every ``dt_s``.
-    dt_s : float
-        Sample interval (s).
-    truth : dict
-        ``S_deg``, ``J_deg``, ``delay_s``, ``noise_deg``, ``quantization`` and ``params``
-        (the servo's ``[a1, a0, b0]``).
-    base : dict
-        The preset an identification keeps the known blocks of (command path, stops, ADC).
-    seed : int
-        Noise and command seed.
-    """
-
-    u: np.ndarray
-    y: np.ndarray
-    dt_s: float
-    truth: dict[str, Any]
-    base: dict[str, Any]
-    seed: int
+    truth: dict[str, Any] = field(default_factory=dict)
+    base: dict[str, Any] = field(default_factory=dict)
 
 
 def greybox_command(rng: np.random.Generator, dt_s: float = 1e-3) -> np.ndarray:
@@ -209,7 +196,7 @@ def greybox_record(
         "quantization": quantization,
         "params": np.array([SERVO_DEN[1], SERVO_DEN[2], SERVO_NUM[0]]),
     }
-    return GreyboxRecord(u, y, 1e-3, truth, base, seed)
+    return GreyboxRecord(u, y, 1e-3, seed, truth, base)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -44,7 +44,7 @@ import numpy as np
 
 from gripper_env.sysid.core_batches import CoreRuns, TickRuns
 from gripper_env.sysid.diagnostics import CHI2_95
-from gripper_env.sysid.srivc import split_params
+from gripper_env.sysid.srivc import split_params, stabilise
 from gripper_env.sysid.tfest import ESTIMATE, tfest
 from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
 
@@ -204,7 +204,10 @@ class TickCost:
         self.ticks, self.y, self.dt, self.model = ticks, y, dt_s, model
         self.theta, self.delay_s = np.asarray(theta, dtype=float), float(delay_s)
         self.n, self.m = n, m
-        self.num, self.den = split_params(self.theta, n)
+        self.num, den = split_params(self.theta, n)
+        # a reference with a pole in the right half plane (a step gone too far) is reflected
+        self.den, _ = stabilise(den)
+        self.theta = np.concatenate([self.den[1:], self.num])
         zero = np.zeros(y.size)
         free = [zoh_response([1.0], self.den, zero, dt_s, x0=np.eye(n)[i]) for i in range(n)]
         self._free = np.column_stack([*free, np.ones(y.size)])
@@ -274,9 +277,15 @@ class TickCost:
         if np.ptp(v) == 0:
             cost = float(np.sum((self.y - self.y.mean()) ** 2))
             return LinearFit(cost, self.theta, self.delay_s, np.full(k + 1, np.inf))
-        x = self.basis(v)
+        with np.errstate(all="ignore"):
+            x = self.basis(v)
+        if not np.all(np.isfinite(x)):
+            return LinearFit(math.inf, self.theta, self.delay_s, np.full(k + 1, np.inf))
         q, r = np.linalg.qr(x)
-        coef = np.linalg.lstsq(r, q.T @ self.y, rcond=None)[0]
+        try:
+            coef = np.linalg.lstsq(r, q.T @ self.y, rcond=None)[0]
+        except np.linalg.LinAlgError:
+            return LinearFit(math.inf, self.theta, self.delay_s, np.full(k + 1, np.inf))
         resid = self.y - x @ coef
         theta = np.concatenate([self.theta[: self.n] + coef[: self.n], coef[self.n : k]])
         try:
@@ -290,9 +299,11 @@ class TickCost:
         """Orthonormal basis of the candidate's regressors (for :func:`bootstrap_threshold`)."""
         assert self.ticks is not None
         v = self.ticks.friction_outputs([pair], self.model)[0]
-        if np.ptp(v) == 0:
-            return np.ones((v.size, 1)) / math.sqrt(v.size)
-        q, _ = np.linalg.qr(self.basis(v))
+        with np.errstate(all="ignore"):
+            x = self.basis(v) if np.ptp(v) > 0 else np.ones((v.size, 1))
+        if not np.all(np.isfinite(x)):
+            x = np.ones((v.size, 1))
+        q, _ = np.linalg.qr(x)
         return q
 
 
