@@ -174,13 +174,15 @@ def _pinv(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def outlier_note(residuals: np.ndarray, loss: str) -> str | None:
-    """One sentence when the residuals hold far more outliers than Gaussian noise would."""
+def outlier_note(residuals: np.ndarray, loss: str, scale: float = 0.0) -> str | None:
+    """One sentence when the residuals hold far more outliers than Gaussian noise would;
+    residuals below a millionth of ``scale`` (the output's spread, deg) are float rounding of a
+    noise-free record, never outliers."""
     r = np.asarray(residuals, dtype=float)
     sd = robust_std(r)
     if r.size == 0 or sd <= 0:
         return None
-    far = np.abs(r - np.median(r)) > OUTLIER_SIGMAS * sd
+    far = np.abs(r - np.median(r)) > max(OUTLIER_SIGMAS * sd, 1e-6 * scale)
     count = int(np.count_nonzero(far))
     if count < max(3, OUTLIER_FRACTION * r.size):
         return None

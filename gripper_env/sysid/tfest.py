@@ -395,7 +395,7 @@ def tfest(
     notes += diagnose(est)
     if data.r is None:
         notes += delay_hints(data, est, max_delay, fixed=delay is not None)
-        out = outlier_note(est.residuals, loss)
+        out = outlier_note(est.residuals, loss, float(np.std(data.y)))
         if out:
             notes.append(out)
     for note in notes:
