@@ -420,7 +420,6 @@ def _comparability(simulated: bool) -> list[str]:
         return [
             "Both tables are fits to hardware, but to different grippers, profiles and",
             "loggers: compare the models, not the fit %.",
-            "",
         ]
     return [
         "**The two tables are not comparable.** Ours are fits to records of the project's",
@@ -430,7 +429,6 @@ def _comparability(simulated: bool) -> list[str]:
         "known nonlinearities fits it very well (99 % here); the paper's 95-96 % are fits to its",
         "physical gripper, whose dynamics no model in this project reproduces exactly. A",
         "hardware run of this command (`--port`) gives figures that compare with the paper's.",
-        "",
     ]
 
 

@@ -54,14 +54,15 @@ def test_greybox_intervals_cover_the_truth(greybox_study):
 
 
 def test_identified_means_an_informative_interval(greybox_study):
-    """With whole-degree commands a J below one degree is only known to be below it: its
-    interval spans the degree and ``identified`` says no; elsewhere it says yes."""
+    """With whole-degree commands a J below one degree breaks the jaw free after one degree of
+    travel, like J = 0: its interval reaches down to 0 and ``identified`` says no (main printed
+    ``identified: true`` in every case); with microsecond commands it mostly says yes."""
     rows = greybox_study.rows
     small_j = [r for r in rows if r["quantization"] == "degree" and r["j_deg"] < 0.9]
     assert len(small_j) >= 3
     for r in small_j:
         lo, hi = r["J_range"]
-        assert lo <= 0.05 and hi >= 0.95 and not r["identified"]["J_deg"], r
+        assert lo <= 0.05 and hi - lo >= 0.5 and not r["identified"]["J_deg"], r
     fine = [r for r in rows if r["quantization"] == "microseconds"]
     assert sum(r["identified"]["J_deg"] and r["identified"]["S_deg"] for r in fine) >= 0.8 * len(
         fine
