@@ -340,8 +340,11 @@ def tf_coverage(
     return cov
 
 
-def greybox_cases(n_records: int, seed: int = 2000) -> list[dict[str, Any]]:
-    """The grey-box study's truths: friction, delay, noise and quantisation drawn per record."""
+def greybox_cases(
+    n_records: int, seed: int = 2000, quantizations: Sequence[str] = ("degree", "microseconds")
+) -> list[dict[str, Any]]:
+    """The grey-box study's truths: friction, delay, noise drawn per record, the command's
+    quantisation cycling through ``quantizations``."""
     rng = np.random.default_rng(seed)
     cases = []
     for k in range(n_records):
@@ -352,7 +355,7 @@ def greybox_cases(n_records: int, seed: int = 2000) -> list[dict[str, Any]]:
                 "j_deg": round(float(rng.uniform(0.2, 2.0)), 3),
                 "delay_s": float(rng.choice([0.0, 0.004, 0.008, 0.012, 0.018, 0.025])),
                 "noise_deg": float(rng.choice([0.1, 0.3, 0.5])),
-                "quantization": ("degree", "microseconds")[k % 2],
+                "quantization": quantizations[k % len(quantizations)],
             }
         )
     return cases
@@ -362,17 +365,19 @@ def greybox_coverage(
     n_records: int,
     *,
     seed: int = 2000,
+    quantizations: Sequence[str] = ("degree", "microseconds"),
     progress: Callable[[str], None] | None = None,
 ) -> Coverage:
     """Coverage of the grey-box fit's 95 % intervals (:func:`gripper_env.sysid.identify_actual`,
     servo 2 poles 0 zeros) on ``n_records`` :func:`greybox_record` logs drawn by
-    :func:`greybox_cases`: ``S``, ``J``, the sensor delay and the servo's coefficients; and how
-    often each was reported ``identified``."""
+    :func:`greybox_cases` (commands quantised as each of ``quantizations`` in turn): ``S``,
+    ``J``, the sensor delay and the servo's coefficients; and how often each was reported
+    ``identified``."""
     from gripper_env.sysid.greybox import identify_actual
 
     started = time.perf_counter()
     cov = Coverage()
-    for k, case in enumerate(greybox_cases(n_records, seed)):
+    for k, case in enumerate(greybox_cases(n_records, seed, quantizations)):
         rec = greybox_record(case["seed"], case["s_deg"], case["j_deg"], case["delay_s"],
                              case["noise_deg"], case["quantization"])  # fmt: skip
         with warnings.catch_warnings():

@@ -61,6 +61,7 @@ from gripper_env.sysid.friction_profile import (
     coarse_friction,
     consistent_fits,
     friction_ranges,
+    lattice_step,
     locate_friction,
     refine_friction,
     scan_friction,
@@ -97,7 +98,7 @@ SPREAD = 4
 #: chi-square's 95 % quantile for two parameters less that for one (5.99 - 3.84).
 PHASE_ALLOWANCE = 2.15
 #: Reach of the friction lattice at every refresh phase (deg), and the phases refined after.
-SWEEP_RADIUS = 0.2
+SWEEP_RADIUS = 0.15
 REFINED_PHASES = 4
 #: Standard normal quantile of the 95 % intervals.
 Z95 = 1.959963984540054
@@ -376,8 +377,8 @@ def _identify(
         # both lattices at every phase: a coarse lattice cannot rank phases when the command
         # is finer than it (the cost between its points is a needle, see scan_friction)
         pair = scan_friction(cost, (s0, j0), max_friction_deg, quantum)
-        fit = locate_friction(cost, pair, max_friction_deg, quantum)
-        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, fit.best))
+        fit = FrictionFit(cost, pair, [pair], lattice_step(quantum))
+        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, pair))
     scans.sort(key=lambda t: t[0])
     best_scan = scans[0]
     _, phase1, (s1, j1) = best_scan

@@ -37,12 +37,14 @@ def test_transfer_function_intervals_cover_the_truth():
 
 @pytest.fixture(scope="module")
 def greybox_study():
-    return greybox_coverage(RECORDS)
+    # whole-degree commands, as the `actual` preset and Servo.write (microsecond commands, with
+    # their 0.1 deg brackets, cost about twice as much: they are in the study of the results)
+    return greybox_coverage(RECORDS, quantizations=("degree",))
 
 
 def test_greybox_intervals_cover_the_truth(greybox_study):
     """50 logs of the core (12 s; S 1.5-3.5, J 0.2-2 deg; delay 0-25 ms; noise 0.1-0.5 deg;
-    whole-degree and microsecond commands): S, J, the delay and the servo's coefficients."""
+    whole-degree commands): S, J, the delay and the servo's coefficients."""
     cov = greybox_study
     assert cov.n_records == RECORDS
     for name in ("S", "J", "delay", "servo a1", "servo a0", "servo b0"):
@@ -56,17 +58,17 @@ def test_greybox_intervals_cover_the_truth(greybox_study):
 def test_identified_means_an_informative_interval(greybox_study):
     """With whole-degree commands a J below one degree breaks the jaw free after one degree of
     travel, like J = 0: its interval reaches down to 0 and ``identified`` says no (main printed
-    ``identified: true`` in every case); with microsecond commands it mostly says yes."""
+    ``identified: true`` in every case); a J above a degree is known to its degree bracket,
+    and S mostly too."""
     rows = greybox_study.rows
-    small_j = [r for r in rows if r["quantization"] == "degree" and r["j_deg"] < 0.9]
-    assert len(small_j) >= 3
+    small_j = [r for r in rows if r["j_deg"] < 0.9]
+    assert len(small_j) >= 5
     for r in small_j:
         lo, hi = r["J_range"]
         assert lo <= 0.05 and hi - lo >= 0.5 and not r["identified"]["J_deg"], r
-    fine = [r for r in rows if r["quantization"] == "microseconds"]
-    assert sum(r["identified"]["J_deg"] and r["identified"]["S_deg"] for r in fine) >= 0.8 * len(
-        fine
-    )
+    large_j = [r for r in rows if r["j_deg"] > 1.1]
+    assert sum(r["identified"]["J_deg"] for r in large_j) >= 0.8 * len(large_j)
+    assert sum(r["identified"]["S_deg"] for r in rows) >= 0.8 * len(rows)
 
 
 def test_a_sensor_delay_with_whole_degree_commands(tmp_path, capsys):
