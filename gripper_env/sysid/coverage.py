@@ -396,7 +396,8 @@ def greybox_coverage(
             cov.add(f"servo {nm}", ok)
         ident = est.identified()
         cov.rows.append(
-            {**case, "S_range": f.S_range_deg, "J_range": f.J_range_deg,
+            {**case, "S_est": f.S_deg, "J_est": f.J_deg, "delay_est_s": est.delay_s,
+             "S_range": f.S_range_deg, "J_range": f.J_range_deg,
              "delay_range_s": est.delay_range_s, "identified": ident,
              "elapsed_s": est.elapsed_s}
         )  # fmt: skip
