@@ -153,6 +153,17 @@ def render_coverage_report(
     return "\n".join(lines)
 
 
+def _rounded(obj: Any, digits: int = 6) -> Any:
+    """``obj`` with every float to ``digits`` significant digits (the sidecar stays small)."""
+    if isinstance(obj, float):
+        return float(f"{obj:.{digits}g}")
+    if isinstance(obj, dict):
+        return {k: _rounded(v, digits) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_rounded(v, digits) for v in obj]
+    return obj
+
+
 def sidecar(
     command: str,
     elapsed_s: float,
@@ -161,28 +172,30 @@ def sidecar(
     greybox: Coverage,
     provenance: dict[str, Any],
 ) -> dict[str, Any]:
-    """The JSON sidecar: provenance, run times and every record."""
-    return {
-        "provenance": {**provenance, "command": command, "wall_time_s": round(elapsed_s, 1)},
-        "delay_sweep": [
-            {
-                "true_s": r.true_s,
-                "estimate_s": r.estimate_s,
-                "std_s": r.std_s,
-                "z": r.z,
-                "fit_pct": r.fit_pct,
-                "warnings": list(r.warnings),
-            }
-            for r in sweep
-        ],
-        "tf_coverage": {
-            "fractions": {k: tf.fraction(k) for k in tf.covered},
-            "elapsed_s": round(tf.elapsed_s, 1),
-            "records": tf.rows,
-        },
-        "greybox_coverage": {
-            "fractions": {k: greybox.fraction(k) for k in greybox.covered},
-            "elapsed_s": round(greybox.elapsed_s, 1),
-            "records": greybox.rows,
-        },
-    }
+    """The JSON sidecar: provenance, run times and every record (floats to 6 digits)."""
+    return _rounded(
+        {
+            "provenance": {**provenance, "command": command, "wall_time_s": round(elapsed_s, 1)},
+            "delay_sweep": [
+                {
+                    "true_s": r.true_s,
+                    "estimate_s": r.estimate_s,
+                    "std_s": r.std_s,
+                    "z": r.z,
+                    "fit_pct": r.fit_pct,
+                    "warnings": list(r.warnings),
+                }
+                for r in sweep
+            ],
+            "tf_coverage": {
+                "fractions": {k: tf.fraction(k) for k in tf.covered},
+                "elapsed_s": round(tf.elapsed_s, 1),
+                "records": tf.rows,
+            },
+            "greybox_coverage": {
+                "fractions": {k: greybox.fraction(k) for k in greybox.covered},
+                "elapsed_s": round(greybox.elapsed_s, 1),
+                "records": greybox.rows,
+            },
+        }
+    )
