@@ -144,23 +144,29 @@ class GreyboxRecord(SyntheticRecord):
     base: dict[str, Any] = field(default_factory=dict)
 
 
-def greybox_command(rng: np.random.Generator, dt_s: float = 1e-3) -> np.ndarray:
-    """A short friction log (12 s, deg): rest at 92, two steps at random instants (they pin the
-    timing), then slow ramps down and back up (the friction: travel after a stop and after a
-    reversal)."""
-    parts = [np.full(round(rng.uniform(0.4, 0.6) / dt_s), 92.0)]
+def greybox_command(
+    rng: np.random.Generator, dt_s: float = 1e-3, duration_s: float = 12.0
+) -> np.ndarray:
+    """A short friction log (``duration_s``, 12 s by default; deg): rest at 92, two steps at
+    random instants (they pin the timing), then slow ramps down and back up (the friction:
+    travel after a stop and after a reversal); every segment scaled to the duration."""
+    k = duration_s / 12.0
+
+    def n(seconds: float) -> int:
+        return max(1, round(k * seconds / dt_s))
+
+    parts = [np.full(n(rng.uniform(0.4, 0.6)), 92.0)]
     for level in (float(rng.uniform(55.0, 70.0)), 92.0):
-        parts.append(np.full(round(rng.uniform(1.0, 1.4) / dt_s), level))
+        parts.append(np.full(n(rng.uniform(1.0, 1.4)), level))
     low = float(rng.uniform(68.0, 74.0))
-    parts.append(np.linspace(92.0, low, round(3.0 / dt_s), endpoint=False))
-    parts.append(np.full(round(0.6 / dt_s), low))
+    parts.append(np.linspace(92.0, low, n(3.0), endpoint=False))
+    parts.append(np.full(n(0.6), low))
     high = float(rng.uniform(82.0, 88.0))
-    parts.append(np.linspace(low, high, round(2.5 / dt_s), endpoint=False))
-    parts.append(np.full(round(0.6 / dt_s), high))
-    parts.append(np.linspace(high, low + 3.0, round(1.5 / dt_s), endpoint=False))
-    parts.append(np.full(round(0.8 / dt_s), low + 3.0))
-    u = np.concatenate(parts)
-    return u[: round(12.0 / dt_s)] if u.size >= round(12.0 / dt_s) else u
+    parts.append(np.linspace(low, high, n(2.5), endpoint=False))
+    parts.append(np.full(n(0.6), high))
+    parts.append(np.linspace(high, low + 3.0, n(1.5), endpoint=False))
+    parts.append(np.full(n(0.8), low + 3.0))
+    return np.concatenate(parts)[: n(12.0)]
 
 
 def greybox_record(
@@ -170,6 +176,7 @@ def greybox_record(
     delay_s: float,
     noise_deg: float,
     quantization: str = "degree",
+    duration_s: float = 12.0,
 ) -> GreyboxRecord:
     """A :func:`greybox_command` log of the simulated actual gripper (core): the servo
     :data:`SERVO_NUM` / :data:`SERVO_DEN` behind the ``actual`` preset with Choudhury friction
@@ -178,7 +185,7 @@ def greybox_record(
     from gripper_env.sim import simulate
 
     rng = np.random.default_rng(seed)
-    u = greybox_command(rng)
+    u = greybox_command(rng, duration_s=duration_s)
     base = {"name": "study", "extends": "actual", "command": {"quantization": quantization}}
     truth_preset = {
         **base,
@@ -366,6 +373,7 @@ def greybox_coverage(
     *,
     seed: int = 2000,
     quantizations: Sequence[str] = ("degree", "microseconds"),
+    duration_s: float = 12.0,
     progress: Callable[[str], None] | None = None,
 ) -> Coverage:
     """Coverage of the grey-box fit's 95 % intervals (:func:`gripper_env.sysid.identify_actual`,
@@ -379,7 +387,7 @@ def greybox_coverage(
     cov = Coverage()
     for k, case in enumerate(greybox_cases(n_records, seed, quantizations)):
         rec = greybox_record(case["seed"], case["s_deg"], case["j_deg"], case["delay_s"],
-                             case["noise_deg"], case["quantization"])  # fmt: skip
+                             case["noise_deg"], case["quantization"], duration_s)  # fmt: skip
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             est = identify_actual(rec.dt_s, rec.u, rec.y, base=rec.base, n_poles=2, n_zeros=0)

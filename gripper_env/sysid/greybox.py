@@ -99,7 +99,7 @@ SPREAD = 4
 PHASE_ALLOWANCE = 2.15
 #: Reach of the friction lattice at every refresh phase (deg), and the phases refined after.
 SWEEP_RADIUS = 0.15
-REFINED_PHASES = 4
+REFINED_PHASES = 3
 #: Standard normal quantile of the 95 % intervals.
 Z95 = 1.959963984540054
 
@@ -360,13 +360,16 @@ def _identify(
     s0, j0 = coarse_friction(core, model, max_friction_deg, n_poles, n_zeros)
     quantum = base_d.command.quantum_deg
     say(f"friction, coarse grid: S {s0:g}, J {j0:g} deg")
-    # 2. each refresh phase with its own transfer function and delay, at that friction
-    fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros)
-    by_phase = {f.phase: f for f in fits}
+    # 2. phases spread over the servo's frame, each with its own transfer function and delay at
+    # that friction; every other phase starts from the nearest one's, its delay shifted by the
+    # phase difference (a later tick and a shorter delay look alike)
     r = core.refresh
-    # 3. a global search of the friction (lines of the lattice) at phases spread over the
-    # frame: a friction found at the wrong phase prefers that phase, and the other way round
-    spread = [(fits[0].phase + k * r // SPREAD) % r for k in range(SPREAD)] if r > 1 else [0]
+    spread = [k * r // SPREAD for k in range(SPREAD)] if r > 1 else [0]
+    fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros, spread)
+    by_phase = _all_phases(fits, r, core.dt)
+    # 3. a global search of the friction (lines of the lattice) at those phases: a friction
+    # found at the wrong phase prefers that phase, and the other way round
+    spread = [f.phase for f in fits]
     scans = []
     for phase in dict.fromkeys(spread):
         if phase not in by_phase:
@@ -391,7 +394,8 @@ def _identify(
         hyp = by_phase[phase]
         cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
                                  hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
-        fit = locate_friction(cost, (s1, j1), max_friction_deg, quantum, radius_deg=SWEEP_RADIUS)
+        fit = locate_friction(cost, (s1, j1), max_friction_deg, quantum,
+                              radius_deg=SWEEP_RADIUS, scans=1)  # fmt: skip
         swept.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
     swept.sort(key=lambda t: t[0])
     refined: list[tuple[float, PhaseFit, FrictionFit]] = []
@@ -466,6 +470,22 @@ def _identify(
     if validation is not None:
         est = _with_validation(est, validation)
     return est
+
+
+def _all_phases(fits: list[PhaseFit], r: int, dt: float) -> dict[int, PhaseFit]:
+    """A fit for every refresh phase: the fitted ones, and for the others the nearest fitted
+    phase's transfer function with its delay shifted by the phase difference (s)."""
+    out = {f.phase: f for f in fits}
+    for phase in range(r):
+        if phase in out:
+            continue
+        near = min(fits, key=lambda f: min((phase - f.phase) % r, (f.phase - phase) % r))
+        diff = (phase - near.phase) % r
+        diff = diff - r if diff > r // 2 else diff
+        tau = min(max(near.estimate.input_delay_s + diff * dt, 0.0), MAX_SENSOR_DELAY_S)
+        est = dataclasses.replace(near.estimate, input_delay_s=tau)
+        out[phase] = PhaseFit(phase, est, math.inf)
+    return dict(sorted(out.items()))
 
 
 def _full_cost(core: CoreRuns, fit: FrictionFit, model: str, phase: int, n: int, m: int) -> float:

