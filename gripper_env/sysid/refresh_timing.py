@@ -58,7 +58,7 @@ REFINE_MARGIN = 20.0
 MIN_REFINED = 3
 MAX_REFINED = 6
 #: Phases either side of a given one that :func:`estimate_timing` looks at when told where.
-NEAR_PHASES = 2
+NEAR_PHASES = 4
 
 
 @dataclass(frozen=True)
