@@ -37,7 +37,8 @@ from scipy.optimize import least_squares
 
 from gripper_env.state_space import discretise, observer_form
 from gripper_env.sysid.data import IOData
-from gripper_env.sysid.output_error import _covariance, refine_output_error
+from gripper_env.sysid.error_model import parameter_covariance
+from gripper_env.sysid.output_error import refine_output_error
 from gripper_env.sysid.srivc import split_params, srivc, stabilise, svf_candidates
 
 __all__ = [
@@ -342,7 +343,7 @@ def fit_closed_loop(
         theta=best.x[:-1].copy(),
         delay_s=steps * dt,
         offset=float(best.x[-1]),
-        cov=_covariance(best.jac, best.fun),
+        cov=parameter_covariance(best.jac, best.fun),
         controller_num=num_c,
         controller_den=den_c,
         controller_fit_pct=c_fit,

@@ -2,15 +2,13 @@
 
 :class:`CoreRuns` holds a log and the preset whose known blocks are kept, and runs the core
 (:class:`gripper_env.sim.BatchSimulator`, open loop on the log's command) on a batch of
-candidate presets in one compiled call per chunk, each with its own servo refresh phase.
-On top of it: the friction's profile cost (:func:`profile`: each candidate's friction output,
-the transfer function fitted to it on the refresh-tick grid) and the timing scans
-(:func:`timing`: refresh phase and sensor delay).
+candidate presets in one compiled call per chunk, each with its own servo refresh phase. The
+friction's profile (:mod:`gripper_env.sysid.friction_profile`) and the timing
+(:mod:`gripper_env.sysid.refresh_timing`) are built on it.
 """
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import numpy as np
@@ -18,24 +16,11 @@ import numpy as np
 from gripper_env.disturbances import Disturbance
 from gripper_env.plants import Plant
 from gripper_env.sim import BatchSimulator
-from gripper_env.sysid.tfest import tfest
 
-__all__ = [
-    "CHI2_95",
-    "MAX_SENSOR_DELAY_S",
-    "CoreRuns",
-    "consistent",
-    "phase_scan",
-    "profile",
-    "timing",
-]
+__all__ = ["CHUNK", "CoreRuns", "TickRuns", "phase_scan", "sse", "tick_index"]
 
-#: Likelihood-ratio bound (chi-square, 1 degree of freedom, 95 %) of "consistent with the data".
-CHI2_95 = 3.84
 #: Runs per core call (bounds the memory of the recorded arrays).
 CHUNK = 24
-#: Longest sensor delay scanned (s).
-MAX_SENSOR_DELAY_S = 0.05
 
 
 class CoreRuns:
@@ -92,110 +77,45 @@ class CoreRuns:
     def friction_outputs(
         self, pairs: list[tuple[float, float]], model: str, phase: int
     ) -> np.ndarray:
+        """Friction output (deg) of each ``(S, J)`` of ``model`` on the log's samples."""
         dists = [self.preset(s, j, model, stops=False) for s, j in pairs]
         return self.run(self.instant, dists, [phase] * len(pairs), measured=False)
 
 
-# ----------------------------------------------------------------------------------------------
-# Profile likelihood of the friction
+class TickRuns:
+    """A log's friction outputs on one refresh phase's ticks (:func:`tick_index`), from a core
+    that runs two steps per tick instead of ``refresh``.
+
+    The servo latches its command only on ticks and friction acts on the latched command, so
+    the friction output changes only there. Between ticks the held command has stopped, which
+    makes a sliding jaw stick (the core's first step after a tick); the steps after that change
+    nothing. Two steps per tick, the second holding the command, are therefore the whole
+    story: the outputs equal the full-rate core's at the ticks, 10x faster at a 20 ms refresh.
+    The log must start at rest (its input constant until the first tick).
+    """
+
+    def __init__(self, core: CoreRuns, phase: int) -> None:
+        self.idx = tick_index(core.n, core.refresh, phase)
+        dt = core.dt * core.refresh / 2.0
+        base = core.base.with_overrides({"command": {"refresh_period_s": 2.0 * dt}})
+        u = np.repeat(core.u[self.idx], 2)
+        self.runs = CoreRuns(u, u, dt, base)
+        self._done: dict[tuple[float, float, str], np.ndarray] = {}
+
+    def friction_outputs(self, pairs: list[tuple[float, float]], model: str) -> np.ndarray:
+        """Friction output (deg) of each ``(S, J)`` at the ticks (rows), each run once."""
+        todo = list(dict.fromkeys(p for p in pairs if (*p, model) not in self._done))
+        if todo:
+            for pair, v in zip(todo, self.runs.friction_outputs(todo, model, 0)[:, ::2],
+                               strict=True):  # fmt: skip
+                self._done[(*pair, model)] = v
+        return np.array([self._done[(*p, model)] for p in pairs])
 
 
 def tick_index(n: int, refresh: int, phase: int) -> np.ndarray:
     """Samples at which the servo takes a new command (the friction output changes only there)."""
     first = (refresh - phase % refresh) % refresh
     return np.arange(first, n, refresh)
-
-
-def _inner_cost(
-    v: np.ndarray,
-    y: np.ndarray,
-    idx: np.ndarray,
-    dt: float,
-    n: int,
-    m: int,
-    tau: float,
-    svf: dict[str, float],
-) -> tuple[float, np.ndarray]:
-    """Squared error of the best transfer function from ``v`` to ``y`` on the tick grid, and its
-    parameters (a short :func:`gripper_env.sysid.tfest`: SRIVC, then output error). The first
-    call picks the state-variable filter from the data, the others reuse it (2x faster)."""
-    vc, yc = v[idx], y[idx]
-    if np.ptp(vc) == 0:
-        return float(np.sum((yc - yc.mean()) ** 2)), np.zeros(n + m + 1)
-    est = tfest(dt, vc, yc, n, m, input_delay_s=tau, max_nfev=20, check_feedback=False,
-                svf_lambda_rad_s=svf.get("lambda"))  # fmt: skip
-    svf.setdefault("lambda", est.svf_lambda_rad_s)
-    return float(est.residuals @ est.residuals), est.params
-
-
-def profile(
-    core: CoreRuns, pairs: list[tuple[float, float]], model: str, phase: int, tau: float,
-    n: int, m: int,
-) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
-    """Cost of each friction candidate with the transfer function fitted to it."""
-    idx = tick_index(core.n, core.refresh, phase)
-    costs, thetas = np.empty(len(pairs)), list[np.ndarray]()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # diagnostics of candidates are not the user's business
-        _profile_chunks(core, pairs, model, phase, tau, n, m, idx, costs, thetas)
-    return costs, thetas
-
-
-def _profile_chunks(core, pairs, model, phase, tau, n, m, idx, costs, thetas) -> None:
-    seen: dict[bytes, tuple[float, np.ndarray]] = {}
-    for start in range(0, len(pairs), CHUNK):
-        chunk = pairs[start : start + CHUNK]
-        outs = core.friction_outputs(chunk, model, phase)
-        for i in range(len(chunk)):
-            # whole-degree commands make whole brackets of (S, J) give the same friction output
-            key = outs[i][idx].tobytes()
-            if key not in seen:
-                seen[key] = _inner_cost(
-                    outs[i], core.y, idx, core.dt * core.refresh, n, m, tau, core.svf
-                )
-            c, th = seen[key]
-            costs[start + i] = c
-            thetas.append(th)
-
-
-def consistent(values: np.ndarray, costs: np.ndarray, bound: float) -> tuple[float, float]:
-    ok = values[costs <= bound]
-    return float(ok.min()), float(ok.max())
-
-
-def timing(
-    core: CoreRuns, plant: Plant, s: float, j: float, model: str
-) -> tuple[int, int, tuple[float, float]]:
-    """Refresh phase and sensor delay (whole steps) by scans of the full model in the core.
-
-    A later refresh tick and a longer delay look alike on a slow ramp (the latched staircase
-    merely shifts), so after a phase scan and a delay scan every pair with about the same total
-    latency is scored too; the best wins, and the delays of the pairs within the 95 %
-    likelihood-ratio bound are reported as its range (s).
-    """
-    phase = phase_scan(core, plant, core.preset(s, j, model))
-    max_steps = round(MAX_SENSOR_DELAY_S / core.dt)
-    dists = [core.preset(s, j, model, k) for k in range(max_steps + 1)]
-    costs = sse(core.y, core.run(plant, dists, [phase] * len(dists), measured=True))
-    steps = int(np.argmin(costs))
-    r = core.refresh
-    pairs = {(phase, steps)}
-    if r > 1:
-        for ph in range(r):
-            shift = (ph - phase) % r
-            shift = shift - r if shift > r // 2 else shift
-            for k in (steps + shift - 1, steps + shift, steps + shift + 1):
-                if 0 <= k <= max_steps:
-                    pairs.add((ph, k))
-    pairs_list = sorted(pairs)
-    dists = [core.preset(s, j, model, k) for _, k in pairs_list]
-    sims = core.run(plant, dists, [ph for ph, _ in pairs_list], measured=True)
-    costs = sse(core.y, sims)
-    i = int(np.argmin(costs))
-    bound = costs[i] * (1.0 + CHI2_95 / core.n)
-    ok = [k for (_, k), c in zip(pairs_list, costs, strict=True) if c <= bound]
-    phase, steps = pairs_list[i]
-    return phase, steps, (min(ok) * core.dt, max(ok) * core.dt)
 
 
 def phase_scan(core: CoreRuns, plant: Plant, dist: Disturbance) -> int:

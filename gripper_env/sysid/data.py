@@ -78,6 +78,11 @@ class IOData:
     jitter : float
         Largest deviation of a time stamp from the fitted uniform grid, as a fraction of ``dt_s``
         (0 when only ``dt_s`` was given).
+    jitter_std : float
+        Standard deviation of the time stamps about that grid, as a fraction of ``dt_s``, when
+        they were snapped to it (0 otherwise): the spread of the instants the samples were
+        taken at about the instants the fit assumes, which the error model of the standard
+        errors includes (:mod:`gripper_env.sysid.error_model`).
     r : ndarray or None
         Reference of a closed loop (deviation from ``r_op``, deg), when one was given.
     r_op : float
@@ -93,8 +98,14 @@ class IOData:
     offset: str
     time_base: str = "interval"
     jitter: float = 0.0
+    jitter_std: float = 0.0
     r: np.ndarray | None = None
     r_op: float = 0.0
+
+    @property
+    def stamp_std_s(self) -> float:
+        """Spread of the sampling instants about the grid (s): ``jitter_std * dt_s``."""
+        return self.jitter_std * self.dt_s
 
     @property
     def resampled(self) -> bool:
@@ -147,13 +158,18 @@ def fit_grid(t: np.ndarray) -> tuple[float, float, float]:
     jitter : float
         Largest ``|t_k - (t0 + k dt)|`` as a fraction of ``dt``.
     """
+    dt, t0, dev = _grid_deviations(t)
+    return dt, t0, float(np.max(np.abs(dev)) / dt) if dt > 0 else np.inf
+
+
+def _grid_deviations(t: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """``(dt, t0, t - (t0 + k dt))`` of the least-squares uniform grid through ``t`` (s)."""
     k = np.arange(t.size, dtype=float)
     kc = k - k.mean()
     tc = t - t[0]
     dt = float(kc @ (tc - tc.mean()) / (kc @ kc))
     t0 = float(t[0] + tc.mean() - dt * k.mean())
-    dev = t - (t0 + dt * k)
-    return dt, t0, float(np.max(np.abs(dev)) / dt) if dt > 0 else np.inf
+    return dt, t0, t - (t0 + dt * k)
 
 
 def held_average(t: np.ndarray, u: np.ndarray, grid: np.ndarray, dt_s: float) -> np.ndarray:
@@ -177,8 +193,9 @@ def _time_base(
     signals: list[np.ndarray],
     max_jitter: float,
     max_gap: float,
-) -> tuple[float, float, list[np.ndarray], str, float]:
-    """Put stamped samples on a uniform grid: snap, or resample (see :func:`prepare_data`)."""
+) -> tuple[float, float, list[np.ndarray], str, float, float]:
+    """Put stamped samples on a uniform grid: snap, or resample (see :func:`prepare_data`);
+    returns ``(dt, t0, signals, time_base, jitter, jitter_std)``."""
     dts = np.diff(t)
     if np.any(dts <= 0):
         i = int(np.argmax(dts <= 0))
@@ -186,9 +203,12 @@ def _time_base(
             f"time stamps must be strictly increasing (t_s[{i + 1}] = {t[i + 1]} <= "
             f"t_s[{i}] = {t[i]})"
         )
-    dt, t0, jitter = fit_grid(t)
+    dt, t0, dev = _grid_deviations(t)
+    jitter = float(np.max(np.abs(dev)) / dt) if dt > 0 else np.inf
     if jitter <= max_jitter:
-        return dt, t0, signals, ("uniform" if jitter <= _ROUNDING else "snapped"), jitter
+        base = "uniform" if jitter <= _ROUNDING else "snapped"
+        spread = 0.0 if base == "uniform" else float(np.std(dev) / dt)
+        return dt, t0, signals, base, jitter, spread
     dt = float(np.median(dts))
     gap = dts > max_gap * dt * (1.0 + 1e-6)  # float rounding of the stamps is no gap
     if gap.any():
@@ -211,7 +231,7 @@ def _time_base(
         NonUniformSamplingWarning,
         stacklevel=4,
     )
-    return dt, float(t[0]), out, "resampled", jitter
+    return dt, float(t[0]), out, "resampled", jitter, 0.0
 
 
 def prepare_data(
@@ -300,7 +320,7 @@ def prepare_data(
             raise ValueError(f"dt_s must be a number, got {time_s!r}") from None
         if not np.isfinite(dt) or dt <= 0:
             raise ValueError(f"dt_s must be a positive finite sample interval (s), got {dt}")
-        t0, time_base, jitter = 0.0, "interval", 0.0
+        t0, time_base, jitter, jitter_std = 0.0, "interval", 0.0, 0.0
     else:
         t_arr = as_signal(time_s, "t_s")
         if t_arr.size != u_arr.size:
@@ -309,7 +329,9 @@ def prepare_data(
             )
         if t_arr.size < 2:
             raise ValueError("t_s needs at least two time stamps to define the sample interval")
-        dt, t0, signals, time_base, jitter = _time_base(t_arr, signals, max_jitter, max_gap)
+        dt, t0, signals, time_base, jitter, jitter_std = _time_base(
+            t_arr, signals, max_jitter, max_gap
+        )
     u_arr, y_arr = signals[0], signals[1]
     r_sig = signals[2] if r is not None else None
     if u_arr.size < min_samples:
@@ -349,6 +371,7 @@ def prepare_data(
         offset=offset,
         time_base=time_base,
         jitter=jitter,
+        jitter_std=jitter_std,
         r=None if r_sig is None else r_sig - r_op,
         r_op=r_op,
     )

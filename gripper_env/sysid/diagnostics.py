@@ -1,5 +1,6 @@
 """What an estimate should tell a control engineer: poles the data cannot support, pole/zero
-pairs the data hardly see, no convergence, a delay at its bound or too short.
+pairs the data hardly see, no convergence, a delay at its bound or too short, a delay the global
+search disagrees with, a fit below a lower order's.
 
 Each diagnostic is one sentence; :func:`gripper_env.sysid.tfest` issues them as
 :class:`IdentificationWarning` and keeps them in :attr:`TFEstimate.warnings`.
@@ -8,15 +9,27 @@ Each diagnostic is one sentence; :func:`gripper_env.sysid.tfest` issues them as
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from gripper_env.sysid.data import IOData
-from gripper_env.sysid.delay import scan_delay
+from gripper_env.sysid.delay import DelayCandidate, scan_delay
 from gripper_env.sysid.estimate import TFEstimate
 
-__all__ = ["CANCELLATION_RTOL", "IdentificationWarning", "delay_hints", "diagnose"]
+__all__ = [
+    "CANCELLATION_RTOL",
+    "CHI2_95",
+    "IdentificationWarning",
+    "delay_hints",
+    "delay_search_hints",
+    "diagnose",
+    "lower_order_hint",
+]
 
 #: A pole and a zero closer than this fraction of the pole's magnitude nearly cancel.
 CANCELLATION_RTOL = 0.1
+#: Likelihood-ratio bound (chi-square, 1 degree of freedom, 95 %): two fits whose squared
+#: errors differ by less than this many noise variances are both consistent with the data.
+CHI2_95 = 3.841458820694124
 
 
 class IdentificationWarning(UserWarning):
@@ -47,6 +60,57 @@ def delay_hints(data: IOData, est: TFEstimate, max_delay: float, fixed: bool) ->
         f"{100 * (1 - costs[d] / costs[0]):.0f} % (and the poles have absorbed part of it); "
         "estimate the delay (input_delay_s='estimate', --delay auto)"
     ]
+
+
+def _ms(seconds: float) -> str:
+    return f"{1e3 * seconds:.4g} ms"
+
+
+def delay_search_hints(
+    data: IOData, est: TFEstimate, search: Sequence[DelayCandidate]
+) -> list[str]:
+    """The estimated delay against the global delay search
+    (:func:`gripper_env.sysid.delay.search_delay`): the search's best delay elsewhere, or
+    another delay that fits about as well (within the 95 % likelihood-ratio bound)."""
+    if not est.delay_estimated or not search:
+        return []
+    tau = est.input_delay_s
+    best = search[0]
+
+    def apart(a: float, b: float) -> bool:
+        return abs(a - b) > max(2.5 * data.dt_s, 0.05 * max(a, b))
+
+    notes = []
+    if apart(best.delay_s, tau):
+        notes.append(
+            f"the estimated input delay ({_ms(tau)}) disagrees with the global delay search, "
+            f"whose best delay is {_ms(best.delay_s)}: the output-error search may have left "
+            f"its basin; compare the fits with --delay {best.delay_s:.4g} (input_delay_s=)"
+        )
+    bound = best.cost * (1.0 + CHI2_95 / data.n_samples)
+    alts = [c.delay_s for c in search[1:] if c.cost <= bound and apart(c.delay_s, tau)]
+    if alts:
+        which = ", ".join(_ms(d) for d in sorted(alts))
+        notes.append(
+            f"the data fit about as well with an input delay of {which} as with the estimated "
+            f"{_ms(tau)} (within the 95 % likelihood-ratio bound): the delay is ambiguous on "
+            "this record; a record with steps pins it down"
+        )
+    return notes
+
+
+def lower_order_hint(
+    est: TFEstimate, cost: float, lower: TFEstimate, lower_cost: float
+) -> str | None:
+    """A fit that ends below a lower order it contains, on the same data (a local minimum)."""
+    if not cost > lower_cost * (1.0 + 1e-6) + 1e-12:
+        return None
+    order, low = f"{est.n_poles}/{est.n_zeros}", f"{lower.n_poles}/{lower.n_zeros}"
+    return (
+        f"the {order} fit ({est.fit_pct:.2f} % on the estimation data) is below the {low} model "
+        f"it contains ({lower.fit_pct:.2f} %): the output-error search stopped in a local "
+        f"minimum; use {low} or compare the orders (--orders {low},{order})"
+    )
 
 
 def diagnose(est: TFEstimate) -> list[str]:

@@ -15,6 +15,7 @@ from typing import Any
 import control
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.stats import norm
 
 from gripper_env.state_space import observer_form
 from gripper_env.sysid.zoh import zoh_response
@@ -119,9 +120,10 @@ class TFEstimate:
     params : ndarray
         ``[a_{n-1}, ..., a_0, b_m, ..., b_0]`` of ``(b_m s^m + ... + b_0) / (s^n + ... + a_0)``.
     params_std : ndarray
-        Standard errors of ``params`` from the output-error Jacobian, ``sigma^2 (J^T J)^-1``
-        (``inf`` where not identifiable). They assume white residuals and are optimistic when the
-        residuals are coloured.
+        Standard errors of ``params`` from the output-error Jacobian under the error model of
+        :mod:`gripper_env.sysid.error_model`: white noise plus the time stamps' jitter (and the
+        robust loss's sandwich); ``inf`` where not identifiable. They are optimistic when the
+        residuals are coloured (a model that misses part of the dynamics).
     param_names : tuple of str
         ``("a1", "a0", "b1", "b0")`` style names of ``params``.
     initial_state : ndarray
@@ -156,6 +158,9 @@ class TFEstimate:
         How the time stamps were handled (:class:`gripper_env.sysid.data.IOData`).
     jitter : float
         Largest time-stamp deviation from the uniform grid (fraction of an interval).
+    jitter_std : float
+        Standard deviation of the snapped time stamps about the grid (fraction of an
+        interval), which the standard errors include.
     closed_loop : dict or None
         With a reference (the closed-loop estimator): the fitted controller
         (``controller_num``, ``controller_den``), how well the input follows it
@@ -167,6 +172,10 @@ class TFEstimate:
         Fit on validation data, when some was given (:func:`gripper_env.sysid.orders.validate`).
     message : str
         The optimiser's stopping message.
+    loss : str
+        Loss of the output-error search (``"linear"``: least squares).
+    delay_candidates_s : tuple of float
+        Delays the global delay search refitted, best first (s; empty with the delay fixed).
     """
 
     model: control.TransferFunction
@@ -197,6 +206,9 @@ class TFEstimate:
     warnings: tuple[str, ...] = ()
     validation: FitOnData | None = None
     message: str = ""
+    jitter_std: float = 0.0
+    loss: str = "linear"
+    delay_candidates_s: tuple[float, ...] = ()
 
     @property
     def num(self) -> np.ndarray:
@@ -244,6 +256,20 @@ class TFEstimate:
         n = self.residuals.size
         v = float(np.mean(self.residuals**2))
         return n * math.log(max(v, 1e-300)) + 2 * self.n_model_params
+
+    def intervals(self, level: float = 0.95) -> dict[str, tuple[float, float]]:
+        """Confidence intervals of the coefficients (by :attr:`param_names`) and, when it was
+        estimated, of the input delay (``"input_delay_s"``, s; not below 0): estimate +/- the
+        normal quantile times the standard error."""
+        z = float(norm.ppf(0.5 + 0.5 * level))
+        out = {
+            k: (float(v - z * sd), float(v + z * sd))
+            for k, v, sd in zip(self.param_names, self.params, self.params_std, strict=True)
+        }
+        if self.delay_estimated:
+            tau, sd = self.input_delay_s, self.input_delay_std_s
+            out["input_delay_s"] = (max(0.0, tau - z * sd), tau + z * sd)
+        return out
 
     @property
     def headline_fit_pct(self) -> float:
@@ -327,6 +353,12 @@ class TFEstimate:
             "n_iter_oe": int(self.n_iter_oe),
             "converged": bool(self.converged),
             "svf_lambda_rad_s": json_float(self.svf_lambda_rad_s),
+            "loss": self.loss,
+            "jitter_std": float(self.jitter_std),
+            "delay_candidates_s": [float(d) for d in self.delay_candidates_s],
+            "intervals_95": {
+                k: [json_float(lo), json_float(hi)] for k, (lo, hi) in self.intervals().items()
+            },
             "warnings": list(self.warnings),
         }
         return out

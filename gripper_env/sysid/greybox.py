@@ -8,18 +8,18 @@ path, friction, the transfer function, stops, sensor), by running the simulation
 
 1. **Sensor** from the measured values alone (:mod:`gripper_env.sysid.sensor`): ADC resolution
    and offset, noise.
-2. **Friction by profile likelihood.** Friction acts on the held servo command, upstream of the
-   servo's linear dynamics, so for each candidate ``(S, J)`` the core computes the position the
-   servo is asked to follow (its *friction output*; the core run with an instantaneous servo),
-   and the transfer function from it to the measured angle is fitted by SRIVC. The candidate's
-   cost is that fit's squared error. The friction output only changes on the servo's refresh
-   ticks, so these inner fits run exactly on the tick grid (20x fewer samples at a 20 ms
-   refresh). A coarse grid finds the region, a fine one the optimum.
-3. **Timing**: the refresh phase (where the servo's 20 ms frames fall in the log) and the
-   sensor delay (whole physics steps, as the core has it), by scanning the full model in the
-   core.
-4. **Dynamics**: :func:`gripper_env.sysid.tfest` (with delay) from the friction output of the
-   chosen ``(S, J)`` to the measured angle, at the full rate.
+2. **Friction, coarse** (:func:`gripper_env.sysid.friction_profile.coarse_friction`): for each
+   candidate ``(S, J)`` of a 1-degree grid the core computes the position the servo is asked to
+   follow (its *friction output*) and a transfer function is fitted from it to the measured
+   angle on the servo's refresh ticks; the best candidate locates the region.
+3. **Timing** (:mod:`gripper_env.sysid.refresh_timing`): for every refresh phase the transfer
+   function *with its delay* is refitted, and the phases and delays consistent with the data
+   are kept: the sensor delay with its 95 % interval, and the servo's dynamics with their
+   standard errors.
+4. **Friction, profile likelihood** (:func:`gripper_env.sysid.friction_profile.profile_friction`)
+   at that timing: ``S`` and ``J`` as continuous parameters, the transfer function refitted for
+   each, the 95 % intervals' ends found by bisection; then the timing once more when the
+   friction output changed.
 5. **Check**: the identified model (transfer function behind the identified preset, noise off)
    simulated by the core against the log: fit % and residual RMS, which should be about the
    measurement noise.
@@ -27,11 +27,9 @@ path, friction, the transfer function, stops, sensor), by running the simulation
 What the data can tell: with whole-degree servo commands (``Servo.write``) the command moves in
 1-degree steps, so the jaw breaks free after a whole number of degrees of travel. ``S`` and ``J``
 are then known only to the degree bracket their travel thresholds fall in, while ``S - J`` (the
-offset while moving) is known continuously. Every candidate whose cost is within the 95 %
-likelihood-ratio bound of the best is *consistent with the data*; the estimate is the middle of
-that set and the set's extent is reported (:class:`FrictionEstimate`). With finer commands
-(``writeMicroseconds``) the bound is narrow. A step record hardly excites ``S`` or ``J``: their
-sets then span the whole grid, and the report says so.
+offset while moving) is known continuously. The intervals say so, and ``identified`` is true only
+for an informative interval (:meth:`ActualEstimate.identified`). A step record hardly excites
+``S`` or ``J``: their intervals then span most of the range considered, and the report says so.
 """
 
 from __future__ import annotations
@@ -46,85 +44,64 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from threadpoolctl import threadpool_limits
 
 from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.metrics import fit_percent
 from gripper_env.plants import Plant
-from gripper_env.sysid.core_batches import (
-    CHI2_95,
-    MAX_SENSOR_DELAY_S,
-    CoreRuns,
-    consistent,
-    phase_scan,
-    profile,
-    tick_index,
-    timing,
-)
+from gripper_env.sysid.core_batches import CoreRuns, phase_scan
 from gripper_env.sysid.data import prepare_data
+from gripper_env.sysid.estimate import json_float
+from gripper_env.sysid.friction_profile import (
+    FINE_STEP_DEG,
+    FrictionEstimate,
+    FrictionFit,
+    TickCost,
+    bootstrap_threshold,
+    coarse_friction,
+    consistent_fits,
+    friction_ranges,
+    lattice_step,
+    locate_friction,
+    refine_friction,
+    scan_friction,
+)
 from gripper_env.sysid.orders import Record
+from gripper_env.sysid.output_error import refine_output_error
+from gripper_env.sysid.refresh_timing import (
+    MAX_SENSOR_DELAY_S,
+    PhaseFit,
+    TimingEstimate,
+    estimate_timing,
+    full_rate,
+    phase_fits,
+)
 from gripper_env.sysid.sensor import SensorEstimate, estimate_sensor
-from gripper_env.sysid.srivc import split_params
 from gripper_env.sysid.tfest import ESTIMATE, TFEstimate, diagnose, tfest
 
-__all__ = ["ActualEstimate", "FrictionEstimate", "identify_actual", "response_on"]
+__all__ = [
+    "FINE_STEP_DEG",
+    "MAX_FRICTION_DEG",
+    "ActualEstimate",
+    "FrictionEstimate",
+    "identify_actual",
+    "response_on",
+]
 
 #: Friction candidates span [0, this] deg for S and J unless told otherwise.
 MAX_FRICTION_DEG = 8.0
-#: Spacing of the fine friction grid (deg): the resolution of ``S`` and ``J`` and their ranges.
-FINE_STEP_DEG = 0.25
-
-
-@dataclass(frozen=True)
-class FrictionEstimate:
-    """Friction parameters and what the data can tell about them.
-
-    Attributes
-    ----------
-    model : str
-        ``"choudhury"`` or ``"kano"``.
-    S_deg, J_deg : float
-        The estimate (deg): the middle of the values consistent with the data.
-    S_range_deg, J_range_deg : (float, float)
-        The values consistent with the data (cost within the 95 % likelihood-ratio bound).
-    best_S_deg, best_J_deg : float
-        The single best grid point (deg).
-    grid_S_deg, grid_J_deg, grid_cost : ndarray
-        The fine grid and its profile costs (deg^2, inner fits on the tick grid).
-    """
-
-    model: str
-    S_deg: float
-    J_deg: float
-    S_range_deg: tuple[float, float]
-    J_range_deg: tuple[float, float]
-    best_S_deg: float
-    best_J_deg: float
-    grid_S_deg: np.ndarray = field(repr=False)
-    grid_J_deg: np.ndarray = field(repr=False)
-    grid_cost: np.ndarray = field(repr=False)
-
-    def identified(self) -> dict[str, bool]:
-        """Whether each parameter is pinned down: its consistent range is within +/- 50 % of the
-        estimate (or 0.5 deg wide)."""
-        out = {}
-        for key, value, (lo, hi) in (
-            ("S_deg", self.S_deg, self.S_range_deg),
-            ("J_deg", self.J_deg, self.J_range_deg),
-        ):
-            out[key] = hi - lo <= max(value, 0.5)
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "model": self.model,
-            "S_deg": self.S_deg,
-            "J_deg": self.J_deg,
-            "S_range_deg": list(self.S_range_deg),
-            "J_range_deg": list(self.J_range_deg),
-            "best_S_deg": self.best_S_deg,
-            "best_J_deg": self.best_J_deg,
-            "identified": self.identified(),
-        }
+#: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
+DELAY_INFORMATIVE_S = 0.005
+#: Refresh phases, spread over the servo's frame, where the friction is searched globally.
+SPREAD = 4
+#: Noise variances added to the friction's threshold for the timings consistent with the data:
+#: chi-square's 95 % quantile for two parameters less that for one (5.99 - 3.84).
+PHASE_ALLOWANCE = 2.15
+#: Reach of the friction lattice at every refresh phase (deg), and the phases refined after.
+SWEEP_RADIUS = 0.15
+REFINED_PHASES = 3
+#: Standard normal quantile of the 95 % intervals.
+Z95 = 1.959963984540054
 
 
 @dataclass(frozen=True)
@@ -140,10 +117,13 @@ class ActualEstimate:
     sensor : SensorEstimate
         ADC and noise.
     delay_s : float
-        Sensor delay (s, whole physics steps): dead time between the servo and the log.
+        Sensor delay (s): dead time between the servo and the log, a continuous estimate (the
+        preset rounds it to whole physics steps, as the core has it).
     delay_range_s : (float, float)
-        Delays consistent with the data (s): on a slow ramp a later servo refresh tick and a
-        longer delay look alike.
+        Its 95 % interval (s), over every refresh phase consistent with the data: on a slow
+        ramp a later servo refresh tick and a longer delay look alike.
+    delay_std_s : float
+        Standard error of the delay at the chosen phase and friction (s).
     refresh_phase_steps : int
         Physics steps from the log's first sample to the servo's first refresh tick after it
         (a property of the log, not of the gripper).
@@ -167,6 +147,10 @@ class ActualEstimate:
         Fit on a validation log (``fit_pct``, ``residual_rms_deg``, ``n_samples``, ``source``).
     warnings : tuple of str
         What the report should say.
+    dynamics_intervals : dict of str to (float, float)
+        95 % intervals of the servo's coefficients (by :attr:`TFEstimate.param_names`): the
+        fit's own, widened to hold every friction consistent with the data (the standard errors
+        of :attr:`dynamics` hold the friction fixed).
     """
 
     dynamics: TFEstimate
@@ -184,6 +168,21 @@ class ActualEstimate:
     elapsed_s: float = 0.0
     validation: dict[str, Any] | None = None
     warnings: tuple[str, ...] = ()
+    delay_std_s: float = 0.0
+    dynamics_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def delay_steps(self) -> int:
+        """The delay in whole physics steps, as the core simulates it."""
+        return round(self.delay_s / self.dt_s)
+
+    def identified(self) -> dict[str, bool]:
+        """Whether each interval is informative: ``S`` and ``J`` (see
+        :meth:`FrictionEstimate.identified`) and the delay (an interval narrower than the larger
+        of half the estimate and 5 ms)."""
+        lo, hi = self.delay_range_s
+        delay_ok = hi - lo <= max(0.5 * self.delay_s, DELAY_INFORMATIVE_S)
+        return {**self.friction.identified(), "delay_s": bool(delay_ok)}
 
     def plant(self, name: str = "identified") -> Plant:
         """The servo's transfer function as a plant (absolute angles, physics step ``dt_s``)."""
@@ -203,7 +202,7 @@ class ActualEstimate:
         f, s = self.friction, self.sensor
         sensor: dict[str, Any] = {
             "noise_std_deg": round(s.noise_std_deg, 4),
-            "delay_s": round(self.delay_s, 6),
+            "delay_s": round(self.delay_steps * self.dt_s, 6),
         }
         if s.quantised:
             bits = self.base.sensor.adc_bits or 10
@@ -238,17 +237,28 @@ class ActualEstimate:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        dyn = self.dynamics
         return {
             "plant": {
-                "num": [float(c) for c in self.dynamics.num],
-                "den": [float(c) for c in self.dynamics.den],
-                "paper_form": self.dynamics.paper_form(),
-                "poles": [[float(p.real), float(p.imag)] for p in self.dynamics.poles],
+                "num": [float(c) for c in dyn.num],
+                "den": [float(c) for c in dyn.den],
+                "paper_form": dyn.paper_form(),
+                "poles": [[float(p.real), float(p.imag)] for p in dyn.poles],
+                "params": {k: float(v) for k, v in zip(dyn.param_names, dyn.params, strict=True)},
+                "params_std": {
+                    k: json_float(v) for k, v in zip(dyn.param_names, dyn.params_std, strict=True)
+                },
+                "intervals_95": {
+                    k: [json_float(lo), json_float(hi)]
+                    for k, (lo, hi) in self.dynamics_intervals.items()
+                },
             },
             "friction": self.friction.to_dict(),
             "sensor": self.sensor.to_dict(),
             "delay_s": self.delay_s,
+            "delay_std_s": self.delay_std_s,
             "delay_range_s": list(self.delay_range_s),
+            "identified": self.identified(),
             "refresh_phase_steps": self.refresh_phase_steps,
             "offset_deg": self.offset_deg,
             "fit_pct": self.fit_pct,
@@ -311,6 +321,24 @@ def identify_actual(
     ValueError
         Bad data or options.
     """
+    # small dense solves: BLAS threads only cost (an SVD of 2650x8: 11 ms with two, 0.55 with one)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _identify(time_s, u, y, base, n_poles, n_zeros, friction_model,
+                         max_friction_deg, validation, progress)  # fmt: skip
+
+
+def _identify(
+    time_s: float | ArrayLike,
+    u: ArrayLike,
+    y: ArrayLike,
+    base: str | Mapping[str, Any] | Disturbance,
+    n_poles: int,
+    n_zeros: int,
+    friction_model: str | None,
+    max_friction_deg: float,
+    validation: Record | None,
+    progress: Callable[[str], None] | None,
+) -> ActualEstimate:
     started = time.perf_counter()
     say = progress or (lambda _m: None)
     base_d = load_disturbance(base)
@@ -329,47 +357,97 @@ def identify_actual(
     sigma2 = max(sensor.noise_std_deg**2 + sensor.lsb_deg**2 / 12.0, 1e-12)
 
     # 1. coarse friction grid, refresh phase 0, no delay
-    coarse = np.concatenate([[0.0], np.arange(0.5, max_friction_deg, 1.0)])
-    pairs = [(s, j) for s in coarse for j in coarse]
-    costs, thetas = profile(core, pairs, model, 0, 0.0, n_poles, n_zeros)
-    best = int(np.argmin(costs))
-    s_best, j_best = pairs[best]
-    say(f"friction, coarse grid of {len(pairs)}: S {s_best:g}, J {j_best:g} deg")
-
-    # 2. timing with that friction and its transfer function
-    num, den = split_params(thetas[best], n_poles)
-    cand = Plant.from_coefficients(list(num), list(den), name="candidate", dt_s=dt)
-    phase, steps, _ = timing(core, cand, s_best, j_best, model)
-    tau = steps * dt
-    say(f"timing: refresh phase {phase} steps, delay {1e3 * tau:g} ms")
-
-    # 3. fine friction grid
-    friction = _fine_friction(
-        core, model, phase, tau, (s_best, j_best), (np.array(pairs), costs), n_poles, n_zeros, say
+    s0, j0 = coarse_friction(core, model, max_friction_deg, n_poles, n_zeros)
+    quantum = base_d.command.quantum_deg
+    say(f"friction, coarse grid: S {s0:g}, J {j0:g} deg")
+    # 2. phases spread over the servo's frame, each with its own transfer function and delay at
+    # that friction; every other phase starts from the nearest one's, its delay shifted by the
+    # phase difference (a later tick and a shorter delay look alike)
+    r = core.refresh
+    spread = [k * r // SPREAD for k in range(SPREAD)] if r > 1 else [0]
+    fits, _ = phase_fits(core, s0, j0, model, n_poles, n_zeros, spread)
+    by_phase = _all_phases(fits, r, core.dt)
+    # 3. a global search of the friction (lines of the lattice) at those phases: a friction
+    # found at the wrong phase prefers that phase, and the other way round
+    spread = [f.phase for f in fits]
+    scans = []
+    for phase in dict.fromkeys(spread):
+        if phase not in by_phase:
+            continue
+        hyp = by_phase[phase]
+        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+        # both lattices at every phase: a coarse lattice cannot rank phases when the command
+        # is finer than it (the cost between its points is a needle, see scan_friction)
+        pair = scan_friction(cost, (s0, j0), max_friction_deg, quantum)
+        fit = FrictionFit(cost, pair, [pair], lattice_step(quantum))
+        scans.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), phase, pair))
+    scans.sort(key=lambda t: t[0])
+    best_scan = scans[0]
+    _, phase1, (s1, j1) = best_scan
+    say(f"friction, line scans: S {s1:.3g}, J {j1:.3g} deg at refresh phase {phase1}")
+    # every phase: the friction located near that one (a small lattice), scored at the full
+    # rate -- phases and brackets form clusters, and the true phase can sit next to one whose
+    # cost is a thousand noise variances worse; then the best few refined
+    swept = []
+    for phase in by_phase:
+        hyp = by_phase[phase]
+        cost = TickCost.at_phase(core, phase, model, hyp.estimate.params,
+                                 hyp.estimate.input_delay_s, n_poles, n_zeros)  # fmt: skip
+        fit = locate_friction(cost, (s1, j1), max_friction_deg, quantum,
+                              radius_deg=SWEEP_RADIUS, scans=1)  # fmt: skip
+        swept.append((_full_cost(core, fit, model, phase, n_poles, n_zeros), hyp, fit))
+    swept.sort(key=lambda t: t[0])
+    refined: list[tuple[float, PhaseFit, FrictionFit]] = []
+    for _, hyp, fit in swept[:REFINED_PHASES]:
+        fit = refine_friction(locate_friction(fit.cost, fit.best, max_friction_deg, quantum),
+                              max_friction_deg)  # fmt: skip
+        refined.append((_full_cost(core, fit, model, hyp.phase, n_poles, n_zeros), hyp, fit))
+    refined.sort(key=lambda t: t[0])
+    # 4. the region at the best timing (its threshold calibrated by a parametric bootstrap);
+    # other timings that fit about as well add their regions
+    # the timings within the same threshold and PHASE_ALLOWANCE more are consistent: the phase
+    # is one more discrete parameter chosen by the fit, and chases the noise as a bracket does
+    threshold = bootstrap_threshold(refined[0][2])
+    bound = refined[0][0] * (1.0 + (threshold + PHASE_ALLOWANCE) / core.n)
+    kept = [(hyp, fit) for full, hyp, fit in refined if full <= bound]
+    hyp, fit = kept[0]
+    friction = friction_ranges(fit, model, max_friction_deg, threshold)
+    say(
+        f"friction at refresh phase {hyp.phase}: S {friction.S_deg:.3g} deg "
+        f"[{friction.S_range_deg[0]:.3g}, {friction.S_range_deg[1]:.3g}], J "
+        f"{friction.J_deg:.3g} deg [{friction.J_range_deg[0]:.3g}, {friction.J_range_deg[1]:.3g}]"
+        f" (threshold {threshold:.3g} noise variances)"
     )
-
-    # 4. the servo's dynamics at full rate, from the friction output
-    v = core.friction_outputs([(friction.S_deg, friction.J_deg)], model, phase)[0]
-    dyn = _dynamics(dt, v, data.y, n_poles, n_zeros)
+    others = [friction_ranges(f, model, max_friction_deg, threshold) for _, f in kept[1:]]
+    if others:
+        friction = _union(friction, others)
+    # 5. the timing at that friction, with the delay's interval and the servo's dynamics
+    timing = _timing(core, friction.S_deg, friction.J_deg, model, n_poles, n_zeros, say,
+                     near=hyp.phase)  # fmt: skip
+    dyn = _reduced(core, timing, friction, model, n_poles, n_zeros)
     say(f"dynamics: {dyn.paper_form()}")
+    # the intervals of the delay and of the servo's coefficients allow for every friction in the
+    # region: the union of each consistent candidate's 95 % intervals (tick grid)
+    delay_range, coef_ranges = _nuisance_ranges(core, model, kept, threshold, timing, dyn)
 
-    # 5. the whole model in the core: its timing once more, then the check
+    # 5. the whole model in the core: the check
     plant = Plant.from_coefficients(list(dyn.num), list(dyn.den), name="identified", dt_s=dt)
-    dyn = dataclasses.replace(dyn, input_delay_s=0.0)  # the delay lives in the preset
-    phase, steps, delay_range = timing(core, plant, friction.S_deg, friction.J_deg, model)
-    y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)], [phase],
-                     measured=True)[0]  # fmt: skip
+    steps = round(timing.delay_s / dt)
+    y_sim = core.run(plant, [core.preset(friction.S_deg, friction.J_deg, model, steps)],
+                     [timing.phase_steps], measured=True)[0]  # fmt: skip
     offset = float(np.mean(data.y - y_sim))
     resid = data.y - y_sim - offset
     notes = _notes(friction, sensor, float(np.sqrt(np.mean(resid**2))), sigma2)
-    notes += list(dyn.warnings)
+    # the delay's interval is this fit's own (the friction output's tfest knows no friction)
+    notes += [w for w in dyn.warnings if "delay" not in w]
     est = ActualEstimate(
-        dynamics=dyn,
+        dynamics=dataclasses.replace(dyn, input_delay_s=0.0),  # the delay lives in the preset
         friction=friction,
         sensor=sensor,
-        delay_s=steps * dt,
+        delay_s=timing.delay_s,
         delay_range_s=delay_range,
-        refresh_phase_steps=phase,
+        refresh_phase_steps=timing.phase_steps,
         offset_deg=offset,
         fit_pct=float(fit_percent(data.y, y_sim + offset)),
         residual_rms_deg=float(np.sqrt(np.mean(resid**2))),
@@ -378,73 +456,136 @@ def identify_actual(
         n_samples=data.n_samples,
         elapsed_s=time.perf_counter() - started,
         warnings=tuple(notes),
+        delay_std_s=timing.delay_std_s,
+        dynamics_intervals=coef_ranges,
     )
+    if not est.identified()["delay_s"]:
+        lo, hi = est.delay_range_s
+        notes.append(
+            f"the sensor delay is not pinned down by this record (consistent with "
+            f"{1e3 * lo:.3g}..{1e3 * hi:.3g} ms: a later servo tick looks alike); a record with "
+            "steps at several instants within the 20 ms servo frame pins it down"
+        )
+        est = dataclasses.replace(est, warnings=tuple(notes))
     if validation is not None:
         est = _with_validation(est, validation)
     return est
 
 
-def _fine_friction(
-    core: CoreRuns,
-    model: str,
-    phase: int,
-    tau: float,
-    coarse_best: tuple[float, float],
-    coarse: tuple[np.ndarray, np.ndarray],
-    n_poles: int,
-    n_zeros: int,
-    say: Callable[[str], None],
-) -> FrictionEstimate:
-    """Friction on a fine grid around the coarse grid's best ``(S, J)``, with the values
-    consistent with the data on both grids (``coarse``: its pairs and costs)."""
-    s_best, j_best = coarse_best
-    step = FINE_STEP_DEG
-    s_vals = np.round(np.arange(max(0.0, s_best - 1.0), s_best + 1.0 + 1e-9, step), 6)
-    j_vals = np.round(np.arange(max(0.0, j_best - 1.0), j_best + 1.0 + 1e-9, step), 6)
-    pairs = [(s, j) for s in s_vals for j in j_vals]
-    costs, _ = profile(core, pairs, model, phase, tau, n_poles, n_zeros)
-    grid = costs.reshape(s_vals.size, j_vals.size)
-    n_tick = tick_index(core.n, core.refresh, phase).size
-    bound = float(costs.min()) + CHI2_95 * float(costs.min()) / max(n_tick, 1)
-    # the consistent set, on both grids (the fine one may not reach its edges)
-    all_pairs = np.concatenate([np.array(pairs), coarse[0]])
-    all_costs = np.concatenate([costs, coarse[1]])
-    s_rng = consistent(all_pairs[:, 0], all_costs, bound)
-    j_rng = consistent(all_pairs[:, 1], all_costs, bound)
-    i_best = int(np.argmin(costs))
-    s_est, j_est = 0.5 * (s_rng[0] + s_rng[1]), 0.5 * (j_rng[0] + j_rng[1])
-    si, ji = int(np.argmin(np.abs(s_vals - s_est))), int(np.argmin(np.abs(j_vals - j_est)))
-    if grid[si, ji] > bound:  # the middles are not jointly consistent: keep the best point
-        s_est, j_est = pairs[i_best]
-    say(
-        f"friction, fine grid of {len(pairs)}: S {s_est:.3g} deg {s_rng}, J {j_est:.3g} deg {j_rng}"
-    )
-    return FrictionEstimate(
-        model=model,
-        S_deg=float(s_est),
-        J_deg=float(j_est),
-        S_range_deg=s_rng,
-        J_range_deg=j_rng,
-        best_S_deg=float(pairs[i_best][0]),
-        best_J_deg=float(pairs[i_best][1]),
-        grid_S_deg=s_vals,
-        grid_J_deg=j_vals,
-        grid_cost=grid,
-    )
+def _all_phases(fits: list[PhaseFit], r: int, dt: float) -> dict[int, PhaseFit]:
+    """A fit for every refresh phase: the fitted ones, and for the others the nearest fitted
+    phase's transfer function with its delay shifted by the phase difference (s)."""
+    out = {f.phase: f for f in fits}
+    for phase in range(r):
+        if phase in out:
+            continue
+        near = min(fits, key=lambda f: min((phase - f.phase) % r, (f.phase - phase) % r))
+        diff = (phase - near.phase) % r
+        diff = diff - r if diff > r // 2 else diff
+        tau = min(max(near.estimate.input_delay_s + diff * dt, 0.0), MAX_SENSOR_DELAY_S)
+        est = dataclasses.replace(near.estimate, input_delay_s=tau)
+        out[phase] = PhaseFit(phase, est, math.inf)
+    return dict(sorted(out.items()))
 
 
-def _dynamics(dt: float, v: np.ndarray, y: np.ndarray, n: int, m: int) -> TFEstimate:
-    """The transfer function from the friction output; one pole/zero pair fewer when they
-    cancel and Akaike's criterion agrees."""
+def _full_cost(core: CoreRuns, fit: FrictionFit, model: str, phase: int, n: int, m: int) -> float:
+    """Squared error at the full rate of a timing hypothesis with its best friction: two
+    Gauss-Newton steps from the tick-grid fit (:class:`TickCost` on every sample)."""
+    v = core.friction_outputs([fit.best], model, phase)[0]
+    step = fit.best_fit
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        est = tfest(dt, v, y, n, m, input_delay_s=ESTIMATE, max_delay_s=MAX_SENSOR_DELAY_S,
-                    check_feedback=False)  # fmt: skip
-        if n > 1 and m > 0 and any("nearly cancel" in w for w in diagnose(est)):
-            low = tfest(dt, v, y, n - 1, m - 1, input_delay_s=ESTIMATE,
-                        max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False)  # fmt: skip
-            if low.aic <= est.aic + 2.0 and low.stable:
-                est = low
+        for _ in range(2):
+            full = TickCost(None, core.y, core.dt, model, step.theta,
+                            min(max(step.delay_s, 0.0), MAX_SENSOR_DELAY_S), n, m)  # fmt: skip
+            step = full.fit_output(v)
+    return step.cost
+
+
+def _nuisance_ranges(
+    core: CoreRuns,
+    model: str,
+    kept: list[tuple[PhaseFit, FrictionFit]],
+    threshold: float,
+    timing: TimingEstimate,
+    dyn: TFEstimate,
+) -> tuple[tuple[float, float], dict[str, tuple[float, float]]]:
+    """95 % intervals of the delay (s) and of the servo's coefficients: the timing's and the
+    final fit's, widened to hold the full-rate fits of the region's extreme candidates (the
+    smallest and largest delay and ``S - J``, which trade against each other on a ramp)."""
+    lo, hi = timing.delay_range_s
+    coefs = {k: v for k, v in dyn.intervals().items() if k != "input_delay_s"}
+    for hyp, fit in kept:
+        cands = consistent_fits(fit, threshold)
+        picks = [fit.best]
+        for key in (lambda c: c[1].delay_s, lambda c: c[0][0] - c[0][1]):
+            picks += [min(cands, key=key)[0], max(cands, key=key)[0]]
+        n, m = fit.cost.n, fit.cost.m
+        for pair in dict.fromkeys(picks):
+            f = fit.cost.fits[pair]
+            v = core.friction_outputs([pair], model, hyp.phase)[0]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                oe = refine_output_error(
+                    full_rate(core, v), n, m, f.theta,
+                    delay_s=min(max(f.delay_s, 0.0), MAX_SENSOR_DELAY_S), estimate_delay=True,
+                    max_delay_s=MAX_SENSOR_DELAY_S, max_nfev=12, ftol=0.02 / core.n,
+                )  # fmt: skip
+            half = Z95 * np.sqrt(np.clip(np.diag(oe.cov), 0.0, None))
+            if np.isfinite(half[-1]):
+                lo, hi = min(lo, oe.delay_s - half[-1]), max(hi, oe.delay_s + half[-1])
+            if len(coefs) == oe.theta.size:
+                for i, name in enumerate(dyn.param_names):
+                    a, b = coefs[name]
+                    coefs[name] = (min(a, oe.theta[i] - half[i]), max(b, oe.theta[i] + half[i]))
+    return (max(0.0, lo), min(MAX_SENSOR_DELAY_S, hi)), coefs
+
+
+def _union(fr: FrictionEstimate, others: list[FrictionEstimate]) -> FrictionEstimate:
+    """``fr`` with its ranges widened to cover those of ``others``."""
+    s_lo = min([fr.S_range_deg[0]] + [o.S_range_deg[0] for o in others])
+    s_hi = max([fr.S_range_deg[1]] + [o.S_range_deg[1] for o in others])
+    j_lo = min([fr.J_range_deg[0]] + [o.J_range_deg[0] for o in others])
+    j_hi = max([fr.J_range_deg[1]] + [o.J_range_deg[1] for o in others])
+    return dataclasses.replace(fr, S_range_deg=(s_lo, s_hi), J_range_deg=(j_lo, j_hi))
+
+
+def _timing(
+    core: CoreRuns,
+    s: float,
+    j: float,
+    model: str,
+    n: int,
+    m: int,
+    say: Callable[[str], None],
+    near: int | None = None,
+) -> TimingEstimate:
+    timing = estimate_timing(core, s, j, model, n, m, near=near)
+    lo, hi = timing.delay_range_s
+    say(
+        f"timing: refresh phase {timing.phase_steps} steps (consistent: "
+        f"{', '.join(str(p) for p in timing.consistent_phases)}), delay "
+        f"{1e3 * timing.delay_s:.3g} ms [{1e3 * lo:.3g}, {1e3 * hi:.3g}]"
+    )
+    return timing
+
+
+def _reduced(
+    core: CoreRuns, timing: TimingEstimate, friction: FrictionEstimate, model: str, n: int, m: int
+) -> TFEstimate:
+    """The timing's transfer function, or one pole/zero pair fewer when they cancel and
+    Akaike's criterion agrees (fitted at the same phase)."""
+    est = timing.dynamics
+    if n > 1 and m > 0 and any("nearly cancel" in w for w in diagnose(est)):
+        v = core.friction_outputs([(friction.S_deg, friction.J_deg)], model,
+                                  timing.phase_steps)[0]  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            low = tfest(core.dt, v, core.y, n - 1, m - 1, input_delay_s=ESTIMATE,
+                        max_delay_s=MAX_SENSOR_DELAY_S, check_feedback=False,
+                        nested_starts=False)  # fmt: skip
+        if low.aic <= est.aic + 2.0 and low.stable:
+            est = low
     return est
 
 
@@ -456,8 +597,10 @@ def _notes(
         if not ok:
             lo, hi = friction.S_range_deg if key == "S_deg" else friction.J_range_deg
             notes.append(
-                f"{key[0]} is hardly excited by this record (consistent with {lo:g}..{hi:g} deg): "
-                "identify from a slow slope (--profile slope60), not a step"
+                f"{key[0]} is not pinned down (consistent with {lo:.3g}..{hi:.3g} deg): either "
+                "hardly excited by this record (identify from a slow slope, --profile slope60, "
+                "not a step) or known only to the command's resolution (whole-degree commands "
+                "tell S and J to their degree bracket)"
             )
     if rms > 1.5 * math.sqrt(sigma2):
         notes.append(

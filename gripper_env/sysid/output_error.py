@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gripper_env.sysid.data import IOData
+from gripper_env.sysid.error_model import parameter_covariance
 from gripper_env.sysid.sensitivity import model_sensitivities
 from gripper_env.sysid.srivc import split_params
 from gripper_env.sysid.zoh import zoh_response
@@ -158,8 +159,8 @@ class OutputErrorResult:
     residuals : ndarray
         ``y - yhat`` (deviations, deg).
     cov : ndarray
-        Covariance of ``[theta, x0, offset, delay]`` (the estimated ones),
-        ``sigma^2 (J^T J)^-1``.
+        Covariance of ``[theta, x0, offset, delay]`` (the estimated ones) under the error model
+        of :mod:`gripper_env.sysid.error_model` (white noise, stamp jitter, the loss).
     n_iter : int
         Jacobian evaluations (trust-region iterations).
     converged : bool
@@ -179,20 +180,6 @@ class OutputErrorResult:
     message: str
 
 
-def _covariance(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    n_obs, n_par = jac.shape
-    dof = max(n_obs - n_par, 1)
-    sigma2 = float(residuals @ residuals) / dof
-    scale = np.sqrt(np.einsum("ij,ij->j", jac, jac))
-    scale[scale == 0] = 1.0
-    _, sv, vt = np.linalg.svd(jac / scale, full_matrices=False)
-    inv = np.where(sv > sv[0] * 1e-13, 1.0 / np.where(sv > 0, sv, 1.0) ** 2, np.inf)
-    with np.errstate(invalid="ignore"):
-        cov = (vt.T * inv) @ vt
-    cov = np.where(np.isfinite(cov), cov, np.inf)
-    return sigma2 * cov / np.outer(scale, scale)
-
-
 def refine_output_error(
     data: IOData,
     n_poles: int,
@@ -209,6 +196,9 @@ def refine_output_error(
     ftol: float = 1e-8,
     xtol: float = 1e-8,
     gtol: float = 1e-8,
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    stamp_std_s: float = 0.0,
 ) -> OutputErrorResult:
     """Minimise the simulation error starting from ``theta0``.
 
@@ -236,6 +226,13 @@ def refine_output_error(
         Most residual evaluations.
     ftol, xtol, gtol : float
         Tolerances of :func:`scipy.optimize.least_squares`.
+    loss : {"linear", "soft_l1", "huber"}
+        Loss of :func:`scipy.optimize.least_squares` (robust to outliers unless linear).
+    f_scale : float
+        Residual (deg) where a robust loss starts to flatten: about the noise's standard
+        deviation.
+    stamp_std_s : float
+        Spread of the sampling instants about the time stamps (s), for the covariance.
 
     Returns
     -------
@@ -281,17 +278,26 @@ def refine_output_error(
         xtol=xtol,
         gtol=gtol,
         max_nfev=max_nfev,
+        loss=loss,
+        f_scale=f_scale,
     )
     p = res.x
     num, den, x0_fit, offset, delay = problem._unpack(p)
     residuals = -res.fun
+    # with a robust loss, least_squares returns its reweighted Jacobian: take the plain one
+    jac = res.jac if loss == "linear" else problem.jacobian(p)
+    rate = None
+    if stamp_std_s > 0:
+        rate = np.gradient(res.fun + data.y, data.dt_s)
     return OutputErrorResult(
         theta=p[: n + m + 1].copy(),
         delay_s=delay,
         x0=np.zeros(n) if x0_fit is None else np.array(x0_fit),
         offset=offset,
         residuals=residuals,
-        cov=_covariance(res.jac, residuals),
+        cov=parameter_covariance(
+            jac, residuals, loss=loss, f_scale=f_scale, rate=rate, stamp_std_s=stamp_std_s
+        ),
         n_iter=int(res.njev or 0),
         converged=bool(res.status > 0),
         message=str(res.message),

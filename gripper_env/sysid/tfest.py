@@ -4,15 +4,21 @@ Pipeline (see :mod:`gripper_env.sysid.srivc` and :mod:`gripper_env.sysid.output_
 
 1. validate the record, put it on a uniform time grid and remove the operating point
    (:func:`gripper_env.sysid.data.prepare_data`);
-2. least-squares start through the state-variable filter ``1/(s + lambda)^n`` (and, for a higher
-   order, starts built from lower-order estimates it contains: ``start_from``);
-3. SRIVC iterations to convergence; with ``input_delay_s="estimate"`` they alternate with a scan
+2. starts (:mod:`gripper_env.sysid.starts`): least-squares fits through the state-variable
+   filter ``1/(s + lambda)^n``; with ``input_delay_s="estimate"`` a *global* delay search first
+   (:func:`gripper_env.sysid.delay.search_delay`: the filter fit refitted at every whole-sample
+   delay, its best delays refitted by SRIVC); and the chain of lower orders this order contains
+   (fitted here unless given as ``start_from``), reproduced exactly by the start;
+3. SRIVC iterations to convergence; with the delay estimated they alternate with a local scan
    of whole-sample delays (:mod:`gripper_env.sysid.delay`) until the delay stops moving;
 4. output-error refinement of the coefficients, the initial state, the output offset and the
-   delay (fractions of a sample included) with :func:`scipy.optimize.least_squares`, simulating
-   every candidate by exact sampling; the best start wins;
-5. diagnostics (:class:`IdentificationWarning`): poles beyond the Nyquist frequency,
-   near-cancelling pole/zero pairs, no convergence, and data that look like a feedback loop.
+   delay (fractions of a sample included) with :func:`scipy.optimize.least_squares` (optionally
+   with a robust loss), simulating every candidate by exact sampling; the best start wins;
+5. standard errors under the error model of :mod:`gripper_env.sysid.error_model` (white noise,
+   the time stamps' jitter, the loss);
+6. diagnostics (:class:`IdentificationWarning`): poles beyond the Nyquist frequency,
+   near-cancelling pole/zero pairs, no convergence, data that look like a feedback loop, a fit
+   below a lower order's, a delay the global search disagrees with, and outliers.
 
 With a closed loop's reference ``r``, step 4 fits the plant inside the simulated loop instead,
 driven by the reference, with the controller fitted from the log
@@ -47,8 +53,22 @@ from gripper_env.sysid.data import (
     Offset,
     prepare_data,
 )
-from gripper_env.sysid.delay import default_max_delay, scan_delay
-from gripper_env.sysid.diagnostics import IdentificationWarning, delay_hints, diagnose
+from gripper_env.sysid.delay import DelayCandidate, default_max_delay, scan_delay
+from gripper_env.sysid.diagnostics import (
+    IdentificationWarning,
+    delay_hints,
+    delay_search_hints,
+    diagnose,
+    lower_order_hint,
+)
+from gripper_env.sysid.error_model import (
+    Loss,
+    check_loss,
+    despike,
+    loss_cost,
+    outlier_note,
+    robust_std,
+)
 from gripper_env.sysid.estimate import (
     FitOnData,
     TFEstimate,
@@ -62,7 +82,14 @@ from gripper_env.sysid.srivc import (
     srivc,
     stabilise,
 )
-from gripper_env.sysid.starts import estimation_starts
+from gripper_env.sysid.starts import (
+    REFINED,
+    Start,
+    estimation_starts,
+    fresh_starts,
+    nested_order,
+    nested_starts,
+)
 from gripper_env.sysid.zoh import zoh_response
 
 __all__ = [
@@ -78,6 +105,8 @@ __all__ = [
 
 #: ``input_delay_s=ESTIMATE``: estimate the input delay.
 ESTIMATE = "estimate"
+#: Output-error evaluations each start gets before the best one is refined to convergence.
+SCREEN_NFEV = 8
 
 
 def min_samples(n_poles: int, n_zeros: int) -> int:
@@ -95,6 +124,25 @@ class _Candidate:
     cost: float
     lam: float
     n_iter_srivc: int
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The fit options of one :func:`tfest` call (shared by the lower orders it fits)."""
+
+    delay: float | None
+    max_delay: float
+    enforce_stability: bool
+    estimate_x0: bool
+    estimate_offset: bool
+    svf_lambda: float | Sequence[float | None] | None
+    max_iter_srivc: int
+    srivc_tol: float
+    max_nfev: int
+    ftol: float
+    loss: str
+    f_scale: float
+    nested_starts: bool
 
 
 def _check_orders(n_poles: int, n_zeros: int) -> None:
@@ -132,17 +180,21 @@ def _srivc_with_delay(
     data: IOData,
     n: int,
     m: int,
-    theta: np.ndarray,
+    start: Start,
     delay: float | None,
     max_delay_s: float,
     max_iter: int,
     tol: float,
 ) -> tuple[np.ndarray, float, int]:
-    """SRIVC at a fixed delay, or alternating with the delay scan until the delay settles."""
+    """SRIVC at a fixed delay, or alternating with the local delay scan from the start's delay
+    (the global search's) until the delay settles."""
+    theta = start.theta
     if delay is not None:
         iv = srivc(data, n, m, theta, max_iter=max_iter, tol=tol, delay_s=delay)
         return iv.theta, delay, iv.n_iter
-    steps, seen, iters, move = 0, set(), 0, 0
+    steps = round(start.delay_s / data.dt_s)
+    seen: set[int] = set()
+    iters = 0
     for _ in range(8):
         # a few iterations per delay: the output-error search that follows finishes the job
         iv = srivc(data, n, m, theta, max_iter=min(max_iter, 2), tol=tol, delay_s=steps * data.dt_s)
@@ -152,13 +204,8 @@ def _srivc_with_delay(
         if d == steps or d in seen:
             break
         seen.add(steps)
-        step = d - steps
-        # a model refitted at too short a delay absorbs part of the rest into its poles, so the
-        # scan moves the delay only part of the way: twice the step when it keeps going
-        new = d + step if move and (step > 0) == (move > 0) else d
-        move, steps = step, int(min(max(new, 0), max_delay_s / data.dt_s))
-    tau = steps * data.dt_s
-    return theta, tau, iters
+        steps = d
+    return theta, steps * data.dt_s, iters
 
 
 @threadpool_limits.wrap(limits=1, user_api="blas")  # small dense solves: threads only cost
@@ -185,6 +232,9 @@ def tfest(
     max_jitter: float = DEFAULT_MAX_JITTER,
     max_gap: float = DEFAULT_MAX_GAP,
     check_feedback: bool = True,
+    loss: Loss = "linear",
+    f_scale_deg: float | None = None,
+    nested_starts: bool = True,
 ) -> TFEstimate:
     """Estimate a continuous-time transfer function with input delay from sampled data.
 
@@ -236,6 +286,11 @@ def tfest(
         Lower-order estimates to start from as well
         (:func:`gripper_env.sysid.starts.nested_theta`): the result then fits the estimation
         data at least as well as any of them that this order contains.
+    nested_starts : bool
+        Also fit the chain of lower orders this order contains
+        (:func:`gripper_env.sysid.starts.nested_order`: 4/2 from 3/1 from 2/0 from 1/0) and start
+        from them, unless ``start_from`` already holds one; a fit that still ends below one of
+        them is warned about. Off, only the filter (and delay-search) starts are refined.
     max_iter_srivc : int
         Most SRIVC iterations.
     srivc_tol : float
@@ -250,6 +305,13 @@ def tfest(
         Time-stamp tolerances (:func:`gripper_env.sysid.data.prepare_data`).
     check_feedback : bool
         Without ``r``, warn when the data look like a feedback loop.
+    loss : {"linear", "soft_l1", "huber"}
+        Loss of the output-error search (:func:`scipy.optimize.least_squares`): least squares,
+        or a robust loss that grows only linearly beyond ``f_scale_deg`` (sensor spikes then
+        hardly pull the model). Open-loop data only.
+    f_scale_deg : float, optional
+        Scale of a robust loss (deg). Default: the measurement noise's standard deviation,
+        estimated robustly from the output's second differences.
 
     Returns
     -------
@@ -264,7 +326,9 @@ def tfest(
     -----
     IdentificationWarning
         Poles beyond the Nyquist frequency, near-cancelling pole/zero pairs, no convergence,
-        feedback without a reference (also kept in :attr:`TFEstimate.warnings`).
+        feedback without a reference, a fit below a lower order's, an estimated delay that the
+        global delay search disagrees with, outliers in the residuals (also kept in
+        :attr:`TFEstimate.warnings`).
 
     Examples
     --------
@@ -278,6 +342,7 @@ def tfest(
     '(20 s + 200) / (s^2 + 22 s + 200) exp(-0.015 s)'
     """
     _check_orders(n_poles, n_zeros)
+    check_loss(loss, f_scale_deg)
     n, m = int(n_poles), int(n_zeros)
     data = prepare_data(
         time_s,
@@ -304,92 +369,176 @@ def tfest(
                 "biased; give the loop's reference (--reference COLUMN, r=) to use it as the "
                 "instrument"
             )
-    ftol = 0.02 / data.n_samples if tol is None else float(tol)
-    starts = estimation_starts(data, n, m, svf_lambda_rad_s, start_from, delay)
+    if loss != "linear" and data.r is not None:
+        raise ValueError("a robust loss (--loss) is for open-loop data; drop --reference or it")
+    opts = _Options(
+        delay=delay,
+        max_delay=max_delay,
+        enforce_stability=enforce_stability,
+        estimate_x0=estimate_initial_state,
+        estimate_offset=estimate_output_offset,
+        svf_lambda=svf_lambda_rad_s,
+        max_iter_srivc=max_iter_srivc,
+        srivc_tol=srivc_tol,
+        max_nfev=max_nfev,
+        ftol=0.02 / data.n_samples if tol is None else float(tol),
+        loss=loss,
+        f_scale=_loss_scale(data, loss, f_scale_deg),
+        nested_starts=nested_starts and data.r is None,
+    )
     if data.r is not None:
+        starts, _ = estimation_starts(data, n, m, svf_lambda_rad_s, start_from, delay, max_delay)
         est = _closed_loop_estimate(data, n, m, starts, delay, max_delay, max_nfev)
     else:
-        best: _Candidate | None = None
-        for theta0, lam, tau0 in starts:
-            if tau0 is None:
-                theta, tau, n_iv = _srivc_with_delay(
-                    data, n, m, theta0, delay, max_delay, max_iter_srivc, srivc_tol
-                )
-            else:  # a start from another estimate keeps its delay as the start
-                theta, tau, n_iv = theta0, tau0, 0
-            cand = _refine(
-                data, n, m, theta, tau, delay is None, max_delay, enforce_stability,
-                estimate_initial_state, estimate_output_offset, max_nfev, ftol,
-            )  # fmt: skip
-            cand.lam, cand.n_iter_srivc = lam, n_iv
-            if best is None or cand.cost < best.cost:
-                best = cand
-        assert best is not None
-        est = _estimate(data, n, m, best, delay is None, None, estimate_initial_state,
-                        estimate_output_offset)  # fmt: skip
+        est, more = _fit(data, n, m, opts, start_from)
+        notes += more
     notes += diagnose(est)
     if data.r is None:
         notes += delay_hints(data, est, max_delay, fixed=delay is not None)
+        out = outlier_note(est.residuals, loss, float(np.std(data.y)))
+        if out:
+            notes.append(out)
     for note in notes:
         warnings.warn(note, IdentificationWarning, stacklevel=3)
     return dataclasses.replace(est, warnings=tuple(notes))
 
 
-def _refine(
+def _loss_scale(data: IOData, loss: str, f_scale: float | None) -> float:
+    """The robust loss's scale (deg): given, or the noise's standard deviation from the
+    output's second differences (``var = 6 sigma^2`` for white noise; motion hardly adds)."""
+    if f_scale is not None or loss == "linear":
+        return 1.0 if f_scale is None else float(f_scale)
+    d2 = data.y[2:] - 2.0 * data.y[1:-1] + data.y[:-2]
+    sd = robust_std(d2) / math.sqrt(6.0) if d2.size else 0.0
+    if not sd > 0:  # quantised output at rest: a tenth of the output's range
+        sd = 0.1 * float(np.std(data.y)) or 1.0
+    return sd
+
+
+def _fit(
     data: IOData,
     n: int,
     m: int,
-    theta: np.ndarray,
-    tau: float,
-    estimate_delay: bool,
-    max_delay: float,
-    enforce_stability: bool,
-    estimate_x0: bool,
-    estimate_offset: bool,
-    max_nfev: int,
-    ftol: float,
+    opts: _Options,
+    start_from: Sequence[TFEstimate],
+    hint: list[float] | None = None,
+) -> tuple[TFEstimate, list[str]]:
+    """The open-loop estimate of order ``n/m`` and its notes; ``hint``: delays (s) to refit
+    instead of the global delay scan."""
+    lower = [e for e in start_from if _contains((n, m), (e.n_poles, e.n_zeros))]
+    # the least-squares starts of a robust fit see the record without its spikes
+    start_data = data
+    if opts.loss != "linear":
+        start_data = dataclasses.replace(data, y=despike(data.y, opts.f_scale))
+    # a lower order fitted as a start (``hint`` given) gets one start of its own
+    starts, search = fresh_starts(
+        start_data, n, m, opts.svf_lambda, opts.delay, opts.max_delay, delays_s=hint,
+        refined=REFINED if hint is None else 1,
+    )  # fmt: skip
+    pred = nested_order(n, m)
+    if (
+        opts.nested_starts
+        and pred is not None
+        and not any(
+            _contains((e.n_poles, e.n_zeros), pred) or (e.n_poles, e.n_zeros) == pred for e in lower
+        )
+    ):
+        # the lower order starts at the delays this order's search found (no scan of its own)
+        delays = [c.delay_s for c in search[:REFINED]] or [opts.delay or 0.0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the lower order is a start, not the user's model
+            low, _ = _fit(data, pred[0], pred[1], opts, (), delays)
+        lower.append(low)
+    starts += nested_starts(data, n, m, lower, opts.delay, several=len(start_from) > 0)
+    # every start a few output-error iterations, then the best one to convergence: a start in
+    # another basin shows itself within a few iterations, and each costs a simulation
+    screen = len(starts) > 1
+    best: _Candidate | None = None
+    for start in starts:
+        if start.refit:
+            theta, tau, n_iv = _srivc_with_delay(
+                start_data, n, m, start, opts.delay, opts.max_delay, opts.max_iter_srivc,
+                opts.srivc_tol,
+            )  # fmt: skip
+        else:  # a start from another estimate keeps its delay as the start
+            theta, tau, n_iv = start.theta, start.delay_s, 0
+        nfev = min(SCREEN_NFEV, opts.max_nfev) if screen else opts.max_nfev
+        cand = _refine(data, n, m, theta, tau, opts, nfev)
+        cand.lam, cand.n_iter_srivc = start.lam_rad_s, n_iv
+        if best is None or cand.cost < best.cost:
+            best = cand
+    assert best is not None
+    if screen and not best.oe.converged and opts.max_nfev > SCREEN_NFEV:
+        more = _refine(data, n, m, best.oe.theta, best.oe.delay_s, opts, opts.max_nfev)
+        if more.cost <= best.cost:
+            more.oe = dataclasses.replace(more.oe, n_iter=more.oe.n_iter + best.oe.n_iter)
+            more.lam, more.n_iter_srivc = best.lam, best.n_iter_srivc
+            best = more
+    est = _estimate(data, n, m, best, opts.delay is None, None, opts.estimate_x0,
+                    opts.estimate_offset, loss=opts.loss, search=search)  # fmt: skip
+    notes = []
+    for low in lower:
+        low_cost = loss_cost(low.residuals, opts.loss, opts.f_scale)
+        note = lower_order_hint(est, best.cost, low, low_cost)
+        if note:
+            notes.append(note)
+    notes += delay_search_hints(data, est, search)
+    return est, notes
+
+
+def _contains(big: tuple[int, int], small: tuple[int, int]) -> bool:
+    """Whether order ``big`` can reproduce ``small`` (exactly, or with poles far above the band)."""
+    return big != small and big[0] >= small[0] and big[1] >= small[1]
+
+
+def _refine(
+    data: IOData, n: int, m: int, theta: np.ndarray, tau: float, opts: _Options, max_nfev: int
 ) -> _Candidate:
     """Output-error refinement of one start (stabilised first; retried once if it left the
     stable region, which bounds alone cannot prevent for n > 2)."""
-    if enforce_stability:
+    if opts.enforce_stability:
         num, den = split_params(theta, n)
         den, _ = stabilise(den)
         theta = np.concatenate([den[1:], num])
-    kwargs = dict(
-        estimate_x0=estimate_x0,
-        estimate_offset=estimate_offset,
-        enforce_stability=enforce_stability,
+    kwargs: dict[str, Any] = dict(
+        estimate_x0=opts.estimate_x0,
+        estimate_offset=opts.estimate_offset,
+        enforce_stability=opts.enforce_stability,
         delay_s=tau,
-        estimate_delay=estimate_delay,
-        max_delay_s=max_delay,
+        estimate_delay=opts.delay is None,
+        max_delay_s=opts.max_delay,
         max_nfev=max_nfev,
-        ftol=ftol,
+        ftol=opts.ftol,
+        loss=opts.loss,
+        f_scale=opts.f_scale,
+        stamp_std_s=data.stamp_std_s,
     )
-    oe = refine_output_error(data, n, m, theta, **kwargs)  # type: ignore[arg-type]
+    oe = refine_output_error(data, n, m, theta, **kwargs)
     n_iter = oe.n_iter
     num, den = split_params(oe.theta, n)
-    if enforce_stability and np.any(np.roots(den).real >= 0):
+    if opts.enforce_stability and np.any(np.roots(den).real >= 0):
         den_s, _ = stabilise(den)
         kwargs["delay_s"] = oe.delay_s
-        oe = refine_output_error(data, n, m, np.concatenate([den_s[1:], num]), **kwargs)  # type: ignore[arg-type]
+        oe = refine_output_error(data, n, m, np.concatenate([den_s[1:], num]), **kwargs)
         n_iter += oe.n_iter
     oe = dataclasses.replace(oe, n_iter=n_iter)
-    return _Candidate(oe=oe, cost=float(oe.residuals @ oe.residuals), lam=math.nan, n_iter_srivc=0)
+    cost = loss_cost(oe.residuals, opts.loss, opts.f_scale)
+    return _Candidate(oe=oe, cost=cost, lam=math.nan, n_iter_srivc=0)
 
 
 def _closed_loop_estimate(
     data: IOData,
     n: int,
     m: int,
-    starts: list[tuple[np.ndarray, float, float | None]],
+    starts: list[Start],
     delay: float | None,
     max_delay: float,
     max_nfev: int,
 ) -> TFEstimate:
     """The indirect closed-loop fit (:func:`gripper_env.sysid.closed_loop.fit_closed_loop`),
     started from the open-loop SRIVC estimates (biased, but in the right region)."""
-    thetas = [srivc(data, n, m, theta).theta for theta, _, tau in starts if tau is None]
-    thetas += [theta for theta, _, tau in starts if tau is not None]
+    thetas = [srivc(data, n, m, s.theta).theta for s in starts if s.refit]
+    thetas += [s.theta for s in starts if not s.refit]
     loop = fit_closed_loop(data, n, m, thetas, delay, max_delay, max_nfev=max_nfev)
     cov = loop.cov
     oe = OutputErrorResult(
@@ -432,6 +581,9 @@ def _estimate(
     loop: ClosedLoopFit | None,
     estimate_x0: bool,
     estimate_offset: bool,
+    *,
+    loss: str = "linear",
+    search: Sequence[DelayCandidate] = (),
 ) -> TFEstimate:
     oe = cand.oe
     num, den = split_params(oe.theta, n)
@@ -475,6 +627,9 @@ def _estimate(
         svf_lambda_rad_s=cand.lam,
         time_base=data.time_base,
         jitter=data.jitter,
+        jitter_std=data.jitter_std,
         closed_loop=None if loop is None else _loop_dict(loop),
         message=oe.message,
+        loss=loss,
+        delay_candidates_s=tuple(float(c.delay_s) for c in search),
     )

@@ -131,3 +131,39 @@ def choudhury_stiction(x: np.ndarray, s_deg: float = 2.0, j_deg: float = 1.0) ->
             y = x[k] - direction * offset
         out[k] = y
     return out
+
+
+def sample_at_instants(num, den, u: np.ndarray, offsets_us: np.ndarray, dt_s: float = DT_S):
+    """Response from rest of ``num/den`` to ``u`` held on the grid ``k dt_s``, sampled at
+    ``k dt_s + offsets_us[k]`` microseconds (whole, ``|offset| < dt_s``): a logger whose sampling
+    instants jitter about its time stamps. Exact: the state at each grid instant (scipy's ZOH
+    discretisation), then the matrix exponential of the augmented system over each offset."""
+    from scipy.linalg import expm
+
+    a, b, c, _ = control.ssdata(control.ss(control.tf(num, den)))
+    n = a.shape[0]
+
+    def step(tau: float) -> tuple[np.ndarray, np.ndarray]:
+        m = np.zeros((n + 1, n + 1))
+        m[:n, :n], m[:n, n:] = a * tau, b * tau
+        e = expm(m)
+        return e[:n, :n], e[:n, n:]
+
+    a_d, b_d = step(dt_s)
+    states = np.empty((u.size, n))
+    x = np.zeros(n)
+    for k in range(u.size):
+        states[k] = x
+        x = a_d @ x + b_d[:, 0] * u[k]
+    offsets_us = np.asarray(offsets_us, dtype=int)
+    # a sample before its stamp lies in the previous hold interval
+    early = (offsets_us < 0) & (np.arange(u.size) > 0)
+    base = np.arange(u.size) - early
+    tau_us = np.where(early, round(dt_s * 1e6) + offsets_us, np.maximum(offsets_us, 0))
+    y = np.empty(u.size)
+    for t in np.unique(tau_us):
+        rows = np.flatnonzero(tau_us == t)
+        a_t, b_t = step(t * 1e-6)
+        xs = states[base[rows]] @ a_t.T + np.outer(u[base[rows]], b_t[:, 0])
+        y[rows] = xs @ c[0]
+    return y

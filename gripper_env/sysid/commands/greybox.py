@@ -110,17 +110,25 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 def text_report(est: ActualEstimate) -> str:
     """The identified actual gripper as a person reads it."""
     f, s, d = est.friction, est.sensor, est.dynamics
-    ok = f.identified()
+    ok = est.identified()
+    coef = ", ".join(
+        f"{k} {v:.4g} [{est.dynamics_intervals[k][0]:.4g}, {est.dynamics_intervals[k][1]:.4g}]"
+        for k, v in zip(d.param_names, d.params, strict=True)
+        if k in est.dynamics_intervals
+    )
+    lo, hi = est.delay_range_s
     lines = [
         f"servo:    G(s) = {d.paper_form()}",
-        f"friction: {f.model}, S = {f.S_deg:.3g} deg (consistent: {f.S_range_deg[0]:g}..."
-        f"{f.S_range_deg[1]:g}{'' if ok['S_deg'] else ', not pinned down'}), J = {f.J_deg:.3g} "
-        f"deg ({f.J_range_deg[0]:g}...{f.J_range_deg[1]:g}"
+        f"          coefficients with 95 % intervals: {coef}",
+        f"friction: {f.model}, S = {f.S_deg:.3g} deg (95 %: {f.S_range_deg[0]:.3g}..."
+        f"{f.S_range_deg[1]:.3g}{'' if ok['S_deg'] else ', not pinned down'}), J = "
+        f"{f.J_deg:.3g} deg ({f.J_range_deg[0]:.3g}...{f.J_range_deg[1]:.3g}"
         f"{'' if ok['J_deg'] else ', not pinned down'})",
         f"sensor:   noise {s.noise_std_deg:.3g} deg, ADC step {s.lsb_deg:.4g} deg, count 0 at "
         f"{s.adc_lo_deg:.4g} deg, offset {est.offset_deg:+.3g} deg (measured - model)",
-        f"delay:    {1e3 * est.delay_s:.3g} ms (servo refresh phase {est.refresh_phase_steps} "
-        "steps in this log)",
+        f"delay:    {1e3 * est.delay_s:.3g} ms (95 %: {1e3 * lo:.3g}..{1e3 * hi:.3g} ms"
+        f"{'' if ok['delay_s'] else ', not pinned down'}; servo refresh phase "
+        f"{est.refresh_phase_steps} steps in this log)",
     ]
     if est.validation:
         lines.append(

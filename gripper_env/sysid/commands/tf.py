@@ -31,6 +31,7 @@ from gripper_env.sysid.commands.common import (
     safe_print,
 )
 from gripper_env.sysid.data import OFFSET_MODES, prepare_data
+from gripper_env.sysid.error_model import LOSSES
 from gripper_env.sysid.orders import (
     OrderSelection,
     Record,
@@ -163,6 +164,21 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
         help="most residual evaluations of the output-error search (default: 200)",
     )
     fit.add_argument(
+        "--loss",
+        choices=LOSSES,
+        default="linear",
+        help="loss of the output-error search: 'linear' (least squares, default), or a robust "
+        "'soft_l1' or 'huber' that sensor spikes hardly pull (scipy least_squares)",
+    )
+    fit.add_argument(
+        "--loss-scale",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="residual where a robust loss starts to flatten (deg; default: the noise's "
+        "standard deviation, estimated from the data)",
+    )
+    fit.add_argument(
         "--allow-nonconverged",
         action="store_true",
         help="exit 0 (with a warning) when the output-error search did not converge",
@@ -207,6 +223,8 @@ def _fit(args: argparse.Namespace) -> tuple[TFEstimate, OrderSelection | None, R
         estimate_initial_state=not args.zero_initial_state,
         svf_lambda_rad_s=args.svf_lambda,
         max_nfev=args.max_iterations,
+        loss=args.loss,
+        f_scale_deg=args.loss_scale,
     )
     times = dict(max_jitter=args.max_jitter, max_gap=args.max_gap)
     if args.orders:
@@ -243,12 +261,20 @@ def text_report(est: TFEstimate, sel: OrderSelection | None) -> str:
     how = "estimated" if est.delay_estimated else "fixed"
     std = f" +/- {1e3 * est.input_delay_std_s:.2g}" if est.delay_estimated else ""
     lines.append(f"input delay: {1e3 * est.input_delay_s:.4g}{std} ms ({how})")
+    if est.delay_estimated:
+        lo, hi = est.intervals()["input_delay_s"]
+        lines[-1] += f", 95 % interval {1e3 * lo:.4g}..{1e3 * hi:.4g} ms"
     lines.append(
         f"poles (rad/s): {_poles_text(est.poles)}  ({'stable' if est.stable else 'NOT stable'})"
     )
-    lines.append("parameters (+/- 1 standard error):")
+    lines.append(
+        "parameters (+/- 1 standard error; 95 % interval)"
+        + (f", {est.loss} loss:" if est.loss != "linear" else ":")
+    )
+    iv = est.intervals()
     for name, val, sd in zip(est.param_names, est.params, est.params_std, strict=True):
-        lines.append(f"  {name} = {val:.6g} +/- {sd:.2g}")
+        lo, hi = iv[name]
+        lines.append(f"  {name} = {val:.6g} +/- {sd:.2g}  [{lo:.6g}, {hi:.6g}]")
     lines.append(
         f"operating point ({est.offset}): u_op = {est.u_op:.4g} deg, y_op = {est.y_op:.4g} deg; "
         f"{est.residuals.size} samples at {est.dt_s:g} s ({est.time_base} time base); residual "
