@@ -23,6 +23,7 @@ from tuners import cli
 from tuners.benchmark import leaderboard
 from tuners.benchmark.run import run_benchmark
 from tuners.benchmark.settings import load_benchmark_settings
+from tuners.engine import ENGINE_HELP
 from tuners.settings import EvaluationSettings, OptunaSettings, check_disjoint, load_settings
 
 __all__ = ["build_parser", "main"]
@@ -56,6 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="print benchmark.json's content instead of progress lines",
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace results in OUT even if they came from a larger budget",
+    )
+    parser.add_argument("--engine", default=None, help=ENGINE_HELP)
     return parser
 
 
