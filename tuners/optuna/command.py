@@ -24,7 +24,13 @@ from tuners.optuna.storage import StudyStorage, open_storage, redact
 from tuners.optuna.study import StudyResult, check_study_attrs, run_study
 from tuners.optuna.workers import Worker
 from tuners.search_space import SearchSpace, search_space
-from tuners.settings import OptunaSettings, check_disjoint, load_settings
+from tuners.settings import (
+    MAX_SEARCH_SEEDS,
+    MAX_TRIALS,
+    OptunaSettings,
+    check_disjoint,
+    load_settings,
+)
 
 __all__ = ["build_parser", "main"]
 
@@ -112,11 +118,15 @@ def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
     settings = load_settings(OptunaSettings, args.config)
     check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
     n_trials = settings.trials if args.trials is None else args.trials
-    if n_trials < 1:
-        raise ValueError(f"--trials must be at least 1, got {n_trials}")
+    if not 1 <= n_trials <= MAX_TRIALS:
+        raise ValueError(f"--trials must be between 1 and {MAX_TRIALS:,}, got {n_trials:,}")
     n_seeds = settings.search_seeds if args.search_seeds is None else args.search_seeds
-    if n_seeds < 1:
-        raise ValueError(f"--search-seeds must be at least 1, got {n_seeds}")
+    if not 1 <= n_seeds <= MAX_SEARCH_SEEDS:
+        raise ValueError(
+            f"--search-seeds must be between 1 and {MAX_SEARCH_SEEDS}, got {n_seeds:,}"
+        )
+    if not 0 <= args.seed <= 2**32 - n_seeds:  # the samplers' seeds are 32-bit
+        raise ValueError(f"--seed must be between 0 and {2**32 - n_seeds:,}, got {args.seed:,}")
     sampler_name = args.sampler or settings.sampler
     multi = args.multi_objective
     make_sampler(sampler_name, args.seed, settings, multi)  # checks the combination
