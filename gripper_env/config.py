@@ -10,7 +10,10 @@ environment variable names, if it is set (same layout: ``plants/``, ``disturbanc
 ``tuners/``, ``objective.yaml``, ``benchmark.yaml``; any of them may be missing), then in the
 shipped configurations. A path (``my/plant.yaml``) is read as it is. Every file is validated
 once, on load, by a pydantic model; a problem is reported as a :class:`ConfigError` that names
-the file and the offending key.
+the file and the offending key. Hostile files are refused before they cost time or memory: a
+file larger than :data:`MAX_CONFIG_BYTES` before it is read, one nested deeper than
+:data:`MAX_CONFIG_DEPTH` or expanding to more than :data:`MAX_CONFIG_NODES` values before
+anything is built from it (data files: :data:`MAX_DATA_BYTES`, :func:`read_bounded`).
 """
 
 from __future__ import annotations
@@ -171,7 +174,8 @@ def load_yaml(path: str | os.PathLike[str] | Traversable) -> dict[str, Any]:
     except UnicodeDecodeError:
         raise ConfigError(f"{p}: not a text (UTF-8) file") from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML ({' '.join(str(exc).split())})") from None
+        text = " ".join(str(exc).replace(' in "<unicode string>"', "").split())
+        raise ConfigError(f"{p}: not valid YAML ({text})") from None
     except (ValueError, TypeError, OverflowError) as exc:  # a value no constructor takes
         raise ConfigError(f"{p}: not valid YAML ({exc})") from None
     if not isinstance(data, dict):

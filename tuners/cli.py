@@ -339,6 +339,8 @@ def _os_error(exc: OSError) -> str:
     """``PATH: what went wrong`` (both paths of a rename or a link)."""
     paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
     what = exc.strerror or _one_line(exc)
+    if isinstance(exc, FileExistsError) and paths and not Path(paths[0]).is_dir():
+        what = "exists and is not a folder"  # mkdir of a folder where a file is
     return f"{' -> '.join(paths)}: {what}" if paths else what
 
 

@@ -153,3 +153,18 @@ def test_worker_identity_and_streams():
     assert stream_seed(7, 0) == 7  # a single worker keeps its --seed
     seeds = {stream_seed(7, r) for r in range(8)} | {stream_seed(8, r) for r in range(1, 8)}
     assert len(seeds) == 15
+
+
+def test_a_single_worker_is_reproducible(tmp_path, capsys, small_optuna_config, small_eval_config):
+    """Rank 0 keeps --seed: the same command in two fresh storages finds the same trials."""
+    from tuners import cli
+    from tuners.optuna import command
+
+    found = []
+    for run in ("a", "b"):
+        argv = worker_cmd(tmp_path / run, small_optuna_config, small_eval_config, "one", 8, 4)
+        assert cli.run(command.main, argv[3:]) == 0
+        capsys.readouterr()
+        study = load(tmp_path / run / "optuna.journal", "one")
+        found.append([(t.params, t.values) for t in study.trials])
+    assert found[0] == found[1] and len(found[0]) == 8
