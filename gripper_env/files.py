@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.config import MAX_DATA_BYTES
+
 __all__ = [
     "VOLATILE_KEYS",
     "collect_provenance",
@@ -193,15 +195,22 @@ def read_format_json(
         What the file is, for the messages (``"gains file"``).
     error : exception class
         Raised, with a one-line message that names the file, when the file cannot be read, is
-        not JSON, or is not of that format.
+        larger than :data:`gripper_env.config.MAX_DATA_BYTES`, is not JSON, or is not of that
+        format.
     """
     p = Path(path)
     try:
+        if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:
+            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
         content = json.loads(p.read_text())
     except OSError as exc:
         raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None
     except json.JSONDecodeError as exc:
         raise error(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except UnicodeDecodeError:
+        raise error(f"{p}: not a text (UTF-8) file") from None
+    except RecursionError:
+        raise error(f"{p}: not a {what} (nested too deeply)") from None
     if not isinstance(content, dict) or content.get("format") != fmt:
         raise error(f'{p}: not a {what} (expected "format": "{fmt}")')
     return content

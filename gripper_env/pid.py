@@ -37,6 +37,7 @@ from numba import njit
 
 __all__ = [
     "ANTI_WINDUP_MODES",
+    "MAX_GAIN",
     "PID",
     "PIDGains",
     "PIDOptions",
@@ -46,6 +47,10 @@ __all__ = [
 
 ANTI_WINDUP_MODES: dict[str, int] = {"none": 0, "clamping": 1, "back-calculation": 2}
 DERIVATIVE_ON: dict[str, int] = {"error": 0, "measurement": 1}
+#: Largest magnitude of a gain (P in deg/deg, I in 1/s, D in s, N in 1/s). Useful gains for the
+#: gripper are below 100; larger ones only overflow the simulation (1e308 * an error in deg is
+#: inf) and the margins, so they are refused with their name.
+MAX_GAIN = 1e6
 
 # Index of each value in a PID state vector (length 2).
 XI = 0
@@ -176,6 +181,11 @@ class PIDGains:
                 float(value)
             ):
                 raise ValueError(f"PID gain {name} must be a finite number, got {value!r}")
+            if abs(float(value)) > MAX_GAIN:
+                raise ValueError(
+                    f"PID gain {name} = {value:g} is out of range: |{name}| must be at most "
+                    f"{MAX_GAIN:g}"
+                )
         if self.N <= 0:
             raise ValueError(f"PID filter coefficient N must be positive, got {self.N}")
 

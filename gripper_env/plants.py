@@ -30,7 +30,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from gripper_env.config import available, find_config, load_yaml, validate
 from gripper_env.state_space import observer_form, zoh_matrices
 
-__all__ = ["Plant", "PlantSpec", "available_plants", "load_plant"]
+__all__ = ["MIN_DT_S", "Plant", "PlantSpec", "available_plants", "load_plant"]
+
+#: Smallest physics step of a plant (s), 1 % of the paper's 1 ms: a finer step resolves nothing
+#: the servo's 20 ms frame, the 1 ms board loop or the sensor can show, and a 1e-9 s step would
+#: ask for billions of samples per run.
+MIN_DT_S = 1e-5
 
 
 class PlantSpec(BaseModel):
@@ -43,7 +48,13 @@ class PlantSpec(BaseModel):
     num: list[float] = Field(description="numerator coefficients, highest power of s first")
     den: list[float] = Field(description="denominator coefficients, highest power of s first")
     fit_pct: float | None = Field(None, description="identification fit (%), MATLAB compare")
-    dt_s: float = Field(1e-3, gt=0, le=0.1, description="physics step (s)")
+    dt_s: float = Field(
+        1e-3,
+        ge=MIN_DT_S,
+        le=0.1,
+        description="physics step (s); a run may take at most "
+        "gripper_env.references.MAX_STEPS_PER_RUN of them",
+    )
     jaw_range_deg: tuple[float, float] = (21.0, 92.0)
 
     @field_validator("num", "den")

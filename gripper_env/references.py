@@ -19,16 +19,21 @@ A profile may also come from a CSV file (columns ``t_s`` and ``reference_deg`` o
 from __future__ import annotations
 
 import csv
+import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from gripper_env.config import MAX_DATA_BYTES, read_bounded
+
 __all__ = [
+    "MAX_STEPS_PER_RUN",
     "PROFILES",
     "Reference",
     "Segment",
+    "check_steps",
     "load_reference",
     "ramp_profile",
     "random_profile",
@@ -37,6 +42,39 @@ __all__ = [
 
 OPEN_DEG = 92.0
 CLOSED_DEG = 21.0
+
+#: Most physics steps one run may take: 1000 s at the paper's 1 ms step, or the longest named
+#: profile (``slope60``, 131 s) down to a step of 0.131 ms. A run's trajectories take about
+#: 1 kB per step in an evaluation (10 seeds, the ideal model, the other identifications), so the
+#: bound keeps one run near 1 GB; a tiny ``dt_s`` is refused before anything is allocated.
+MAX_STEPS_PER_RUN = 1_000_000
+
+
+def check_steps(what: str, duration_s: float, dt_s: float) -> int:
+    """The number of physics steps of ``duration_s`` at ``dt_s``, refused above
+    :data:`MAX_STEPS_PER_RUN`.
+
+    Parameters
+    ----------
+    what : str
+        What lasts ``duration_s`` (``"reference 'step'"``), for the message.
+    duration_s, dt_s : float
+        Duration and physics step (s).
+
+    Raises
+    ------
+    ValueError
+        Too many steps; the message says which ``dt_s`` would do.
+    """
+    steps = duration_s / dt_s
+    if not steps <= MAX_STEPS_PER_RUN:  # also NaN and inf
+        raise ValueError(
+            f"{what} lasts {duration_s:g} s: at the plant's dt_s = {dt_s:g} s a run would take "
+            f"{steps:.3g} physics steps, more than the {MAX_STEPS_PER_RUN:,} allowed; use a plant "
+            f"with dt_s >= {duration_s / MAX_STEPS_PER_RUN:.2g} s (its file's 'dt_s') or a "
+            "shorter reference"
+        )
+    return round(steps)
 
 
 @dataclass(frozen=True)
@@ -100,6 +138,7 @@ class Reference:
 
 def _build(name: str, dt_s: float, pieces: list[tuple[float, float, float]]) -> Reference:
     """Concatenate ``(duration_s, start_deg, end_deg)`` pieces (a hold has start == end)."""
+    check_steps(f"reference {name!r}", sum(p[0] for p in pieces), dt_s)
     values: list[np.ndarray] = []
     moves: list[tuple[int, float, float]] = []
     n0 = 0
@@ -126,6 +165,7 @@ def step_profile(
     dt_s: float = 1e-3, hold_s: float = 1.0, grip_s: float = 9.0, ungrip_s: float = 10.0
 ) -> Reference:
     """Grip step 92 -> 21 after ``hold_s``, un-grip step 21 -> 92 after ``grip_s`` more."""
+    check_steps("reference 'step'", hold_s + grip_s + ungrip_s, dt_s)
     n_hold = round(hold_s / dt_s)
     n_grip = round(grip_s / dt_s)
     n_ungrip = round(ungrip_s / dt_s)
@@ -192,6 +232,7 @@ def random_profile(
     duration_s : float
         Length of the profile (s).
     """
+    check_steps("a random reference", duration_s, dt_s)
     rng = np.random.default_rng(rng)
     lo, hi = jaw_range_deg
     span = hi - lo
@@ -229,10 +270,10 @@ def random_profile(
 
 
 def _from_csv(path: Path, dt_s: float) -> Reference:
+    text = read_bounded(path, MAX_DATA_BYTES, "reference CSV")
     try:
-        with path.open(newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as exc:
+        rows = list(csv.DictReader(io.StringIO(text.decode("utf-8-sig"), newline="")))
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise ValueError(f"cannot read reference CSV {path}: {exc}") from None
     if not rows:
         raise ValueError(f"reference CSV {path} has no data rows")
@@ -252,6 +293,7 @@ def _from_csv(path: Path, dt_s: float) -> Reference:
         raise ValueError(f"reference CSV {path}: non-finite values")
     if len(t) < 2 or np.any(np.diff(t) <= 0):
         raise ValueError(f"reference CSV {path}: t_s must be strictly increasing, >= 2 rows")
+    check_steps(f"reference CSV {str(path)!r}", float(t[-1] - t[0]), dt_s)
     grid = np.arange(t[0], t[-1] + dt_s / 2, dt_s)
     values = np.interp(grid, t, v)
     return Reference(path.stem, dt_s, values, _detect_segments(values))
@@ -289,7 +331,8 @@ def load_reference(reference: str | os.PathLike[str] | Reference, dt_s: float = 
     Raises
     ------
     ValueError
-        Unknown name (listing the names) or a malformed CSV file.
+        Unknown name (listing the names), a malformed or too large CSV file, or a run of more
+        than :data:`MAX_STEPS_PER_RUN` physics steps at ``dt_s``.
     """
     if isinstance(reference, Reference):
         return reference

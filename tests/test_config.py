@@ -65,3 +65,55 @@ def test_gripper_config_dir_is_read_from_the_environment(tmp_path):
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     ).stdout.split()
     assert out == [str(tmp_path), "True"]
+
+
+LOADERS = [yaml.SafeLoader] + ([yaml.CSafeLoader] if hasattr(yaml, "CSafeLoader") else [])
+
+
+@pytest.mark.parametrize("loader", LOADERS, ids=lambda c: c.__name__)
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[" * 10_000, "deeper than 32"),
+        ("{a: " * 3000 + "1" + "}" * 3000, "deeper than 32"),
+        ("- " * 3000 + "1", "deeper than 32"),
+        ("\n".join(["a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+                   + [f"{c}: &{c} [" + ", ".join([f"*{p}"] * 10) + "]"
+                      for p, c in zip("abcd", "bcde", strict=True)]), "100,000 values"),
+    ],
+    ids=["10,000 [", "3,000-level mapping", "3,000-level list", "aliases of 10^5 values"],
+)  # fmt: skip
+def test_deep_or_exploding_yaml_is_refused_by_both_parsers(tmp_path, monkeypatch, loader, text,
+                                                           message):  # fmt: skip
+    """Depth and expanded size are checked on parser events, before any object is built (the
+    pure-Python composer recurses: RecursionError at about 1,000 levels)."""
+    monkeypatch.setattr(config, "_LOADER", loader)
+    path = tmp_path / "hostile.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        config.load_yaml(path)
+    text_of = str(info.value)
+    assert str(path) in text_of and (message in text_of or "nesting depth" in text_of)
+
+
+@pytest.mark.parametrize("loader", LOADERS, ids=lambda c: c.__name__)
+def test_yaml_at_the_limits_is_read(tmp_path, monkeypatch, loader):
+    """32 levels, aliases that expand to fewer than 100,000 values, and a file just under
+    1 MiB are ordinary configuration files."""
+    monkeypatch.setattr(config, "_LOADER", loader)
+    path = tmp_path / "ok.yaml"
+    path.write_text("deep: " + "[" * 31 + "1" + "]" * 31 + "\nbase: &b {x: 1}\nother: *b\n")
+    data = config.load_yaml(path)
+    assert data["other"] == {"x": 1} and data["deep"][0][0] is not None
+    path.write_text("x: '" + "a" * (config.MAX_CONFIG_BYTES - 10) + "'\n")
+    assert len(config.load_yaml(path)["x"]) == config.MAX_CONFIG_BYTES - 10
+
+
+def test_a_large_yaml_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    path = tmp_path / "large.yaml"
+    path.write_text("x: 1\n")
+    with path.open("r+b") as f:
+        f.truncate(config.MAX_CONFIG_BYTES + 1)  # sparse
+    monkeypatch.setattr(config.yaml, "parse", None)  # parsing it would fail differently
+    with pytest.raises(ConfigError, match="more than the 1 MiB a configuration file may hold"):
+        config.load_yaml(path)

@@ -102,3 +102,15 @@ def test_bad_options_are_refused():
         PIDOptions(output_limits=(5.0, 1.0))
     with pytest.raises(ValueError, match="sign"):
         PIDOptions(sign=2)
+
+
+def test_gains_beyond_a_million_are_refused_by_name():
+    """1e308 is finite, but it overflows the simulation and the margins: refused, named."""
+    from gripper_env.pid import MAX_GAIN
+
+    PIDGains(MAX_GAIN, -MAX_GAIN, MAX_GAIN)
+    for i, name in enumerate("PID"):
+        values = [1.0, 1.0, 0.0]
+        values[i] = 1e308
+        with pytest.raises(ValueError, match=f"PID gain {name} = 1e\\+308 is out of range"):
+            PIDGains(*values)

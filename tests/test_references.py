@@ -70,3 +70,15 @@ def test_random_profiles_are_seeded_and_in_range():
     assert a.values_deg.min() >= 21.0 and a.values_deg.max() <= 92.0
     kinds = [s.kind for s in a.segments]
     assert kinds[0] == "grip" and all(k1 != k2 for k1, k2 in itertools.pairwise(kinds))
+
+
+def test_a_run_of_more_than_a_million_physics_steps_is_refused_before_it_is_built():
+    from gripper_env.references import MAX_STEPS_PER_RUN, step_profile
+
+    assert len(step_profile(dt_s=20.0 / MAX_STEPS_PER_RUN)) == MAX_STEPS_PER_RUN
+    with pytest.raises(ValueError, match=r"2e\+10 physics steps.*dt_s >= 2e-05 s"):
+        step_profile(dt_s=1e-9)
+    with pytest.raises(ValueError, match="reference 'slope60' lasts 131 s"):
+        load_reference("slope60", 1e-5)
+    with pytest.raises(ValueError, match="random reference"):
+        random_profile(0, duration_s=1e4, dt_s=1e-3)

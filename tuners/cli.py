@@ -11,7 +11,6 @@ bad input into a one-line ``error: ...`` on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import shlex
 import sys
@@ -104,9 +103,18 @@ def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
 
 
 def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
-    """Parse ``argv`` (default ``sys.argv[1:]``) and remember the command line for provenance."""
+    """Parse ``argv`` (default ``sys.argv[1:]``) and remember the command line for provenance.
+
+    Raises
+    ------
+    ValueError
+        ``--out`` names a file.
+    """
     args_list = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(args_list)
+    out = getattr(args, "out", None)
+    if out is not None and Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"--out {str(out)!r} is a file; give a folder")
     args.command = " ".join(["python", "-m", parser.prog.split()[-1], *map(shlex.quote, args_list)])
     return args
 
@@ -363,12 +371,25 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())
 
 
+def _os_error(exc: OSError) -> str:
+    """``PATH: what went wrong`` (both paths of a rename or a link)."""
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    what = exc.strerror or _one_line(exc)
+    if isinstance(exc, FileExistsError) and paths and not Path(paths[0]).is_dir():
+        what = "exists and is not a folder"  # mkdir of a folder where a file is
+    return f"{' -> '.join(paths)}: {what}" if paths else what
+
+
 def run(main: Callable[[list[str] | None], int], argv: list[str] | None = None) -> int:
-    """Call ``main(argv)``; bad input becomes ``error: <one line>`` on stderr and exit status 2."""
+    """Call ``main(argv)``; bad input (and a path that cannot be read or written) becomes
+    ``error: <one line>`` on stderr and exit status 2."""
     try:
         return main(argv)
     except (ConfigError, GainsFileError, ValueError, FileNotFoundError) as exc:
         print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # a path that cannot be read or written (--out naming a file, ...)
+        print(f"error: {_os_error(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -60,7 +60,8 @@ def parse_gains(text: str) -> ManualGains:
     Raises
     ------
     ValueError
-        Not a preset, not 3 or 4 finite numbers, and not a ``.json`` file.
+        Not a preset, not 3 or 4 finite numbers in range (:data:`gripper_env.pid.MAX_GAIN`),
+        and not a ``.json`` file.
     """
     if text in PAPER_GAINS:
         return PAPER_GAINS[text]
@@ -77,7 +78,10 @@ def parse_gains(text: str) -> ManualGains:
             f"--gains must be a preset ({', '.join(PAPER_GAINS)}), 3 or 4 finite numbers "
             f"'P,I,D[,N]', or a gains .json file; got {text!r}"
         )
-    return ManualGains(PIDGains(*values), 1, "")
+    try:
+        return ManualGains(PIDGains(*values), 1, "")
+    except ValueError as exc:
+        raise ValueError(f"--gains {text!r}: {exc}") from None
 
 
 class ManualTuner:

@@ -40,8 +40,20 @@ BOUND_TOLERANCE = 0.02
 
 
 def plant_scales(plant: Plant, disturbance: Disturbance) -> dict[str, float]:
-    """The plant's gain scales ``{"P": tau/(k theta), "I": 1/(k theta), "D": tau/k}``."""
-    m = fit_fopdt(plant, disturbance, ClassicalSettings())
+    """The plant's gain scales ``{"P": tau/(k theta), "I": 1/(k theta), "D": tau/k}``.
+
+    Raises
+    ------
+    ValueError
+        The plant has no FOPDT model (not open-loop stable): search it in absolute units.
+    """
+    try:
+        m = fit_fopdt(plant, disturbance, ClassicalSettings())
+    except ValueError as exc:
+        raise ValueError(
+            f"{exc}, and the search ranges in plant units come from that model; give absolute "
+            "ranges ('units: absolute' under 'search' in --config)"
+        ) from None
     k = abs(m.k)
     return {"P": m.tau_s / (k * m.theta_s), "I": 1.0 / (k * m.theta_s), "D": m.tau_s / k}
 

@@ -17,6 +17,8 @@ from gripper_env.config import ConfigError, config_file, load_yaml, validate
 from gripper_env.pid import PIDOptions
 
 __all__ = [
+    "MAX_SEARCH_SEEDS",
+    "MAX_TRIALS",
     "ClassicalSettings",
     "EvaluationSettings",
     "OptunaSettings",
@@ -170,15 +172,21 @@ class MultiObjective(BaseModel):
         return v
 
 
+#: Most finished trials a study may be asked for (TPE's cost per trial grows with the trials).
+MAX_TRIALS = 100_000
+#: Most independent studies (search seeds) one run may make.
+MAX_SEARCH_SEEDS = 100
+
+
 class OptunaSettings(BaseModel):
     """``configs/tuners/optuna.yaml`` (see the comments there)."""
 
     model_config = _STRICT
 
-    trials: int = Field(200, ge=1)
+    trials: int = Field(200, ge=1, le=MAX_TRIALS)
     batch_size: int = Field(16, ge=1, le=1024)
     tuning_seeds: SeedRange = SeedRange()
-    search_seeds: int = Field(3, ge=1, le=100)
+    search_seeds: int = Field(3, ge=1, le=MAX_SEARCH_SEEDS)
     sampler: Literal["tpe", "cmaes", "random"] = "tpe"
     n_startup_trials: int = Field(16, ge=0)
     tune_N: bool = False

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gripper_env.config import MAX_DATA_BYTES
+
 __all__ = ["LOG_COLUMNS", "read_columns", "read_log"]
 
 LOG_COLUMNS = ("t_s", "desired_deg", "actual_deg")
@@ -61,10 +63,17 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
     Raises
     ------
     ValueError
-        Missing file or columns, no data rows, or a cell that is not a finite number.
+        Missing or too large a file (:data:`gripper_env.config.MAX_DATA_BYTES`), missing
+        columns, no data rows, or a cell that is not a finite number.
     """
     p = Path(path)
     try:
+        if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:  # before reading a byte
+            raise ValueError(
+                f"{p}: {p.stat().st_size / 2**20:.3g} MiB, more than the "
+                f"{MAX_DATA_BYTES >> 20} MiB a log may hold (minutes at 1 kHz are enough to "
+                "identify the gripper: cut the log)"
+            )
         with p.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError:

@@ -1,7 +1,6 @@
 import json
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -39,22 +38,23 @@ def small(tmp_path, small_optuna_config, small_eval_config, *extra):
     ]
 
 
-def complete_trials(db):
-    """Finished trials (number -> value) read straight from the SQLite file; {} until the
-    worker has created the tables."""
+def stored_trials(journal, name):
+    """The study's trials as Optuna reads them from the journal file; [] until the worker has
+    created the study."""
+    import optuna
+
+    backend = optuna.storages.journal.JournalFileBackend(str(journal))
     try:
-        return _complete_trials(db)
-    except sqlite3.OperationalError:  # no tables yet, or a write in progress
-        return {}
+        return optuna.load_study(
+            study_name=name, storage=optuna.storages.JournalStorage(backend)
+        ).trials
+    except KeyError:
+        return []
 
 
-def _complete_trials(db):
-    with sqlite3.connect(db) as con:
-        rows = con.execute(
-            "SELECT t.number, v.value FROM trials t JOIN trial_values v ON v.trial_id = t.trial_id"
-            " WHERE t.state = 'COMPLETE' ORDER BY t.number"
-        ).fetchall()
-    return dict(rows)
+def complete_trials(journal, name):
+    """Finished trials (number -> values)."""
+    return {t.number: t.values for t in stored_trials(journal, name) if t.state.name == "COMPLETE"}
 
 
 def test_study_writes_gains_file_and_resumes(
@@ -68,7 +68,7 @@ def test_study_writes_gains_file_and_resumes(
     assert first["tuning"]["episodes_this_run"] == 12 * 2  # two tuning seeds per trial
     best = [c for _, c in first["tuning"]["history"]]
     assert best == sorted(best, reverse=True)  # best so far only improves
-    assert (tmp_path / "optuna.db").is_file() and (tmp_path / "test2" / "optuna.png").is_file()
+    assert (tmp_path / "optuna.journal").is_file() and (tmp_path / "test2" / "optuna.png").is_file()
     # rerunning with a larger budget continues the same study
     code, out, _ = run([*args, "--trials", 16, "--seed", 1], capsys)
     second = json.loads(out)
@@ -154,8 +154,10 @@ def test_malformed_and_overlapping_configs(tmp_path, capsys, small_optuna_config
 
 
 def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, small_eval_config):
+    """``kill -9`` of the only worker: the rerun keeps every finished trial, fails the trials
+    the killed worker had in flight (none stays RUNNING) and continues the study."""
     out = tmp_path / "results"
-    db = out / "optuna.db"
+    journal = out / "optuna.journal"
     cmd = [
         sys.executable,
         "-m",
@@ -179,7 +181,7 @@ def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, sm
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
-            if db.is_file() and len(complete_trials(db)) >= 12:
+            if journal.is_file() and len(complete_trials(journal, "killed")) >= 12:
                 break
             time.sleep(0.2)
         worker.send_signal(signal.SIGKILL)
@@ -187,14 +189,18 @@ def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, sm
     finally:
         if worker.poll() is None:
             worker.kill()
-    before = _complete_trials(db)
+    before = complete_trials(journal, "killed")
+    in_flight = [t.number for t in stored_trials(journal, "killed") if t.state.name == "RUNNING"]
     assert len(before) >= 12
     target = len(before) + 8
     proc = run_cli("tuners.optuna", *cmd[3:], target, "--json")
     assert proc.returncode == 0, proc.stderr
     content = json.loads(proc.stdout)
-    after = _complete_trials(db)
+    after = complete_trials(journal, "killed")
     assert all(after[n] == v for n, v in before.items())  # every finished trial kept as it was
+    trials = stored_trials(journal, "killed")
+    assert all(trials[n].state.name == "FAIL" for n in in_flight)
+    assert not [t for t in trials if t.state.name == "RUNNING"]
     assert content["tuning"]["trials_in_study"] == target
     assert content["tuning"]["trials_this_run"] == 8  # continued, did not start over
 

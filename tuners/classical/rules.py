@@ -59,11 +59,12 @@ import numpy as np
 from gripper_env.disturbances import Disturbance
 from gripper_env.pid import PIDGains
 from gripper_env.plants import Plant
+from gripper_env.references import check_steps
 from gripper_env.scoring import loop_analysis
 from gripper_env.stability import ServoLoop
 from tuners.settings import ClassicalSettings
 
-__all__ = ["FOPDT", "METHODS", "Design", "design", "fit_fopdt"]
+__all__ = ["FOPDT", "METHODS", "Design", "design", "fit_fopdt", "require_stable"]
 
 
 @dataclass(frozen=True)
@@ -85,9 +86,45 @@ class FOPDT:
     theta_s: float
 
 
+def _unstable(plant: Plant) -> str:
+    pole = complex(max(plant.poles, key=lambda p: p.real))
+    where = f"{pole.real:.3g}" + (f"{pole.imag:+.3g}j" if pole.imag else "")
+    return (
+        f"plant {plant.name!r} is not open-loop stable (pole at {where} rad/s): a "
+        "first-order-plus-dead-time model needs a stable step response"
+    )
+
+
+def require_stable(plant: Plant) -> None:
+    """Refuse a plant that is not open-loop stable: every rule starts from a FOPDT model read
+    off the step response, and an unstable plant's has no final value (a rule would give
+    meaningless gains, such as ``P = 2.6e-11`` from ``k = 1e13``).
+
+    Raises
+    ------
+    ValueError
+        The plant has a pole with a non-negative real part; the message says what can tune it.
+    """
+    if not plant.is_stable:
+        raise ValueError(
+            f"{_unstable(plant)}; no classical rule applies (python -m tuners.optuna can search "
+            "it, with 'units: absolute' under 'search' in its --config)"
+        )
+
+
 def fit_fopdt(plant: Plant, disturbance: Disturbance, settings: ClassicalSettings) -> FOPDT:
-    """Read a FOPDT model off the plant's unit step response over ``settings.window_s``."""
+    """Read a FOPDT model off the plant's unit step response over ``settings.window_s``.
+
+    Raises
+    ------
+    ValueError
+        The plant is not open-loop stable (its step response has no final value to read a
+        gain off), the window takes too many physics steps, or the response is unusable.
+    """
+    if not plant.is_stable:
+        raise ValueError(_unstable(plant))
     dt = plant.dt_s
+    check_steps(f"the classical window_s ({plant.name})", settings.window_s, dt)
     t = np.arange(0.0, settings.window_s, dt)
     response = control.step_response(control.ss(plant.tf), T=t)
     y = np.ravel(response.outputs)
@@ -264,6 +301,7 @@ def design(
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    require_stable(plant)
     model = fit_fopdt(plant, disturbance, settings)
     ctx = _Context(plant, ServoLoop.from_disturbance(disturbance, plant.dt_s, n, 1))
     result = METHODS[method](model, settings, ctx)

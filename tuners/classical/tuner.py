@@ -8,7 +8,7 @@ from typing import Any
 from gripper_env.pid import PIDGains
 from tuners import cli
 from tuners.classical.constrained import KNOBS, constrained_design
-from tuners.classical.rules import METHODS, design
+from tuners.classical.rules import METHODS, design, require_stable
 from tuners.interface import Budget, Tuned
 from tuners.settings import ClassicalSettings, OptunaSettings, load_settings
 from tuners.tasks import make_scorer
@@ -31,7 +31,14 @@ def tune_rule(
     optuna_settings: OptunaSettings | None = None,
 ) -> tuple[PIDGains, dict[str, Any]]:
     """The rule's gains: at its fixed setting, or with its knob set under the constraints (on
-    the tuning task of ``plants``, default the inputs' plant)."""
+    the tuning task of ``plants``, default the inputs' plant).
+
+    Raises
+    ------
+    ValueError
+        The plant is not open-loop stable (:func:`~tuners.classical.rules.require_stable`).
+    """
+    require_stable(inputs.plant)
     n = inputs.settings.pid.N
     if fixed or method not in KNOBS:
         return design(method, inputs.plant, inputs.disturbance, settings, n)

@@ -6,8 +6,9 @@ Usage::
     python -m tuners.optuna --plant test2 --trials 400 --sampler cmaes --seed 3
     python -m tuners.optuna --plant test2 --plants test2,test3,test4      # robust: all three
     python -m tuners.optuna --plant test2 --multi-objective               # Pareto front + knee
+    python -m tuners.optuna --plant test2 & python -m tuners.optuna --plant test2  # two workers
     python -m tuners.optuna --plant test2 --storage postgresql://user:pw@host/db --seed 7
-    optuna-dashboard sqlite:///results/optuna.db                          # look at the studies
+    optuna-dashboard runs/optuna.journal                                  # look at the studies
 
 Each trial's gains are scored through the one scoring path (:mod:`gripper_env.scoring`) on the
 ``actual`` model under ``tuning_seeds`` randomised disturbance draws
@@ -25,14 +26,24 @@ bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, 
 over the seeds is recorded.
 
 Trials are asked ``batch_size`` at a time, simulated in one batched call, and told. Studies live
-in a storage (default ``sqlite:///<out>/optuna.db``): an interrupted run (Ctrl-C, a killed
-process) resumes from it when rerun with the same command, keeping every finished trial;
-``--trials`` is the number of finished trials each study should hold. Several processes (or
-machines) may work on the same studies through a shared PostgreSQL storage; give each its own
-``--seed``. Only Optuna's public API is used (ask/tell, enqueue, the storage's heartbeats).
+in a storage, by default Optuna's journal file ``<out>/optuna.journal``
+(:mod:`~tuners.optuna.storage`): an interrupted run (Ctrl-C, a killed process) resumes from it
+when rerun with the same command, keeping every finished trial; ``--trials`` is the number of
+finished trials each study should hold. The journal file is the storage for several workers on
+one machine, with no server: start the same command two to four times and the processes share
+the studies, finish exactly ``--trials`` between them with no parameter set twice, and each
+draws its own sampler stream, even with the same ``--seed`` (:mod:`~tuners.optuna.workers`); a
+killed worker's trials in flight are failed by the others, or by the next run. It is the
+default over SQLite because it is what Optuna provides for this case (appending to a file under
+a lock; no tables to create, so no creation race). ``--storage sqlite:///PATH`` works the same
+way on one machine. Workers on several machines share a server
+(``--storage postgresql://...``), with Optuna's heartbeats to fail a dead worker's trials;
+give each its own ``--seed`` there. Only Optuna's public API is used (ask/tell with
+:class:`optuna.samplers.PartialFixedSampler`, the storages' heartbeats).
 
-Modules: :mod:`~tuners.optuna.storage` (storages), :mod:`~tuners.optuna.sampler` (samplers by
-name), :mod:`~tuners.optuna.study` (one study: ask, score, tell), :mod:`~tuners.optuna.search`
+Modules: :mod:`~tuners.optuna.storage` (storages), :mod:`~tuners.optuna.workers` (several
+workers on one study), :mod:`~tuners.optuna.sampler` (samplers by name),
+:mod:`~tuners.optuna.study` (one study: ask, score, tell), :mod:`~tuners.optuna.search`
 (in-memory searches and the spread over seeds), :mod:`~tuners.optuna.command` (the command line).
 """
 

@@ -20,10 +20,17 @@ from gripper_env.scoring import GainScorer
 from tuners import cli
 from tuners.optuna.sampler import SAMPLERS, make_sampler
 from tuners.optuna.search import best_of, make_scorer, seed_summary, tuner_name
-from tuners.optuna.storage import open_storage, redact
+from tuners.optuna.storage import StudyStorage, open_storage, redact
 from tuners.optuna.study import StudyResult, check_study_attrs, run_study
+from tuners.optuna.workers import Worker
 from tuners.search_space import SearchSpace, search_space
-from tuners.settings import OptunaSettings, check_disjoint, load_settings
+from tuners.settings import (
+    MAX_SEARCH_SEEDS,
+    MAX_TRIALS,
+    OptunaSettings,
+    check_disjoint,
+    load_settings,
+)
 
 __all__ = ["build_parser", "main"]
 
@@ -59,8 +66,9 @@ def build_parser():
     parser.add_argument(
         "--storage",
         default=None,
-        help="Optuna storage URL (sqlite:///..., postgresql://user:pw@host/db); default "
-        "sqlite:///OUT/optuna.db",
+        help="where the studies live: a journal file (several workers on this machine), "
+        "sqlite:///PATH, or postgresql://user:pw@host/db (workers on several machines); default "
+        "OUT/optuna.journal",
     )
     parser.add_argument(
         "--study-name",
@@ -110,11 +118,15 @@ def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
     settings = load_settings(OptunaSettings, args.config)
     check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
     n_trials = settings.trials if args.trials is None else args.trials
-    if n_trials < 1:
-        raise ValueError(f"--trials must be at least 1, got {n_trials}")
+    if not 1 <= n_trials <= MAX_TRIALS:
+        raise ValueError(f"--trials must be between 1 and {MAX_TRIALS:,}, got {n_trials:,}")
     n_seeds = settings.search_seeds if args.search_seeds is None else args.search_seeds
-    if n_seeds < 1:
-        raise ValueError(f"--search-seeds must be at least 1, got {n_seeds}")
+    if not 1 <= n_seeds <= MAX_SEARCH_SEEDS:
+        raise ValueError(
+            f"--search-seeds must be between 1 and {MAX_SEARCH_SEEDS}, got {n_seeds:,}"
+        )
+    if not 0 <= args.seed <= 2**32 - n_seeds:  # the samplers' seeds are 32-bit
+        raise ValueError(f"--seed must be between 0 and {2**32 - n_seeds:,}, got {args.seed:,}")
     sampler_name = args.sampler or settings.sampler
     multi = args.multi_objective
     make_sampler(sampler_name, args.seed, settings, multi)  # checks the combination
@@ -124,7 +136,7 @@ def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
     )
     if args.storage is None:
         Path(args.out).mkdir(parents=True, exist_ok=True)
-        url = f"sqlite:///{Path(args.out) / 'optuna.db'}"
+        url = str(Path(args.out) / "optuna.journal")
     else:
         url = args.storage
     terms = list(settings.multi_objective.objectives) if multi else []
@@ -135,7 +147,7 @@ def _search(
     args: Any,
     inputs: cli.Inputs,
     plan: _Plan,
-    storage: Any,
+    storage: StudyStorage,
     scorer: GainScorer,
     space: SearchSpace,
 ) -> tuple[list[StudyResult], list[str]]:
@@ -144,34 +156,38 @@ def _search(
     results, names = [], []
     for i in range(plan.n_seeds):
         name = plan.base_name if plan.n_seeds == 1 else f"{plan.base_name}-s{i}"
-        study = optuna.create_study(
-            storage=storage,
-            study_name=name,
-            sampler=optuna.samplers.RandomSampler(seed=args.seed + i),
-            load_if_exists=True,
-            directions=["minimize"] * n_objectives,
-        )
-        if len(study.directions) != n_objectives:
-            raise ConfigError(
-                f"study {name!r} has {len(study.directions)} objectives; use another --study-name"
+        with storage.lock():  # workers started together create the study once
+            study = optuna.create_study(
+                storage=storage.optuna,
+                study_name=name,
+                sampler=optuna.samplers.RandomSampler(seed=args.seed + i),
+                load_if_exists=True,
+                directions=["minimize"] * n_objectives,
             )
-        check_study_attrs(
-            study,
-            {
-                "plants": [p.name for p in scorer.task.plants],
-                "disturbance": inputs.disturbance_name,
-                "profile": inputs.profile_name,
-                "search": space.as_dict()["ranges"],
-                "tuning_seeds": plan.settings.tuning_seeds.model_dump(),
-                "objectives": plan.terms or ["cost"],
-                "objective": scorer.task.objective.model_dump(),
-            },
-        )
-        result = run_study(
-            study, scorer, space, plan.settings, plan.n_trials, inputs.settings.pid.N,
-            sampler=make_sampler(plan.sampler, args.seed + i, plan.settings, plan.multi),
-            progress=not args.no_progress, terms=plan.terms, storage=storage,
-        )  # fmt: skip
+            if len(study.directions) != n_objectives:
+                raise ConfigError(
+                    f"study {name!r} has {len(study.directions)} objectives; use another "
+                    "--study-name"
+                )
+            check_study_attrs(
+                study,
+                {
+                    "plants": [p.name for p in scorer.task.plants],
+                    "disturbance": inputs.disturbance_name,
+                    "profile": inputs.profile_name,
+                    "search": space.as_dict()["ranges"],
+                    "tuning_seeds": plan.settings.tuning_seeds.model_dump(),
+                    "objectives": plan.terms or ["cost"],
+                    "objective": scorer.task.objective.model_dump(),
+                },
+            )
+        with Worker(study, storage) as worker:  # its rank: its own sampler stream
+            sampler = make_sampler(plan.sampler, worker.seed(args.seed + i), plan.settings,
+                                   plan.multi)  # fmt: skip
+            result = run_study(
+                study, scorer, space, plan.settings, plan.n_trials, inputs.settings.pid.N,
+                sampler=sampler, progress=not args.no_progress, terms=plan.terms, worker=worker,
+            )  # fmt: skip
         results.append(result)
         names.append(name)
         if result.interrupted:

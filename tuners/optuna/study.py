@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ from tqdm import tqdm
 from gripper_env.config import ConfigError
 from gripper_env.objective import Objective
 from gripper_env.scoring import GainScorer
+from tuners.optuna.workers import Worker
 from tuners.search_space import SearchSpace
 from tuners.settings import OptunaSettings
 
@@ -106,15 +108,17 @@ def _is_feasible(trial: optuna.trial.FrozenTrial) -> bool:
 class _Mirror:
     """The sampler's in-memory copy of a stored study (public API only).
 
-    Sampling through an RDB study reads the storage several times per parameter; instead the
+    Sampling through a stored study reads the storage several times per parameter; instead the
     sampler works on an in-memory study, brought up to date once per batch with the finished
-    trials of other workers. Each trial it samples is put in the stored study with
-    :meth:`optuna.Study.enqueue_trial` and taken with :meth:`optuna.Study.ask`, which also takes
-    trials re-queued from a killed worker first.
+    trials of other workers. Each trial it samples is created in the stored study by
+    :meth:`optuna.Study.ask` with those parameters fixed
+    (:class:`optuna.samplers.PartialFixedSampler`), so no other worker can take it; a trial
+    that Optuna re-queued (a server's heartbeat retry) is handed out first instead.
     """
 
     def __init__(self, study: optuna.Study, sampler: Any, constrained: bool) -> None:
         self.study = study
+        self.base = study.sampler
         self.memory = optuna.create_study(directions=study.directions, sampler=sampler)
         self.constrained = constrained  # CMA-ES takes no constraints (it warns on them)
         self.mirrored: set[int] = set()  # stored trial numbers already in the memory study
@@ -135,17 +139,30 @@ class _Mirror:
                 )
         return trials
 
-    def ask(self, dists: dict[str, Any]) -> tuple[optuna.Trial | None, optuna.Trial]:
-        """A trial sampled on the mirror and put in the stored study; ``(None, trial)`` when
-        the stored study handed out a re-queued trial instead."""
+    def ask(
+        self, dists: dict[str, Any], worker: Worker
+    ) -> tuple[optuna.Trial | None, optuna.Trial]:
+        """A trial sampled on the mirror and created in the stored study with its parameters;
+        ``(None, trial)`` when the stored study handed out a re-queued trial instead."""
         mine = self.memory.ask(dists)
-        self.study.enqueue_trial(mine.params, skip_if_exists=False)
-        stored = self.study.ask(dists)
-        if stored.params != mine.params:  # a re-queued trial of a killed worker came first
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            self.study.sampler = optuna.samplers.PartialFixedSampler(mine.params, self.base)
+        try:
+            stored = self.study.ask(dists)
+        finally:
+            self.study.sampler = self.base
+        worker.mark(stored)
+        if stored.params != mine.params:  # a re-queued trial came first
             self.memory.tell(mine, state=TrialState.FAIL)
             return None, stored
         self.mirrored.add(stored.number)
         return mine, stored
+
+
+#: How long a worker waits (s) before looking again when the other workers' trials in flight
+#: already make up the study's total.
+WAIT_S = 0.5
 
 
 def run_study(
@@ -158,7 +175,7 @@ def run_study(
     sampler: Any = None,
     progress: bool = True,
     terms: Sequence[str] = (),
-    storage: Any = None,
+    worker: Worker | None = None,
 ) -> StudyResult:
     """Ask, score, tell in batches until the study holds ``n_trials`` finished trials.
 
@@ -182,24 +199,22 @@ def run_study(
         Show a progress bar (on a terminal).
     terms : sequence of str
         Multi-objective: the objective terms to minimise (empty: the weighted cost).
-    storage : optuna.storages.RDBStorage, optional
-        The study's storage, for heartbeats (killed workers' trials are re-queued).
+    worker : Worker, optional
+        This process's registration in a stored study shared with other workers
+        (:mod:`tuners.optuna.workers`); ``None`` for a study in memory.
 
-    Ctrl-C fails the batch in flight (its trials are not finished) and stops; every finished
-    trial is already in the storage.
+    A batch asks only for what the study still lacks, counting the trials other workers have
+    in flight, so several workers finish exactly ``n_trials`` (on a one-machine storage, where
+    counting and asking happen under one lock; a server may overshoot by a batch). Trials of
+    dead workers are failed before each batch. Ctrl-C fails the batch in flight (its trials are
+    not finished) and stops; every finished trial is already in the storage.
     """
     multi = bool(terms)
     objective = scorer.task.objective
     is_cmaes = isinstance(sampler, optuna.samplers.CmaEsSampler)
     dists = space.distributions()
     mirror = _Mirror(study, sampler or optuna.samplers.TPESampler(), constrained=not is_cmaes)
-    warnings.filterwarnings("ignore", message="Heartbeat of storage", category=UserWarning)
-    heartbeat = storage is not None and storage.get_heartbeat_interval() is not None
-    if heartbeat:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            optuna.storages.fail_stale_trials(study)
-        study_id = storage.get_study_id_from_name(study.study_name)
+    worker = worker or Worker(study)
     trials = mirror.sync()
     done = sum(t.state == TrialState.COMPLETE for t in trials)
     run_here = 0
@@ -215,13 +230,23 @@ def run_study(
     )
     pending: list[tuple[optuna.Trial | None, optuna.Trial]] = []
     try:
-        while done < n_trials:
-            k = min(settings.batch_size, n_trials - done)
-            pending = [mirror.ask(dists) for _ in range(k)]
-            if heartbeat:
-                for _, t in pending:
-                    trial_id = storage.get_trial_id_from_study_id_trial_number(study_id, t.number)
-                    storage.record_heartbeat(trial_id)
+        while True:
+            with worker.reserve():
+                trials = mirror.sync()
+                failed = worker.fail_stale(trials)
+                new_done = sum(t.state == TrialState.COMPLETE for t in trials)
+                bar.update(min(new_done, n_trials) - min(done, n_trials))
+                done = new_done
+                in_flight = sum(
+                    t.state == TrialState.RUNNING and t.number not in failed for t in trials
+                )
+                k = min(settings.batch_size, n_trials - done - in_flight)
+                pending = [mirror.ask(dists, worker) for _ in range(k)]
+            if done >= n_trials:
+                break
+            if not pending:  # the others' trials in flight complete the study, or fail
+                time.sleep(WAIT_S)
+                continue
             gains = np.stack([space.gains(t.params, default_n).as_array() for _, t in pending])
             scores = scorer.score(gains)
             for i, (mine, stored) in enumerate(pending):
@@ -239,20 +264,17 @@ def run_study(
                     value = [v if math.isfinite(v) else objective.unstable_cost for v in value]
                 else:
                     value = float(scores.penalised[i] if is_cmaes else scores.cost[i])
-                study.tell(stored, value)
+                # skip_if_finished: a trial failed as stale meanwhile keeps that verdict
+                study.tell(stored, value, skip_if_finished=True)
                 if mine is not None:
                     mirror.memory.tell(mine, value)
+            run_here += len(pending)
             pending = []
-            run_here += k
-            trials = mirror.sync()
-            new_done = sum(t.state == TrialState.COMPLETE for t in trials)
-            bar.update(min(new_done, n_trials) - min(done, n_trials))
-            done = new_done
     except KeyboardInterrupt:
         interrupted = True
         for _, t in pending:
             try:
-                study.tell(t, state=TrialState.FAIL)
+                study.tell(t, state=TrialState.FAIL, skip_if_finished=True)
             except Exception:
                 pass
     finally:
