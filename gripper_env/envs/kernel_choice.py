@@ -200,6 +200,8 @@ class KernelChooser:
         self.kernel_s = 0.0
         #: Calls of each arm so far, in the order of :attr:`arms` (counted at the end of a block).
         self.calls = [0] * n
+        #: Whether the first rounds are over (the first choice is made).
+        self.settled = False
         #: How often the arm that runs between probes changed.
         self.switches = 0
         self._best = 0  # the arm that runs between probes
@@ -242,9 +244,11 @@ class KernelChooser:
         return {arm.name: self._cost(i) for i, arm in enumerate(self.arms)}
 
     def summary(self) -> dict[str, Any]:
-        """What the chooser has measured and chosen, for a benchmark's report: the chosen arm,
-        calls and cost (s per call) of each arm, switches, measured kernel time (s)."""
+        """What the chooser has measured and chosen, for a benchmark's report: whether the first
+        rounds are over, the chosen arm, calls and cost (s per call) of each arm, switches,
+        measured kernel time (s)."""
         return {
+            "settled": self.settled,
             "best": self.best.name,
             "calls": {arm.name: self.calls[i] for i, arm in enumerate(self.arms)},
             "cost_s": self.costs(),
@@ -279,8 +283,13 @@ class KernelChooser:
         self.kernel_s += self._block_time
         self._last_block_end[i] = self.kernel_s
         if self._queue:  # the first rounds
-            self._start(self._queue.pop(0))
-            return
+            if i > 0 and self._worst_block(i) >= min(self._cost(j) for j in range(i)):
+                # a riskier arm with a block dearer than a safer arm cannot be chosen now:
+                # its remaining first-round blocks would be wasted
+                self._queue = [j for j in self._queue if j != i]
+            if self._queue:
+                self._start(self._queue.pop(0))
+                return
         self._choose()
         nxt = self._due_probe()
         self._start(self._best if nxt is None else nxt)
@@ -290,6 +299,7 @@ class KernelChooser:
         on its mean cost; a later one only if each of its recent blocks was cheaper, as a
         parallel call's cost is a few long waits for a descheduled thread, which a few blocks
         can miss."""
+        self.settled = True
         best = self._best
         limit = self._cost(best) * (1.0 - self.switch_margin)
         ok = [
