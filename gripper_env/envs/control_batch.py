@@ -16,6 +16,7 @@ import numpy as np
 
 from gripper_env.envs import kernels as K
 from gripper_env.envs.episode import Episode
+from gripper_env.envs.kernel_choice import KernelChooser
 from gripper_env.envs.plant_slots import PlantSlots
 from gripper_env.envs.settings import Residual, Settings
 from gripper_env.envs.spaces import (
@@ -149,35 +150,46 @@ class ControlBatch:
         self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
         self.episodes: list[Episode | None] = [None] * n_rows
         self._counter = np.zeros(1, dtype=np.int64)  # the step kernel's scratch
-        #: None: the serial or the parallel kernel by batch size (kernels.step_kernel); True or
-        #: False forces one (set_parallel).
+        #: None: the kernel chosen by timing the calls (kernels.step_kernel); True or False
+        #: forces the parallel or the serial one (set_parallel).
         self.parallel: bool | None = None
+        self._auto = K.step_kernel(n_rows, s.n_sub)
         self._bind()
 
     def set_parallel(self, parallel: bool | None) -> None:
-        """``None`` (the default): the serial or the parallel kernel by batch size
-        (:func:`~gripper_env.envs.kernels.step_kernel`, from
-        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per call);
-        ``True``: the parallel kernel whatever the size; ``False``: the serial one. The results
-        are the same; only the speed differs."""
+        """``None`` (the default): the kernel that has lately been fastest on this machine,
+        chosen by timing the calls (:func:`~gripper_env.envs.kernels.step_kernel`; a batch of
+        one chunk of rows runs the serial one); ``True``: the parallel kernel; ``False``: the
+        serial one. The results are the same; only the speed differs. The chooser keeps what it
+        measured while a kernel is forced."""
         self.parallel = parallel
         self._bind()
 
+    @property
+    def kernel_chooser(self) -> KernelChooser | None:
+        """The chooser that steps the batch by default, or ``None`` (a batch of one chunk)."""
+        return self._auto if isinstance(self._auto, KernelChooser) else None
+
     # Copies (pickle, deepcopy, a spawned worker) rebuild the derived references: the compiled
-    # kernel is looked up again rather than serialised, and the argument tuple is rebound to the
-    # copy's own arrays.
+    # kernel is looked up again rather than serialised, the argument tuple is rebound to the
+    # copy's own arrays, and a copy measures its own machine with a new chooser.
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        del state["_kernel"], state["_args"]
+        del state["_kernel"], state["_args"], state["_auto"]
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
+        self._auto = K.step_kernel(self.n_rows, self.settings.n_sub)
         self._bind()
 
     def _bind(self) -> None:
         """Collect the kernel's arguments once (the simulator's arrays are updated in place)."""
-        self._kernel = K.step_kernel(self.n_rows, self.settings.n_sub, self.parallel)
+        self._kernel = (
+            self._auto
+            if self.parallel is None
+            else K.step_kernel(self.n_rows, self.settings.n_sub, self.parallel)
+        )
         sim, cfg = self.sim, self.cfg
         self._args = (
             self.actions, cfg, self.ref, self.env, self.obs, self.drive,

@@ -28,10 +28,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numba
 import numpy as np
 from numba import njit, prange
 
-from gripper_env._schedule import fetch_add, n_workers, rows_per_chunk
+from gripper_env._schedule import CHUNK_STEPS, fetch_add, n_workers, rows_per_chunk
+from gripper_env.envs.kernel_choice import Arm, KernelChooser, thread_ladder
 from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.kernel import advance_row as _advance_row
 from gripper_env.sim.layout import P_P, S_DIVERGED, S_SERVO_TV, S_XI
@@ -352,29 +354,58 @@ def _step_impl(
     return -1, n_resetting, rewards[0], terminated[0], truncated[0]
 
 
-#: Physics steps per call (rows x steps per control period) from which a batch runs the parallel
-#: kernel; below it the serial one, on the calling thread. Waking the worker threads costs
-#: ~5-20 us on an idle 2-core machine (far more on a loaded one) while a row's 20-step period
-#: costs ~0.2 us, so small batches never pay for a wake-up. (Limiting the threads inside the
-#: kernel, numba.set_num_threads, would make it uncacheable: numba refuses to cache a function
-#: that holds the threading layer's ctypes pointers.) Measured with
-#: ``python -m benchmarks.envs_speed`` (its serial and parallel columns: at 20 steps a period they
-#: cross between 16 and 48 environments, tied at 32 in three runs without reference counting).
-PARALLEL_MIN_STEPS = 400
-
 # cached per version of every file they compile in (the core, the PID, the work sharing)
 # Without reference counting (it allocates nothing): the counted kernel is 1.3x slower at 1 row,
 # 1.6x at 8 and 2.0-2.3x from 32 (results/speed.md, its "reference counting (before)" column)
 step_serial, step_parallel = compile_kernel(_step_impl, refcount=False)
 
 
+def step_chunks(n_rows: int, n_sub: int) -> int:
+    """Chunks of rows (:mod:`gripper_env._schedule`) a step of ``n_rows`` rows of ``n_sub``
+    physics steps is shared out in: a batch of one chunk has nothing for a second thread."""
+    chunk = max(1, CHUNK_STEPS // max(n_sub, 1))  # _schedule.rows_per_chunk, uncompiled
+    return (n_rows + chunk - 1) // chunk
+
+
+def step_arms(max_threads: int | None = None) -> list[Arm]:
+    """The candidate kernels of a batch step: the serial kernel, then the parallel kernel at
+    each thread count of :func:`~gripper_env.envs.kernel_choice.thread_ladder` up to
+    ``max_threads`` (default: the caller's ``numba.get_num_threads()``, which the last arm
+    runs with)."""
+    threads = numba.get_num_threads() if max_threads is None else int(max_threads)
+    arms = [Arm("serial", step_serial)]
+    for t in thread_ladder(threads):
+        arms.append(Arm(f"parallel, {t} threads", step_parallel, None if t == threads else t))
+    return arms
+
+
 def step_kernel(n_rows: int, n_sub: int, parallel: bool | None = None) -> Callable[..., tuple]:
-    """The step kernel for a batch of ``n_rows`` rows of ``n_sub`` physics steps per call: the
-    parallel one from :data:`PARALLEL_MIN_STEPS` physics steps per call, else the serial one.
-    ``parallel`` forces one or the other; the results are the same."""
-    if parallel is None:
-        parallel = n_rows > 1 and n_rows * n_sub >= PARALLEL_MIN_STEPS
-    return step_parallel if parallel else step_serial
+    """What steps a batch of ``n_rows`` rows of ``n_sub`` physics steps per call.
+
+    Parameters
+    ----------
+    n_rows : int
+        Rows (environments) of the batch.
+    n_sub : int
+        Physics steps per control period.
+    parallel : bool, optional
+        ``True`` or ``False`` forces the parallel or the serial kernel. ``None`` (the default):
+        a :class:`~gripper_env.envs.kernel_choice.KernelChooser` over :func:`step_arms` that
+        times the calls and runs whichever has lately been fastest on this machine, or the
+        serial kernel if the batch is a single chunk of rows (:func:`step_chunks`) or numba
+        has one thread. The results are the same whatever runs.
+
+    Returns
+    -------
+    callable
+        Called with the kernel's arguments.
+    """
+    if parallel is not None:
+        return step_parallel if parallel else step_serial
+    arms = step_arms()
+    if step_chunks(n_rows, n_sub) < 2 or len(arms) < 2:
+        return step_serial
+    return KernelChooser(arms)
 
 
 def closed_loop(mode: int) -> bool:

@@ -34,6 +34,7 @@ from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.control_env import ControlEnv
 from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
+from gripper_env.envs.kernel_choice import KernelChooser
 from gripper_env.envs.pid_tune import EpisodeRenderer, GripperPIDTuneEnv, run_episodes
 from gripper_env.envs.rendering import RENDER_MODES, RowRenderer
 from gripper_env.envs.servo import GripperServoEnv
@@ -253,11 +254,16 @@ class _ControlVectorEnv(_SeededVectorEnv):
         )  # fmt: skip
 
     def set_parallel(self, parallel: bool | None) -> None:
-        """Step with the parallel kernel (``True``), the serial one (``False``), or choose by
-        batch size (``None``, the default: parallel from
-        :data:`~gripper_env.envs.kernels.PARALLEL_MIN_STEPS` physics steps per step). The
-        trajectories are the same either way."""
+        """Step with the parallel kernel (``True``), the serial one (``False``), or the one
+        that has lately been fastest on this machine, chosen by timing the steps (``None``, the
+        default: :attr:`kernel_chooser`). The trajectories are the same either way."""
         self._batch.set_parallel(parallel)
+
+    @property
+    def kernel_chooser(self) -> KernelChooser | None:
+        """What chooses the kernel by default (its ``summary()`` tells what it measured), or
+        ``None`` for a batch too small to share out (one chunk of rows: the serial kernel)."""
+        return self._batch.kernel_chooser
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """``rgb_array``: one frame per environment of ``render_envs``; ``human``: draw them."""

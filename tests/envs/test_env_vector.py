@@ -149,21 +149,3 @@ def test_vector_renders_the_chosen_envs(env_id):
     with pytest.raises(ValueError, match="'render_envs'"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
                      render_mode="rgb_array", render_envs=[2])  # fmt: skip
-
-
-def test_kernel_by_batch_size():
-    """Small batches run the serial kernel (no thread wake-up), large ones the parallel one;
-    set_parallel forces either."""
-    assert kernels.step_kernel(1, 20) is kernels.step_serial
-    assert kernels.step_kernel(8, 20) is kernels.step_serial
-    assert kernels.step_kernel(32, 20) is kernels.step_parallel
-    assert kernels.step_kernel(1024, 20, parallel=False) is kernels.step_serial
-    assert kernels.step_kernel(8, 20, parallel=True) is kernels.step_parallel
-    envs = gym.make_vec(SERVO, num_envs=8, vectorization_mode="vector_entry_point")
-    batch = envs.unwrapped._batch
-    assert batch._kernel is kernels.step_serial
-    envs.unwrapped.set_parallel(True)
-    assert batch._kernel is kernels.step_parallel
-    envs.unwrapped.set_parallel(False)
-    assert batch._kernel is kernels.step_serial
-    envs.close()
