@@ -11,6 +11,7 @@ bad input into a one-line ``error: ...`` on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shlex
 import sys
