@@ -10,6 +10,8 @@ from gripper_env.envs import kernels
 
 
 def compare(env_id, n_envs, n_steps, seed, **kwargs):
+    # an import of rl_zoo3 in this process replaces TimeLimit, which then adds infos of its own
+    assert gym.wrappers.TimeLimit.__module__.startswith("gymnasium."), "TimeLimit is patched"
     native = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
                           **kwargs)  # fmt: skip
     sync = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **kwargs)
