@@ -181,7 +181,7 @@ def _headline(data: dict[str, Any]) -> dict[str, Any]:
             "worst_measured_gm_db": _worst(
                 [(r.get("measured_margins") or {}).get("gain_margin_db") for r in rows], min),
             "episodes": int(first["episodes"]),
-            "wall_time_s": float(first["wall_time_s"]),
+            "wall_time_s": first.get("wall_time_s"),  # in the provenance sidecar once written
             "P": first["P"], "I": first["I"], "D": first["D"],
         }  # fmt: skip
     order = sorted(entries, key=lambda k: entries[k]["cost"])
