@@ -246,3 +246,21 @@ def test_a_tuner_run_with_the_same_recipe_is_reused_not_retrained(tmp_path, smal
     other = s.model_copy(update={"learning_rate": 3e-4})  # another recipe: trained again
     train_seeds(inputs, other, [0], tmp_path, episodes=256, progress=False, reuse=True)
     assert history.stat().st_mtime_ns != stamp
+
+
+def test_the_centre_rule_list_falls_back_to_a_rule_that_meets_the_constraints():
+    """SIMC cannot meet Ms <= 1.6 and GM >= 6 dB on test2-test4 at once (its row says so); the
+    robust RL tuner centres on the next rule of its list, whose knob the scan sets."""
+    from tuners.rl.tune import RLTuneSettings, design_center
+    from tuners.tasks import make_scorer
+
+    assert RLTuneSettings(center="migo").center == ["migo"]
+    with pytest.raises(ValueError, match="unknown rule 'ziegler'"):
+        RLTuneSettings(center=["ziegler"])
+    inputs = cli.resolve(rl.build_parser().parse_args(["export", "--plant", "test2"]))
+    names = ["test2", "test3", "test4"]
+    s = RLTuneSettings(center=["simc", "pidtune"])
+    gains, record = design_center(inputs, s, names, make_scorer(inputs, None, names))
+    assert record["rule"] == "pidtune"
+    assert record["refused"][0].startswith("simc: no setting of tau_c_factor")
+    assert record["gains"][:3] == [gains.P, gains.I, gains.D]

@@ -7,9 +7,10 @@ per-plant bandit. The recipe, chosen from learning curves over seeds (README, "R
 
 * **Action**: the ``relative`` gain map, log-gains around a textbook design:
   ``P = P0 10**a_P``, ``I = I0 10**a_I`` (one decade each way) and ``D = D0 + a_D d_span``, where
-  ``(P0, I0, D0)`` is the rule ``center`` with its robustness knob set under the constraints
-  (:mod:`tuners.classical.constrained`). The zero action is a deployable design; the box spans
-  Optuna's optimum with room on every side.
+  ``(P0, I0, D0)`` is the first rule of ``center`` whose robustness knob can be set to meet the
+  constraints on every tuning plant (:mod:`tuners.classical.constrained`; SIMC cannot on
+  test2-test4 together, the PIDTUNE-style design can). The zero action is a deployable design;
+  the box spans Optuna's optimum with room on every side.
 * **Reward** for training: ``-log(cost + penalty * violation)``
   (:func:`tuners.rl.envs.LogExactPenalty`): the constraints as an exact penalty without the
   cliff, in log scale.
@@ -36,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from gripper_env.config import CONFIG_DIR, load_yaml, validate
 from gripper_env.files import write_result_json
@@ -68,7 +69,21 @@ class RLTuneSettings(BaseModel):
     learning_rate: float = Field(1e-3, gt=0.0)
     log_std_init: float = -1.5
     net_arch: list[int] = [64, 64]
-    center: str = "simc"
+    center: list[str] = ["simc", "pidtune", "amigo-pi"]
+
+    @field_validator("center", mode="before")
+    @classmethod
+    def _rules(cls, v: Any) -> Any:
+        from tuners.classical.constrained import KNOBS
+
+        names = [v] if isinstance(v, str) else v
+        if not isinstance(names, list) or not names:
+            raise ValueError("center: a rule or a list of rules, tried in order")
+        unknown = [n for n in names if n not in KNOBS]
+        if unknown:
+            raise ValueError(f"center: unknown rule {unknown[0]!r}; choose from {sorted(KNOBS)}")
+        return names
+
     decades: float = Field(1.0, gt=0.0, le=3.0)
     d_span: float = Field(0.5, ge=0.0)
     eval_every: int = Field(512, ge=1)
@@ -123,11 +138,19 @@ def design_center(
     from tuners.classical.constrained import constrained_design
 
     cls = load_settings(ClassicalSettings)
-    gains, tuning = constrained_design(
-        s.center, inputs.plant, inputs.disturbance, cls, scorer, inputs.settings.pid.N
-    )
-    return gains, {"rule": s.center, "knob": tuning["knob"], "tuned_on": list(plants),
-                   "gains": [gains.P, gains.I, gains.D, gains.N]}  # fmt: skip
+    refusals = []
+    for rule in s.center:
+        try:
+            gains, tuning = constrained_design(
+                rule, inputs.plant, inputs.disturbance, cls, scorer, inputs.settings.pid.N
+            )
+        except ValueError as exc:  # no knob setting meets the constraints: the next rule
+            refusals.append(str(exc))
+            continue
+        return gains, {"rule": rule, "knob": tuning["knob"], "tuned_on": list(plants),
+                       "gains": [gains.P, gains.I, gains.D, gains.N],
+                       "refused": refusals}  # fmt: skip
+    raise ValueError("no centre design for the RL tuner: " + "; ".join(refusals))
 
 
 def _context_free(venv: Any) -> Any:
@@ -358,8 +381,10 @@ def _reusable_run(
     except (OSError, ValueError):
         return None
     budget = s.episodes if episodes is None else int(episodes)
+    # the rule list is not compared: the centre design it gave is (gain_center in the kwargs)
+    mine = json.loads(json.dumps(s.model_dump(exclude={"center"})))
     same = (
-        old.get("settings") == json.loads(json.dumps(s.model_dump()))
+        {k: v for k, v in (old.get("settings") or {}).items() if k != "center"} == mine
         and old.get("env_kwargs") == kwargs
         and old.get("episodes", -1) >= budget > old.get("episodes", 0) - s.n_envs * s.n_steps
     )
