@@ -29,11 +29,13 @@ BUDGET = {
 
 def _printed_commands() -> list[str]:
     """Every ``python -m tuners.rl`` command printed in the README and docs/, in order, with
-    the ``python -m tuners.optuna`` commands before them that they build on."""
+    the ``python -m tuners.optuna`` commands before them that they build on, and the manual and
+    classical tuners' commands."""
     out = []
     for path in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
         for line in path.read_text().splitlines():
-            m = re.match(r"^\s*(?:\$ )?(python -m tuners\.(?:rl|optuna) [^#`]*)", line)
+            m = re.match(r"^\s*(?:\$ )?(python -m tuners\.(?:rl|optuna|manual|classical) [^#`]*)",
+                         line)  # fmt: skip
             if m:
                 out.append(m.group(1).strip())
     return out
