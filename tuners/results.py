@@ -6,6 +6,8 @@ default, not committed), so nothing a user runs changes the committed results.
 
 ``python -m tuners.results regenerate [NAME ...]`` runs the commands (all, or those named) one
 after the other and records in ``results/manifest.json`` which files each wrote;
+``python -m tuners.results adopt NAME PATH ...`` records files that command wrote when it ran
+elsewhere (the benchmark in a separate checkout, for hours) and were copied here;
 ``python -m tuners.results check`` compares that manifest with the files git tracks under
 ``results/``: a file no current command writes is stale and fails the check (so does a listed
 file that is missing). ``python -m tuners.results list`` prints the commands.
@@ -27,7 +29,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["COMMANDS", "Command", "check", "main", "regenerate"]
+__all__ = ["COMMANDS", "Command", "adopt", "check", "main", "regenerate"]
 
 RESULTS = "results"
 MANIFEST = "manifest.json"
@@ -145,6 +147,32 @@ def regenerate(names: list[str] | None = None) -> dict[str, list[str]]:
     return wrote
 
 
+def adopt(name: str, paths: list[str]) -> list[str]:
+    """Record ``paths`` (files under results/, or folders of them) as written by the command
+    ``name``, replacing its list: for a command run elsewhere whose output was copied here.
+    Files git ignores are left out, as ``regenerate`` leaves them out."""
+    root = _root()
+    known = {c.name: c for c in COMMANDS}
+    if name not in known:
+        raise ValueError(f"unknown results command {name!r}; choose from {', '.join(known)}")
+    files: list[str] = []
+    for raw in paths:
+        path = (root / raw).resolve()
+        if not path.is_relative_to((root / RESULTS).resolve()):
+            raise ValueError(f"{raw}: not under {RESULTS}/")
+        if not path.exists():
+            raise ValueError(f"{raw}: no such file or folder")
+        found = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+        files += [str(p.relative_to(root.resolve())) for p in found if p.name != MANIFEST]
+    ignored = _ignored(root, files)
+    wrote = sorted({f for f in files if f not in ignored})
+    manifest = read_manifest(root)
+    c = known[name]
+    manifest[name] = {"command": c.line, "about": c.about, "writes": wrote}
+    _write_manifest(root, manifest)
+    return wrote
+
+
 def _write_manifest(root: Path, manifest: dict[str, dict[str, object]]) -> None:
     from gripper_env.files import write_json
 
@@ -193,6 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("check", help="stale or missing files under results/")
     regen = sub.add_parser("regenerate", help="run the commands (all, or those named)")
     regen.add_argument("names", nargs="*", help=", ".join(c.name for c in COMMANDS))
+    ad = sub.add_parser("adopt", help="record files a command wrote elsewhere (copied here)")
+    ad.add_argument("name", help=", ".join(c.name for c in COMMANDS))
+    ad.add_argument("paths", nargs="+", help="files or folders under results/")
     args = parser.parse_args(argv)
     try:
         if args.what == "list":
@@ -205,6 +236,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(p)
             print(f"{len(problems)} problem(s)" if problems else "results/ matches its manifest")
             return 1 if problems else 0
+        if args.what == "adopt":
+            adopted = adopt(args.name, args.paths)
+            print(f"[{args.name}] {len(adopted)} files recorded in {RESULTS}/{MANIFEST}")
+            return 0
         wrote = regenerate(args.names)
         for name, files in wrote.items():
             print(f"[{name}] wrote {len(files)} files")

@@ -55,6 +55,30 @@ def test_the_results_command_lists_and_refuses_unknown_names(capsys):
     assert "unknown results command" in capsys.readouterr().err
 
 
+def test_adopt_records_copied_files_and_check_then_finds_them(tmp_path, monkeypatch, capsys):
+    """A command's output copied from another checkout is recorded by adopt (ignored files
+    left out); check then reports a tracked file no command lists, and a listed one missing."""
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    (tmp_path / ".gitignore").write_text("results/**/model.zip\n")
+    (tmp_path / "results" / "test2").mkdir(parents=True)
+    for name in ("benchmark.md", "test2/optuna.json", "test2/model.zip", "stale.md"):
+        (tmp_path / "results" / name).write_text("x")
+    monkeypatch.setattr(results, "_root", lambda: tmp_path)
+    assert results.main(["adopt", "benchmark", "results/benchmark.md", "results/test2"]) == 0
+    manifest = json.loads((tmp_path / "results" / "manifest.json").read_text())
+    assert manifest["commands"]["benchmark"]["writes"] == [
+        "results/benchmark.md",
+        "results/test2/optuna.json",
+    ]
+    subprocess.run(["git", "add", "-A"], cwd=tmp_path, check=True)
+    assert results.check() == ["results/stale.md: tracked but written by no command (stale: "
+                               "remove it)"]  # fmt: skip
+    (tmp_path / "results" / "benchmark.md").unlink()
+    assert "results/benchmark.md: listed for benchmark but missing" in results.check()
+    assert results.main(["adopt", "benchmark", "../etc"]) == 2
+    assert "not under results/" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("module", ["tuners.optuna", "tuners.classical", "tuners.manual"])
 def test_help_says_where_runs_go(module):
     proc = subprocess.run([sys.executable, "-m", module, "--help"], cwd=REPO,
