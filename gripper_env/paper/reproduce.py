@@ -266,7 +266,15 @@ def _table34_row(
                      f"{mm.ungrip['overshoot_pct'][0]:.1f}")  # fmt: skip
         model_sd = f"{mm.run['sd_deg'][0]:.3f}"
     sd_act = am.run["sd_deg"]
-    act_txt = f"{np.mean(sd_act):.3f} +/- {np.std(sd_act, ddof=1):.3f}"
+    ok = np.isfinite(sd_act)  # a run that swings stop to stop has no settled SD (metrics: inf)
+    if ok.sum() > 1:
+        act_txt = f"{np.mean(sd_act[ok]):.3f} +/- {np.std(sd_act[ok], ddof=1):.3f}"
+    elif ok.any():
+        act_txt = f"{sd_act[ok][0]:.3f}"
+    else:
+        act_txt = "-"
+    if not ok.all():
+        act_txt += f" ({int((~ok).sum())} of {len(ok)} runs swing from stop to stop)"
     rep = stability_report("test2", PIDGains(*gains), sign)
     if not rep.stable:
         # limits keep the actual loop bounded: it runs into a stop and stays there
