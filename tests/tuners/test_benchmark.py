@@ -224,3 +224,15 @@ def test_a_row_whose_runs_diverge_is_reported_not_a_crash(quick):
         },
     )
     assert "manual-paper-diverging" in md
+
+
+def test_the_report_renders_again_from_its_json_unchanged(quick, tmp_path):
+    """``python -m tuners.benchmark.leaderboard --render`` writes the same report from
+    benchmark.json as the benchmark wrote at its end."""
+    import shutil
+
+    out, _ = quick
+    copy = tmp_path / "results"
+    shutil.copytree(out, copy)
+    assert leaderboard.main([str(copy / "benchmark.md"), "--render"]) == 0
+    assert (copy / "benchmark.md").read_text() == (out / "benchmark.md").read_text()

@@ -431,22 +431,34 @@ def _verdict_words(data: dict[str, Any]) -> list[str]:
     return ["In words:", "", *out] if out else []
 
 
-def _rl_rows(data: dict[str, Any]) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
-    """``(where, row, optuna row or None)`` of every RL row: per plant, and the robust ones
-    (from their first plant's evaluation)."""
+def _rl_rows(data: dict[str, Any]) -> list[tuple[str, dict[str, Any], Any, dict[str, Any]]]:
+    """``(where, row, optuna row or None, {plant: row})`` of every RL row: per plant, and the
+    robust ones (``row`` from their first plant's evaluation, every plant's in the dict)."""
     out = []
     for plant, pdata in data["plants"].items():
         for name in ("rl-tune", "rl-controller"):
             if name in (pdata.get("rows") or {}):
-                out.append((plant, pdata["rows"][name], pdata["rows"].get("optuna")))
+                row = pdata["rows"][name]
+                out.append((plant, row, pdata["rows"].get("optuna"), {plant: row}))
     for key, per in (data.get("evaluations") or {}).items():
         name, _, on = key.partition(" @ ")
         if name in ("rl-tune-robust", "rl-controller-robust") and per:
             optuna = next((v for k, v in data["evaluations"].items()
                            if k.startswith("optuna-robust @")), None)  # fmt: skip
             first = next(iter(per.values()))
-            out.append((on, first, None if optuna is None else next(iter(optuna.values()))))
+            out.append((on, first, None if optuna is None else next(iter(optuna.values())), per))
     return out
+
+
+def _worst_margins(rows: dict[str, dict[str, Any]], seed: str) -> tuple[Any, Any, str]:
+    """A training seed's smallest measured gain margin (dB) and delay margin (s) over the
+    plants it is evaluated on, and the plant of the smallest gain margin."""
+    found = [(p, r["measured_margins"]["per_seed"][seed]) for p, r in rows.items()
+             if seed in ((r.get("measured_margins") or {}).get("per_seed") or {})]  # fmt: skip
+    gms = [(m["gain_margin_db"], p) for p, m in found if m["gain_margin_db"] is not None]
+    delays = [m["delay_margin_s"] for _, m in found if m["delay_margin_s"] is not None]
+    gm, plant = min(gms) if gms else (None, "")
+    return gm, (min(delays) if delays else None), plant
 
 
 def figures(data: dict[str, Any], out: Path) -> list[Path]:
@@ -461,7 +473,7 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
                 pdata["curves"], f"{plant}: best feasible tuning cost vs simulated episodes",
                 out / "figures" / f"benchmark_budget_{plant}.png",
             ))  # fmt: skip
-    for where, row, optuna in _rl_rows(data):
+    for where, row, optuna, _ in _rl_rows(data):
         t = row["tuning"]
         if row["kind"] == "search" and t.get("curves"):
             curves = [([p[0] for p in c], [math.nan if p[1] is None else p[1] for p in c])
@@ -489,7 +501,7 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
 def _rl_section(data: dict[str, Any]) -> list[str]:
     """The RL rows as an RL researcher reads them: per training seed, with the spread."""
     lines: list[str] = []
-    for where, row, optuna in _rl_rows(data):
+    for where, row, optuna, per_plant in _rl_rows(data):
         t = row["tuning"]
         if row["kind"] == "search":
             ref = None if optuna is None else optuna["metrics"]["actual"]["mean"]["cost"]
@@ -529,13 +541,16 @@ def _rl_section(data: dict[str, Any]) -> list[str]:
             ]
             for seed, cost in tsc["per_seed"].items():
                 d = row["vs_base_per_training_seed"][seed]
-                m = mm["per_seed"][seed]
-                delay = None if m["delay_margin_s"] is None else 1e3 * m["delay_margin_s"]
+                gm, delay_s, on = _worst_margins(per_plant, seed)
+                delay = None if delay_s is None else 1e3 * delay_s
+                gm_txt = _f(gm) + (f" ({on})" if len(per_plant) > 1 and on else "")
                 lines.append(f"| {seed} | {cost:.4g} | {100 * d['cost_relative']:+.2f} % | "
                              f"{d['p_value']:.2g} | {d['better_on_seeds']} | "
-                             f"{_f(m['gain_margin_db'])} | {_f(delay)} |")  # fmt: skip
-            lines.append(f"\nRequired measured gain margin: {mm['required_gain_margin_db']:.3g} dB "
-                         "(what Ms <= 1.6 guarantees a linear loop).")  # fmt: skip
+                             f"{gm_txt} | {_f(delay)} |")  # fmt: skip
+            worst = " (the worst plant's, named)" if len(per_plant) > 1 else ""
+            lines.append(f"\nRequired measured gain margin{worst}: "
+                         f"{mm['required_gain_margin_db']:.3g} dB (what Ms <= 1.6 guarantees a "
+                         "linear loop).")  # fmt: skip
     return ["", "## Reinforcement learning, over training seeds", *lines] if lines else []
 
 
@@ -580,6 +595,23 @@ def update_readme(readme: Path, report: Path) -> bool:
     return new != text
 
 
+def render_again(folder: Path) -> Path:
+    """Rank, draw and write ``benchmark.md`` again from ``folder/benchmark.json`` with this
+    code, without rerunning the rows (``benchmark.json`` itself is left as it is)."""
+    import json
+
+    from gripper_env.files import write_atomic
+
+    content = json.loads((folder / "benchmark.json").read_text())
+    meta = content["meta"]
+    data = {k: v for k, v in content.items() if k not in ("meta", "budget_episodes")}
+    data["leaderboard"] = rank(data)
+    figures(data, folder)
+    path = folder / "benchmark.md"
+    write_atomic(path, render_markdown(data, meta))
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m tuners.benchmark.leaderboard [REPORT] [--readme README.md]``: print the
     headline of a benchmark report, or copy it into the README."""
@@ -591,8 +623,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("report", nargs="?", default="results/benchmark.md")
     parser.add_argument("--readme", default=None, help="write it between this file's markers")
+    parser.add_argument("--render", action="store_true",
+                        help="first write REPORT and the figures again from the "
+                             "benchmark.json beside it (no rows rerun)")  # fmt: skip
     args = parser.parse_args(argv)
     try:
+        if args.render:
+            render_again(Path(args.report).parent)
+            print(f"wrote {args.report} and the figures from benchmark.json")
         if args.readme:
             changed = update_readme(Path(args.readme), Path(args.report))
             print(f"{args.readme}: {'updated' if changed else 'already up to date'}")
