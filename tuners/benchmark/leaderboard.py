@@ -450,6 +450,21 @@ def _rl_rows(data: dict[str, Any]) -> list[tuple[str, dict[str, Any], Any, dict[
     return out
 
 
+def _optuna_cost(data: dict[str, Any], per_plant: dict[str, Any]) -> float | None:
+    """Optuna's held-out cost on the same plants as an RL row: its per-plant row's, or for a
+    robust row the robust Optuna row's mean over the plants (as the RL row's is)."""
+    if len(per_plant) == 1:
+        (plant,) = per_plant
+        row = (data["plants"][plant].get("rows") or {}).get("optuna")
+        return None if row is None else float(row["metrics"]["actual"]["mean"]["cost"])
+    per = next((v for k, v in (data.get("evaluations") or {}).items()
+                if k.startswith("optuna-robust @")), None)  # fmt: skip
+    if not per or set(per) != set(per_plant):
+        return None
+    costs = [r["metrics"]["actual"]["mean"]["cost"] for r in per.values()]
+    return None if any(c is None for c in costs) else float(np.mean(costs))
+
+
 def _worst_margins(rows: dict[str, dict[str, Any]], seed: str) -> tuple[Any, Any, str]:
     """A training seed's smallest measured gain margin (dB) and delay margin (s) over the
     plants it is evaluated on, and the plant of the smallest gain margin."""
@@ -504,7 +519,7 @@ def _rl_section(data: dict[str, Any]) -> list[str]:
     for where, row, optuna, per_plant in _rl_rows(data):
         t = row["tuning"]
         if row["kind"] == "search":
-            ref = None if optuna is None else optuna["metrics"]["actual"]["mean"]["cost"]
+            ref = _optuna_cost(data, per_plant) if optuna is not None else None
             held = t["held_out_cost"]
             ratio = (
                 ""
