@@ -298,6 +298,15 @@ class LoopAnalysis:
         stable); needs no frequency response."""
         return np.max(np.abs(np.linalg.eigvals(self.closed_loop_matrix(gains))), axis=1)
 
+    def stable_ms(self, gains: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Stability and ``Ms`` of each gain set, as :meth:`robustness` gives them, without the
+        margins (a third of its time: for searches that test only ``Ms``)."""
+        g = self._gains(gains)
+        one = 1.0 + self.loop_gain(g)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ms = np.max(1.0 / np.abs(one), axis=1)
+        return self.spectral_radius(g) < 1.0, ms
+
     def robustness(self, gains: Any) -> Robustness:
         """Stability, margins, ``Ms`` and ``Mt`` of each gain set (see the module docstring)."""
         g = self._gains(gains)

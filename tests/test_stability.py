@@ -191,3 +191,15 @@ def test_report_is_serialisable_and_checks_its_input():
         stability_report("test2", PIDGains(1.0, 9.0, -0.001), sign=0)
     with pytest.raises(ValueError, match="gains"):
         LoopAnalysis("test2", ServoLoop()).robustness(np.array([[1.0, np.nan, 0.0]]))
+
+
+def test_stable_ms_is_robustness_without_the_margins():
+    analysis = LoopAnalysis("test4", ServoLoop())
+    rng = np.random.default_rng(0)
+    gains = np.column_stack([rng.uniform(-1, 10, 50), rng.uniform(-20, 300, 50),
+                             rng.uniform(-0.01, 0.01, 50)])  # fmt: skip
+    stable, ms = analysis.stable_ms(gains)
+    r = analysis.robustness(gains)
+    assert stable.any() and not stable.all()  # both kinds of loop
+    np.testing.assert_array_equal(stable, r.stable)
+    np.testing.assert_array_equal(ms, r.ms)

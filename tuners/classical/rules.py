@@ -210,13 +210,13 @@ def _migo(m: FOPDT, s: ClassicalSettings, ctx: _Context) -> Design:
         for _ in range(40):
             mid = 0.5 * (lo + hi)
             g = np.column_stack([kp, np.exp(mid), np.zeros(len(kp))])
-            r = analysis.robustness(g)
-            ok = r.stable & (r.ms <= s.migo_ms)
+            stable, ms = analysis.stable_ms(g)
+            ok = stable & (ms <= s.migo_ms)
             lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
         ki = np.exp(lo)
         g = np.column_stack([kp, ki, np.zeros(len(kp))])
-        r = analysis.robustness(g)
-        return np.where(r.stable & (r.ms <= s.migo_ms), ki, 0.0)
+        stable, ms = analysis.stable_ms(g)
+        return np.where(stable & (ms <= s.migo_ms), ki, 0.0)
 
     kp = np.linspace(0.0, 2.0 * kc_scale, 81)
     ki = best_ki(kp)
