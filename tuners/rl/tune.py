@@ -179,6 +179,7 @@ def train_tuner(
     optuna_settings: OptunaSettings | None = None,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    designed: tuple[PIDGains, dict[str, Any]] | None = None,
 ) -> TuneRun:
     """Train the PID tuner with one seed; return its run (see :class:`TuneRun`).
 
@@ -201,6 +202,9 @@ def train_tuner(
         Where the tuning seeds come from (default ``configs/tuners/optuna.yaml``).
     progress : bool
         Show a progress bar on stderr.
+    designed : (PIDGains, dict), optional
+        The centre design and its record, as :func:`design_center` gives them for these inputs
+        (computed here when not given; :func:`train_seeds` computes it once for every seed).
     """
     require_rl()
     import gymnasium as gym
@@ -214,7 +218,7 @@ def train_tuner(
     robust = len(names) > 1
     total = s.episodes if episodes is None else int(episodes)
     scorer = make_scorer(inputs, optuna_settings, names if robust else ())
-    center, center_record = design_center(inputs, s, names, scorer)
+    center, center_record = designed or design_center(inputs, s, names, scorer)
     kwargs = env_kwargs(inputs, names, s, center)
     torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
     venv = LogExactPenalty(
@@ -315,6 +319,7 @@ class _TuneTask:
     episodes: int | None
     optuna_settings: OptunaSettings | None
     progress: bool
+    designed: tuple[PIDGains, dict[str, Any]] | None = None
 
 
 def _tune_seed(task: _TuneTask) -> tuple[TuneRun, dict[str, bytes]]:
@@ -327,7 +332,7 @@ def _tune_seed(task: _TuneTask) -> tuple[TuneRun, dict[str, bytes]]:
         run = train_tuner(
             task.inputs, task.settings, seed=task.seed, run_dir=tmp, plants=task.plants,
             episodes=task.episodes, optuna_settings=task.optuna_settings,
-            progress=task.progress, log=lambda m: None,
+            progress=task.progress, log=lambda m: None, designed=task.designed,
         )  # fmt: skip
         return run, gather_files(tmp)
 
@@ -354,17 +359,19 @@ def train_seeds(
     folder = Path(folder)
     serial = engine_spec in (None, "serial")
     done: dict[int, TuneRun] = {}
+    names = list(plants) or [inputs.plant.name]
+    scorer = make_scorer(inputs, optuna_settings, names if len(names) > 1 else ())
+    designed = design_center(inputs, s, names, scorer)  # once for every seed
+    center = designed[0]
     if reuse:
-        names = list(plants) or [inputs.plant.name]
-        scorer = make_scorer(inputs, optuna_settings, names if len(names) > 1 else ())
-        center, _ = design_center(inputs, s, names, scorer)
         wanted = json.loads(json.dumps(_plain(env_kwargs(inputs, names, s, center))))
         for k in seeds:
             run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted)
             if run is not None:
                 done[int(k)] = run
     tasks = [_TuneTask(inputs, s, int(k), tuple(plants), episodes, optuna_settings,
-                       progress and serial) for k in seeds if int(k) not in done]  # fmt: skip
+                       progress and serial, designed) for k in seeds
+             if int(k) not in done]  # fmt: skip
     with engine(engine_spec) as eng:
         for task, (run, files) in zip(tasks, eng.map(_tune_seed, tasks), strict=True):
             write_files(folder / f"seed-{task.seed}", files)
