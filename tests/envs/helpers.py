@@ -38,3 +38,18 @@ def assert_same_info(a, b, path="info"):
             assert same, (path, p, q)
     else:
         np.testing.assert_array_equal(x, y, err_msg=path)
+
+
+def step_native_and_singles(native, singles, actions, pending):
+    """Step a native vector env and its single envs with the same actions, assert the rows are
+    equal (a single env that ended is reset, as the vector env's next-step autoreset does), and
+    return which rows ended."""
+    obs, rew, term, trunc, _ = native.step(actions)
+    for i, env in enumerate(singles):
+        if pending[i]:
+            o, r, te, tr = env.reset()[0], 0.0, False, False
+        else:
+            o, r, te, tr, _ = env.step(actions[i])
+        np.testing.assert_array_equal(obs[i], o)
+        assert rew[i] == r and term[i] == te and trunc[i] == tr
+    return term | trunc

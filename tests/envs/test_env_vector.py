@@ -3,7 +3,14 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import GAIN_SCHEDULE, PID_TUNE, RANDOMIZED, SERVO, assert_same_info
+from helpers import (
+    GAIN_SCHEDULE,
+    PID_TUNE,
+    RANDOMIZED,
+    SERVO,
+    assert_same_info,
+    step_native_and_singles,
+)
 
 import gripper_env  # noqa: F401
 from gripper_env.envs import kernels
@@ -83,15 +90,7 @@ def test_vector_parallel_batch_equals_serial():
     pending = np.zeros(n, dtype=bool)
     for _ in range(12):
         actions = rng.uniform(-1, 1, (n, 1)).astype(np.float32)
-        obs, rew, term, trunc, _ = native.step(actions)
-        for i, env in enumerate(singles):
-            if pending[i]:
-                o, r, te, tr = env.reset()[0], 0.0, False, False
-            else:
-                o, r, te, tr, _ = env.step(actions[i])
-            np.testing.assert_array_equal(obs[i], o)
-            assert rew[i] == r and term[i] == te and trunc[i] == tr
-        pending = term | trunc
+        pending = step_native_and_singles(native, singles, actions, pending)
 
 
 def test_vector_reset_mask_and_seed_list():

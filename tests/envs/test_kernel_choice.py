@@ -6,7 +6,7 @@ import gymnasium as gym
 import numba
 import numpy as np
 import pytest
-from helpers import SERVO
+from helpers import SERVO, step_native_and_singles
 
 import gripper_env  # noqa: F401
 from gripper_env.envs import kernels
@@ -224,15 +224,7 @@ def test_switching_kernels_mid_run_keeps_the_trajectories():
         step[0] = k
         ran.append(chooser.current.name)
         actions = rng.uniform(-1, 1, (n, 1)).astype(np.float32)
-        obs, rew, term, trunc, _ = native.step(actions)
-        for i, env in enumerate(singles):
-            if pending[i]:
-                o, r, te, tr = env.reset()[0], 0.0, False, False
-            else:
-                o, r, te, tr, _ = env.step(actions[i])
-            np.testing.assert_array_equal(obs[i], o)
-            assert rew[i] == r and term[i] == te and trunc[i] == tr
-        pending = term | trunc
+        pending = step_native_and_singles(native, singles, actions, pending)
     assert set(ran) == set(order)
     assert chooser.switches >= 2  # decided switches, besides the first rounds' interleaving
     assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
