@@ -3,6 +3,6 @@
 This folder holds data, not code: ``plants/`` (the paper's transfer functions),
 ``disturbances/`` (actual-gripper presets), ``tuners/`` (tuner and evaluation settings),
 ``objective.yaml`` and ``benchmark.yaml``. ``pyproject.toml`` maps it into the package
-``gripper_env.configs``, so a wheel carries it and :mod:`gripper_env.config` reads it with
+``gripper_env.configs``, so a wheel carries it and :mod:`gripper_env.io.config` reads it with
 :mod:`importlib.resources` wherever the package is installed.
 """

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from gripper_env.gains_file import FORMAT, FORMAT_VERSION
+from gripper_env.model.gains_file import FORMAT, FORMAT_VERSION
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: Address-space limit of each command (bytes). A normal refusal needs about 0.5 GiB of address
@@ -62,14 +62,14 @@ CASES = [
          ("--plant", "test2", "--config", "{huge_yaml}"), ("huge.yaml", "MiB")),
     Case("billion laughs as --config", "tuners.benchmark",
          ("--config", "{laughs}"), ("laughs.yaml", "values")),
-    Case("3,000-level list as --base", "gripper_env.sysid",
+    Case("3,000-level list as --base", "tuners.sysid",
          ("greybox", "{small_log}", "--base", "{dashes}"), ("dashes.yaml", "nested deeper")),
-    Case("40 MiB log", "gripper_env.sysid", ("tf", "{huge_csv}"), ("huge.csv", "MiB")),
+    Case("40 MiB log", "tuners.sysid", ("tf", "{huge_csv}"), ("huge.csv", "MiB")),
     Case("--out naming a file", "tuners.manual",
          ("--plant", "test2", "--gains", "paper-tuned", "--out", "{a_file}"), ("--out", "a_file")),
     Case("--gains 1e308", "tuners.manual",
          ("--plant", "test2", "--gains", "1e308,1,0"), ("--gains", "P = 1e+308")),
-    Case("gains file with P = 1e308", "rig.deploy",
+    Case("gains file with P = 1e308", "tuners.rig.deploy",
          ("--gains", "{gains_1e308}", "--port", "/no/such/port", "--boot-wait", "0"),
          ("gains_1e308.json", "P = 1e+308")),
     Case("gains file nested 100,000 deep", "tuners.manual",

@@ -120,9 +120,9 @@ def test_the_wheel_installs_and_tunes_outside_the_source_tree(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "GRIPPER_CONFIG_DIR")}
     env["MPLBACKEND"] = "Agg"
     check = (
-        "import importlib.metadata as md, gripper_env, gripper_env.config as c\n"
-        "from gripper_env.hardware.firmware_build import EmulatorUnavailable, ensure_built\n"
-        "from gripper_env.plants import available_plants\n"
+        "import importlib.metadata as md, gripper_env, gripper_env.io.config as c\n"
+        "from gripper_env.hardware.emulator.build import EmulatorUnavailable, ensure_built\n"
+        "from gripper_env.model.plants import available_plants\n"
         "for ep in md.entry_points(group='console_scripts'):\n"
         "    if ep.dist.name == 'gripper-env': ep.load()\n"
         "try:\n"

@@ -3,7 +3,8 @@
 Every entry point (``python -m tuners.<name>``) builds its parser on :func:`base_parser`, checks
 its inputs with :func:`resolve` before touching ``results/``, gets gains from its library code,
 and hands them to :func:`publish`, which evaluates them (:mod:`tuners.evaluation`), checks the
-nominal closed loop (:mod:`gripper_env.stability`), writes ``<out>/<plant>/<tuner>.json`` and
+nominal closed loop (:mod:`gripper_env.evaluation.stability`), writes
+``<out>/<plant>/<tuner>.json`` and
 ``.png`` atomically, and prints a metrics table (or the JSON with ``--json``). :func:`run` turns
 bad input into a one-line ``error: ...`` on stderr and exit status 2.
 """
@@ -20,14 +21,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from gripper_env.config import ConfigError
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.files import write_result_json
-from gripper_env.gains_file import GainsFileError, build_gains_file, provenance
-from gripper_env.objective import Objective, load_objective
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.evaluation.objective import Objective, load_objective
+from gripper_env.io.config import ConfigError
+from gripper_env.io.files import write_result_json
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.gains_file import GainsFileError, build_gains_file, provenance
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 from tuners.evaluation import PAPER_PLANTS, Evaluation, evaluate, metric_rows
 from tuners.plotting import response_plot
 from tuners.settings import EvaluationSettings, load_settings

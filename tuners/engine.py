@@ -126,10 +126,10 @@ def gather_files(folder: str | os.PathLike[str]) -> dict[str, bytes]:
 def write_files(folder: str | os.PathLike[str], files: dict[str, bytes]) -> None:
     """Write what :func:`gather_files` gathered under ``folder`` (on the driver); a result's
     provenance sidecar goes where the driver's provenance goes
-    (:func:`gripper_env.files.record_provenance`)."""
+    (:func:`gripper_env.io.files.record_provenance`)."""
     import json
 
-    from gripper_env.files import record_provenance, write_atomic
+    from gripper_env.io.files import record_provenance, write_atomic
 
     for rel, data in files.items():
         target = Path(folder) / rel

@@ -1,7 +1,7 @@
 """Evaluate one set of gains the way every tuner and the benchmark report it.
 
-The same controller (gains and :class:`~gripper_env.pid.PIDOptions`) is scored through the one
-scoring path (:mod:`gripper_env.scoring`):
+The same controller (gains and :class:`~gripper_env.model.pid.PIDOptions`) is scored through the one
+scoring path (:mod:`gripper_env.evaluation.scoring`):
 
 * ``ideal``: the identified transfer function alone (the paper's "model"), one deterministic run;
 * ``actual``: the actual-gripper preset (default ``actual``), one run per held-out disturbance
@@ -15,8 +15,10 @@ scoring path (:mod:`gripper_env.scoring`):
   plants are four fits of one gripper): stability, margins and actual-model overshoot and IAE on
   each, and the worst case.
 
-Metrics use the project's JSON keys (:meth:`gripper_env.metrics.Metrics.as_dict`) plus ``cost``,
-the shared objective (:mod:`gripper_env.objective`), on the objective's signal (the true jaw
+Metrics use the project's JSON keys (:meth:`gripper_env.evaluation.metrics.Metrics.as_dict`) plus
+``cost``,
+the shared objective (:mod:`gripper_env.evaluation.objective`), on the objective's signal (the true
+jaw
 angle by default). ``sim_to_real_gap`` is ``actual mean - ideal`` for every numeric metric.
 """
 
@@ -30,15 +32,15 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.metrics import Metrics
-from gripper_env.objective import Objective, load_objective
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
-from gripper_env.scoring import GainScorer, Task, reachability
+from gripper_env.evaluation.metrics import Metrics
+from gripper_env.evaluation.objective import Objective, load_objective
+from gripper_env.evaluation.scoring import GainScorer, Task, reachability
+from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 from gripper_env.sim import Trajectory
-from gripper_env.stability import stability_report
 
 __all__ = [
     "PAPER_PLANTS",

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
-from gripper_env.pid import PIDGains
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 
 __all__ = ["KINDS", "Budget", "Tuned", "Tuner"]

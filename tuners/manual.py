@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gripper_env import paper
-from gripper_env.gains_file import load_gains_file
-from gripper_env.pid import PIDGains
+from gripper_env.model.gains_file import load_gains_file
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.interface import Budget, Tuned
 
@@ -60,7 +60,7 @@ def parse_gains(text: str) -> ManualGains:
     Raises
     ------
     ValueError
-        Not a preset, not 3 or 4 finite numbers in range (:data:`gripper_env.pid.MAX_GAIN`),
+        Not a preset, not 3 or 4 finite numbers in range (:data:`gripper_env.model.pid.MAX_GAIN`),
         and not a ``.json`` file.
     """
     if text in PAPER_GAINS:

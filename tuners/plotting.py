@@ -1,7 +1,7 @@
 """Figures: a controller's response (like the paper's Figure 11) and the benchmark's plots.
 
 matplotlib with the Agg backend (no display needed); every figure is written atomically
-(:func:`gripper_env.files.save_figure`).
+(:func:`gripper_env.io.files.save_figure`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from gripper_env.files import save_figure
+from gripper_env.io.files import save_figure
 
 __all__ = ["budget_plot", "learning_curve_plot", "pareto_plot", "response_plot"]
 

@@ -8,15 +8,17 @@ A learned controller has no transfer function, so its margins cannot be computed
 * **delay**: add a loop delay (in the sensor path; for the loop's stability it is the same as an
   input delay) until the loop no longer settles; the smallest such delay is the delay margin.
 
-"No longer settles" is stated: over the last :data:`~gripper_env.metrics.OSCILLATION_WINDOW_S`
-of each grip and un-grip hold of the ``step`` profile, the jaw still swings more than
+"No longer settles" is stated: over the last
+:data:`~gripper_env.evaluation.metrics.OSCILLATION_WINDOW_S` of each grip and un-grip hold of
+the ``step`` profile, the jaw still swings more than
 :data:`SWING_THRESHOLD_DEG` peak to peak. The probe runs on the loop as it runs, made linear
 (:func:`probe_disturbance`): the transfer function, the servo's 20 ms command hold and the
 sensor's delay, with the command range kept but no friction, quantisation, stops or noise, so a
 stable loop settles exactly and the threshold is met only by a loop that oscillates on its own.
 
 The same probe runs on every PID, whose linear margins with the hold are known
-(:mod:`gripper_env.stability`): the measured gain margin agrees with the linear one to within
+(:mod:`gripper_env.evaluation.stability`): the measured gain margin agrees with the linear one to
+within
 the grid's resolution plus the growth time of a barely unstable loop (checked by the tests and
 reported by the benchmark for every PID row), which validates the method for the loops whose
 margins no formula gives.
@@ -32,13 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.metrics import sustained_swing
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.evaluation.metrics import sustained_swing
+from gripper_env.evaluation.stability import LoopAnalysis, ServoLoop
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 from gripper_env.sim import Trajectory, simulate
-from gripper_env.stability import LoopAnalysis, ServoLoop
 
 __all__ = [
     "GAIN_STEP_DB",

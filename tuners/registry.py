@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from gripper_env.config import ConfigError
+from gripper_env.io.config import ConfigError
 from tuners.interface import KINDS, Tuner
 
 __all__ = ["FAMILIES", "make_tuner"]

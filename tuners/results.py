@@ -55,35 +55,35 @@ def _py(*args: str) -> tuple[str, ...]:
 
 #: The commands, in the order ``regenerate`` runs them.
 COMMANDS: tuple[Command, ...] = (
-    Command("paper", _py("-m", "gripper_env.paper", "--out", RESULTS),
+    Command("paper", _py("-m", "tuners.paper", "--out", RESULTS),
             "the paper's tables and figures, reproduced"),
-    Command("identification", _py("-m", "gripper_env.sysid", "experiments", "--simulate",
+    Command("identification", _py("-m", "tuners.sysid", "experiments", "--simulate",
                                   "--plant", "test2", "--disturbance", "actual", "--seed", "0",
                                   "--out", RESULTS),
             "the paper's Table-1 identification experiments on the simulated gripper"),
-    Command("identification-coverage", _py("-m", "gripper_env.sysid", "coverage", "--out",
+    Command("identification-coverage", _py("-m", "tuners.sysid", "coverage", "--out",
                                            RESULTS),
             "whether identification's 95 % intervals cover known truths (synthetic records)"),
     Command("benchmark", _py("-m", "tuners.benchmark", "--out", RESULTS),
             "every tuner and learned controller on every plant: the verdict"),
     Command("reference-scores", _py("-m", "tuners.rl.reference_scores", "--out", RESULTS),
             "what random, doing nothing, the best PID, PPO and SAC score on each environment"),
-    Command("speed", _py("-m", "benchmarks.speed", "--repeats", "21", "--slow-repeats", "3",
+    Command("speed", _py("-m", "tuners.speed.core", "--repeats", "21", "--slow-repeats", "3",
                          "--envs-repeats", "11", "--out", RESULTS),
             "the simulation core's and the environments' speed"),
-    Command("envs-speed-loaded", _py("-m", "benchmarks.envs_speed", "--loaded", "--repeats", "7",
+    Command("envs-speed-loaded", _py("-m", "tuners.speed.envs", "--loaded", "--repeats", "7",
                                      "--out", RESULTS),
             "native vector env against Sync, idle and beside two busy processes; SB3 PPO"),
-    Command("schedule-speed", _py("-m", "benchmarks.schedule_speed", "--repeats", "31",
+    Command("schedule-speed", _py("-m", "tuners.speed.schedule", "--repeats", "31",
                                   "--out", RESULTS),
             "the core's chunk scheduling against plain prange"),
-    Command("sysid-speed", _py("-m", "benchmarks.sysid_speed", "--repeats", "5",
+    Command("sysid-speed", _py("-m", "tuners.speed.sysid", "--repeats", "5",
                                "--greybox-repeats", "3", "--out",
                                f"{RESULTS}/sysid_speed.md"),
             "identification speed"),
-    Command("hardware-speed", _py("-m", "benchmarks.hardware_speed", "--out", RESULTS),
+    Command("hardware-speed", _py("-m", "tuners.speed.hardware", "--out", RESULTS),
             "the host-board link over the virtual device"),
-    Command("firmware-speed", _py("-m", "benchmarks.firmware_speed", "--duration", "60",
+    Command("firmware-speed", _py("-m", "tuners.speed.firmware", "--duration", "60",
                                   "--out", RESULTS),
             "the firmware's timing on the emulated Mega 2560"),
 )  # fmt: skip
@@ -177,7 +177,7 @@ def adopt(name: str, paths: list[str]) -> list[str]:
 
 
 def _write_manifest(root: Path, manifest: dict[str, dict[str, object]]) -> None:
-    from gripper_env.files import write_json
+    from gripper_env.io.files import write_json
 
     order = {c.name: i for i, c in enumerate(COMMANDS)}
     content = {

@@ -27,10 +27,10 @@ from typing import Any
 
 from optuna.distributions import FloatDistribution
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.pid import PIDGains
-from gripper_env.plants import Plant
-from tuners.classical import fit_fopdt
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import Plant
+from tuners.fopdt import fit_fopdt
 from tuners.settings import ClassicalSettings, OptunaSettings, ParamRange
 
 __all__ = ["BOUND_TOLERANCE", "SearchSpace", "plant_scales", "search_space"]

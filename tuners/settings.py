@@ -1,6 +1,6 @@
 """Tuner and evaluation settings: ``configs/tuners/*.yaml``, validated on load.
 
-Each file has a pydantic schema here; a problem is a :class:`~gripper_env.config.ConfigError`
+Each file has a pydantic schema here; a problem is a :class:`~gripper_env.io.config.ConfigError`
 that names the file and the key. A command-line ``--config PATH`` replaces the default file.
 """
 
@@ -13,8 +13,8 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from gripper_env.config import ConfigError, config_file, load_yaml, validate
-from gripper_env.pid import PIDOptions
+from gripper_env.io.config import ConfigError, config_file, load_yaml, validate
+from gripper_env.model.pid import PIDOptions
 
 __all__ = [
     "MAX_SEARCH_SEEDS",
@@ -45,7 +45,7 @@ class SeedRange(BaseModel):
 
 
 class PIDSettings(BaseModel):
-    """PID structure used for every evaluation (see :class:`gripper_env.pid.PIDOptions`)."""
+    """PID structure used for every evaluation (see :class:`gripper_env.model.pid.PIDOptions`)."""
 
     model_config = _STRICT
 

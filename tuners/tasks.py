@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from gripper_env.plants import load_plant
-from gripper_env.scoring import GainScorer, Task
+from gripper_env.evaluation.scoring import GainScorer, Task
+from gripper_env.model.plants import load_plant
 from tuners import cli
 from tuners.settings import OptunaSettings, load_settings
 

@@ -4,7 +4,7 @@
 #   firmware/emulator/build.sh [OUTDIR]   # -> OUTDIR/libgripper_board.so (default firmware/build-emulator)
 #
 # Needs: gcc, pkg-config, libsimavr-dev, libelf-dev (Debian/Ubuntu packages). The Python side
-# (gripper_env/hardware/mega2560.py) loads the library with ctypes.
+# (gripper_env/hardware/emulator/mega2560.py) loads the library with ctypes.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-$here/../build-emulator}"

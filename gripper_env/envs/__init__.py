@@ -15,7 +15,8 @@ one), host in the loop at 50 Hz; it needs ``port=...`` at ``gym.make`` and is no
 ``gym.make("gripper_env:gripper_env/GripperServo-v0")`` works without importing the package
 first; ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` gives the
 native vector environment (:mod:`gripper_env.envs.vector`; stable-baselines3 steps it through
-:class:`gripper_env.sb3.NativeVecEnv`). The step-by-step ids are registered with a ``TimeLimit``
+:class:`gripper_env.envs.sb3.NativeVecEnv`). The step-by-step ids are registered with a
+``TimeLimit``
 of 1000 steps; ``GripperPIDTune-v0`` without one (its one step ends the episode, terminated).
 The classes are imported lazily, so importing :mod:`gripper_env` does not compile the
 environments' kernels.

@@ -27,7 +27,7 @@ from gripper_env.envs.spaces import (
     disturbance_features,
     reference_features,
 )
-from gripper_env.references import Reference, step_profile
+from gripper_env.model.references import Reference, step_profile
 from gripper_env.sim import build_params
 from gripper_env.sim.layout import P_DELAY
 

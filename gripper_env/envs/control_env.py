@@ -11,13 +11,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.rendering import RENDER_MODES, RowRenderer
 from gripper_env.envs.settings import Residual, check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, check_actions
+from gripper_env.io.config import ConfigError
 
 __all__ = ["ControlEnv"]
 

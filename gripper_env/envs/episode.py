@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
 from gripper_env.envs.settings import Settings
-from gripper_env.references import Reference, random_profile
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.references import Reference, random_profile
 
 __all__ = ["Episode", "draw_episode"]
 

@@ -14,7 +14,8 @@ class GripperGainScheduleEnv(ControlEnv):
     ## Description
 
     The same gripper as ``GripperServo-v0`` (identified transfer function behind the actual
-    gripper's blocks), closed by the Simulink-style PID of :mod:`gripper_env.pid` running on the
+    gripper's blocks), closed by the Simulink-style PID of :mod:`gripper_env.model.pid` running on
+    the
     board at the 1 ms physics step. Every control period (20 ms by default) the agent chooses the
     PID's gains ``(P, I, D)``; the PID keeps them for the period (changes are bumpless: the
     integrator holds its term, the derivative filter its input). The reference is the paper's

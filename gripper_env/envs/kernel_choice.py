@@ -34,7 +34,7 @@ parallel kernel at each thread count of :func:`thread_ladder`) as a bandit whose
   is not timed.
 
 The arms compute the same thing: the rows of a batch are independent, and the parallel kernel
-hands each row to exactly one thread (:mod:`gripper_env._schedule`), so the trajectories do not
+hands each row to exactly one thread (:mod:`gripper_env.sim.schedule`), so the trajectories do not
 depend on which arm ran. A thread count below the caller's is set with ``numba.set_num_threads``
 around the call, from Python (inside a cached kernel it would make the kernel uncacheable), and
 the caller's count is restored after it.

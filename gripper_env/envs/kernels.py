@@ -32,11 +32,11 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from gripper_env._schedule import CHUNK_STEPS, fetch_add, n_workers, rows_per_chunk
 from gripper_env.envs.kernel_choice import Arm, KernelChooser, thread_ladder
 from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.kernel import advance_row as _advance_row
 from gripper_env.sim.layout import P_P, S_DIVERGED, S_SERVO_TV, S_XI
+from gripper_env.sim.schedule import CHUNK_STEPS, fetch_add, n_workers, rows_per_chunk
 
 # cfg entries
 (
@@ -361,7 +361,7 @@ step_serial, step_parallel = compile_kernel(_step_impl, refcount=False)
 
 
 def step_chunks(n_rows: int, n_sub: int) -> int:
-    """Chunks of rows (:mod:`gripper_env._schedule`) a step of ``n_rows`` rows of ``n_sub``
+    """Chunks of rows (:mod:`gripper_env.sim.schedule`) a step of ``n_rows`` rows of ``n_sub``
     physics steps is shared out in: a batch of one chunk has nothing for a second thread."""
     chunk = max(1, CHUNK_STEPS // max(n_sub, 1))  # _schedule.rows_per_chunk, uncompiled
     return (n_rows + chunk - 1) // chunk

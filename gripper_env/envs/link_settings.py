@@ -11,7 +11,7 @@ import math
 import os
 from typing import Any
 
-from gripper_env.config import ConfigError
+from gripper_env.io.config import ConfigError
 
 __all__ = ["check_link_arguments", "check_port"]
 
@@ -23,7 +23,7 @@ def check_port(name: str, port: Any, render_mode: Any) -> str:
         raise ConfigError(
             f"{name}: argument 'port' is required: the board's serial port (e.g. "
             "port='/dev/ttyACM0'), a pyserial URL, or the path a virtual board prints "
-            "(python -m gripper_env.hardware.virtual)"
+            "(python -m tuners.rig.virtual)"
         )
     if not isinstance(port, str | os.PathLike):
         raise ConfigError(f"{name}: argument 'port': expected a path or URL, got {port!r}")

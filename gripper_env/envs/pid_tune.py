@@ -10,7 +10,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gripper_env.config import ConfigError
 from gripper_env.envs.episode import Episode, draw_episode
 from gripper_env.envs.plant_slots import PlantSlots
 from gripper_env.envs.rendering import RENDER_MODES, EpisodePlot, envelope, ylim_deg
@@ -22,9 +21,10 @@ from gripper_env.envs.spaces import (
     disturbance_features,
     reference_features,
 )
-from gripper_env.metrics import Metrics
-from gripper_env.objective import Objective, load_objective
-from gripper_env.scoring import robustness, score_trajectory
+from gripper_env.evaluation.metrics import Metrics
+from gripper_env.evaluation.objective import Objective, load_objective
+from gripper_env.evaluation.scoring import robustness, score_trajectory
+from gripper_env.io.config import ConfigError
 from gripper_env.sim import Trajectory
 
 __all__ = ["EpisodeRenderer", "EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
@@ -56,7 +56,8 @@ def run_episodes(
     The physics of up to :data:`MAX_ROWS_PER_CALL` episodes runs in one call of the simulation
     core (:class:`~gripper_env.sim.BatchSimulator`), exactly as
     :func:`~gripper_env.sim.simulate` runs it; the metrics are
-    :func:`~gripper_env.metrics.compute_metrics` and the cost is :meth:`Objective.cost` with the
+    :func:`~gripper_env.evaluation.metrics.compute_metrics` and the cost is :meth:`Objective.cost`
+    with the
     reference's duration, as for every tuner.
 
     Parameters
@@ -126,7 +127,7 @@ def _run_chunk(
     seeds = np.array([ep.noise_seed for ep in episodes], dtype=np.int64)
     sim.reset(y0, seeds, initial="rest")
     out = sim.advance(n_t, ref)
-    whole = Trajectory.from_simulator(sim, refs[0], out)  # sliced per episode below if needed
+    whole = sim.trajectory(refs[0], out)  # sliced per episode below if needed
     # the one scoring path: metrics on the objective's signal and settling band, then the cost
     if shared:
         metrics, costs = score_trajectory(whole, objective, settings.disturbance)
@@ -235,9 +236,11 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     A one-step (contextual bandit) environment: the observation describes the task (the plant,
     the actual-gripper blocks, the reference profile), the action is a set of PID gains, and the
     environment runs the whole episode (20 s of 1 ms physics for the default step profile)
-    through the simulation core with the Simulink-style PID of :mod:`gripper_env.pid`. The reward
+    through the simulation core with the Simulink-style PID of :mod:`gripper_env.model.pid`. The
+    reward
     is minus the cost of the shared tuning objective (``configs/objective.yaml``,
-    :meth:`gripper_env.objective.Objective.cost`), the same cost that the Optuna tuner minimises,
+    :meth:`gripper_env.evaluation.objective.Objective.cost`), the same cost that the Optuna tuner
+    minimises,
     and ``info`` holds every metric. With the defaults (one plant, the ``step`` reference,
     ``randomize=False``) every episode has the same observation and only the sensor noise
     changes: a bandit per plant. With several plants, ``randomize`` and ``reference="random"``
@@ -279,7 +282,8 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Rewards
 
     ``reward = -objective.penalised(cost, violation)``, through the one scoring path
-    (:func:`gripper_env.scoring.score_trajectory`), the same as every tuner's: ``cost`` is the
+    (:func:`gripper_env.evaluation.scoring.score_trajectory`), the same as every tuner's: ``cost``
+    is the
     shared objective's weighted sum of IAE, visible overshoot, settling time, stall, saturation and
     servo effort on the objective's signal (the true jaw angle), capped at ``max_cost`` (1000) for
     stable runs and ``unstable_cost`` (10000) for a diverged run; gains that miss the robustness

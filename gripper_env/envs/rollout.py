@@ -19,13 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import ControlBatch
 from gripper_env.envs.episode import Episode
 from gripper_env.envs.gain_schedule import GripperGainScheduleEnv
 from gripper_env.envs.servo import GripperServoEnv
-from gripper_env.references import Reference
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.references import Reference
 from gripper_env.sim import Trajectory, sampling_rng
 
 __all__ = ["policy_trajectory"]

@@ -23,7 +23,8 @@ class GripperServoEnv(ControlEnv):
     transfer function ``test1`` .. ``test4``, desired -> actual jaw angle) behind the actual
     gripper's blocks (servo command range and 1-degree quantisation, 50 Hz servo refresh,
     Choudhury stiction, mechanical stops beyond the commanded 21 and 92 deg, a 10-bit ADC with
-    noise; see :mod:`gripper_env.disturbances`). The agent replaces the controller: every control
+    noise; see :mod:`gripper_env.model.disturbances`). The agent replaces the controller: every
+    control
     period (20 ms by default, the servo's refresh) it sets the servo command, which the servo holds
     until the next one, while the physics runs at 1 ms underneath (20 sub-steps of the simulation
     core, :mod:`gripper_env.sim`). The reference is the paper's grip/un-grip step by
@@ -94,7 +95,7 @@ class GripperServoEnv(ControlEnv):
     IAE carries the sensor noise; its chatter term is about -1.4) and a random policy about
     -1000 (its commands jump over the whole range). The returns are not normalised: wrap the
     vector environment in stable-baselines3's ``VecNormalize`` (observations and rewards) for
-    PPO, as ``gripper_env.sb3`` and ``python -m tuners.rl controller`` do.
+    PPO, as ``gripper_env.envs.sb3`` and ``python -m tuners.rl controller`` do.
 
     ## Starting State
 

@@ -18,20 +18,20 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gripper_env.config import ConfigError
 from gripper_env.envs import kernels as K
 from gripper_env.envs.control_batch import DIVERGED_PENALTY, VARIATION_CAP
 from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.link_settings import check_link_arguments, check_port
 from gripper_env.envs.settings import check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S, check_actions
-from gripper_env.hardware.calibration import Calibration, load_calibration
-from gripper_env.hardware.device import GripperDevice
-from gripper_env.hardware.errors import DeviceError, DeviceFault, DeviceTimeout
-from gripper_env.hardware.experiment import settle_jaw
+from gripper_env.hardware.host.calibration import Calibration, load_calibration
+from gripper_env.hardware.host.device import GripperDevice
+from gripper_env.hardware.host.errors import DeviceError, DeviceFault, DeviceTimeout
+from gripper_env.hardware.host.experiment import settle_jaw
+from gripper_env.hardware.host.telemetry import TelemetryBlock
 from gripper_env.hardware.protocol import Mode
-from gripper_env.hardware.telemetry import TelemetryBlock
-from gripper_env.references import Reference
+from gripper_env.io.config import ConfigError
+from gripper_env.model.references import Reference
 
 __all__ = ["GripperServoHardwareEnv", "MissedDeadlineWarning", "SettleWarning"]
 
@@ -52,7 +52,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Description
 
     ``gripper_env/GripperServo-v0`` with the simulated gripper replaced by the board: a
-    :class:`~gripper_env.hardware.device.GripperDevice` on a serial port (the Arduino Mega
+    :class:`~gripper_env.hardware.host.device.GripperDevice` on a serial port (the Arduino Mega
     running ``firmware/gripper``, or a virtual board on a pseudo-terminal). The board runs in
     open loop (``Mode.OPEN_LOOP``): its 1 kHz tick drives the servo at the setpoint and
     reports the potentiometer. Every step the host sends the agent's command as the SETPOINT of
@@ -132,10 +132,10 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["fault"]`` says which; the jaw is open and ``reset()`` acknowledges the fault and
     starts again. The agent can learn from such an ending, so it is an episode end, not an
     exception. Link failures are exceptions, since no episode can continue over them:
-    :class:`~gripper_env.hardware.device.DeviceTimeout` (silent board),
-    :class:`~gripper_env.hardware.device.DeviceReset` (the board restarted),
-    :class:`~gripper_env.hardware.device.PortVanished` (cable pulled),
-    :class:`~gripper_env.hardware.device.LinkError` (corrupted frames); after one, ``reset()``
+    :class:`~gripper_env.hardware.host.device.DeviceTimeout` (silent board),
+    :class:`~gripper_env.hardware.host.device.DeviceReset` (the board restarted),
+    :class:`~gripper_env.hardware.host.device.PortVanished` (cable pulled),
+    :class:`~gripper_env.hardware.host.device.LinkError` (corrupted frames); after one, ``reset()``
     handshakes again.
 
     ``close()`` (also on leaving a ``with`` block, on any exception or ``KeyboardInterrupt``;
@@ -147,7 +147,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ```python
     import gymnasium as gym
-    from gripper_env.hardware.calibration import Calibration
+    from gripper_env.hardware.host.calibration import Calibration
     from gripper_env.hardware.virtual import VirtualDevice
 
     with VirtualDevice("test2", "actual", speed=1.0) as vd:  # or the real board's port

@@ -2,7 +2,7 @@
 
 Every environment takes ``plant``, ``disturbance``, ``reference``, ``randomize`` and
 ``render_mode``; :func:`parse_settings` checks them and :func:`check_reward_weights` the reward
-weights, each raising a :class:`~gripper_env.config.ConfigError` (a ``ValueError``) whose message
+weights, each raising a :class:`~gripper_env.io.config.ConfigError` (a ``ValueError``) whose message
 names the argument. The result is a frozen :class:`Settings`.
 """
 
@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.config import ConfigError, validate
-from gripper_env.disturbances import Disturbance, load_disturbance
 from gripper_env.envs.rendering import RENDER_MODES
 from gripper_env.envs.spaces import GAIN_MAX
-from gripper_env.pid import PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.io.config import ConfigError, validate
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.pid import PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 
 __all__ = [
     "RANDOM_REFERENCE",
@@ -335,7 +335,8 @@ def _check_structure(
 
 
 def check_reward_weights(env_name: str, overshoot_weight: float, chatter_weight: float) -> None:
-    """Raise a :class:`~gripper_env.config.ConfigError` naming a reward weight that is not >= 0."""
+    """Raise a :class:`~gripper_env.io.config.ConfigError` naming a reward weight that is not >=
+    0."""
     weights = {"overshoot_weight": overshoot_weight, "chatter_weight": chatter_weight}
     for arg, value in weights.items():
         if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):

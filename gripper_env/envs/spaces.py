@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.plants import Plant
-from gripper_env.references import Reference
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import Reference
 
 __all__ = [
     "CONTEXT_NAMES",

@@ -15,7 +15,7 @@ carries what ``SyncVectorEnv`` puts there (each started episode's ``plant``, ``r
 listed environment, in that order, where ``SyncVectorEnv`` returns one per environment (pass
 ``render_envs=range(num_envs)`` for that; each rendered environment keeps a figure).
 
-stable-baselines3 steps these through :class:`gripper_env.sb3.NativeVecEnv`.
+stable-baselines3 steps these through :class:`gripper_env.envs.sb3.NativeVecEnv`.
 """
 
 from __future__ import annotations
@@ -129,7 +129,7 @@ class _SeededVectorEnv(VectorEnv):
     def env_infos(self) -> list[dict[str, Any]]:
         """Each environment's ``info`` of the last ``reset`` or ``step``, unbatched: what the
         batched ``info`` was built from (Gymnasium's batching turns a ``None`` that follows a
-        number into NaN; :class:`gripper_env.sb3.NativeVecEnv` hands these to SB3 instead)."""
+        number into NaN; :class:`gripper_env.envs.sb3.NativeVecEnv` hands these to SB3 instead)."""
         return [self._infos.get(i, {}) for i in range(self.num_envs)]
 
     def _batched(self, infos: dict[int, dict[str, Any]]) -> dict[str, Any]:

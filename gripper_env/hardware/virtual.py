@@ -1,18 +1,18 @@
 """A virtual gripper board on a pseudo-terminal: the firmware's protocol over the simulated rig.
 
-``python -m gripper_env.hardware.virtual [--plant test2] [--disturbance actual] [--speed 1.0]``
+``python -m tuners.rig.virtual [--plant test2] [--disturbance actual] [--speed 1.0]``
 opens a pseudo-terminal, prints its path and then behaves like the Arduino Mega running
 ``firmware/gripper``: the same frames, modes, watchdog and telemetry, with the simulated actual
 gripper behind it. Every host tool takes the printed path as its ``--port``.
 
 Inside, three parts mirror the real rig:
 
-* :class:`~gripper_env.hardware.firmware.Firmware`, the board's state machine (the Python twin
+* :class:`~gripper_env.hardware.twin.firmware.Firmware`, the board's state machine (the Python twin
   of ``firmware/gripper/gripper_device.h``, PID included), ticked every 1 ms of device time;
-* :class:`~gripper_env.hardware.virtual_rig.VirtualRig`, the servo, jaw and potentiometer: the
+* :class:`~gripper_env.hardware.twin.rig.VirtualRig`, the servo, jaw and potentiometer: the
   project's one simulation core in open loop, driven by the firmware's servo command one
   physics step per tick, whose measured angle is reported as 10-bit ADC counts
-  (:mod:`gripper_env.hardware.virtual_rig`, with :class:`~gripper_env.hardware.virtual_rig.
+  (:mod:`gripper_env.hardware.twin.rig`, with :class:`~gripper_env.hardware.twin.rig.
   TwinBoard`, the twin wired to the rig);
 * the serial line: the firmware's 512-byte transmit queue drained at 1 Mbaud (100 bytes per
   tick) into the pty, the host's bytes fed to the firmware as they arrive.
@@ -26,7 +26,7 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
 garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, host frames lost on
 the way to the board, a reset mid-run and a vanishing port. Its command line is
-:mod:`gripper_env.hardware.board_cli`.
+:mod:`tuners.rig.virtual`.
 
 Examples
 --------
@@ -39,22 +39,20 @@ from __future__ import annotations
 
 import os
 import select
-import sys
 import threading
 import time
 import tty
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.firmware import UART_BYTES_PER_TICK
-from gripper_env.hardware.firmware_config import TICK_PERIOD_US
-from gripper_env.hardware.virtual_rig import VIRTUAL_DEVICE_ID, TwinBoard, VirtualRig
+from gripper_env.hardware.twin.firmware import UART_BYTES_PER_TICK
+from gripper_env.hardware.twin.firmware_config import TICK_PERIOD_US
+from gripper_env.hardware.twin.rig import VIRTUAL_DEVICE_ID, TwinBoard, VirtualRig
 
 if TYPE_CHECKING:
-    from gripper_env.hardware.emulator import EmulatedBoard
+    from gripper_env.hardware.emulator.board import EmulatedBoard
 
-__all__ = ["VirtualDevice", "main"]
+__all__ = ["VirtualDevice"]
 
 _OUT_HIGH_WATER = 4096  # bytes waiting for the pty before the UART stops draining the queue
 _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20 ticks
@@ -67,7 +65,7 @@ class VirtualDevice:
     Parameters
     ----------
     plant, disturbance : str
-        The simulated rig (see :class:`~gripper_env.hardware.virtual_rig.VirtualRig`).
+        The simulated rig (see :class:`~gripper_env.hardware.twin.rig.VirtualRig`).
     speed : float
         Device time per wall-clock time; ``0`` runs as fast as possible.
     seed : int
@@ -78,11 +76,12 @@ class VirtualDevice:
         Jaw angle at power-on (deg).
     image : path, optional
         Run this compiled firmware image under simavr
-        (:class:`~gripper_env.hardware.emulator.EmulatedBoard`) instead of the Python twin; its
+        (:class:`~gripper_env.hardware.emulator.board.EmulatedBoard`) instead of the Python twin;
+        its
         INFO reports the EEPROM id ``device_id``.
     harness : path, optional
         The simavr harness library for ``image`` (default: see
-        :class:`~gripper_env.hardware.mega2560.Mega2560`).
+        :class:`~gripper_env.hardware.emulator.mega2560.Mega2560`).
 
     Attributes
     ----------
@@ -118,8 +117,8 @@ class VirtualDevice:
             self.rig = VirtualRig(plant, disturbance, seed, y0_deg)
             self.board = TwinBoard(self.rig, self.device_id)
         else:
-            from gripper_env.hardware.emulator import EmulatedBoard
-            from gripper_env.hardware.mega2560 import EMULATED_DEVICE_ID
+            from gripper_env.hardware.emulator.board import EmulatedBoard
+            from gripper_env.hardware.emulator.mega2560 import EMULATED_DEVICE_ID
 
             self.device_id = EMULATED_DEVICE_ID if device_id is None else device_id
             device_id = self.device_id
@@ -436,15 +435,3 @@ class VirtualDevice:
                 return False
             time.sleep(0.001)
         return True
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m gripper_env.hardware.virtual``
-    (:func:`gripper_env.hardware.board_cli.run_board`)."""
-    from gripper_env.hardware.board_cli import run_board
-
-    return run_board(argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

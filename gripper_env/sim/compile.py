@@ -44,14 +44,13 @@ from numba import njit
 
 __all__ = ["SOURCES", "Kernel", "compile_kernel", "source_stamp"]
 
-_LIBRARY = Path(__file__).resolve().parent.parent
+_LIBRARY = Path(__file__).resolve().parents[1]
 
 #: Every file whose code or constants the kernels compile in: the core (all of
-#: ``gripper_env/sim``), the PID step and the work sharing (``gripper_env/_schedule.py``).
+#: ``gripper_env/sim``), the PID step and the work sharing (``gripper_env/sim/schedule.py``).
 SOURCES: tuple[Path, ...] = (
     *sorted(Path(__file__).resolve().parent.glob("*.py")),
-    _LIBRARY / "pid.py",
-    _LIBRARY / "_schedule.py",
+    _LIBRARY / "model" / "pid.py",
 )
 
 

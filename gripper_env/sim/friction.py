@@ -29,7 +29,7 @@ Backlash (``backlash_deg``, the play operator)
 
 In the simulation core (:mod:`gripper_env.sim.kernel`) the held servo command goes through
 stiction, then backlash (:func:`friction_step`), on the scalar state of a run. The configuration
-is :class:`gripper_env.disturbances.Friction`; :func:`stiction_step` and :func:`backlash_step`
+is :class:`gripper_env.model.disturbances.Friction`; :func:`stiction_step` and :func:`backlash_step`
 are also callable from Python (tests, notebooks).
 
 Parameters (a tuple, :func:`friction_params`): ``(model, S, J, backlash)`` - model code
@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from gripper_env.disturbances import Friction
+from gripper_env.model.disturbances import Friction
 from gripper_env.sim.layout import (
     F_DIR,
     F_OUT,

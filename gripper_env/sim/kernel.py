@@ -5,7 +5,8 @@ One physics step ``k`` (time ``t_k = k * dt``) of run ``b``:
 1. the plant's true jaw angle ``y_true[k]`` (:mod:`~gripper_env.sim.plant`);
 2. the sensor: delay, additive Gaussian noise, ADC quantisation -> measured angle ``y[k]``
    (:mod:`~gripper_env.sim.sensor`);
-3. the controller: closed loop ``u[k] = PID(r[k], y[k])`` (:mod:`gripper_env.pid`), or open loop
+3. the controller: closed loop ``u[k] = PID(r[k], y[k])`` (:mod:`gripper_env.model.pid`), or open
+   loop
    ``u[k] = r[k]`` (the desired angle goes straight to the servo, as in the paper's
    identification tests);
 4. the servo's command path: on a refresh tick, clamp to the command range, quantise,
@@ -27,7 +28,7 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit, prange
 
-from gripper_env.pid import pid_step
+from gripper_env.model.pid import pid_step
 from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.friction import friction_params, friction_step, load_friction, store_friction
 from gripper_env.sim.layout import (
@@ -76,7 +77,8 @@ PidParams = tuple[float, float, float, float, float, float, int, float, float, i
 
 @njit(inline="always")
 def _pid_params(params: np.ndarray, b: int) -> PidParams:
-    """Run ``b``'s PID parameters in :func:`~gripper_env.pid.pid_step`'s order (from ``p``)."""
+    """Run ``b``'s PID parameters in :func:`~gripper_env.model.pid.pid_step`'s order (from
+    ``p``)."""
     return (
         params[b, P_P], params[b, P_I], params[b, P_D], params[b, P_N],
         params[b, P_ULO], params[b, P_UHI], int(params[b, P_AW]), params[b, P_KB],
@@ -88,7 +90,8 @@ def _pid_params(params: np.ndarray, b: int) -> PidParams:
 def _pid(
     r: float, y: float, g: PidParams, dt: float, xi: float, xf: float
 ) -> tuple[float, float, float, float]:
-    """:func:`~gripper_env.pid.pid_step` with the run's parameters ``g``; ``(u, v, xi, xf)``."""
+    """:func:`~gripper_env.model.pid.pid_step` with the run's parameters ``g``;
+    ``(u, v, xi, xf)``."""
     p, i, d, n, u_lo, u_hi, aw, kb, sign, d_on_meas = g
     return pid_step(r, y, p, i, d, n, dt, u_lo, u_hi, aw, kb, sign, d_on_meas, xi, xf)
 
@@ -245,8 +248,8 @@ def _advance_impl(
     """Advance every run by ``n_steps`` physics steps: :func:`advance_row` over the batch.
 
     A plain ``prange`` over the runs: chunks taken from a shared counter
-    (:mod:`gripper_env._schedule`) were no faster here, idle or beside a busy process
-    (``python -m benchmarks.schedule_speed``, ``results/schedule_speed.md``).
+    (:mod:`gripper_env.sim.schedule`) were no faster here, idle or beside a busy process
+    (``python -m tuners.speed.schedule``, ``results/schedule_speed.md``).
     """
     for i in prange(params.shape[0]):
         b = np.int64(i)  # prange's index is unsigned; the row index is signed, like ``pb``

@@ -12,7 +12,7 @@ __all__ = ["DIVERGENCE_BOUND", "N_PARAMS", "state_width"]
 
 # ----------------------------------------------------------------------------------------------
 # Parameter row: the controller, then the actual-gripper blocks in signal order.
-# PID (gripper_env.pid): gains, output limits (deg), back-calculation gain (1/s), error sign,
+# PID (gripper_env.model.pid): gains, output limits (deg), back-calculation gain (1/s), error sign,
 # anti-windup mode, derivative on measurement (0/1).
 P_P, P_I, P_D, P_N, P_ULO, P_UHI, P_KB, P_SIGN, P_AW, P_DMEAS = range(10)
 # servo command path (sim.servo): range (deg), quantum (deg), refresh period (steps), rate (deg/s)

@@ -3,7 +3,7 @@
 After each plant update the jaw angle is clamped to the stops; a run held there counts contact
 steps, stall steps (the held servo command at least a whole stall band beyond the stop: full
 stall current) and the push as a fraction of stall torque, ``min(push / stall_band, 1)``. The
-configuration is :class:`gripper_env.disturbances.Mechanics`; an object in the jaws raises the
+configuration is :class:`gripper_env.model.disturbances.Mechanics`; an object in the jaws raises the
 closed stop to its contact angle.
 
 Parameters (a tuple, :func:`mechanics_params`): ``(lo, hi, stall_band, inv_band)`` - the stops
@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from gripper_env.disturbances import Mechanics
+from gripper_env.model.disturbances import Mechanics
 from gripper_env.sim.layout import (
     P_MECH_HI,
     P_MECH_LO,

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.pid import ANTI_WINDUP_MODES, DERIVATIVE_ON, PIDGains, PIDOptions
 from gripper_env.sim.friction import friction_columns
 from gripper_env.sim.layout import (
     N_PARAMS,

@@ -1,7 +1,7 @@
 """The identified transfer function's discrete state update inside the core.
 
 Each run's plant is the zero-order-hold discretisation at the physics step of its transfer
-function, in the observable form of :meth:`gripper_env.plants.Plant.zoh_matrices`::
+function, in the observable form of :meth:`gripper_env.model.plants.Plant.zoh_matrices`::
 
     y[k]   = x[k][0] + d * v[k]
     x[k+1] = A x[k] + B v[k]

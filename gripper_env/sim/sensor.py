@@ -2,7 +2,8 @@
 
 The true angle is delayed by whole physics steps, noise is added (the core's generator,
 :mod:`gripper_env.sim.noise`), and the ADC rounds it to the nearest count over its calibrated
-range, clipped to the counts it has. The configuration is :class:`gripper_env.disturbances.Sensor`.
+range, clipped to the counts it has. The configuration is
+:class:`gripper_env.model.disturbances.Sensor`.
 
 Parameters (a tuple, :func:`sensor_params`): ``(delay, noise, lsb, inv_lsb, adc_lo, adc_max)`` -
 delay (physics steps), noise standard deviation (deg), angle per count (deg, 0 for no ADC) and
@@ -19,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from gripper_env.disturbances import Sensor
+from gripper_env.model.disturbances import Sensor
 from gripper_env.sim.layout import P_ADC_LO, P_ADC_LSB, P_ADC_MAX, P_DELAY, P_NOISE
 from gripper_env.sim.noise import normal
 from gripper_env.sim.rounding import round_half_up

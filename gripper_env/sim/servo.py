@@ -4,7 +4,7 @@ A hobby servo reads a new position command only on its refresh ticks (every 20 m
 Arduino's ``Servo.write`` sends whole degrees, ``writeMicroseconds`` about 0.1 deg. On a tick the
 controller's output ``u`` (deg) is clamped to the servo's range, rounded to the command quantum,
 rate-limited against the previous command, and latched; between ticks the servo holds it. The
-configuration is :class:`gripper_env.disturbances.CommandPath`.
+configuration is :class:`gripper_env.model.disturbances.CommandPath`.
 
 Parameters (a tuple, :func:`servo_params`): ``(cmd_lo, cmd_hi, quantum, refresh, step_max)`` -
 range (deg), quantum (deg, 0 for none), refresh period (physics steps), largest change per tick
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from gripper_env.disturbances import CommandPath
+from gripper_env.model.disturbances import CommandPath
 from gripper_env.sim.layout import (
     P_CMD_HI,
     P_CMD_LO,

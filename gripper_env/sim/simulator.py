@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.pid import PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.pid import PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 from gripper_env.sim.kernel import advance_kernel
 from gripper_env.sim.layout import (
     F_OUT,
@@ -309,6 +309,34 @@ class BatchSimulator:
         )
         return out
 
+    def trajectory(
+        self,
+        reference: Reference,
+        out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    ) -> Trajectory:
+        """The runs over ``reference`` as a :class:`Trajectory`: ``out`` is what :meth:`advance`
+        returned (reference, command, measured and true angle), the counters cover every step
+        since the runs' last reset."""
+        dt = self.dt_s
+        contact = self.contact_steps
+        return Trajectory(
+            t=reference.t_s,
+            r=out[0],
+            u=out[1],
+            y=out[2],
+            y_true=out[3],
+            stable=~self.diverged,
+            saturated_s=self.saturated_steps * dt,
+            reference=reference,
+            closed_loop=self.closed_loop,
+            contact_s=contact * dt,
+            stall_s=self.stall_steps * dt,
+            force_proxy=np.divide(
+                self.force_sum, contact, out=np.zeros_like(contact), where=contact > 0
+            ),
+            servo_effort_deg=self.servo_variation_deg.copy(),
+        )
+
     @property
     def diverged(self) -> np.ndarray:
         """Runs whose states left the divergence bound (bool, shape (B,))."""
@@ -376,7 +404,7 @@ def simulate(
     plant : str, path, Plant or sequence of Plant
         Plant name (``"test2"``), YAML path, or plant(s); one per run or one for all.
     reference : str, path, Reference or ndarray
-        Profile name (``"step"``), CSV path, :class:`~gripper_env.references.Reference` or an
+        Profile name (``"step"``), CSV path, :class:`~gripper_env.model.references.Reference` or an
         array of desired angles (deg) at the physics step.
     gains : array-like (B, 3|4), PIDGains, list of PIDGains, or None
         ``[P, I, D(, N)]`` per run; ``None`` runs open loop (reference straight to the servo).
@@ -433,7 +461,7 @@ def simulate(
     y0 = ref.values_deg[0] if y0_deg is None else y0_deg
     sim.reset(y0, seed_arr, initial=initial)
     out = sim.advance(len(ref), ref.values_deg)
-    return Trajectory.from_simulator(sim, ref, out)
+    return sim.trajectory(ref, out)
 
 
 def _delay_capacity(dists: Sequence[Disturbance], dt: float) -> int:

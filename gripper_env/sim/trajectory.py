@@ -5,15 +5,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
-from gripper_env.files import write_csv
-from gripper_env.references import Reference
-
-if TYPE_CHECKING:
-    from gripper_env.sim.simulator import BatchSimulator
+from gripper_env.io.files import write_csv
+from gripper_env.model.references import Reference
 
 __all__ = ["Trajectory"]
 
@@ -64,35 +61,6 @@ class Trajectory:
 
     #: Columns of :meth:`to_csv` (and of the rig's deploy log).
     CSV_COLUMNS: ClassVar[tuple[str, ...]] = ("t_s", "reference_deg", "command_deg", "position_deg")
-
-    @classmethod
-    def from_simulator(
-        cls,
-        sim: BatchSimulator,
-        reference: Reference,
-        out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    ) -> Trajectory:
-        """The trajectory of a simulator's runs over ``reference`` (its accumulated counters
-        cover every step since the runs' last reset)."""
-        dt = sim.dt_s
-        contact = sim.contact_steps
-        return cls(
-            t=reference.t_s,
-            r=out[0],
-            u=out[1],
-            y=out[2],
-            y_true=out[3],
-            stable=~sim.diverged,
-            saturated_s=sim.saturated_steps * dt,
-            reference=reference,
-            closed_loop=sim.closed_loop,
-            contact_s=contact * dt,
-            stall_s=sim.stall_steps * dt,
-            force_proxy=np.divide(
-                sim.force_sum, contact, out=np.zeros_like(contact), where=contact > 0
-            ),
-            servo_effort_deg=sim.servo_variation_deg.copy(),
-        )
 
     @property
     def dt_s(self) -> float:

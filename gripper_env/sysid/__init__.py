@@ -9,11 +9,11 @@
 - discrete ARX/OE baselines, MATLAB ``compare`` fit, a CSV log reader, plant-file and
   preset writers.
 
-Command line: ``python -m gripper_env.sysid [tf|greybox|experiments] ...``
-(:mod:`gripper_env.sysid.commands`).
+Command line: ``python -m tuners.sysid [tf|greybox|experiments] ...``
+(:mod:`tuners.sysid`).
 """
 
-from gripper_env.metrics import fit_percent
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.sysid.data import NonUniformSamplingWarning, prepare_data
 from gripper_env.sysid.greybox import ActualEstimate, identify_actual
 from gripper_env.sysid.tfest import ESTIMATE, IdentificationWarning, TFEstimate, tfest

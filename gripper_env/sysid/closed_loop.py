@@ -35,7 +35,7 @@ from numba import njit
 from scipy import stats
 from scipy.optimize import least_squares
 
-from gripper_env.state_space import discretise, observer_form
+from gripper_env.model.state_space import discretise, observer_form
 from gripper_env.sysid.data import IOData
 from gripper_env.sysid.error_model import parameter_covariance
 from gripper_env.sysid.output_error import refine_output_error

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.plants import Plant
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.plants import Plant
 from gripper_env.sim import BatchSimulator
 
 __all__ = ["CHUNK", "CoreRuns", "TickRuns", "phase_scan", "sse", "tick_index"]

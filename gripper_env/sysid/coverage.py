@@ -12,8 +12,8 @@ and the studies that fit them.
 - :func:`tf_coverage`, :func:`greybox_coverage`: the share of records whose 95 % intervals
   (transfer-function coefficients, delay, ``S`` and ``J``) cover the truth.
 
-``python -m gripper_env.sysid coverage`` runs them and writes ``results/identification_coverage.md``
-(:mod:`gripper_env.sysid.commands.coverage`); ``tests/sysid/test_coverage.py`` runs smaller ones.
+``python -m tuners.sysid coverage`` runs them and writes ``results/identification_coverage.md``
+(:mod:`tuners.sysid.coverage`); ``tests/sysid/test_coverage.py`` runs smaller ones.
 """
 
 from __future__ import annotations
@@ -181,7 +181,7 @@ def greybox_record(
     """A :func:`greybox_command` log of the simulated actual gripper (core): the servo
     :data:`SERVO_NUM` / :data:`SERVO_DEN` behind the ``actual`` preset with Choudhury friction
     ``(s_deg, j_deg)``, a sensor delay (whole steps), noise and ``quantization``."""
-    from gripper_env.plants import Plant
+    from gripper_env.model.plants import Plant
     from gripper_env.sim import simulate
 
     rng = np.random.default_rng(seed)

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from gripper_env import paper
-from gripper_env.metrics import fit_percent, sample_sd
-from gripper_env.plants import Plant, load_plant
+from gripper_env.evaluation.metrics import fit_percent, sample_sd
+from gripper_env.model.plants import Plant, load_plant
 from gripper_env.sim import simulate
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.experiments import IdentifiedExperiment

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 from threadpoolctl import threadpool_limits
 
-from gripper_env.metrics import fit_percent
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.sysid.data import (
     DEFAULT_MAX_GAP,
     DEFAULT_MAX_JITTER,

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.stats import norm
 
-from gripper_env.state_space import observer_form
+from gripper_env.model.state_space import observer_form
 from gripper_env.sysid.zoh import zoh_response
 
 __all__ = ["FitOnData", "TFEstimate", "format_polynomial", "param_names", "rest_state"]
@@ -128,7 +128,7 @@ class TFEstimate:
         ``("a1", "a0", "b1", "b0")`` style names of ``params``.
     initial_state : ndarray
         Estimated state at the first sample, observer canonical form
-        (:func:`gripper_env.state_space.observer_form`), deviation units.
+        (:func:`gripper_env.model.state_space.observer_form`), deviation units.
     initial_state_std : ndarray
         Standard errors of ``initial_state``.
     stable : bool

@@ -11,10 +11,11 @@
    test4   ``slope20``  slope, 20 s ramps
    ======  =========  ==================================================
 
-   (profiles of :mod:`gripper_env.references`). A *recorder* runs one profile and writes its log
+   (profiles of :mod:`gripper_env.model.references`). A *recorder* runs one profile and writes its
+   log
    as CSV ``t_s, desired_deg, actual_deg``; two implementations: the simulated actual gripper
    (:class:`SimulatedRecorder`) and the board (:class:`DeviceRecorder`). Everything downstream
-   reads the CSV, so ``python -m gripper_env.sysid LOG.csv`` reproduces each fit.
+   reads the CSV, so ``python -m tuners.sysid LOG.csv`` reproduces each fit.
 2. **Identify** each record with :func:`gripper_env.sysid.tfest` (2 poles, 1 zero, no delay:
    the paper's structure), initial state estimated (:func:`identify_log`).
 
@@ -35,10 +36,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gripper_env.disturbances import Disturbance, describe, load_disturbance
-from gripper_env.files import write_csv
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, step_profile
+from gripper_env.io.files import write_csv
+from gripper_env.model.disturbances import Disturbance, describe, load_disturbance
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, step_profile
 from gripper_env.sim import simulate
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.logfile import LOG_COLUMNS, read_log
@@ -46,7 +47,7 @@ from gripper_env.sysid.tfest import TFEstimate, tfest
 from gripper_env.sysid.zoh import zoh_response
 
 if TYPE_CHECKING:
-    from gripper_env.hardware.experiment import Recording
+    from gripper_env.hardware.host.experiment import Recording
 
 __all__ = [
     "EXPERIMENTS",
@@ -74,7 +75,7 @@ class Experiment:
     name : str
         ``"test1"`` ... ``"test4"``.
     profile : str
-        Reference profile name (:func:`gripper_env.references.load_reference`).
+        Reference profile name (:func:`gripper_env.model.references.load_reference`).
     description : str
         The input as Table 1 words it.
     """
@@ -205,8 +206,8 @@ class SimulatedRecorder:
 @dataclass
 class DeviceRecorder:
     """The board as a :data:`Recorder`: each run streams the profile open loop through
-    :func:`gripper_env.hardware.experiment.run_profile` and logs ``t_s, desired_deg,
-    actual_deg`` at 1 kHz (``python -m rig.record`` is one run of it).
+    :func:`gripper_env.hardware.host.experiment.run_profile` and logs ``t_s, desired_deg,
+    actual_deg`` at 1 kHz (``python -m tuners.rig.record`` is one run of it).
 
     The log is written as it goes under ``LOG.partial.csv`` and renamed to ``LOG.csv`` when the
     profile completes; a run that fails keeps its partial log and says where in a note on the
@@ -243,9 +244,9 @@ class DeviceRecorder:
         Recording
             The samples, frames lost and where the log is (``extra["log"]``).
         """
-        from gripper_env.hardware.calibration import load_calibration
-        from gripper_env.hardware.device import GripperDevice
-        from gripper_env.hardware.experiment import CsvLog, run_profile
+        from gripper_env.hardware.host.calibration import load_calibration
+        from gripper_env.hardware.host.device import GripperDevice
+        from gripper_env.hardware.host.experiment import CsvLog, run_profile
         from gripper_env.hardware.protocol import Mode
 
         log = CsvLog(path, LOG_COLUMNS, _log_rows)
@@ -330,7 +331,8 @@ class IdentifiedExperiment:
         return step_t63(self.estimate.num, self.estimate.den, self.estimate.dt_s)
 
     def plant(self, name: str | None = None) -> Plant:
-        """The estimate as a :class:`~gripper_env.plants.Plant` (absolute angles, as plant files
+        """The estimate as a :class:`~gripper_env.model.plants.Plant` (absolute angles, as plant
+        files
         are used)."""
         est = self.estimate
         return Plant.from_coefficients(

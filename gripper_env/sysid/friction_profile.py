@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.state_space import controllable_form, discretise
+from gripper_env.model.state_space import controllable_form, discretise
 from gripper_env.sysid.core_batches import CoreRuns, TickRuns
 from gripper_env.sysid.diagnostics import CHI2_95
 from gripper_env.sysid.srivc import split_params, stabilise

@@ -2,7 +2,7 @@
 
 A linear transfer function fitted to a log of the real gripper absorbs the friction's lag into
 its poles (on a slow slope, a model more than twice as slow as the servo). This module fits the
-project's whole actual-gripper model instead (:mod:`gripper_env.disturbances`: servo command
+project's whole actual-gripper model instead (:mod:`gripper_env.model.disturbances`: servo command
 path, friction, the transfer function, stops, sensor), by running the simulation core
 (:class:`gripper_env.sim.BatchSimulator`) on batches of candidate parameter sets:
 
@@ -46,9 +46,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 from threadpoolctl import threadpool_limits
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.metrics import fit_percent
-from gripper_env.plants import Plant
+from gripper_env.evaluation.metrics import fit_percent
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.plants import Plant
 from gripper_env.sysid.core_batches import CoreRuns, phase_scan
 from gripper_env.sysid.data import prepare_data
 from gripper_env.sysid.estimate import json_float

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env.config import MAX_DATA_BYTES
+from gripper_env.io.config import MAX_DATA_BYTES
 
 __all__ = ["LOG_COLUMNS", "read_columns", "read_log"]
 
@@ -63,7 +63,7 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
     Raises
     ------
     ValueError
-        Missing or too large a file (:data:`gripper_env.config.MAX_DATA_BYTES`), missing
+        Missing or too large a file (:data:`gripper_env.io.config.MAX_DATA_BYTES`), missing
         columns, no data rows, or a cell that is not a finite number.
     """
     p = Path(path)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gripper_env.metrics import fit_percent
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.sysid.data import DEFAULT_MAX_GAP, DEFAULT_MAX_JITTER, IOData, prepare_data
 from gripper_env.sysid.output_error import fit_initial_state
 from gripper_env.sysid.tfest import FitOnData, TFEstimate, tfest

@@ -1,12 +1,12 @@
 """Writing an identified model as a plant file (the format of ``configs/plants/*.yaml``).
 
-Keys, exactly those of the plant schema (``gripper_env.plants.PlantSpec``): ``name``,
+Keys, exactly those of the plant schema (``gripper_env.model.plants.PlantSpec``): ``name``,
 ``description``, ``num`` and ``den`` (highest power of ``s`` first), ``fit_pct``, ``dt_s`` (the
 physics step, not the data's sample interval) and ``jaw_range_deg``.
 
 A plant file holds the transfer function only. An identified input delay is written in its
 description and in a comment at its top; the simulation core applies dead time through a
-disturbance preset's ``sensor.delay_s`` (``python -m gripper_env.sysid greybox`` writes one).
+disturbance preset's ``sensor.delay_s`` (``python -m tuners.sysid greybox`` writes one).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from gripper_env.files import write_atomic
+from gripper_env.io.files import write_atomic
 from gripper_env.sysid.tfest import TFEstimate
 
 __all__ = ["plant_dict", "plant_yaml", "save_plant_yaml"]

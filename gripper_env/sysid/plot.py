@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gripper_env.files import save_figure
+from gripper_env.io.files import save_figure
 from gripper_env.sysid.tfest import TFEstimate
 
 __all__ = ["plot_fit"]

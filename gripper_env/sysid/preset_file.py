@@ -16,8 +16,8 @@ from typing import Any
 
 import yaml
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.files import write_atomic
+from gripper_env.io.files import write_atomic
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.sysid.greybox import ActualEstimate
 
 __all__ = ["preset_dict", "preset_yaml", "save_preset_yaml"]

@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env import __version__, paper
-from gripper_env.disturbances import Disturbance
-from gripper_env.files import save_figure
-from gripper_env.plants import Plant
+from gripper_env import paper
+from gripper_env._version import __version__
+from gripper_env.io.files import save_figure
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.plants import Plant
 from gripper_env.sysid.experiments import IdentifiedExperiment, step_t63
 from gripper_env.sysid.greybox import response_on
 from gripper_env.sysid.logfile import read_log
@@ -320,7 +321,7 @@ def _header(run: IdentificationRun, command: str, elapsed_s: float | None) -> li
         f"Written by `{command}` (gripper-env {__version__}, "
         f"{datetime.now(UTC).strftime('%Y-%m-%d')})"
         + (f"; the session took {elapsed_s:.1f} s." if elapsed_s is not None else "."),
-        "Paper: `shared/paper/`. Pipeline: `gripper_env.sysid.session`.",
+        f"Paper: {paper.CITATION}. Pipeline: `gripper_env.sysid.session`.",
         "",
         headline + ".",
         "",
@@ -349,8 +350,9 @@ def _table1_section(
         "## 1. Experiments and identified transfer functions (Table 1, Figure 7)",
         "",
         "Each experiment runs open loop (the desired angle is the servo command), starting at",
-        "rest at 92 deg; profiles as in `gripper_env.references` (the paper does not publish its",
-        "timing): `step` = 1 s at 92, grip step to 21, 9 s, un-grip step to 92, 10 s; `slopeN` =",
+        "rest at 92 deg; profiles as in `gripper_env.model.references` (the paper does not",
+        "publish its timing): `step` = 1 s at 92, grip step to 21, 9 s, un-grip step to 92,",
+        "10 s; `slopeN` =",
         "1 s at 92, ramp to 21 over N s, 5 s hold, ramp back over N s, 5 s hold. Identification:",
         "`tfest` with 2 poles and 1 zero and no delay (the paper's structure; on the slopes the",
         "friction's lag would pose as dead time: section 3 identifies the delay with the",
@@ -403,7 +405,7 @@ def _table1_section(
             ]
         lines.append("")
     lines += [
-        "Each fit is reproducible from its log: `python -m gripper_env.sysid "
+        "Each fit is reproducible from its log: `python -m tuners.sysid "
         "results/identification/<test>_<profile>.csv` (logs are written by this command, not "
         "committed).",
         "",
@@ -493,7 +495,7 @@ def _plant_files_section(plant_files: Sequence[Path]) -> list[str]:
     lines += [f"- `{p}`" for p in plant_files]
     lines += [
         "",
-        "Each plant file loads with `gripper_env.plants.load_plant(PATH)` and runs wherever",
+        "Each plant file loads with `gripper_env.model.plants.load_plant(PATH)` and runs wherever",
         "a plant is accepted (`--plant PATH`); it holds the transfer function only (the",
         "operating point and delay it was identified with are in its description). The",
         "identified actual gripper is a plant file and a disturbance preset: tune on it",

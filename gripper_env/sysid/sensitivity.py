@@ -1,7 +1,7 @@
 """A candidate model's simulated output and its derivatives, in one exact simulation.
 
 For ``yhat`` = the ZOH-sampled output of ``B(s)/A(s)`` driven by the held input ``u`` from the
-observer-form initial state ``x0`` (:func:`gripper_env.state_space.observer_form`):
+observer-form initial state ``x0`` (:func:`gripper_env.model.state_space.observer_form`):
 
 .. code-block:: text
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gripper_env.state_space import controllable_form, discretise, observer_form
+from gripper_env.model.state_space import controllable_form, discretise, observer_form
 from gripper_env.sysid.zoh import delayed_input, run_states
 
 __all__ = ["ModelSensitivities", "model_sensitivities"]

@@ -1,7 +1,7 @@
 """The sensor read from a record alone: ADC resolution and offset, and the measurement noise.
 
 The potentiometer goes through a 10-bit ADC, so the logged angle lies on a grid
-``adc_lo + k * lsb`` (:class:`gripper_env.disturbances.Sensor`). From the logged values:
+``adc_lo + k * lsb`` (:class:`gripper_env.model.disturbances.Sensor`). From the logged values:
 
 - **resolution** ``lsb``: the spacing of the grid, the typical gap between neighbouring distinct
   values (they are all visited when the noise is about a count or more);

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gripper_env.files import write_atomic
-from gripper_env.references import Reference, load_reference
+from gripper_env.io.files import write_atomic
+from gripper_env.model.references import Reference, load_reference
 from gripper_env.sysid.direct_response import Validation, validate_models
 from gripper_env.sysid.experiments import (
     EXPERIMENTS,
@@ -176,7 +176,8 @@ def save_plants(
 ) -> list[Path]:
     """Write each identified model as a plant file ``ident_<test>_<profile>.yaml``, atomically.
 
-    The files load with :func:`gripper_env.plants.load_plant` (by path) like the paper's plants.
+    The files load with :func:`gripper_env.model.plants.load_plant` (by path) like the paper's
+    plants.
     """
     out = []
     fits = {row.name: row.fit_pct for row in run.validation.rows}
@@ -184,7 +185,7 @@ def save_plants(
         name = f"ident_{item.experiment.label}"
         est = item.estimate
         description = (
-            f"Identified by python -m gripper_env.sysid experiments from {item.experiment.name} "
+            f"Identified by python -m tuners.sysid experiments from {item.experiment.name} "
             f"({item.experiment.description}){', ' + source if source else ''}: "
             f"{est.residuals.size} samples at {est.dt_s:g} s, fit {est.fit_pct:.2f} % on them "
             f"(initial state estimated), {fits[item.experiment.name]:.2f} % on the validation "

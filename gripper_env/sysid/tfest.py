@@ -27,7 +27,7 @@ driven by the reference, with the controller fitted from the log
 The returned model maps **deviations**: ``y - y_op = G(s) e^{-s tau} (u - u_op)`` with the
 operating point of ``offset`` (like MATLAB on detrended data). :meth:`TFEstimate.simulate` adds
 the operating point back. Fit figures follow MATLAB's ``compare``
-(:func:`gripper_env.metrics.fit_percent`).
+(:func:`gripper_env.evaluation.metrics.fit_percent`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from threadpoolctl import threadpool_limits
 
-from gripper_env.metrics import fit_percent
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.sysid.closed_loop import ClosedLoopFit, feedback_test, fit_closed_loop
 from gripper_env.sysid.data import (
     DEFAULT_MAX_GAP,

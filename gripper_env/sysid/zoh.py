@@ -3,7 +3,8 @@
 Identification simulates many candidate models on tens of thousands of samples, so it never calls
 :func:`control.forced_response`. Every continuous-time LTI system it needs (the model, its
 parameter sensitivities, the state-variable filters) is written in state space
-(:mod:`gripper_env.state_space`, shared with the simulation core), discretised *exactly* for the
+(:mod:`gripper_env.model.state_space`, shared with the simulation core), discretised *exactly* for
+the
 way its input behaves between samples, and run by a compiled loop (:func:`run_states`, about
 1 ms per 60 000 samples for a few states):
 
@@ -27,7 +28,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike
 
-from gripper_env.state_space import controllable_form, discretise, observer_form
+from gripper_env.model.state_space import controllable_form, discretise, observer_form
 
 __all__ = [
     "delayed_input",
@@ -54,7 +55,7 @@ def split_delay(delay_s: float, dt_s: float) -> tuple[int, float]:
 def delayed_input(u: np.ndarray, delay_s: float, dt_s: float) -> tuple[np.ndarray, float]:
     """The held input as a delayed system sees it, and the delay's fractional part.
 
-    Returns ``(w, f)`` for :func:`gripper_env.state_space.discretise` with
+    Returns ``(w, f)`` for :func:`gripper_env.model.state_space.discretise` with
     ``delay_fraction = f``: ``w[k] = u[k - d]`` (``f = 0``) or ``u[k - d - 1]`` (``f > 0``) for the
     whole-sample part ``d``; before the record the input is taken to have been ``u[0]``. At a
     sample instant the system sees ``w[k]`` (the direct term of a biproper model uses it).
@@ -162,7 +163,7 @@ def zoh_response(
     dt_s : float
         Sample interval (s).
     x0 : array_like, optional
-        State at the first sample (:func:`gripper_env.state_space.observer_form`); zero if
+        State at the first sample (:func:`gripper_env.model.state_space.observer_form`); zero if
         omitted. Its free response is not delayed.
     delay_s : float
         Input delay (s), any value >= 0: ``y = G(s) e^{-s delay} u``, sampled exactly; before

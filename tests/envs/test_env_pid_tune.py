@@ -7,14 +7,14 @@ import pytest
 from helpers import PID_TUNE, signed_log_gains
 
 import gripper_env  # noqa: F401
-from gripper_env.disturbances import load_disturbance
 from gripper_env.envs.spaces import action_to_gains, gains_to_action
-from gripper_env.metrics import compute_metrics
-from gripper_env.objective import load_objective
+from gripper_env.evaluation.metrics import compute_metrics
+from gripper_env.evaluation.objective import load_objective
+from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.pid import PIDGains
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
-from gripper_env.pid import PIDGains
 from gripper_env.sim import simulate
-from gripper_env.stability import stability_report
 
 
 def _expected_reward(plant, gains, traj, disturbance, preset="actual"):
@@ -144,7 +144,7 @@ def test_the_relative_gain_map_centres_on_a_design():
 def test_a_bad_relative_map_is_one_line(kwargs, match):
     import gymnasium as gym
 
-    from gripper_env.config import ConfigError
+    from gripper_env.io.config import ConfigError
 
     with pytest.raises(ConfigError, match=match):
         gym.make("gripper_env/GripperPIDTune-v0", **kwargs)

@@ -7,9 +7,9 @@ import pytest
 from helpers import SERVO
 
 import gripper_env  # noqa: F401
-from gripper_env.disturbances import load_disturbance
-from gripper_env.plants import load_plant
-from gripper_env.references import load_reference
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 from gripper_env.sim import BatchSimulator, simulate
 from gripper_env.sim.layout import S_XI
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from gripper_env.envs.rollout import policy_trajectory
-from gripper_env.pid import PIDOptions
+from gripper_env.model.pid import PIDOptions
 from gripper_env.sim import simulate
 
 SEEDS = [100000, 100001, 100002]

@@ -98,7 +98,7 @@ def virtual_twin() -> Iterator[VirtualDevice]:
 def emulator_build(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """The firmware image and the simavr harness, built by the project's scripts into this
     session's own directory (parallel workers do not share a build tree)."""
-    from gripper_env.hardware.firmware_build import build_harness, build_image, emulator_missing
+    from gripper_env.hardware.emulator.build import build_harness, build_image, emulator_missing
 
     why = emulator_missing()
     if why:

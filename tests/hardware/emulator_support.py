@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.emulator import EmulatedBoard
-from gripper_env.hardware.mega2560 import CYCLES_PER_MS
-from gripper_env.hardware.scripted import ScriptedHost
+from gripper_env.hardware.emulator.board import EmulatedBoard
+from gripper_env.hardware.emulator.mega2560 import CYCLES_PER_MS
+from gripper_env.hardware.emulator.scripted import ScriptedHost
+from gripper_env.hardware.host.calibration import Calibration
+from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.hardware.virtual_rig import VirtualRig
 
 SERVO_US = (544.0, 2400.0)
 FRAME_CYCLES = 20 * CYCLES_PER_MS  # Timer1's 50 Hz period

@@ -11,11 +11,11 @@ import pytest
 from virtual_support import open_device
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.command_log import CommandLog
-from gripper_env.hardware.errors import CommandLost
-from gripper_env.hardware.experiment import run_profile
+from gripper_env.hardware.host.command_log import CommandLog
+from gripper_env.hardware.host.errors import CommandLost
+from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
-from gripper_env.references import Reference
+from gripper_env.model.references import Reference
 
 
 def test_a_lost_setpoint_is_sent_again_before_the_mode_starts(virtual_twin) -> None:

@@ -49,7 +49,7 @@ def test_clamp_never_leaves_the_jaw_range(harness, harness_f32, x: float) -> Non
 def test_centi_degrees_round_half_away_from_zero_like_the_twin(harness, harness_f32, x) -> None:
     from fractions import Fraction
 
-    from gripper_env.hardware.firmware import _to_cdeg
+    from gripper_env.hardware.twin.firmware import _to_cdeg
 
     for h, value in ((harness, x), (harness_f32, _f32(x) if abs(x) < 3.4e38 else x)):
         got = int(h("cdeg", float(value).hex()))

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gripper_env.hardware.scripted import AGREEMENT_SHIFT_MS, run_agreement
-from gripper_env.pid import PIDGains
-from gripper_env.references import step_profile
+from gripper_env.hardware.emulator.scripted import AGREEMENT_SHIFT_MS, run_agreement
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.references import step_profile
 
 PROFILE = step_profile(hold_s=0.5, grip_s=2.0, ungrip_s=2.0)  # 92 -> 21 at 0.5 s, -> 92 at 2.5 s
 

@@ -11,9 +11,9 @@ import pytest
 from emulator_support import FRAME_CYCLES, ends, new_board, pulse_cycles, session
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.mega2560 import CYCLES_PER_MS, EMULATED_DEVICE_ID
-from gripper_env.hardware.scripted import ScriptedHost
-from gripper_env.hardware.virtual_rig import VirtualRig
+from gripper_env.hardware.emulator.mega2560 import CYCLES_PER_MS, EMULATED_DEVICE_ID
+from gripper_env.hardware.emulator.scripted import ScriptedHost
+from gripper_env.hardware.twin.rig import VirtualRig
 
 Mode = proto.Mode
 WATCHDOG_MS = 500

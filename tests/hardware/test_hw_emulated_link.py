@@ -10,8 +10,8 @@ import pytest
 from emulator_support import FRAME_CYCLES, new_board, pulse_cycles, session
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.link_fuzz import HARD_WINDOW_US, fuzz_image
-from gripper_env.hardware.mega2560 import CYCLES_PER_US, Mega2560
+from gripper_env.hardware.emulator.link_fuzz import HARD_WINDOW_US, fuzz_image
+from gripper_env.hardware.emulator.mega2560 import CYCLES_PER_US, Mega2560
 from gripper_env.hardware.protocol import Mode
 
 # the hard window from the datasheet mapping: 21 and 92 deg at 544 + deg * 1856 / 180 us

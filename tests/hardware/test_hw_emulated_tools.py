@@ -1,5 +1,5 @@
 """The host tools, unchanged, against the compiled firmware under simavr on a pseudo-terminal:
-the launcher, rig.calibrate/record/deploy, the device library through line noise and a
+the launcher, tuners.rig.calibrate/record/deploy, the device library through line noise and a
 reset, and GripperServoHardware-v0."""
 
 from __future__ import annotations
@@ -17,18 +17,18 @@ import pytest
 from emulator_support import emulated_device
 from virtual_support import REPO, gains_file, open_device, short_step_csv, true_calibration
 
-from gripper_env.hardware import emulator
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.board_cli import board_parser as virtual_parser
-from gripper_env.hardware.errors import DeviceReset
-from gripper_env.hardware.experiment import run_profile
-from gripper_env.hardware.mega2560 import EMULATED_DEVICE_ID
+from gripper_env.hardware.emulator.mega2560 import EMULATED_DEVICE_ID
+from gripper_env.hardware.host.errors import DeviceReset
+from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
-from gripper_env.metrics import fit_percent
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.references import step_profile
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.references import step_profile
 from gripper_env.sim import simulate
-from rig import calibrate, deploy, record
+from tuners.rig import calibrate, deploy, record
+from tuners.rig.virtual import board_parser as virtual_parser
+from tuners.rig.virtual import main as virtual_main
 
 GAINS = PIDGains(1.0, 9.0, -0.001)
 OPTIONS = PIDOptions(output_limits=(21.0, 92.0))
@@ -126,7 +126,7 @@ def test_the_launcher_and_the_hardware_commands(emulator_build, tmp_path, capsys
     image, harness = emulator_build
     env = dict(os.environ, PYTHONPATH=str(REPO), GRIPPER_EMULATOR_LIB=str(harness))
     launcher = subprocess.Popen(
-        [sys.executable, "-m", "gripper_env.hardware.emulator", "--image", str(image),
+        [sys.executable, "-m", "tuners.rig.virtual", "--emulated", "--image", str(image),
          "--speed", "max", "--seed", "5"],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -182,7 +182,7 @@ def test_the_hardware_environment_runs_on_the_emulated_board(emulator_build) -> 
 
 def test_a_missing_image_is_a_clear_error(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exit_info:
-        emulator.main(["--image", str(tmp_path / "none.elf")])
+        virtual_main(["--image", str(tmp_path / "none.elf")])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "no firmware image at" in err and "Traceback" not in err
@@ -196,9 +196,10 @@ def test_the_info_of_the_emulated_board_on_the_pty(emulated) -> None:
 
 
 def test_the_launcher_documents_every_flag() -> None:
-    parser = virtual_parser(emulated=True)
+    parser = virtual_parser()
     text = parser.format_help()
-    assert parser.prog == "python -m gripper_env.hardware.emulator"
+    assert parser.prog == "python -m tuners.rig.virtual"
+    assert {"--emulated", "--image", "--rebuild"} <= set(parser._option_string_actions)
     for action in parser._actions:
         assert action.help, action.option_strings
         for option in action.option_strings:

@@ -13,12 +13,12 @@ from gymnasium.utils.env_checker import check_env
 from virtual_support import true_calibration
 
 import gripper_env
-from gripper_env.config import ConfigError
 from gripper_env.envs.servo_hardware import GripperServoHardwareEnv, MissedDeadlineWarning
-from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.errors import DeviceTimeout
+from gripper_env.hardware.host.calibration import Calibration
+from gripper_env.hardware.host.errors import DeviceTimeout
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.io.config import ConfigError
 
 HW = "gripper_env/GripperServoHardware-v0"
 SPEED = 2.0  # at most 2x: scheduling hiccups of this loaded machine stay far from the watchdog

@@ -10,16 +10,16 @@ import pytest
 from virtual_support import SPEED, open_device
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.errors import (
+from gripper_env.hardware.host.errors import (
     DeviceReset,
     DeviceTimeout,
     LinkError,
     PortVanished,
 )
-from gripper_env.hardware.experiment import CsvLog, run_profile
+from gripper_env.hardware.host.experiment import CsvLog, run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.references import step_profile
+from gripper_env.model.references import step_profile
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.pid import PID, PIDGains, PIDOptions, pid_update
+from gripper_env.model.pid import PID, PIDGains, PIDOptions, pid_update
 
 
 @settings(max_examples=200, deadline=None)

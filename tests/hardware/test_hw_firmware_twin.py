@@ -1,4 +1,5 @@
-"""The Python twin of the firmware (gripper_env.hardware.firmware): byte-for-byte parity with the
+"""The Python twin of the firmware (gripper_env.hardware.twin.firmware): byte-for-byte parity with
+the
 C++ Device of gripper_core.h, and the jaw-range property on random host message sequences."""
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.firmware import Firmware
+from gripper_env.hardware.twin.firmware import Firmware
 
 JAW = (21.0, 92.0)
 

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from virtual_support import SPEED, open_device, short_step
 
+from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.hardware import protocol as proto
-from gripper_env.hardware.errors import DeviceFault, DeviceRefused, VersionMismatch
-from gripper_env.hardware.experiment import CsvLog, run_profile
+from gripper_env.hardware.host.errors import DeviceFault, DeviceRefused, VersionMismatch
+from gripper_env.hardware.host.experiment import CsvLog, run_profile
 from gripper_env.hardware.protocol import Fault, Mode
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.metrics import fit_percent
-from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.sim import simulate
 
 GAINS = PIDGains(1.0, 9.0, -0.001)  # the paper's tuned gains on test2

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env.hardware.calibration import Calibration
-from gripper_env.hardware.device import GripperDevice
+from gripper_env.hardware.host.calibration import Calibration
+from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.references import step_profile
+from gripper_env.model.references import step_profile
 
 REPO = Path(__file__).resolve().parents[2]
 SPEED = 5.0  # device time runs 5x faster than wall time: a 7 s profile takes 1.4 s

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gripper_env.disturbances import CommandPath, Sensor
+from gripper_env.model.disturbances import CommandPath, Sensor
 from gripper_env.sim.layout import P_REFRESH
 from gripper_env.sim.mechanics import clamp_to_stops, count_contact
 from gripper_env.sim.sensor import delay_line, sense

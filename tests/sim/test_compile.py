@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import gripper_env
-from gripper_env import metrics
 from gripper_env.envs import kernels as env_kernels
+from gripper_env.evaluation import metrics
 from gripper_env.sim import kernel as core_kernel
 from gripper_env.sim.compile import SOURCES, compile_kernel
 

@@ -4,11 +4,11 @@ import control
 import numpy as np
 import pytest
 
-from gripper_env.disturbances import load_disturbance
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.pid import PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import load_reference
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
-from gripper_env.pid import PIDOptions
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import load_reference
 from gripper_env.sim import BatchSimulator, simulate
 
 TS = 1e-3

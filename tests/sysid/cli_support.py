@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gripper_env.sysid.__main__ import main as sysid_main
+from tuners.sysid.__main__ import main as sysid_main
 
 
 def write_log(path: Path, t: np.ndarray, **columns: np.ndarray) -> Path:
@@ -22,7 +22,7 @@ def write_log(path: Path, t: np.ndarray, **columns: np.ndarray) -> Path:
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    """``python -m gripper_env.sysid ARGV`` in-process: ``(status, stdout, stderr)``."""
+    """``python -m tuners.sysid ARGV`` in-process: ``(status, stdout, stderr)``."""
     capsys.readouterr()
     try:
         status = sysid_main(argv)

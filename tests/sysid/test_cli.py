@@ -25,7 +25,7 @@ PLANT_KEYS = ["name", "description", "num", "den", "fit_pct", "dt_s", "jaw_range
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.run(
-        [sys.executable, "-m", "gripper_env.sysid", *args],
+        [sys.executable, "-m", "tuners.sysid", *args],
         capture_output=True,
         text=True,
         cwd=REPO,
@@ -116,7 +116,7 @@ def test_missing_file_and_bad_flag(tmp_path):
 
 
 def test_help_documents_every_flag(capsys):
-    from gripper_env.sysid.commands import main
+    from tuners.sysid import main
 
     with pytest.raises(SystemExit) as exc:
         main(["--help"])
@@ -176,7 +176,7 @@ def test_save_plant_yaml_round_trip(tmp_path):
 
 def test_saved_plant_loads_with_the_core_loader(tmp_path):
     """An identified model becomes a plant every other command accepts."""
-    from gripper_env.plants import load_plant
+    from gripper_env.model.plants import load_plant
 
     u = rich_input(20.0, np.random.default_rng(3))
     y = lsim_zoh([20.0, 200.0], [1.0, 22.0, 200.0], u)

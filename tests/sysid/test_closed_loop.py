@@ -19,7 +19,7 @@ import pytest
 from scipy import signal
 
 from gripper_env.sysid import tfest
-from gripper_env.sysid.commands.tf import text_report
+from tuners.sysid.tf import text_report
 
 from .cli_support import run, run_json, write_log
 

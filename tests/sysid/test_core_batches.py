@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gripper_env.disturbances import load_disturbance
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.sysid.core_batches import CoreRuns, TickRuns, tick_index
 
 

@@ -6,7 +6,7 @@ The grey-box ranges of S, J and the delay collapsed to zero width and excluded t
 uncertainty at all. Here the nominal 95 % intervals are checked against the known truth of
 synthetic records (:mod:`gripper_env.sysid.coverage`: scipy's exact simulation for the transfer
 function, the simulation core for the actual gripper): each quantity must be covered in at
-least 90 % of at least 50 records. The larger study is ``python -m gripper_env.sysid coverage``
+least 90 % of at least 50 records. The larger study is ``python -m tuners.sysid coverage``
 (``results/identification_coverage.md``).
 """
 

@@ -1,7 +1,7 @@
 """The actual gripper identified from its own records (issue 13, defect 7).
 
 Friction (S, J), sensor noise and offset, and delay were guesses in the ``actual`` preset; a
-user's gripper got the paper's friction. ``python -m gripper_env.sysid greybox`` identifies them
+user's gripper got the paper's friction. ``python -m tuners.sysid greybox`` identifies them
 by simulating the project's core and writes a plant file and a disturbance preset.
 
 The log here is generated independently of the core, from the definitions (DESIGN.md
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import yaml
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.plants import load_plant
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
 
 from .cli_support import run, write_log
 from .signals import ADC_COUNTS, ADC_RANGE_DEG, DT_S, choudhury_stiction, lsim_zoh

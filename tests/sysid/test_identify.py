@@ -1,5 +1,5 @@
 """The identification session end to end (``gripper_env.sysid.session``,
-``python -m gripper_env.sysid experiments``): the Table-1 experiments recorded on the simulated
+``python -m tuners.sysid experiments``): the Table-1 experiments recorded on the simulated
 gripper, identified, validated as Table 2, and the actual gripper identified with the core."""
 
 from __future__ import annotations
@@ -13,10 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.plants import load_plant
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
 from gripper_env.sim import simulate
-from gripper_env.sysid.commands import main as sysid_main
 from gripper_env.sysid.experiments import (
     EXPERIMENTS,
     QUICK_EXPERIMENTS,
@@ -28,6 +27,7 @@ from gripper_env.sysid.experiments import (
 from gripper_env.sysid.logfile import read_log
 from gripper_env.sysid.report import render_report
 from gripper_env.sysid.session import run_identification, save_actual, save_plants
+from tuners.sysid import main as sysid_main
 
 REPO = Path(__file__).resolve().parents[2]
 TRUE = load_plant("test2")
@@ -96,7 +96,7 @@ def test_logs_reproduce_each_fit(actual_run, capsys):
 def test_report_has_table2_layout(actual_run):
     text = render_report(
         actual_run,
-        command="python -m gripper_env.sysid experiments --quick",
+        command="python -m tuners.sysid experiments --quick",
         validation_text="Validation profile: test.",
         figures={"test1": "a.png", "test4": "b.png", "validation": "v.png", "actual": "c.png"},
         true_plant=TRUE,
@@ -130,7 +130,7 @@ def test_saved_plants_load_and_simulate(actual_run, tmp_path):
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.run(
-        [sys.executable, "-m", "gripper_env.sysid", "experiments", *args],
+        [sys.executable, "-m", "tuners.sysid", "experiments", *args],
         capture_output=True,
         text=True,
         cwd=REPO,
@@ -217,7 +217,7 @@ def test_table1_pipeline_recovers_the_actual_gripper(actual_run):
 
 
 def test_identified_actual_gripper_is_a_plant_and_a_preset(actual_run, tmp_path):
-    from gripper_env.disturbances import load_disturbance as load
+    from gripper_env.model.disturbances import load_disturbance as load
 
     plant_path, preset_path = save_actual(
         actual_run.actual, tmp_path / "mine.yaml", tmp_path / "mine_preset.yaml", name="mine"
@@ -233,9 +233,9 @@ def test_identified_actual_gripper_is_a_plant_and_a_preset(actual_run, tmp_path)
 
 
 def test_device_session_on_virtual_board(tmp_path, capsys):
-    """The same session through rig.record on a virtual board (as fast as the host goes):
+    """The same session through tuners.rig.record on a virtual board (as fast as the host goes):
     the step experiment and a short validation."""
-    from gripper_env.hardware.calibration import Calibration, save_calibration
+    from gripper_env.hardware.host.calibration import Calibration, save_calibration
     from gripper_env.hardware.virtual import VirtualDevice
 
     with VirtualDevice("test2", "actual", speed=0, seed=5) as vd:

@@ -15,25 +15,25 @@ import shutil
 
 import pytest
 
-import gripper_env.config
-from gripper_env.disturbances import load_disturbance
+import gripper_env.io.config
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.plants import load_plant
-from gripper_env.sysid.__main__ import main as sysid
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
 from gripper_env.sysid.greybox import FINE_STEP_DEG
+from tuners.sysid.__main__ import main as sysid
 
 
 @pytest.fixture
 def configs(tmp_path, monkeypatch):
     folder = tmp_path / "configs"
-    shutil.copytree(gripper_env.config.CONFIG_DIR, folder)
-    monkeypatch.setattr(gripper_env.config, "CONFIG_DIR", folder)
+    shutil.copytree(gripper_env.io.config.CONFIG_DIR, folder)
+    monkeypatch.setattr(gripper_env.io.config, "CONFIG_DIR", folder)
     return folder
 
 
 def test_record_identify_tune_deploy(configs, tmp_path, capsys):
-    from rig import calibrate, deploy, record
     from tuners.optuna import command as optuna_tuner
+    from tuners.rig import calibrate, deploy, record
 
     truth = load_disturbance("actual")
     cal, log = tmp_path / "calibration.json", tmp_path / "mine_slope20.csv"

@@ -8,7 +8,7 @@ import pytest
 import scipy.linalg
 from scipy import signal
 
-from gripper_env.state_space import expm, observer_form
+from gripper_env.model.state_space import expm, observer_form
 from gripper_env.sysid.sensitivity import model_sensitivities
 from gripper_env.sysid.zoh import filtered_derivatives, zoh_response
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gripper_env.config import CONFIG_DIR
+from gripper_env.io.config import CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.pid import PIDGains
-from gripper_env.plants import load_plant
-from gripper_env.stability import stability_report
+from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import load_plant
 from tuners import classical, cli
 from tuners.classical import command as classical_command
 from tuners.classical.rules import _Context
@@ -33,7 +33,7 @@ def _design(method, m, **settings):
 
 
 def _loop():
-    from gripper_env.stability import ServoLoop
+    from gripper_env.evaluation.stability import ServoLoop
 
     return ServoLoop.from_disturbance(ACTUAL)
 
@@ -65,7 +65,7 @@ def test_migo_is_the_largest_integral_gain_with_ms_14():
     gains, _ = classical.design("migo", load_plant("test2"), ACTUAL, ClassicalSettings())
     report = stability_report("test2", gains)
     assert report.stable and report.ms == pytest.approx(1.4, abs=0.005)
-    from gripper_env.scoring import loop_analysis
+    from gripper_env.evaluation.scoring import loop_analysis
 
     analysis = loop_analysis(load_plant("test2"), _loop())
     kp = np.linspace(0.5 * gains.P, 1.5 * gains.P, 41)
@@ -150,7 +150,7 @@ def test_simc_at_tau_c_equal_theta_misses_ms_and_its_knob_repairs_it():
 
 
 def _inputs(plant):
-    from gripper_env.references import load_reference
+    from gripper_env.model.references import load_reference
     from tuners.settings import EvaluationSettings
 
     p = load_plant(plant)

@@ -5,9 +5,9 @@ reaching the limit where it knows everything."""
 import numpy as np
 import pytest
 
-from gripper_env.metrics import compute_metrics
-from gripper_env.pid import PIDOptions
-from gripper_env.references import step_profile
+from gripper_env.evaluation.metrics import compute_metrics
+from gripper_env.model.pid import PIDOptions
+from gripper_env.model.references import step_profile
 from gripper_env.sim import simulate
 from tuners.benchmark.limit import least_iae
 from tuners.benchmark.oracle import OracleSettings, run_oracle

@@ -298,8 +298,8 @@ def test_results_meet_the_constraints_and_flag_bounds(
     assert code == 0
     content = json.loads(out)
     assert content["tuning"]["feasible"] and content["robustness"]["meets_constraints"]
-    from gripper_env.pid import PIDGains
-    from gripper_env.stability import stability_report
+    from gripper_env.evaluation.stability import stability_report
+    from gripper_env.model.pid import PIDGains
 
     report = stability_report("test2", PIDGains(content["P"], content["I"], content["D"]))
     assert report.ms <= 1.6 and report.gain_margin_db >= 6.0
@@ -309,7 +309,7 @@ def test_results_meet_the_constraints_and_flag_bounds(
 
 
 def test_bound_flags_by_hand():
-    from gripper_env.pid import PIDGains
+    from gripper_env.model.pid import PIDGains
     from tuners.search_space import SearchSpace
     from tuners.settings import ParamRange
 

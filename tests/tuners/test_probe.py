@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from gripper_env.pid import PIDGains, PIDOptions
-from gripper_env.plants import load_plant
-from gripper_env.stability import stability_report
+from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import load_plant
 from tuners.probe import (
     linear_delay_margin_s,
     measure_margins,

@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from gripper_env.pid import PIDGains, PIDOptions
+from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.sim import simulate
 from tuners.rl import reference_scores as rs
 

@@ -12,8 +12,8 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from gripper_env.pid import PIDOptions
-from gripper_env.stability import stability_report
+from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.pid import PIDOptions
 from tests.tuners.conftest import REPO
 from tuners import cli
 from tuners.rl import command as rl
@@ -100,7 +100,7 @@ def test_the_tuner_exports_the_best_evaluated_gains(tmp_path, capsys, small_eval
     assert t["chosen_seed"] == 0 and t["at_episodes"] == best["episodes"]
     assert t["best_value_tuning"] == pytest.approx(best["tuning_cost"])
     # the exported gains meet the constraints on the loop as it runs (checked independently)
-    from gripper_env.pid import PIDGains
+    from gripper_env.model.pid import PIDGains
 
     assert stability_report("test2", PIDGains(*best["gains"])).meets(1.6, 6.0)
 
@@ -124,7 +124,7 @@ def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins
 ):
     import yaml
 
-    from gripper_env.config import CONFIG_DIR
+    from gripper_env.io.config import CONFIG_DIR
     from tuners.evaluation import evaluate
     from tuners.rl.agents import agent_kwargs, load_agent
     from tuners.rl.controller import evaluate_policy
@@ -173,7 +173,7 @@ def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins
 
 
 def PIDGains_(p, i, d):
-    from gripper_env.pid import PIDGains
+    from gripper_env.model.pid import PIDGains
 
     return PIDGains(p, i, d, 100.0)
 

@@ -14,7 +14,7 @@ import yaml
 if importlib.util.find_spec("rl_zoo3") is None:
     pytest.skip("rl-zoo3 is not installed (pip install 'gripper-env[rl]')", allow_module_level=True)
 
-from gripper_env.config import CONFIG_DIR
+from gripper_env.io.config import CONFIG_DIR
 
 ZOO = CONFIG_DIR / "rl_zoo"
 IDS = ("gripper_env/GripperServo-v0", "gripper_env/GripperGainSchedule-v0",

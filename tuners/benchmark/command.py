@@ -15,10 +15,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gripper_env.config import config_file
-from gripper_env.files import collect_provenance, write_atomic, write_result_json
-from gripper_env.gains_file import provenance
-from gripper_env.objective import load_objective
+from gripper_env.evaluation.objective import load_objective
+from gripper_env.io.config import config_file
+from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
+from gripper_env.model.gains_file import provenance
 from tuners import cli
 from tuners.benchmark import leaderboard
 from tuners.benchmark.run import run_benchmark

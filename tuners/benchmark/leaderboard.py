@@ -2,7 +2,8 @@
 
 **Deployable** (:func:`why_not_deployable`): the loop as it runs (PID at 1 ms, servo command
 held 20 ms) is stable; every held-out run stays stable and settles (a loop that swings from stop
-to stop counts as diverged, :data:`gripper_env.metrics.OSCILLATION_LIMIT_DEG`); a PID meets
+to stop counts as diverged, :data:`gripper_env.evaluation.metrics.OSCILLATION_LIMIT_DEG`); a PID
+meets
 ``Ms <= ms_max`` and the gain-margin floor with the hold, a learned controller the measured gain
 margin that ``Ms <= ms_max`` guarantees a linear loop (:mod:`tuners.probe`); the jaw completes
 the grip without touching a stop or stalling. Reference rows (command = reference, a rule at a
@@ -30,7 +31,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
+
+from tuners.statistics import paired_test
 
 __all__ = [
     "ALPHA",
@@ -97,16 +99,6 @@ def why_not_deployable(row: dict[str, Any]) -> str | None:
     if contact > 0:
         return f"hits a mechanical stop ({_f(contact)} s in contact)"
     return None
-
-
-def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
-    """Mean of ``a - b`` and the two-sided Wilcoxon signed-rank p-value."""
-    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    if not np.all(np.isfinite(d)):
-        return math.inf, 0.0
-    if np.allclose(d, 0.0):
-        return 0.0, 1.0
-    return float(d.mean()), float(stats.wilcoxon(d, zero_method="zsplit").pvalue)
 
 
 def _cost(row: dict[str, Any]) -> float:
@@ -593,7 +585,7 @@ def update_readme(readme: Path, report: Path) -> bool:
     ValueError
         The README has no leaderboard markers, or the report no headline table.
     """
-    from gripper_env.files import write_atomic
+    from gripper_env.io.files import write_atomic
 
     text = readme.read_text()
     if README_START not in text or README_END not in text:
@@ -615,7 +607,7 @@ def render_again(folder: Path) -> Path:
     code, without rerunning the rows (``benchmark.json`` itself is left as it is)."""
     import json
 
-    from gripper_env.files import write_atomic
+    from gripper_env.io.files import write_atomic
 
     content = json.loads((folder / "benchmark.json").read_text())
     meta = content["meta"]

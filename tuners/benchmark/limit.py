@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, sparse
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 
 __all__ = ["Limit", "least_iae"]
 

@@ -6,7 +6,8 @@ gap with two parts: the controller's structure, and the gripper's own friction, 
 noise. The oracle separates them. It is a model predictive controller that:
 
 * knows the plant's transfer function and the servo's 20 ms command hold exactly (the lifted
-  model of :mod:`gripper_env.stability`'s loop), and the whole reference profile ahead like the
+  model of :mod:`gripper_env.evaluation.stability`'s loop), and the whole reference profile ahead
+  like the
   limit (``preview``; without it, only the present reference, like every feedback row);
 * does not know the friction, stops, command quantisation or sensor noise: it estimates the
   plant's state and a constant input disturbance (offset-free MPC) from the measured angle with a
@@ -29,9 +30,9 @@ from typing import Any
 import numpy as np
 from scipy import linalg, optimize, sparse
 
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.plants import Plant, load_plant
-from gripper_env.references import Reference, load_reference
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.references import Reference, load_reference
 from gripper_env.sim import BatchSimulator, Trajectory, sampling_rng
 
 __all__ = ["MPCOracle", "OracleSettings", "oracle_record", "run_oracle"]
@@ -216,7 +217,7 @@ def run_oracle(
         y_end = chunk[2][:, -1]
         for b in range(n_runs):
             z[b] = oracle.filter(z[b], float(y_end[b]), float(u_last[b]))
-    traj = Trajectory.from_simulator(sim, ref, out)  # type: ignore[arg-type]
+    traj = sim.trajectory(ref, out)  # type: ignore[arg-type]
     traj.r[:] = r  # open loop: the core recorded the commands as the reference
     return traj
 

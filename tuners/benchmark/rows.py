@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.pid import PIDGains
-from gripper_env.scoring import reachability, score_trajectory
+from gripper_env.evaluation.scoring import reachability, score_trajectory
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.pid import PIDGains
 from gripper_env.sim import Trajectory, simulate
 from tuners import cli
 from tuners.evaluation import evaluate, summarize_runs, with_cost
@@ -112,7 +112,7 @@ def pid_row(
                       disturbance=inputs.disturbance, seeds=inputs.settings.seeds.seeds(),
                       randomize=inputs.settings.randomize, objective=inputs.objective,
                       ideal_options=ideal_opts)  # fmt: skip
-        from gripper_env.files import json_ready
+        from gripper_env.io.files import json_ready
 
         robustness = json_ready(ev.robustness)
         metrics = json_ready({"ideal": ev.ideal, "actual": ev.actual})

@@ -1,6 +1,7 @@
 """The benchmark run: every row from the registry on every plant, the references, the figures.
 
-For every plant whose profile can be followed at all (:func:`gripper_env.scoring.reachability`;
+For every plant whose profile can be followed at all
+(:func:`gripper_env.evaluation.scoring.reachability`;
 test1 cannot follow the step within the servo's range and is reported, never ranked):
 
 * the reference rows (never ranked): ``command=reference``, the ``limit`` (a linear program: the
@@ -22,10 +23,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gripper_env.disturbances import load_disturbance
-from gripper_env.plants import load_plant
-from gripper_env.references import load_reference
-from gripper_env.scoring import reachability
+from gripper_env.evaluation.scoring import reachability
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 from tuners import cli
 from tuners.benchmark import rows as R
 from tuners.benchmark.settings import BenchmarkSettings
@@ -100,7 +101,7 @@ def run_benchmark(
     """Run every row on every plant; write the gains files and return the benchmark's data
     (``force``: over results from larger budgets; ``engine``: where the RL rows' training seeds
     run, :mod:`tuners.engine`)."""
-    from gripper_env.objective import load_objective
+    from gripper_env.evaluation.objective import load_objective
 
     obj = objective or load_objective()
     plants = bench.quick.plants if quick else bench.plants
@@ -209,7 +210,7 @@ def _pareto_front(inputs: cli.Inputs, bench: BenchmarkSettings, quick: bool) -> 
     integral gain each Ms allows), each scored on the held-out seeds."""
     import numpy as np
 
-    from gripper_env.metrics import compute_metrics
+    from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.sim import simulate
     from tuners.classical.rules import design
     from tuners.settings import ClassicalSettings, load_settings

@@ -7,10 +7,10 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from gripper_env.config import ConfigError, config_file, load_yaml, validate
-from gripper_env.disturbances import load_disturbance
-from gripper_env.plants import load_plant
-from gripper_env.references import load_reference
+from gripper_env.io.config import ConfigError, config_file, load_yaml, validate
+from gripper_env.model.disturbances import load_disturbance
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 
 __all__ = ["BenchmarkSettings", "load_benchmark_settings"]
 

@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.pid import PIDGains
-from gripper_env.plants import Plant
-from gripper_env.scoring import GainScorer
+from gripper_env.evaluation.scoring import GainScorer
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import Plant
 from tuners.classical.rules import design
 from tuners.settings import ClassicalSettings
 

@@ -33,7 +33,8 @@ Methods (parallel-form gains ``P = Kc``, ``I = Kc / Ti``, ``D = Kc Td``):
 ``migo``
     MIGO (K. J. Astrom and T. Hagglund, *Advanced PID Control*, ISA 2006, ch. 7): the PI gains
     with the largest integral gain ``I`` subject to ``Ms <= migo_ms`` (1.4) -- computed here on
-    the loop as it runs (PID at 1 ms, the servo's command hold; :mod:`gripper_env.stability`),
+    the loop as it runs (PID at 1 ms, the servo's command hold;
+    :mod:`gripper_env.evaluation.stability`),
     not on the FOPDT model.
 ``pidtune``
     Loop shaping like MATLAB ``pidtune``'s default (The MathWorks, *Control System Toolbox*,
@@ -53,46 +54,17 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
-import control
 import numpy as np
 
-from gripper_env.disturbances import Disturbance
-from gripper_env.pid import PIDGains
-from gripper_env.plants import Plant
-from gripper_env.references import check_steps
-from gripper_env.scoring import loop_analysis
-from gripper_env.stability import ServoLoop
+from gripper_env.evaluation.scoring import loop_analysis
+from gripper_env.evaluation.stability import ServoLoop
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import Plant
+from tuners.fopdt import FOPDT, fit_fopdt, unstable_plant
 from tuners.settings import ClassicalSettings
 
 __all__ = ["FOPDT", "METHODS", "Design", "design", "fit_fopdt", "require_stable"]
-
-
-@dataclass(frozen=True)
-class FOPDT:
-    """First-order-plus-dead-time model ``k exp(-theta s) / (tau s + 1)``.
-
-    Attributes
-    ----------
-    k : float
-        Gain over the window (deg/deg).
-    tau_s : float
-        Time constant (s).
-    theta_s : float
-        Dead time (s).
-    """
-
-    k: float
-    tau_s: float
-    theta_s: float
-
-
-def _unstable(plant: Plant) -> str:
-    pole = complex(max(plant.poles, key=lambda p: p.real))
-    where = f"{pole.real:.3g}" + (f"{pole.imag:+.3g}j" if pole.imag else "")
-    return (
-        f"plant {plant.name!r} is not open-loop stable (pole at {where} rad/s): a "
-        "first-order-plus-dead-time model needs a stable step response"
-    )
 
 
 def require_stable(plant: Plant) -> None:
@@ -107,41 +79,9 @@ def require_stable(plant: Plant) -> None:
     """
     if not plant.is_stable:
         raise ValueError(
-            f"{_unstable(plant)}; no classical rule applies (python -m tuners.optuna can search "
-            "it, with 'units: absolute' under 'search' in its --config)"
+            f"{unstable_plant(plant)}; no classical rule applies (python -m tuners.optuna can "
+            "search it, with 'units: absolute' under 'search' in its --config)"
         )
-
-
-def fit_fopdt(plant: Plant, disturbance: Disturbance, settings: ClassicalSettings) -> FOPDT:
-    """Read a FOPDT model off the plant's unit step response over ``settings.window_s``.
-
-    Raises
-    ------
-    ValueError
-        The plant is not open-loop stable (its step response has no final value to read a
-        gain off), the window takes too many physics steps, or the response is unusable.
-    """
-    if not plant.is_stable:
-        raise ValueError(_unstable(plant))
-    dt = plant.dt_s
-    check_steps(f"the classical window_s ({plant.name})", settings.window_s, dt)
-    t = np.arange(0.0, settings.window_s, dt)
-    response = control.step_response(control.ss(plant.tf), T=t)
-    y = np.ravel(response.outputs)
-    k = float(y[-1])
-    if not (math.isfinite(k) and abs(k) > 1e-9):
-        raise ValueError(f"plant {plant.name}: no usable step response over {settings.window_s} s")
-    reached = np.flatnonzero(y / k >= 1.0 - math.exp(-1.0))
-    if len(reached) == 0:
-        raise ValueError(f"plant {plant.name}: the step response does not reach 63 % in the window")
-    tau = max(float(t[reached[0]]), dt)
-    theta = (
-        disturbance.command.refresh_period_s / 2
-        + disturbance.sensor.delay_s
-        + dt
-        + settings.extra_dead_time_s
-    )
-    return FOPDT(k=k, tau_s=tau, theta_s=theta)
 
 
 @dataclass(frozen=True)

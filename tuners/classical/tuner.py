@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from gripper_env.pid import PIDGains
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.classical.constrained import KNOBS, constrained_design
 from tuners.classical.rules import METHODS, design, require_stable

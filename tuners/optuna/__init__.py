@@ -10,7 +10,8 @@ Usage::
     python -m tuners.optuna --plant test2 --storage postgresql://user:pw@host/db --seed 7
     optuna-dashboard runs/optuna.journal                                  # look at the studies
 
-Each trial's gains are scored through the one scoring path (:mod:`gripper_env.scoring`) on the
+Each trial's gains are scored through the one scoring path (:mod:`gripper_env.evaluation.scoring`)
+on the
 ``actual`` model under ``tuning_seeds`` randomised disturbance draws
 (``configs/tuners/optuna.yaml``) with the shared objective (``configs/objective.yaml``),
 averaged over the draws (and over the plants in the robust mode). The objective's robustness
@@ -18,7 +19,7 @@ limits (``Ms`` and the gain margin of the loop as it runs, with the servo's comm
 Optuna *constraints*
 (:meth:`optuna.trial.Trial.set_constraint`): TPE samples toward feasible gains and the result is
 the best feasible trial. CMA-ES takes no constraints, so it minimises the penalised cost
-(:meth:`gripper_env.objective.Objective.penalised`).
+(:meth:`gripper_env.evaluation.objective.Objective.penalised`).
 
 The search ranges scale with the plant (:mod:`tuners.search_space`); a result within 2 % of a
 bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...; just

@@ -15,8 +15,8 @@ from typing import Any
 
 import optuna
 
-from gripper_env.config import ConfigError
-from gripper_env.scoring import GainScorer
+from gripper_env.evaluation.scoring import GainScorer
+from gripper_env.io.config import ConfigError
 from tuners import cli
 from tuners.optuna.sampler import SAMPLERS, make_sampler
 from tuners.optuna.search import best_of, make_scorer, seed_summary, tuner_name

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import optuna
 
-from gripper_env.scoring import GainScorer
+from gripper_env.evaluation.scoring import GainScorer
 from tuners import cli
 from tuners.optuna.sampler import make_sampler
 from tuners.optuna.study import StudyResult, run_study

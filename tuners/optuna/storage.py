@@ -33,7 +33,7 @@ from typing import Any
 import optuna
 from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
 
-from gripper_env.config import ConfigError
+from gripper_env.io.config import ConfigError
 from tuners.settings import OptunaSettings
 
 __all__ = ["FileLock", "StudyStorage", "open_storage", "redact"]

@@ -20,9 +20,9 @@ import optuna
 from optuna.trial import TrialState
 from tqdm import tqdm
 
-from gripper_env.config import ConfigError
-from gripper_env.objective import Objective
-from gripper_env.scoring import GainScorer
+from gripper_env.evaluation.objective import Objective
+from gripper_env.evaluation.scoring import GainScorer
+from gripper_env.io.config import ConfigError
 from tuners.optuna.workers import Worker
 from tuners.search_space import SearchSpace
 from tuners.settings import OptunaSettings

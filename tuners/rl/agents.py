@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import write_json
-from gripper_env.pid import PIDGains
+from gripper_env.io.files import write_json
+from gripper_env.model.pid import PIDGains
 
 __all__ = ["AGENT_FORMAT", "Agent", "agent_kwargs", "load_agent", "save_agent", "save_model"]
 

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import write_result_json
-from gripper_env.pid import PIDGains
+from gripper_env.io.files import write_result_json
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.engine import ENGINE_HELP
 from tuners.rl.envs import ENV_IDS, require_rl
@@ -394,7 +394,7 @@ def _train_policy(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str
 
 def _base_gains(spec: str | None, out: Path, plant: str, robust: bool) -> PIDGains:
     """The PID a residual controller corrects: ``P,I,D[,N]`` or a gains file (sign +1)."""
-    from gripper_env.gains_file import load_gains_file
+    from gripper_env.model.gains_file import load_gains_file
 
     if spec is not None and "," in spec and not Path(spec).exists():
         try:

@@ -3,7 +3,7 @@
 The policy adds a bounded correction (``residual_deg`` at action +/-1) to the output of a fixed
 PID every 20 ms (``residual: pid``), or to the reference fed straight to the servo
 (``residual: reference``); the zero action is that PID, or "command = reference", exactly. It is
-trained with stable-baselines3's PPO through :class:`gripper_env.sb3.NativeVecEnv` under
+trained with stable-baselines3's PPO through :class:`gripper_env.envs.sb3.NativeVecEnv` under
 ``VecMonitor`` and ``VecNormalize``, on random grip/un-grip profiles with the actual-gripper
 parameters randomised every episode; with several plants (``plants``), each episode draws one of
 the gripper's identifications and the policy does not observe which.
@@ -40,12 +40,12 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gripper_env.config import CONFIG_DIR, load_yaml, validate
-from gripper_env.disturbances import Disturbance, load_disturbance
-from gripper_env.files import json_ready, write_result_json
-from gripper_env.pid import PIDGains
-from gripper_env.plants import load_plant
-from gripper_env.scoring import score_trajectory
+from gripper_env.evaluation.scoring import score_trajectory
+from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.io.files import json_ready, write_result_json
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import load_plant
 from gripper_env.sim import Trajectory, simulate
 from tuners import cli
 from tuners.engine import engine, write_files
@@ -210,7 +210,7 @@ def train_controller(
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from gripper_env.sb3 import NativeVecEnv
+    from gripper_env.envs.sb3 import NativeVecEnv
 
     names = list(plants) or [inputs.plant.name]
     total = s.timesteps if timesteps is None else int(timesteps)
@@ -296,7 +296,7 @@ def _facts(s: ControllerSettings, seed: int, plants: list[str], steps: int) -> d
 def _paired(a: Sequence[float], b: Sequence[float]) -> dict[str, Any]:
     """Mean and relative difference of per-seed costs ``a - b`` and the two-sided Wilcoxon
     signed-rank p-value (the leaderboard's test)."""
-    from tuners.benchmark.leaderboard import paired_test
+    from tuners.statistics import paired_test
 
     diff, p = paired_test(list(a), list(b))
     return {

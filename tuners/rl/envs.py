@@ -2,7 +2,7 @@
 
 :func:`require_rl` checks the optional ``rl`` extra once, with one line that names it;
 :func:`make_vec_env` wraps the environments' native vector form
-(:class:`gripper_env.sb3.NativeVecEnv`: one compiled call of the simulation core steps every
+(:class:`gripper_env.envs.sb3.NativeVecEnv`: one compiled call of the simulation core steps every
 environment) under ``VecMonitor``; :class:`LogExactPenalty` is the PID tuner's training reward.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.config import ConfigError
+from gripper_env.io.config import ConfigError
 
 __all__ = ["ENV_IDS", "LogExactPenalty", "make_vec_env", "progress_callback", "require_rl"]
 
@@ -29,7 +29,7 @@ _RL_PACKAGES = ("stable_baselines3", "torch")
 
 
 def require_rl() -> None:
-    """Raise :class:`~gripper_env.config.ConfigError` (one line, naming the extra) if the
+    """Raise :class:`~gripper_env.io.config.ConfigError` (one line, naming the extra) if the
     ``rl`` extra is not installed; register the environments."""
     missing = [name for name in _RL_PACKAGES if importlib.util.find_spec(name) is None]
     if missing:
@@ -46,7 +46,7 @@ def make_vec_env(env: str, kwargs: dict[str, Any], n_envs: int, seed: int) -> An
     require_rl()
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from gripper_env.sb3 import NativeVecEnv
+    from gripper_env.envs.sb3 import NativeVecEnv
 
     vec = VecMonitor(NativeVecEnv(ENV_IDS[env], num_envs=n_envs, **kwargs))
     vec.seed(seed)

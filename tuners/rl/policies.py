@@ -3,7 +3,7 @@
 ``python -m tuners.rl train --env servo|gain-schedule`` trains PPO or SAC on
 ``GripperServo-v0`` (the agent commands the servo every 20 ms, or with ``residual`` corrects the
 reference or a PID) or ``GripperGainSchedule-v0`` (the agent sets the PID's gains every 20 ms),
-through :class:`gripper_env.sb3.NativeVecEnv` under ``VecMonitor`` and ``VecNormalize``
+through :class:`gripper_env.envs.sb3.NativeVecEnv` under ``VecMonitor`` and ``VecNormalize``
 (observations normalised), on random profiles with the preset randomised per episode. The agent
 is saved with what rebuilds its environment (:mod:`tuners.rl.agents`) and scored on the held-out
 seeds through the one scoring path. The hyperparameters are
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gripper_env.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
 from tuners import cli
 from tuners.evaluation import summarize_runs
 from tuners.rl.agents import Agent, save_agent
@@ -71,7 +71,7 @@ def train_policy(
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from gripper_env.sb3 import NativeVecEnv
+    from gripper_env.envs.sb3 import NativeVecEnv
     from tuners.rl.controller import evaluate_policy
 
     if env not in ("servo", "gain-schedule"):

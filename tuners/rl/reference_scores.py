@@ -19,7 +19,7 @@ environment, and its score is the mean episode return:
   environment (``residual="pid"``) with the zero correction - the reward depends only on the
   reference, the jaw and the command, so its return compares;
 * ``PPO`` and ``SAC`` trained with the shipped rl-zoo3 recipes (``configs/rl_zoo/``: the same
-  hyperparameters; trained here on :class:`gripper_env.sb3.NativeVecEnv`, step for step a
+  hyperparameters; trained here on :class:`gripper_env.envs.sb3.NativeVecEnv`, step for step a
   ``DummyVecEnv``'s equal but faster), mean and standard deviation over ``--seeds`` training
   seeds.
 
@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.config import CONFIG_DIR
-from gripper_env.files import write_atomic, write_result_json
+from gripper_env.io.config import CONFIG_DIR
+from gripper_env.io.files import write_atomic, write_result_json
 from tuners import cli
 
 __all__ = ["IDS", "main", "reference_scores"]
@@ -161,7 +161,7 @@ def train_agent(env_id: str, setting: str, algo: str, seed: int, steps: int | No
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
-    from gripper_env.sb3 import NativeVecEnv
+    from gripper_env.envs.sb3 import NativeVecEnv
 
     torch.set_num_threads(1)
     params = recipe(setting, algo, env_id)
@@ -296,7 +296,7 @@ def _main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.seeds <= 20:
         raise ValueError(f"--seeds must be 1 to 20, got {args.seeds}")
-    from gripper_env.gains_file import load_gains_file
+    from gripper_env.model.gains_file import load_gains_file
 
     pid = load_gains_file(args.pid).gains
     table = reference_scores(pid, args.seeds, args.timesteps)

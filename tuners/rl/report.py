@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.files import write_result_json
-from gripper_env.gains_file import provenance
+from gripper_env.io.files import write_result_json
+from gripper_env.model.gains_file import provenance
 from tuners import cli
 from tuners.evaluation import Evaluation, summarize_runs
 

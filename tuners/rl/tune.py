@@ -39,10 +39,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from gripper_env.config import CONFIG_DIR, load_yaml, validate
-from gripper_env.files import write_result_json
-from gripper_env.pid import PIDGains
-from gripper_env.scoring import GainScorer
+from gripper_env.evaluation.scoring import GainScorer
+from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.io.files import write_result_json
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.rl.agents import save_model
 from tuners.rl.envs import ENV_IDS, LogExactPenalty, make_vec_env, progress_callback, require_rl

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.pid import PIDGains
+from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.interface import Budget, Tuned
 

@@ -7,7 +7,6 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from gripper_env.files import write_atomic
 from gripper_env.hardware.layouts.description import (
     FIRMWARE,
     HEADER,
@@ -18,6 +17,7 @@ from gripper_env.hardware.layouts.description import (
 from gripper_env.hardware.layouts.header import render_header
 from gripper_env.hardware.layouts.markdown import render_markdown, update_markdown
 from gripper_env.hardware.layouts.twin import check_python
+from gripper_env.io.files import write_atomic
 
 __all__ = ["main"]
 

@@ -42,7 +42,7 @@ class Mode:
 
 
 class AntiWindup:
-    """Anti-windup modes (``Configure.anti_windup``), as in ``gripper_env.pid``."""
+    """Anti-windup modes (``Configure.anti_windup``), as in ``gripper_env.model.pid``."""
 
     NONE = 0
     CLAMPING = 1

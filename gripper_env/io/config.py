@@ -1,0 +1,256 @@
+"""Loading and validating configuration files (YAML) with errors that name the file and the key.
+
+Configuration is data: plants, disturbance presets, tuner and benchmark settings. The files that
+ship with the project live in the top-level ``configs/`` folder of the source tree, installed as
+the package ``gripper_env.configs`` and read through :mod:`importlib.resources`, so a wheel
+finds them wherever it is installed (:data:`SHIPPED`).
+
+A name (``"test2"``, ``"mine"``) is looked up first in the folder the ``GRIPPER_CONFIG_DIR``
+environment variable names, if it is set (same layout: ``plants/``, ``disturbances/``,
+``tuners/``, ``objective.yaml``, ``benchmark.yaml``; any of them may be missing), then in the
+shipped configurations. A path (``my/plant.yaml``) is read as it is. Every file is validated
+once, on load, by a pydantic model; a problem is reported as a :class:`ConfigError` that names
+the file and the offending key. Hostile files are refused before they cost time or memory: a
+file larger than :data:`MAX_CONFIG_BYTES` before it is read, one nested deeper than
+:data:`MAX_CONFIG_DEPTH` or expanding to more than :data:`MAX_CONFIG_NODES` values before
+anything is built from it (data files: :data:`MAX_DATA_BYTES`, :func:`read_bounded`).
+"""
+
+from __future__ import annotations
+
+import os
+from importlib.resources import files
+from importlib.resources.abc import Traversable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+__all__ = [
+    "CONFIG_DIR",
+    "MAX_CONFIG_BYTES",
+    "MAX_CONFIG_DEPTH",
+    "MAX_CONFIG_NODES",
+    "MAX_DATA_BYTES",
+    "SHIPPED",
+    "ConfigError",
+    "available",
+    "config_file",
+    "find_config",
+    "load_yaml",
+    "read_bounded",
+    "validate",
+]
+
+
+def _shipped() -> Traversable:
+    try:
+        return files("gripper_env.configs")
+    except ModuleNotFoundError:
+        # a source tree used without installing it (PYTHONPATH=.), or an editable install made
+        # before configs/ became a package: the folder beside the package
+        return Path(__file__).resolve().parents[2] / "configs"
+
+
+#: The configurations shipped in the package (``gripper_env.configs``).
+SHIPPED: Traversable = _shipped()
+#: Where names are looked up first: the folder in ``GRIPPER_CONFIG_DIR``, else :data:`SHIPPED`.
+CONFIG_DIR: Traversable = (
+    Path(os.environ["GRIPPER_CONFIG_DIR"]) if os.environ.get("GRIPPER_CONFIG_DIR") else SHIPPED
+)
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is missing, malformed or out of range."""
+
+
+#: Largest configuration file read (bytes). The shipped ones hold a few kB; the size is checked
+#: before parsing, which is slow (pure-Python YAML: about 1 s per MB) and memory-hungry.
+MAX_CONFIG_BYTES = 1 << 20
+#: Deepest nesting of lists and mappings in a configuration file (the shipped ones: 4).
+MAX_CONFIG_DEPTH = 32
+#: Most values (scalars, lists, mappings) a configuration file may expand to, aliases counted
+#: at their expanded size (a "billion laughs" file is a few lines).
+MAX_CONFIG_NODES = 100_000
+#: Largest data file read whole (bytes): logs and reference profiles (CSV), gains files (JSON).
+#: Ten minutes of a 1 kHz log take about 25 MB; parsing one costs about 1 s and 30 MB of memory
+#: per MB.
+MAX_DATA_BYTES = 32 << 20
+
+_LOADER: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser, if present
+
+
+def _size(n_bytes: float) -> str:
+    return f"{n_bytes / 2**20:.3g} MiB" if n_bytes >= 2**20 else f"{n_bytes / 2**10:.3g} KiB"
+
+
+def read_bounded(path: Path | Traversable, limit_bytes: int, what: str) -> bytes:
+    """The bytes of ``path``, refused before reading if it holds more than ``limit_bytes``.
+
+    Raises
+    ------
+    ConfigError
+        The file is larger than ``limit_bytes`` (the message names the file, its size and the
+        limit), or cannot be read.
+    """
+    try:
+        size = path.stat().st_size if isinstance(path, Path) else None
+        if size is not None and size > limit_bytes:
+            raise ConfigError(
+                f"{path}: {_size(size)}, more than the {_size(limit_bytes)} a {what} may hold"
+            )
+        with path.open("rb") as f:
+            data = f.read(limit_bytes + 1)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > limit_bytes:  # a file that grew, or a packaged one
+        raise ConfigError(f"{path}: more than the {_size(limit_bytes)} a {what} may hold")
+    return data
+
+
+def _check_structure(text: str, source: object) -> None:
+    """Refuse YAML nested deeper than :data:`MAX_CONFIG_DEPTH` or expanding to more than
+    :data:`MAX_CONFIG_NODES` values, from its parser events (no recursion, nothing built)."""
+    sizes = [0]  # expanded size of each open collection
+    anchors: dict[str, int] = {}
+    anchored: list[str | None] = []
+    total = 0
+    for event in yaml.parse(text, Loader=_LOADER):
+        grown = 0
+        if isinstance(event, yaml.CollectionStartEvent):
+            if len(sizes) > MAX_CONFIG_DEPTH:
+                line = event.start_mark.line + 1 if event.start_mark else "?"
+                raise ConfigError(
+                    f"{source}: nested deeper than {MAX_CONFIG_DEPTH} levels (line {line})"
+                )
+            sizes.append(0)
+            anchored.append(event.anchor)
+            grown = 1
+        elif isinstance(event, yaml.CollectionEndEvent):
+            inner = sizes.pop() + 1
+            anchor = anchored.pop()
+            if anchor is not None:
+                anchors[anchor] = inner
+            sizes[-1] += inner
+        elif isinstance(event, yaml.ScalarEvent):
+            if event.anchor is not None:
+                anchors[event.anchor] = 1
+            sizes[-1] += 1
+            grown = 1
+        elif isinstance(event, yaml.AliasEvent):
+            grown = anchors.get(event.anchor or "", 1)
+            sizes[-1] += grown
+        total += grown
+        if total > MAX_CONFIG_NODES:
+            raise ConfigError(f"{source}: more than {MAX_CONFIG_NODES:,} values (aliases expanded)")
+
+
+def load_yaml(path: str | os.PathLike[str] | Traversable) -> dict[str, Any]:
+    """Read a YAML mapping from ``path`` (a file path, or a file of :data:`CONFIG_DIR`).
+
+    The file's size (:data:`MAX_CONFIG_BYTES`) is checked before it is parsed, its depth
+    (:data:`MAX_CONFIG_DEPTH`) and expanded size (:data:`MAX_CONFIG_NODES`) before anything is
+    built from it.
+
+    Raises
+    ------
+    ConfigError
+        If the file does not exist, is too large or too deep, is not valid YAML, or does not
+        hold a mapping.
+    """
+    p = path if isinstance(path, Traversable) else Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such configuration file")
+    raw = read_bounded(p, MAX_CONFIG_BYTES, "configuration file")
+    try:
+        text = raw.decode("utf-8-sig")
+        _check_structure(text, p)
+        data = yaml.load(text, Loader=_LOADER)  # a safe loader: plain data only
+    except ConfigError:
+        raise
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a text (UTF-8) file") from None
+    except yaml.YAMLError as exc:
+        text = " ".join(str(exc).replace(' in "<unicode string>"', "").split())
+        raise ConfigError(f"{p}: not valid YAML ({text})") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # a value no constructor takes
+        raise ConfigError(f"{p}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a mapping of keys to values, got {type(data).__name__}")
+    return data
+
+
+def validate(model: type[M], data: dict[str, Any], source: str) -> M:
+    """Validate ``data`` against ``model``; on failure raise one :class:`ConfigError` per problem.
+
+    Parameters
+    ----------
+    model : pydantic model class
+        The schema.
+    data : dict
+        The raw mapping (from YAML, JSON or a keyword argument).
+    source : str
+        Where the data came from (a file path or a description), used in the message.
+    """
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            key = ".".join(str(part) for part in err["loc"]) or "<top level>"
+            msg = err["msg"].removeprefix("Value error, ")
+            problems.append(f"key '{key}': {msg}")
+        raise ConfigError(f"{source}: " + "; ".join(problems)) from None
+
+
+def _roots() -> list[Traversable]:
+    """Folders searched for a name, in order (read at call time: tests may move CONFIG_DIR)."""
+    return [CONFIG_DIR] if CONFIG_DIR == SHIPPED else [CONFIG_DIR, SHIPPED]
+
+
+def config_file(*parts: str) -> Traversable:
+    """A file of the configuration tree, e.g. ``config_file("tuners", "optuna.yaml")``: the first
+    of :data:`CONFIG_DIR` and :data:`SHIPPED` that has it."""
+    for root in _roots():
+        if root.joinpath(*parts).is_file():
+            return root.joinpath(*parts)
+    return CONFIG_DIR.joinpath(*parts)  # missing: the error names where it was expected
+
+
+def available(kind: str) -> list[str]:
+    """Names of the configuration files of one kind (``"plants"``, ``"disturbances"``, ...)."""
+    names: set[str] = set()
+    for root in _roots():
+        folder = root / kind
+        if folder.is_dir():
+            names.update(
+                f.name[: -len(".yaml")] for f in folder.iterdir() if f.name.endswith(".yaml")
+            )
+    return sorted(names)
+
+
+def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Traversable:
+    """Resolve a configuration by name (``<kind>/<name>.yaml``, see the module docstring) or by
+    path.
+
+    Raises
+    ------
+    ConfigError
+        If neither a file of that path nor a configuration of that name exists; the message lists
+        the available names.
+    """
+    text = os.fspath(name_or_path)
+    candidate = Path(text)
+    if candidate.suffix in (".yaml", ".yml") or os.sep in text or "/" in text:
+        if candidate.is_file():
+            return candidate
+        raise ConfigError(f"{kind[:-1]} file {text!r} does not exist")
+    for root in _roots():
+        named = root / kind / f"{text}.yaml"
+        if named.is_file():
+            return named
+    names = ", ".join(available(kind)) or "(none)"
+    raise ConfigError(f"unknown {kind[:-1]} {text!r}; available: {names}")

@@ -1,8 +1,0 @@
-"""The rig's command lines: the physical gripper (or a virtual or emulated board) on a serial port.
-
-``python -m rig.calibrate`` (two-point potentiometer calibration), ``python -m rig.record`` (an
-open-loop identification record), ``python -m rig.deploy`` (tuned gains on the board's PID,
-behind a stability gate, compared with the simulation's prediction). What they share is in
-:mod:`rig.cli`; the device, the protocol and the experiments are the library's
-(:mod:`gripper_env.hardware`).
-"""

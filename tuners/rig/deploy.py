@@ -1,0 +1,223 @@
+"""Deploy tuned gains to the board's PID and compare the measured response with the prediction.
+
+``python -m tuners.rig.deploy --gains results/test2/optuna.json --port P [--profile step]``
+
+Recipe:
+
+1. read the gains file (:mod:`gripper_env.model.gains_file`: plant, P, I, D, N, sign, limits);
+2. **stability gate**: refuse (exit 2) gains whose closed loop is unstable on the gains file's
+   plant as the board runs it, with the servo's 20 ms command hold
+   (:func:`gripper_env.evaluation.stability.stability_report`), unless ``--allow-unstable``; warn
+   when
+   they are stable but miss the tuners' robustness constraints;
+3. configure the board (gains, limits, sign, anti-windup, calibration) and run the profile in
+   closed loop on the board's PID, the host streaming the reference at 50 Hz; the log
+   ``response.csv`` (``t_s, reference_deg, command_deg, position_deg``) is written as it goes
+   (``response.partial.csv`` until the run completes);
+4. simulate the same reference as the board applied it with the same controller on the
+   plant and disturbance preset (the prediction), compute the same metrics for both and the
+   fit % of the measured response to the prediction; write ``report.json`` and
+   ``response.png`` next to the log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env.evaluation.metrics import compute_metrics, fit_percent
+from gripper_env.evaluation.objective import load_objective
+from gripper_env.evaluation.stability import StabilityReport, stability_report
+from gripper_env.hardware.host.calibration import load_calibration
+from gripper_env.hardware.host.device import GripperDevice
+from gripper_env.hardware.host.experiment import CsvLog, RecordedTrajectory, run_profile
+from gripper_env.hardware.host.telemetry import TelemetryBlock
+from gripper_env.hardware.protocol import Mode
+from gripper_env.io.files import save_figure, write_json
+from gripper_env.model.gains_file import GainsFileError, load_gains_file
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import PROFILES, load_reference
+from gripper_env.sim import Trajectory, simulate
+from tuners.rig.cli import add_device_arguments, run_cli
+
+__all__ = ["DEPLOY_COLUMNS", "main"]
+
+#: The log's columns: a :class:`~gripper_env.sim.Trajectory`'s CSV columns.
+DEPLOY_COLUMNS = Trajectory.CSV_COLUMNS
+
+
+def deploy_rows(block: TelemetryBlock, t0_us: int) -> np.ndarray:
+    """CSV rows ``t_s, reference_deg, command_deg, position_deg`` of a telemetry block."""
+    return np.column_stack(
+        [(block.t_us - t0_us) / 1e6, block.reference_deg, block.command_deg, block.position_deg]
+    )
+
+
+def _plot(path: Path, measured: RecordedTrajectory, predicted: Any, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.plot(measured.t, measured.r[0], "k--", lw=1, label="reference")
+    ax.plot(predicted.t, predicted.y[0], lw=1.2, label="predicted (simulation)")
+    ax.plot(measured.t, measured.y[0], lw=1.2, label="measured (board)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("jaw angle (deg)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.rig.deploy",
+        description="Run tuned gains on the board's PID behind a stability gate, log the "
+        "response, and compare it with the simulation's prediction.",
+    )
+    parser.add_argument("--gains", required=True, metavar="FILE", help="gains file (JSON)")
+    add_device_arguments(parser)
+    parser.add_argument(
+        "--profile",
+        default="step",
+        help=f"reference profile: {', '.join(PROFILES)}, or a CSV file (default: step)",
+    )
+    parser.add_argument(
+        "--disturbance",
+        default="actual",
+        help="actual-gripper preset of the prediction (default: actual)",
+    )
+    parser.add_argument(
+        "--allow-unstable",
+        action="store_true",
+        help="run even if the closed loop is unstable on the gains file's plant (the gate "
+        "refuses such gains by default); the board's watchdog and jaw clamp still apply",
+    )
+    parser.add_argument(
+        "--output-dir",
+        default=None,
+        metavar="DIR",
+        help="where response.csv, report.json and response.png go "
+        "(default: results/hardware/deploy_PLANT_TUNER_PROFILE)",
+    )
+    parser.add_argument("--no-plot", action="store_true", help="skip response.png")
+    return parser
+
+
+def _gate(
+    model: Plant, plant: str, gains: PIDGains, options: PIDOptions, allow_unstable: bool
+) -> StabilityReport:
+    """The stability gate: refuse (ValueError) gains unstable on ``model`` (named ``plant``) as
+    the board runs them, unless ``allow_unstable``; warn when they are stable but not robust.
+    Returns the :func:`~gripper_env.evaluation.stability.stability_report`."""
+    # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
+    report = stability_report(model, gains, options.sign, disturbance="actual")
+    if not report.stable and not allow_unstable:
+        raise ValueError(
+            f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
+            f"(sign {options.sign:+d}) give an unstable closed loop on plant {plant} with the "
+            f"servo's {report.refresh_period_s * 1e3:g} ms command hold (largest |z| "
+            f"{report.max_pole_magnitude:.4f} >= 1); pass --allow-unstable to run anyway"
+        )
+    if not report.stable:
+        print(f"warning: running gains that are unstable on plant {plant}", file=sys.stderr)
+    else:
+        lim = load_objective().constraints
+        if not report.meets(lim.ms_max, lim.gm_min_db):
+            gm = report.gain_margin_db
+            print(
+                f"warning: these gains are stable but not robust on plant {plant} with the "
+                f"servo's hold (Ms {report.ms:.2f}, gain margin "
+                f"{'inf' if gm is None else f'{gm:.1f}'} dB; the tuners require Ms <= "
+                f"{lim.ms_max:g} and >= {lim.gm_min_db:g} dB)",
+                file=sys.stderr,
+            )
+    return report
+
+
+def _run(args: argparse.Namespace) -> int:
+    loaded = load_gains_file(args.gains)
+    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
+    try:
+        model = loaded.plant_model()  # the transfer function tuned on, wherever it came from
+    except GainsFileError as exc:
+        raise ValueError(f"{args.gains}: {exc} (needed for the gate)") from None
+    plant = plant or model.name
+    report = _gate(model, plant, gains, options, args.allow_unstable)
+    reference = load_reference(args.profile)
+    calibration = load_calibration(args.calibration)
+    out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log = CsvLog(out_dir / "response.csv", DEPLOY_COLUMNS, deploy_rows)
+    with GripperDevice(
+        args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
+    ) as device:
+        device.configure(gains, options)
+        rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
+    measured = rec.trajectory()
+    predicted = simulate(
+        model,
+        measured.r[0],
+        gains=[gains.as_array()],
+        disturbance=args.disturbance,
+        pid_options=options,
+        y0_deg=float(measured.y[0, 0]),
+    )
+    predicted.reference = measured.reference  # same segments for the metrics
+    fit = float(fit_percent(measured.y[0], predicted.y[0]))
+    content = {
+        "plant": plant,
+        "tuner": tuner,
+        "gains": {"P": gains.P, "I": gains.I, "D": gains.D, "N": gains.N},
+        "sign": options.sign,
+        "profile": reference.name,
+        "disturbance": args.disturbance,
+        "stability": report.as_dict(),
+        "fit_pct": fit,
+        "measured": compute_metrics(measured).as_dict(),
+        "predicted": compute_metrics(predicted).as_dict(),
+        "link": {
+            "samples": len(rec.samples),
+            "missing_samples": measured.missing_samples,
+            "frames_lost": rec.frames_lost,
+            "host_periods": rec.host_periods,
+            "missed_deadlines": rec.missed_deadlines,
+        },
+        "calibration": calibration.to_dict(),
+        "gains_file": str(args.gains),
+        "port": args.port,
+        "log": rec.extra.get("log"),
+    }
+    write_json(out_dir / "report.json", content)
+    if not args.no_plot:
+        _plot(
+            out_dir / "response.png",
+            measured,
+            predicted,
+            f"{tuner or 'gains'} on {plant}, {reference.name}: fit {fit:.1f} % to the prediction",
+        )
+    m = content["measured"]
+    print(
+        f"deployed {tuner or args.gains} on {args.port}: fit {fit:.1f} % to the prediction, "
+        f"grip overshoot {m['grip']['overshoot_pct']:.1f} %, settling "
+        f"{m['grip']['settling_time_s']:.3g} s, {rec.frames_lost} frames lost -> {out_dir}"
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.rig.deploy``."""
+    return run_cli(_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

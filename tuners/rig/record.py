@@ -1,0 +1,70 @@
+"""Record an open-loop identification experiment on the gripper.
+
+``python -m tuners.rig.record --port P --profile slope60 [--output LOG.csv]``
+
+Streams the profile (``step``, ``slope60``, ``slope40``, ``slope20``, ``ramp3`` or a CSV file)
+to the board in open loop (the desired angle is the servo command, as in the paper's tests)
+and logs ``t_s, desired_deg, actual_deg`` at 1 kHz, the columns
+``python -m tuners.sysid LOG.csv`` reads. The log is written as it goes (flushed every
+20 ms) under ``LOG.partial.csv`` and renamed to ``LOG.csv`` when the profile completes; a run
+that fails keeps its partial log. ``desired_deg`` is the command the board applied (the host's
+setpoint as the board saw it), ``actual_deg`` the potentiometer through the calibration. The
+recording is the library's (:class:`gripper_env.sysid.experiments.DeviceRecorder`, which
+``python -m tuners.sysid experiments --port P`` runs once per Table-1 experiment).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from gripper_env.model.references import PROFILES, load_reference
+from gripper_env.sysid.experiments import DeviceRecorder
+from tuners.rig.cli import add_device_arguments, run_cli
+
+__all__ = ["main"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.rig.record",
+        description="Run an open-loop experiment on the board and save the CSV that "
+        "identification reads (t_s, desired_deg, actual_deg).",
+    )
+    add_device_arguments(parser)
+    parser.add_argument(
+        "--profile",
+        default="slope60",
+        help=f"reference profile: {', '.join(PROFILES)}, or a CSV file with t_s and "
+        "desired_deg (default: slope60)",
+    )
+    parser.add_argument(
+        "--output",
+        default=None,
+        metavar="FILE",
+        help="CSV log to write (default: results/hardware/record_PROFILE.csv)",
+    )
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    reference = load_reference(args.profile)
+    output = Path(args.output or f"results/hardware/record_{reference.name}.csv")
+    recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout)
+    rec = recorder.record(reference, output)
+    print(
+        f"recorded {reference.name}: {len(rec.samples)} samples over "
+        f"{reference.duration_s:g} s, {rec.frames_lost} frames lost -> {rec.extra['log']}"
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.rig.record``."""
+    return run_cli(_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
