@@ -12,12 +12,13 @@ bad input into a one-line ``error: ...`` on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import shlex
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -131,12 +132,15 @@ class Inputs:
     settings: EvaluationSettings
     disturbance_name: str
     profile_name: str
-    objective: Objective = field(default_factory=load_objective)
+    objective: Objective
+    #: The transfer function alone (the ``ideal`` preset), what the model rows are scored on.
+    ideal: Disturbance
 
-    def for_plant(self, plant: str | Plant) -> Inputs:
+    def for_plant(self, plant: Plant) -> Inputs:
         """The same inputs on another plant (its reference resampled at its step)."""
-        p = load_plant(plant)
-        return replace(self, plant=p, reference=load_reference(self.profile_name, p.dt_s))
+        same = plant.dt_s == self.reference.dt_s
+        ref = self.reference if same else load_reference(self.profile_name, plant.dt_s)
+        return replace(self, plant=plant, reference=ref)
 
 
 def resolve(args: argparse.Namespace) -> Inputs:
@@ -148,8 +152,14 @@ def resolve(args: argparse.Namespace) -> Inputs:
     objective = load_objective(getattr(args, "objective", None))
     return Inputs(
         plant, disturbance, reference, settings, str(args.disturbance), str(args.profile),
-        objective,
+        objective, load_disturbance("ideal"),
     )  # fmt: skip
+
+
+@functools.cache
+def paper_plants() -> tuple[Plant, ...]:
+    """The paper's four identifications, loaded once per process (the cross-model check)."""
+    return tuple(load_plant(name) for name in PAPER_PLANTS)
 
 
 def plants_arg(value: str | None) -> list[str]:
@@ -188,13 +198,14 @@ def evaluate_inputs(
     """Evaluate gains with the inputs' plant, profile, preset and held-out seeds (and on the
     gripper's other identifications with ``cross``)."""
     s = inputs.settings
-    others = PAPER_PLANTS if cross and inputs.plant.name in PAPER_PLANTS else ()
+    others = paper_plants() if cross and inputs.plant.name in PAPER_PLANTS else ()
     return evaluate(
         inputs.plant,
         gains,
         options,
         profile=inputs.reference,
         disturbance=inputs.disturbance,
+        ideal=inputs.ideal,
         seeds=s.seeds.seeds(),
         randomize=s.randomize,
         objective=inputs.objective,

@@ -33,13 +33,13 @@ import numpy as np
 from scipy import stats
 
 from gripper_env.evaluation.metrics import Metrics
-from gripper_env.evaluation.objective import Objective, load_objective
+from gripper_env.evaluation.objective import Objective
 from gripper_env.evaluation.scoring import GainScorer, Task, reachability
 from gripper_env.evaluation.stability import stability_report
-from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
-from gripper_env.model.plants import Plant, load_plant
-from gripper_env.model.references import Reference, load_reference
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import Reference
 from gripper_env.sim import Trajectory
 
 __all__ = [
@@ -165,7 +165,7 @@ def robustness_block(
     objective: Objective,
 ) -> dict[str, Any]:
     """Stability and margins as the loop runs and at 1 ms, and the constraint verdict."""
-    report = stability_report(plant, gains, sign, disturbance)
+    report = stability_report(plant, gains, sign, disturbance=disturbance)
     lim = objective.constraints
     block = report.as_dict()
     block["constraints"] = {"ms_max": lim.ms_max, "gm_min_db": lim.gm_min_db}
@@ -178,8 +178,8 @@ def cross_model(
     sign: int,
     options: PIDOptions,
     *,
-    plants: Sequence[str | Plant],
-    reference: str | Reference,
+    plants: Sequence[Plant],
+    reference: Reference,
     disturbance: Disturbance,
     seeds: Sequence[int] | np.ndarray,
     randomize: bool,
@@ -193,8 +193,7 @@ def cross_model(
     cannot follow the step profile within the servo's range, so it is listed, not counted).
     """
     per: dict[str, Any] = {}
-    for p in plants:
-        plant = load_plant(p)
+    for plant in plants:
         task = Task.build(
             plant, reference, disturbance, seeds, randomize=randomize, options=options,
             objective=objective,
@@ -257,68 +256,70 @@ def worst_case(per: dict[str, Any]) -> dict[str, Any]:
 
 
 def evaluate(
-    plant: str | Plant,
+    plant: Plant,
     gains: PIDGains,
     options: PIDOptions,
     *,
-    profile: str | Reference = "step",
-    disturbance: str | Disturbance = "actual",
+    profile: Reference,
+    disturbance: Disturbance,
+    ideal: Disturbance,
+    objective: Objective,
     seeds: Sequence[int] | np.ndarray = (100000,),
     randomize: bool = True,
-    objective: Objective | None = None,
     ideal_options: PIDOptions | None = None,
-    cross_plants: Sequence[str] = (),
+    cross_plants: Sequence[Plant] = (),
 ) -> Evaluation:
     """Score the controller on the ideal model once and on the actual model once per seed.
 
     Parameters
     ----------
-    plant : str or Plant
-        Plant name or object.
+    plant : Plant
+        The plant.
     gains : PIDGains
         The gains.
     options : PIDOptions
         Limits, anti-windup, derivative input, sign convention.
-    profile : str or Reference
-        Reference profile (``"step"``, ``"slope60"``, ... or a CSV path).
-    disturbance : str or Disturbance
-        Actual-gripper preset (name or YAML path).
+    profile : Reference
+        Reference profile.
+    disturbance : Disturbance
+        Actual-gripper preset.
+    ideal : Disturbance
+        The transfer function alone (the ``ideal`` preset).
+    objective : Objective
+        The cost and its constraints.
     seeds : array of int
         Held-out disturbance seeds.
     randomize : bool
         Draw each seed's disturbance parameters from the preset's ranges.
-    objective : Objective, optional
-        Default: ``configs/objective.yaml``.
     ideal_options : PIDOptions, optional
         PID options on the ideal model (default ``options``); the paper's model had no limits.
-    cross_plants : sequence of str
+    cross_plants : sequence of Plant
         Other identifications to score the same gains on (:func:`cross_model`).
+
+    The commands load these once (:func:`tuners.cli.resolve`); nothing here reads a file.
     """
-    p = load_plant(plant)
-    ref = load_reference(profile, p.dt_s)
-    dist = load_disturbance(disturbance)
-    obj = objective or load_objective()
+    p, ref, dist, obj = plant, profile, disturbance, objective
     seed_arr = np.asarray(seeds, dtype=np.int64)
     row = gains.as_array()[None, :]
-    ideal = GainScorer(
-        Task.build(p, ref, "ideal", [0], randomize=False, options=ideal_options or options,
+    ideal_scores = GainScorer(
+        Task.build(p, ref, ideal, [0], randomize=False, options=ideal_options or options,
                    objective=obj)
     ).score(row, keep_trajectory=True)  # fmt: skip
     actual = GainScorer(
         Task.build(p, ref, dist, seed_arr, randomize=randomize, options=options, objective=obj)
     ).score(row, keep_trajectory=True)
-    assert ideal.trajectory is not None and actual.trajectory is not None  # keep_trajectory
-    ideal_row = with_cost(ideal.metrics, ideal.run_cost.ravel())[0]
+    assert ideal_scores.trajectory is not None and actual.trajectory is not None  # keep_trajectory
+    ideal_row = with_cost(ideal_scores.metrics, ideal_scores.run_cost.ravel())[0]
     runs = with_cost(actual.metrics, actual.run_cost.ravel())
     summary = summarize_runs(runs)
-    others = [name for name in cross_plants if name != p.name]
+    others = [other for other in cross_plants if other.name != p.name]
     return Evaluation(
         ideal=ideal_row,
         actual=summary,
         actual_runs=runs,
         sim_to_real_gap=_gap(summary["mean"], ideal_row),
         seeds=[int(s) for s in seed_arr],
-        ideal_trajectory=ideal.trajectory,
+        ideal_trajectory=ideal_scores.trajectory,
         actual_trajectory=actual.trajectory,
         robustness=robustness_block(p, gains, options.sign, dist, obj),
         cross_model=cross_model(

@@ -36,9 +36,9 @@ import numpy as np
 
 from gripper_env.evaluation.metrics import sustained_swing
 from gripper_env.evaluation.stability import LoopAnalysis, ServoLoop
-from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
-from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.plants import Plant
 from gripper_env.model.references import Reference, load_reference
 from gripper_env.sim import Trajectory, simulate
 
@@ -106,11 +106,11 @@ class MeasuredMargins:
         }
 
 
-def probe_disturbance(disturbance: str | Disturbance = "actual") -> Disturbance:
+def probe_disturbance(disturbance: Disturbance, ideal: Disturbance) -> Disturbance:
     """The preset's loop made linear: its servo refresh (hold) and sensor delay and command
-    range, without quantisation, rate limit, friction, stops, noise or ADC."""
-    d = load_disturbance(disturbance)
-    ideal = load_disturbance("ideal")
+    range, without quantisation, rate limit, friction, stops, noise or ADC (the rest is
+    ``ideal``'s, the transfer function alone)."""
+    d = disturbance
     command = d.command.model_copy(update={"quantization": "none", "rate_limit_deg_s": 0.0})
     sensor = ideal.sensor.model_copy(update={"delay_s": d.sensor.delay_s})
     return ideal.model_copy(
@@ -165,7 +165,7 @@ def _sweep(
 
 
 def measure_margins(
-    runner: Runner, plant: str | Plant, disturbance: str | Disturbance = "actual"
+    runner: Runner, plant: Plant, disturbance: Disturbance, ideal: Disturbance
 ) -> MeasuredMargins:
     """Probe the gain and delay margins of the controller behind ``runner`` on ``plant``.
 
@@ -174,13 +174,15 @@ def measure_margins(
     runner : callable
         ``runner(plants, disturbances) -> Trajectory`` (:func:`pid_runner`,
         :func:`policy_runner`).
-    plant : str or Plant
+    plant : Plant
         The nominal plant.
-    disturbance : str or Disturbance
+    disturbance : Disturbance
         The preset whose loop (hold, delay, command range) is probed (:func:`probe_disturbance`).
+    ideal : Disturbance
+        The ``ideal`` preset (the transfer function alone), what the probe's loop starts from.
     """
-    p = load_plant(plant)
-    base = probe_disturbance(disturbance)
+    p = plant
+    base = probe_disturbance(disturbance, ideal)
     nominal = float(_swings(runner, [p], [base])[0])
     if nominal > SWING_THRESHOLD_DEG:
         return MeasuredMargins(0.0, 0.0, nominal)
@@ -227,12 +229,12 @@ def policy_runner(
 
 
 def linear_delay_margin_s(
-    plant: str | Plant, gains: PIDGains, sign: int, disturbance: str | Disturbance
+    plant: Plant, gains: PIDGains, sign: int, disturbance: Disturbance
 ) -> float | None:
     """The smallest added delay (s, whole physics steps) that makes the lifted linear loop with
     the servo hold unstable (spectral radius >= 1); ``None`` beyond :data:`DELAY_RANGE_S`.
     Scanned every 4 ms, then step by step below the first unstable delay."""
-    p = load_plant(plant)
+    p = plant
     base = ServoLoop.from_disturbance(disturbance, p.dt_s, gains.N, sign)
     row = gains.as_array()[None, :3]
 

@@ -45,7 +45,7 @@ enum Mode {
     MODE_CLOSED_LOOP = 2 // the setpoint is the PID reference
 };
 
-// anti-windup of the PID (CONFIGURE.anti_windup), as in gripper_env.pid
+// anti-windup of the PID (CONFIGURE.anti_windup), as in gripper_env.model.pid
 enum AntiWindup {
     AW_NONE = 0,
     AW_CLAMPING = 1,

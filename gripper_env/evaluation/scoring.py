@@ -28,20 +28,19 @@ Examples
 from __future__ import annotations
 
 import functools
-import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from gripper_env.evaluation.metrics import Metrics, compute_metrics
-from gripper_env.evaluation.objective import COST_TERMS, Objective, load_objective
+from gripper_env.evaluation.objective import COST_TERMS, Objective
 from gripper_env.evaluation.stability import LoopAnalysis, Robustness, ServoLoop
-from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDOptions
-from gripper_env.model.plants import Plant, load_plant
-from gripper_env.model.references import Reference, load_reference
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import Reference
 from gripper_env.sim import Trajectory, simulate
 
 __all__ = [
@@ -126,41 +125,34 @@ class Task:
     reference: Reference
     disturbance: Disturbance
     seeds: np.ndarray
+    objective: Objective
     randomize: bool = True
     options: PIDOptions = field(default_factory=PIDOptions)
-    objective: Objective = field(default_factory=load_objective)
 
     @classmethod
     def build(
         cls,
-        plants: str | os.PathLike[str] | Plant | Sequence[Any],
-        reference: str | os.PathLike[str] | Reference,
-        disturbance: str | os.PathLike[str] | Mapping[str, Any] | Disturbance,
+        plants: Plant | Sequence[Plant],
+        reference: Reference,
+        disturbance: Disturbance,
         seeds: Sequence[int] | np.ndarray = (0,),
         *,
+        objective: Objective,
         randomize: bool = True,
         options: PIDOptions | None = None,
-        objective: Objective | None = None,
     ) -> Task:
-        """A task from names or objects (plant names, profile name, preset name)."""
-        if isinstance(plants, str | os.PathLike | Plant):
-            plants = [plants]
-        plant_list = tuple(load_plant(p) for p in plants)
+        """A task from the loaded objects (the commands load them: :mod:`tuners.cli`)."""
+        plant_list = (plants,) if isinstance(plants, Plant) else tuple(plants)
         if not plant_list:
             raise ValueError("a task needs at least one plant")
-        ref = (
-            reference
-            if isinstance(reference, Reference)
-            else load_reference(reference, plant_list[0].dt_s)
-        )
         return cls(
             plants=plant_list,
-            reference=ref,
-            disturbance=load_disturbance(disturbance),
+            reference=reference,
+            disturbance=disturbance,
             seeds=np.asarray(seeds, dtype=np.int64).ravel(),
+            objective=objective,
             randomize=randomize,
             options=options or PIDOptions(),
-            objective=objective or load_objective(),
         )
 
     @property
@@ -335,9 +327,9 @@ class Reachability:
 
 
 def reachability(
-    plant: Plant | str,
-    reference: Reference | str,
-    disturbance: Disturbance | str = "actual",
+    plant: Plant,
+    reference: Reference,
+    disturbance: Disturbance,
     band_deg: float | None = None,
 ) -> Reachability:
     """Bang-bang test of a reference on a plant (see :class:`Reachability`).
@@ -345,9 +337,7 @@ def reachability(
     Each move starts from rest at its initial angle; the command is the servo range's end in
     the move's direction (``disturbance.command.range_deg``) for the whole move.
     """
-    p = load_plant(plant)
-    ref = reference if isinstance(reference, Reference) else load_reference(reference, p.dt_s)
-    d = load_disturbance(disturbance)
+    p, ref, d = plant, reference, disturbance
     lo, hi = d.command.range_deg
     fractions, arrivals, iae = [], [], 0.0
     for seg in ref.segments:

@@ -44,16 +44,15 @@ hardware (``tuners.rig.deploy``).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import control
 import numpy as np
 
-from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains, check_filter
-from gripper_env.model.plants import Plant, load_plant
+from gripper_env.model.plants import Plant
 
 __all__ = [
     "QUANTISATION_GM_DB",
@@ -114,13 +113,13 @@ class ServoLoop:
     @classmethod
     def from_disturbance(
         cls,
-        disturbance: str | Disturbance | Mapping[str, Any],
+        disturbance: Disturbance,
         dt_s: float = 1e-3,
         N: float = 100.0,
         sign: int = 1,
     ) -> ServoLoop:
         """The loop of an actual-gripper preset: its servo refresh and sensor delay."""
-        d = load_disturbance(disturbance)
+        d = disturbance
         return cls(
             dt_s=dt_s,
             refresh_steps=max(1, round(d.command.refresh_period_s / dt_s)),
@@ -211,15 +210,14 @@ class LoopAnalysis:
     --------
     >>> import numpy as np
     >>> loop = ServoLoop(refresh_steps=20)
-    >>> r = LoopAnalysis("test2", loop).robustness(np.array([[1.0, 9.0, -0.001]]))
+    >>> from gripper_env import load_plant
+    >>> r = LoopAnalysis(load_plant("test2"), loop).robustness(np.array([[1.0, 9.0, -0.001]]))
     >>> bool(r.stable[0]), round(float(r.ms[0]), 2)
     (True, 1.11)
     """
 
-    def __init__(
-        self, plant: Plant | str, loop: ServoLoop, frequency_response: bool = True
-    ) -> None:
-        self.plant = load_plant(plant)
+    def __init__(self, plant: Plant, loop: ServoLoop, frequency_response: bool = True) -> None:
+        self.plant = plant
         self.loop = loop
         self._build(frequency_response)
 
@@ -387,14 +385,15 @@ def _phase_margins(loop: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def lifted_loop(
-    plant: Plant | str,
+    plant: Plant,
     gains: PIDGains,
     sign: int = 1,
-    disturbance: str | Disturbance = "actual",
+    *,
+    disturbance: Disturbance,
 ) -> control.StateSpace:
     """The loop gain as it runs (lifted to the servo refresh of ``disturbance``) as a
     python-control discrete system."""
-    p = load_plant(plant)
+    p = plant
     loop = ServoLoop.from_disturbance(disturbance, p.dt_s, gains.N, sign)
     return LoopAnalysis(p, loop).state_space(gains.as_array())
 
@@ -449,26 +448,30 @@ class StabilityReport:
 
 
 def stability_report(
-    plant: Plant | str,
+    plant: Plant,
     gains: PIDGains,
     sign: int = 1,
-    disturbance: str | Disturbance | Mapping[str, Any] = "actual",
+    *,
+    disturbance: Disturbance,
 ) -> StabilityReport:
     """Stability and margins of ``gains`` on ``plant``, with the servo refresh and sensor delay
-    of ``disturbance`` (default the ``actual`` gripper's 20 ms refresh), and at 1 ms.
+    of ``disturbance`` (the ``actual`` gripper's: a 20 ms refresh), and at 1 ms.
 
     Examples
     --------
-    >>> stability_report("test2", PIDGains(1.0, 9.0, -0.001)).stable
+    >>> from gripper_env import load_disturbance, load_plant
+    >>> plant, actual = load_plant("test2"), load_disturbance("actual")
+    >>> stability_report(plant, PIDGains(1.0, 9.0, -0.001), disturbance=actual).stable
     True
-    >>> stability_report("test2", PIDGains(-0.5, -3.6, 0.000186)).stable  # hardware gains
+    >>> hardware = PIDGains(-0.5, -3.6, 0.000186)  # the paper's hardware gains
+    >>> stability_report(plant, hardware, disturbance=actual).stable
     False
-    >>> stability_report("test2", PIDGains(-0.5, -3.6, 0.000186), sign=-1).stable
+    >>> stability_report(plant, hardware, sign=-1, disturbance=actual).stable
     True
     """
     if sign not in (1, -1):
         raise ValueError(f"sign must be +1 or -1, got {sign!r}")
-    p = load_plant(plant)
+    p = plant
     loop = ServoLoop.from_disturbance(disturbance, p.dt_s, gains.N, sign)
     row = gains.as_array()[None, :3]
     runs = LoopAnalysis(p, loop).robustness(row).row()

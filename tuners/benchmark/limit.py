@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, sparse
 
-from gripper_env.model.disturbances import Disturbance, load_disturbance
-from gripper_env.model.plants import Plant, load_plant
-from gripper_env.model.references import Reference, load_reference
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import Reference
 
 __all__ = ["Limit", "least_iae"]
 
@@ -61,19 +61,19 @@ class Limit:
 
 
 def least_iae(
-    plant: str | Plant,
-    reference: str | Reference = "step",
-    disturbance: str | Disturbance = "actual",
+    plant: Plant,
+    reference: Reference,
+    disturbance: Disturbance,
 ) -> Limit:
     """Solve the limit's linear program (module docstring).
 
     Parameters
     ----------
-    plant : str or Plant
+    plant : Plant
         The transfer function (its ideal model).
-    reference : str or Reference
+    reference : Reference
         The profile.
-    disturbance : str or Disturbance
+    disturbance : Disturbance
         Where the servo's refresh period and command range come from (nothing else of it is
         used: no friction, quantisation, stops or sensor).
 
@@ -82,9 +82,7 @@ def least_iae(
     ValueError
         The command range is unbounded, or HiGHS found no optimum.
     """
-    p = load_plant(plant)
-    ref = load_reference(reference, p.dt_s)
-    d = load_disturbance(disturbance)
+    p, ref, d = plant, reference, disturbance
     lo, hi = d.command.range_deg
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise ValueError(f"the limit needs a bounded command range, got [{lo}, {hi}]")

@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 from scipy import linalg, optimize, sparse
 
-from gripper_env.model.disturbances import Disturbance, load_disturbance
-from gripper_env.model.plants import Plant, load_plant
-from gripper_env.model.references import Reference, load_reference
+from gripper_env.model.disturbances import Disturbance
+from gripper_env.model.plants import Plant
+from gripper_env.model.references import Reference
 from gripper_env.sim import BatchSimulator, Trajectory, sampling_rng
 
 __all__ = ["MPCOracle", "OracleSettings", "oracle_record", "run_oracle"]
@@ -171,9 +171,9 @@ class MPCOracle:
 
 
 def run_oracle(
-    plant: str | Plant,
-    reference: str | Reference,
-    disturbance: str | Disturbance,
+    plant: Plant,
+    reference: Reference,
+    disturbance: Disturbance,
     seeds: np.ndarray,
     randomize: bool = True,
     settings: OracleSettings | None = None,
@@ -183,9 +183,7 @@ def run_oracle(
     The runs meet the same disturbance draws and noise as every row's on those seeds
     (:func:`gripper_env.sim.simulate`'s draws); the oracle's command is the servo's command
     (through the preset's quantiser and hold)."""
-    p = load_plant(plant)
-    ref = load_reference(reference, p.dt_s)
-    d = load_disturbance(disturbance)
+    p, ref, d = plant, reference, disturbance
     seeds = np.atleast_1d(np.asarray(seeds, dtype=np.int64))
     dists = [d.sample(sampling_rng(int(s))) if randomize else d for s in seeds]
     oracle = MPCOracle(p, d, settings)

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from gripper_env.evaluation.scoring import reachability, score_trajectory
-from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDGains
 from gripper_env.sim import Trajectory, simulate
 from tuners import cli
@@ -109,7 +108,8 @@ def pid_row(
     else:  # another identification's evaluation of the same gains: no file
         ideal_opts, actual_opts = inputs.settings.options(sign)
         ev = evaluate(inputs.plant, gains, actual_opts, profile=inputs.reference,
-                      disturbance=inputs.disturbance, seeds=inputs.settings.seeds.seeds(),
+                      disturbance=inputs.disturbance, ideal=inputs.ideal,
+                      seeds=inputs.settings.seeds.seeds(),
                       randomize=inputs.settings.randomize, objective=inputs.objective,
                       ideal_options=ideal_opts)  # fmt: skip
         from gripper_env.io.files import json_ready
@@ -119,7 +119,7 @@ def pid_row(
         runs = ev.actual_runs
     _, actual_opts = inputs.settings.options(sign)
     margins = measure_margins(pid_runner(gains, actual_opts, inputs.reference), inputs.plant,
-                              inputs.disturbance)  # fmt: skip
+                              inputs.disturbance, inputs.ideal)  # fmt: skip
     return {
         "kind": kind,
         "tuned_on": [] if kind == "manual" else tuned_on,
@@ -210,7 +210,7 @@ def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any
     metrics, costs = score_trajectory(traj, inputs.objective, inputs.disturbance)
     runs = with_cost(metrics, costs)
     ideal_traj = simulate(inputs.plant, inputs.reference, disturbance="ideal")
-    ideal_m, ideal_c = score_trajectory(ideal_traj, inputs.objective, load_disturbance("ideal"))
+    ideal_m, ideal_c = score_trajectory(ideal_traj, inputs.objective, inputs.ideal)
     grip = simulate(inputs.plant, inputs.reference, disturbance=grip_preset, seeds=seeds,
                     randomize=s.randomize)  # fmt: skip
     return {

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from gripper_env.evaluation.objective import Objective
 from gripper_env.evaluation.scoring import reachability
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.plants import load_plant
@@ -37,11 +39,20 @@ from tuners.settings import EvaluationSettings
 __all__ = ["run_benchmark"]
 
 
-def _inputs(plant: str, bench: BenchmarkSettings, ev: EvaluationSettings, objective: Any) -> Any:
-    p = load_plant(plant)
-    ref = load_reference(bench.profile, p.dt_s)
-    return cli.Inputs(p, load_disturbance(bench.disturbance), ref, ev, bench.disturbance,
-                      bench.profile, objective)  # fmt: skip
+def _loaded(bench: BenchmarkSettings, objective: Objective) -> Callable[..., cli.Inputs]:
+    """The benchmark's inputs for a plant by name, each plant, preset and profile loaded once."""
+    disturbance, ideal = load_disturbance(bench.disturbance), load_disturbance("ideal")
+    cache: dict[str, cli.Inputs] = {}
+
+    def inputs(plant: str, ev: EvaluationSettings) -> cli.Inputs:
+        if plant not in cache:
+            p = load_plant(plant)
+            ref = load_reference(bench.profile, p.dt_s)
+            cache[plant] = cli.Inputs(p, disturbance, ref, ev, bench.disturbance, bench.profile,
+                                      objective, ideal)  # fmt: skip
+        return replace(cache[plant], settings=ev)
+
+    return inputs
 
 
 def _tuners(bench: BenchmarkSettings, quick: bool, out: Path) -> list[Tuner]:
@@ -94,16 +105,16 @@ def run_benchmark(
     quick: bool = False,
     log: Callable[..., None] = print,
     command: str | None = None,
-    objective: Any = None,
+    *,
+    objective: Objective,
     force: bool = False,
     engine: str | None = None,
 ) -> dict[str, Any]:
     """Run every row on every plant; write the gains files and return the benchmark's data
     (``force``: over results from larger budgets; ``engine``: where the RL rows' training seeds
     run, :mod:`tuners.engine`)."""
-    from gripper_env.evaluation.objective import load_objective
-
-    obj = objective or load_objective()
+    obj = objective
+    _inputs = _loaded(bench, obj)
     plants = bench.quick.plants if quick else bench.plants
     robust_plants = [p for p in bench.robust_plants if p in plants or not quick]
     budget = Budget(quick=quick, engine=engine)
@@ -111,7 +122,7 @@ def run_benchmark(
     data: dict[str, Any] = {"plants": {}, "robust_plants": robust_plants, "quick": quick}
     feasible = []
     for plant in plants:
-        inputs = _inputs(plant, bench, ev, obj)
+        inputs = _inputs(plant, ev)
         reach = reachability(inputs.plant, inputs.reference, inputs.disturbance)
         if not reach.feasible:
             data["plants"][plant] = {"feasible": False, "reason": reach.reason(),
@@ -125,7 +136,7 @@ def run_benchmark(
                                  "rows": {}, "curves": {}}  # fmt: skip
     evaluations: dict[str, dict[str, Any]] = {}  # "<row> @ <tuned on>" -> plant -> row
     for plant in feasible:
-        inputs = _inputs(plant, bench, ev, obj)
+        inputs = _inputs(plant, ev)
         done: dict[str, Tuned] = {}
         for tuner in (t for t in tuners if not t.plants):
             tuned = _tune(tuner, inputs, budget, bench.seed, done, log)
@@ -144,7 +155,7 @@ def run_benchmark(
                 for other in robust_plants:
                     if other != plant and other in feasible:
                         evaluations[key][other] = _row(
-                            _inputs(other, bench, ev, obj),
+                            _inputs(other, ev),
                             tuner,
                             tuned,
                             [plant],
@@ -154,7 +165,7 @@ def run_benchmark(
                         )
     robust_done: dict[str, Tuned] = {}
     for tuner in (t for t in tuners if t.plants):
-        inputs = _inputs(robust_plants[0], bench, ev, obj)
+        inputs = _inputs(robust_plants[0], ev)
         tuned = _tune(tuner, inputs, budget, bench.seed, robust_done, log)
         if tuned is None:
             continue
@@ -162,12 +173,12 @@ def run_benchmark(
         key = f"{tuner.name} @ {'+'.join(robust_plants)}"
         evaluations[key] = {}
         for plant in robust_plants:
-            row = _row(_inputs(plant, bench, ev, obj), tuner, tuned, robust_plants, bench,
+            row = _row(_inputs(plant, ev), tuner, tuned, robust_plants, bench,
                        out if tuned.gains is not None else None, command, force)  # fmt: skip
             evaluations[key][plant] = row
             _log_row(log, plant, tuner.name, row)
     data["evaluations"] = evaluations
-    data["pareto_fronts"] = {p: _pareto_front(_inputs(p, bench, ev, obj), bench, quick)
+    data["pareto_fronts"] = {p: _pareto_front(_inputs(p, ev), bench, quick)
                              for p in feasible}  # fmt: skip
     return data
 

@@ -276,7 +276,8 @@ def _table34_row(
         act_txt = "-"
     if not ok.all():
         act_txt += f" ({int((~ok).sum())} of {len(ok)} runs swing from stop to stop)"
-    rep = stability_report("test2", PIDGains(*gains), sign)
+    actual = load_disturbance("actual")
+    rep = stability_report(load_plant("test2"), PIDGains(*gains), sign, disturbance=actual)
     if not rep.stable:
         # limits keep the actual loop bounded: it runs into a stop and stays there
         act_txt += " (unstable loop: pinned at a stop)"
@@ -310,7 +311,9 @@ def _sign_section(lines: list[str]) -> None:
         for sign in (1, -1):
             cells = []
             for name in PLANTS:
-                rep = stability_report(name, PIDGains(*gains), sign)
+                rep = stability_report(
+                    load_plant(name), PIDGains(*gains), sign, disturbance=load_disturbance("actual")
+                )
                 fast = rep.loop_1ms
                 verdict = "stable" if fast["stable"] else "**unstable**"
                 if rep.stable:

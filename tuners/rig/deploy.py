@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.evaluation.metrics import compute_metrics, fit_percent
-from gripper_env.evaluation.objective import load_objective
+from gripper_env.evaluation.objective import Constraints, load_objective
 from gripper_env.evaluation.stability import StabilityReport, stability_report
 from gripper_env.hardware.host.calibration import load_calibration
 from gripper_env.hardware.host.device import GripperDevice
@@ -39,6 +39,7 @@ from gripper_env.hardware.host.experiment import CsvLog, RecordedTrajectory, run
 from gripper_env.hardware.host.telemetry import TelemetryBlock
 from gripper_env.hardware.protocol import Mode
 from gripper_env.io.files import save_figure, write_json
+from gripper_env.model.disturbances import Disturbance, load_disturbance
 from gripper_env.model.gains_file import GainsFileError, load_gains_file
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import Plant
@@ -97,6 +98,13 @@ def _parser() -> argparse.ArgumentParser:
         help="actual-gripper preset of the prediction (default: actual)",
     )
     parser.add_argument(
+        "--objective",
+        default=None,
+        metavar="YAML",
+        help="the objective whose robustness constraints the gate warns against "
+        "(default: configs/objective.yaml)",
+    )
+    parser.add_argument(
         "--allow-unstable",
         action="store_true",
         help="run even if the closed loop is unstable on the gains file's plant (the gate "
@@ -114,13 +122,20 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _gate(
-    model: Plant, plant: str, gains: PIDGains, options: PIDOptions, allow_unstable: bool
+    model: Plant,
+    plant: str,
+    gains: PIDGains,
+    options: PIDOptions,
+    allow_unstable: bool,
+    *,
+    disturbance: Disturbance,
+    constraints: Constraints,
 ) -> StabilityReport:
     """The stability gate: refuse (ValueError) gains unstable on ``model`` (named ``plant``) as
     the board runs them, unless ``allow_unstable``; warn when they are stable but not robust.
     Returns the :func:`~gripper_env.evaluation.stability.stability_report`."""
-    # the gate judges the loop as the board runs it: PID at 1 ms, servo command held 20 ms
-    report = stability_report(model, gains, options.sign, disturbance="actual")
+    # PID at 1 ms, servo command held 20 ms
+    report = stability_report(model, gains, options.sign, disturbance=disturbance)
     if not report.stable and not allow_unstable:
         raise ValueError(
             f"refusing to deploy: P={gains.P:g} I={gains.I:g} D={gains.D:g} N={gains.N:g} "
@@ -131,7 +146,7 @@ def _gate(
     if not report.stable:
         print(f"warning: running gains that are unstable on plant {plant}", file=sys.stderr)
     else:
-        lim = load_objective().constraints
+        lim = constraints
         if not report.meets(lim.ms_max, lim.gm_min_db):
             gm = report.gain_margin_db
             print(
@@ -152,7 +167,13 @@ def _run(args: argparse.Namespace) -> int:
     except GainsFileError as exc:
         raise ValueError(f"{args.gains}: {exc} (needed for the gate)") from None
     plant = plant or model.name
-    report = _gate(model, plant, gains, options, args.allow_unstable)
+    # the gate judges the loop as the board runs it: the actual servo's 20 ms command hold and
+    # sensor delay, whatever preset the prediction uses
+    report = _gate(
+        model, plant, gains, options, args.allow_unstable,
+        disturbance=load_disturbance("actual"),
+        constraints=load_objective(args.objective).constraints,
+    )  # fmt: skip
     reference = load_reference(args.profile)
     calibration = load_calibration(args.calibration)
     out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")

@@ -43,7 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from gripper_env.evaluation.scoring import score_trajectory
 from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
 from gripper_env.io.files import json_ready, write_result_json
-from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains
 from gripper_env.model.plants import load_plant
 from gripper_env.sim import Trajectory, simulate
@@ -161,7 +161,7 @@ def evaluate_policy(
                               **ideal_kwargs)  # fmt: skip
     actual = policy_trajectory(policy, seeds, env_id=env_id, reference=inputs.reference, **one)
     return (
-        _score(ideal, inputs, load_disturbance("ideal"))[0],
+        _score(ideal, inputs, inputs.ideal)[0],
         _score(actual, inputs, inputs.disturbance),
         ideal,
         actual,
@@ -318,7 +318,7 @@ def reference_runs(inputs: cli.Inputs, plant: str | None = None) -> dict[str, An
                       randomize=s.randomize)  # fmt: skip
     runs = _score(actual, inputs, inputs.disturbance)
     return {
-        "metrics": {"ideal": _score(ideal, inputs, load_disturbance("ideal"))[0],
+        "metrics": {"ideal": _score(ideal, inputs, inputs.ideal)[0],
                     "actual": summarize_runs(runs)},
         "runs": runs,
     }  # fmt: skip
@@ -374,14 +374,15 @@ def controller_study(
     folder = Path(out) / "rl" / f"controller-{'+'.join(names)}"
     held_out = inputs.settings.seeds.seeds()
     eval_plants = names
+    plant_models = {p: load_plant(p) for p in eval_plants}  # loaded once for the study
     kwargs = env_kwargs(inputs, base, s, names)
     zero = lambda obs: np.zeros((len(obs), 1))  # noqa: E731 - the base itself
     t0 = time.perf_counter()
     base_eval = {p: evaluate_policy(zero, inputs, kwargs, held_out, p) for p in eval_plants}
     _, actual_opts = inputs.settings.options(1)
     base_margins = (
-        {p: measure_margins(pid_runner(base, actual_opts, inputs.reference), p,
-                            inputs.disturbance).as_dict() for p in eval_plants}
+        {p: measure_margins(pid_runner(base, actual_opts, inputs.reference), plant_models[p],
+                            inputs.disturbance, inputs.ideal).as_dict() for p in eval_plants}
         if base is not None else {}
     )  # fmt: skip
     tasks = [
@@ -441,8 +442,8 @@ def _run_seed(task: _SeedTask) -> dict[str, Any]:
         for p in task.plants:
             ideal, runs, _, _ = evaluate_policy(agent, inputs, task.kwargs, held_out, p)
             margins = measure_margins(
-                policy_runner(agent, dict(task.kwargs, plant=p), inputs.reference), p,
-                inputs.disturbance,
+                policy_runner(agent, dict(task.kwargs, plant=p), inputs.reference),
+                load_plant(p), inputs.disturbance, inputs.ideal,
             )  # fmt: skip
             entry["plants"][p] = {
                 "ideal": ideal,

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import load_plant
 from tuners import cli
 from tuners.interface import Budget, Tuned
 
@@ -103,13 +104,14 @@ def _held_out(inputs: cli.Inputs, per_seed: list[dict[str, Any]], plants: list[s
     """Each seed's gains on the held-out seeds of the actual model (mean over ``plants``): the
     cost a gains file of that seed would report, and its constraint verdict on every plant."""
     ideal_opts, actual_opts = inputs.settings.options(1)
+    on = [inputs.for_plant(load_plant(p)) for p in plants]  # loaded once for every seed
     for e in per_seed:
         e["held_out_cost"] = e["meets_constraints"] = None
         if e["gains"] is None:
             continue
         costs, meets = [], True
-        for plant in plants:
-            ev = cli.evaluate_inputs(inputs.for_plant(plant), PIDGains(*e["gains"]), actual_opts,
+        for plant_inputs in on:
+            ev = cli.evaluate_inputs(plant_inputs, PIDGains(*e["gains"]), actual_opts,
                                      ideal_opts, cross=False)  # fmt: skip
             costs.append(float(ev.actual["mean"]["cost"]))
             meets = meets and bool(ev.robustness["meets_constraints"])
