@@ -13,8 +13,12 @@ from gripper_env.evaluation.objective import load_objective
 from gripper_env.evaluation.stability import stability_report
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import load_plant
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.sim import simulate
+
+TEST2 = load_plant("test2")
+ACTUAL = load_disturbance("actual")
 
 
 def _expected_reward(plant, gains, traj, disturbance, preset="actual"):
@@ -40,7 +44,7 @@ def test_reward_is_minus_objective_cost_of_simulate(action):
         "test2", "step", gains=[signed_log_gains(action)], disturbance="actual",
         seeds=info0["noise_seed"],
     )  # fmt: skip
-    cost, feasible, expected = _expected_reward("test2", signed_log_gains(action), traj, "actual")
+    cost, feasible, expected = _expected_reward(TEST2, signed_log_gains(action), traj, ACTUAL)
     assert info["cost"] == pytest.approx(cost, rel=1e-12)
     assert info["feasible"] == feasible
     if feasible:
@@ -82,7 +86,7 @@ def test_reward_with_randomised_episode_matches_simulate():
         seeds=info0["noise_seed"],
     )  # fmt: skip
     cost, feasible, expected = _expected_reward(
-        info0["plant"], signed_log_gains(action), traj, ep.disturbance
+        load_plant(info0["plant"]), signed_log_gains(action), traj, ep.disturbance
     )
     assert feasible == (reward >= -cost - 1e-9)
     if feasible:

@@ -15,6 +15,8 @@ from gripper_env.model.plants import load_plant
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.sim import BatchSimulator, simulate
 
+TEST2, TEST3, TEST4 = load_plant("test2"), load_plant("test3"), load_plant("test4")
+ACTUAL = load_disturbance("actual")  # the loop as it runs: servo refresh and sensor delay
 OPTUNA_OLD = (0.3712425487944064, 98.64068524172313, -0.002567357793555773)  # issue 11's winner
 
 
@@ -31,7 +33,7 @@ def _python_control_loop(plant: str, gains: tuple[float, float, float], sign: in
 
 @pytest.mark.parametrize("gains", [(1.0, 9.0, -0.001), (-0.4, 7.0, -0.045), OPTUNA_OLD])
 def test_1ms_loop_frequency_response_equals_python_control(gains):
-    analysis = LoopAnalysis("test2", ServoLoop(refresh_steps=1))
+    analysis = LoopAnalysis(TEST2, ServoLoop(refresh_steps=1))
     reference = _python_control_loop("test2", gains)
     idx = np.linspace(0, len(analysis.omega) - 2, 25).astype(int)
     ours = analysis.loop_gain([gains])[0, idx]
@@ -57,7 +59,7 @@ def test_lifted_model_reproduces_the_simulation_core_at_every_latch(delay_steps)
     sim.reset(5.0, 0)
     n = 600
     _, _, _, y_true = sim.advance(n, np.zeros(n))
-    analysis = LoopAnalysis("test3", ServoLoop(refresh_steps=20, delay_steps=delay_steps))
+    analysis = LoopAnalysis(TEST3, ServoLoop(refresh_steps=20, delay_steps=delay_steps))
     p = load_plant("test3")
     x0, u0 = p.rest_state(5.0)
     w = np.zeros(analysis.phi.shape[0])
@@ -91,7 +93,7 @@ def _grows(gains, scale: float, plant: str = "test2", delay_s: float = 0.0) -> b
 def test_gain_margin_with_the_hold_agrees_with_the_simulation_core(plant, gains):
     """Independent computation: scale the gains in the core's own sampled-data loop. Below the
     computed gain margin the oscillation decays, above it it grows."""
-    report = stability_report(plant, PIDGains(*gains), disturbance=_refresh_only())
+    report = stability_report(load_plant(plant), PIDGains(*gains), disturbance=_refresh_only())
     gm = report.gain_margin_db
     assert gm is not None and 0.5 < gm < 30
     assert not _grows(gains, 10 ** ((gm - 0.3) / 20), plant)
@@ -100,7 +102,7 @@ def test_gain_margin_with_the_hold_agrees_with_the_simulation_core(plant, gains)
 
 def test_issue_figures_the_hold_takes_the_margin():
     """Issue 11's measurement: the old Optuna winner had 48 dB at 1 ms and 3.1 dB with the hold."""
-    report = stability_report("test2", PIDGains(*OPTUNA_OLD))
+    report = stability_report(TEST2, PIDGains(*OPTUNA_OLD), disturbance=ACTUAL)
     assert report.loop_1ms["gain_margin_db"] == pytest.approx(48.48, abs=0.05)
     assert report.gain_margin_db == pytest.approx(3.07, abs=0.05)
     assert report.ms > 10 and report.loop_1ms["ms"] == pytest.approx(2.68, abs=0.01)
@@ -112,11 +114,11 @@ def test_margins_match_python_control_on_the_lifted_loop():
     """python-control's margins of the lifted system equal the grid-based ones (where its
     polynomial route is well conditioned: the 20 ms loop)."""
     gains = PIDGains(*OPTUNA_OLD)
-    ss = lifted_loop("test2", gains)
+    ss = lifted_loop(TEST2, gains, disturbance=ACTUAL)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         gm, pm, sm, *_ = control.stability_margins(ss)
-    report = stability_report("test2", gains)
+    report = stability_report(TEST2, gains, disturbance=ACTUAL)
     assert report.gain_margin_db == pytest.approx(20 * math.log10(gm), abs=0.02)
     assert report.phase_margin_deg == pytest.approx(pm, abs=0.05)
     assert report.ms == pytest.approx(1 / sm, rel=1e-3)
@@ -126,12 +128,12 @@ def test_phase_margin_predicts_the_tolerable_delay():
     """A loop with phase margin PM at crossover wc tolerates a sensor delay below PM / wc: the
     analysis with the delay and the core's loop with the delay agree on stability."""
     gains = (2.0, 30.0, 0.0)
-    base = stability_report("test3", PIDGains(*gains), disturbance=_refresh_only())
+    base = stability_report(TEST3, PIDGains(*gains), disturbance=_refresh_only())
     wc = 2 * math.pi * base.gain_crossover_hz
     limit_ms = math.radians(base.phase_margin_deg) / wc * 1e3
     for delay_ms in (int(limit_ms * 0.6), int(limit_ms * 1.4)):
         rep = stability_report(
-            "test3", PIDGains(*gains), disturbance=_refresh_only(0.020, delay_ms * 1e-3)
+            TEST3, PIDGains(*gains), disturbance=_refresh_only(0.020, delay_ms * 1e-3)
         )
         assert rep.stable == (delay_ms < limit_ms)
         assert rep.stable == (not _grows(gains, 1.0, "test3", delay_ms * 1e-3))
@@ -142,7 +144,7 @@ def test_phase_margin_predicts_the_tolerable_delay():
 def test_pole_verdict_agrees_with_simulation_on_test4(name, sign):
     """Independent check: the verdict with the hold <=> the core's loop with the hold diverges."""
     gains = PAPER_GAINS[name]
-    report = stability_report("test4", PIDGains(*gains), sign, disturbance=_refresh_only())
+    report = stability_report(TEST4, PIDGains(*gains), sign, disturbance=_refresh_only())
     ref = np.concatenate([np.full(1000, 92.0), np.full(10_000, 21.0)])
     traj = simulate(
         "test4", ref, gains=[gains], disturbance=_refresh_only(), pid_options=PIDOptions(sign=sign)
@@ -152,19 +154,22 @@ def test_pole_verdict_agrees_with_simulation_on_test4(name, sign):
 
 
 def test_paper_facts():
+    def report(name, sign=1):
+        return stability_report(TEST2, PIDGains(*PAPER_GAINS[name]), sign, disturbance=ACTUAL)
+
     # Table 3's TF gains are stable on test2 with e = r - y; the hardware gains only with e = y - r
-    assert stability_report("test2", PIDGains(*PAPER_GAINS["tuned_tf"])).stable
-    assert stability_report("test2", PIDGains(*PAPER_GAINS["untuned_tf"])).stable
+    assert report("tuned_tf").stable
+    assert report("untuned_tf").stable
     for hw in ("untuned_hw", "tuned_hw"):
-        assert not stability_report("test2", PIDGains(*PAPER_GAINS[hw]), sign=1).stable
-        assert stability_report("test2", PIDGains(*PAPER_GAINS[hw]), sign=-1).stable
+        assert not report(hw, sign=1).stable
+        assert report(hw, sign=-1).stable
     # the untuned gains have a small phase margin (the ~40 % overshoot), smaller with the hold
-    rep = stability_report("test2", PIDGains(*PAPER_GAINS["untuned_tf"]))
+    rep = report("untuned_tf")
     assert 10 < rep.phase_margin_deg < rep.loop_1ms["phase_margin_deg"] < 35
 
 
 def test_batch_equals_one_by_one():
-    analysis = LoopAnalysis("test2", ServoLoop(refresh_steps=20))
+    analysis = LoopAnalysis(TEST2, ServoLoop(refresh_steps=20))
     gains = np.array([[1.0, 9.0, -0.001], [4.4, 50.0, 0.0], [0.37, 98.6, -0.0026]])
     batch = analysis.robustness(gains)
     for i, g in enumerate(gains):
@@ -174,7 +179,7 @@ def test_batch_equals_one_by_one():
 
 
 def test_report_is_serialisable_and_checks_its_input():
-    d = stability_report("test2", PIDGains(1.0, 9.0, -0.001)).as_dict()
+    d = stability_report(TEST2, PIDGains(1.0, 9.0, -0.001), disturbance=ACTUAL).as_dict()
     assert set(d) >= {
         "stable",
         "max_pole_magnitude",
@@ -188,13 +193,13 @@ def test_report_is_serialisable_and_checks_its_input():
     }
     assert d["refresh_period_s"] == pytest.approx(0.020)
     with pytest.raises(ValueError, match="sign"):
-        stability_report("test2", PIDGains(1.0, 9.0, -0.001), sign=0)
+        stability_report(TEST2, PIDGains(1.0, 9.0, -0.001), sign=0, disturbance=ACTUAL)
     with pytest.raises(ValueError, match="gains"):
-        LoopAnalysis("test2", ServoLoop()).robustness(np.array([[1.0, np.nan, 0.0]]))
+        LoopAnalysis(TEST2, ServoLoop()).robustness(np.array([[1.0, np.nan, 0.0]]))
 
 
 def test_stable_ms_is_robustness_without_the_margins():
-    analysis = LoopAnalysis("test4", ServoLoop())
+    analysis = LoopAnalysis(TEST4, ServoLoop())
     rng = np.random.default_rng(0)
     gains = np.column_stack([rng.uniform(-1, 10, 50), rng.uniform(-20, 300, 50),
                              rng.uniform(-0.01, 0.01, 50)])  # fmt: skip

@@ -5,7 +5,9 @@ import json
 
 import pytest
 
+from gripper_env.evaluation.objective import load_objective
 from gripper_env.io.files import write_json
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.gains_file import (
     FORMAT_VERSION,
     GainsFileError,
@@ -13,13 +15,22 @@ from gripper_env.model.gains_file import (
     load_gains_file,
 )
 from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 from tuners.evaluation import evaluate
+
+ACTUAL, IDEAL = load_disturbance("actual"), load_disturbance("ideal")
+OBJECTIVE = load_objective()
 
 
 def _content(plant="test2", gains=None, sign=1):
     gains = gains or PIDGains(1.0, 9.0, -0.001)
     opts = PIDOptions(output_limits=(0.0, 180.0), sign=sign)
-    ev = evaluate(plant, gains, opts, seeds=[100000, 100001])
+    p = load_plant(plant)
+    ev = evaluate(
+        p, gains, opts, profile=load_reference("step", p.dt_s), disturbance=ACTUAL, ideal=IDEAL,
+        objective=OBJECTIVE, seeds=[100000, 100001],
+    )  # fmt: skip
     return build_gains_file(
         plant=plant,
         tuner="manual",

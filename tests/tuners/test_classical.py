@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from gripper_env.evaluation.objective import load_objective
 from gripper_env.evaluation.stability import stability_report
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDGains
@@ -16,19 +17,21 @@ from tuners.classical import command as classical_command
 from tuners.classical.rules import _Context
 from tuners.settings import ClassicalSettings
 
-ACTUAL = load_disturbance("actual")
+TEST2, TEST3 = load_plant("test2"), load_plant("test3")
+ACTUAL, IDEAL = load_disturbance("actual"), load_disturbance("ideal")
+OBJECTIVE = load_objective()
 
 
 def test_fopdt_of_test2_is_its_fast_pole():
     # test2 ~ 10.35 / (s + 10.34) over seconds: gain ~1, tau ~ 1/10.34 s; theta = 10 ms + 1 ms
-    model = classical.fit_fopdt(load_plant("test2"), ACTUAL, ClassicalSettings())
+    model = classical.fit_fopdt(TEST2, ACTUAL, ClassicalSettings())
     assert model.k == pytest.approx(1.0, abs=0.01)
     assert model.tau_s == pytest.approx(1 / 10.34, abs=0.002)
     assert model.theta_s == pytest.approx(0.011)
 
 
 def _design(method, m, **settings):
-    ctx = _Context(load_plant("test2"), _loop())
+    ctx = _Context(TEST2, _loop())
     return classical.METHODS[method](m, ClassicalSettings(**settings), ctx)
 
 
@@ -62,12 +65,12 @@ def test_formula_methods_by_hand():
 def test_migo_is_the_largest_integral_gain_with_ms_14():
     """MIGO's definition, checked on the loop as it runs: Ms = 1.4 at the design, and no PI
     with a larger I stays within Ms 1.4 (a grid of P around it)."""
-    gains, _ = classical.design("migo", load_plant("test2"), ACTUAL, ClassicalSettings())
-    report = stability_report("test2", gains)
+    gains, _ = classical.design("migo", TEST2, ACTUAL, ClassicalSettings())
+    report = stability_report(TEST2, gains, disturbance=ACTUAL)
     assert report.stable and report.ms == pytest.approx(1.4, abs=0.005)
     from gripper_env.evaluation.scoring import loop_analysis
 
-    analysis = loop_analysis(load_plant("test2"), _loop())
+    analysis = loop_analysis(TEST2, _loop())
     kp = np.linspace(0.5 * gains.P, 1.5 * gains.P, 41)
     trial = np.column_stack([kp, np.full_like(kp, gains.I * 1.03), np.zeros_like(kp)])
     r = analysis.robustness(trial)
@@ -75,21 +78,24 @@ def test_migo_is_the_largest_integral_gain_with_ms_14():
 
 
 def test_pidtune_has_a_60_degree_phase_margin_at_its_highest_feasible_crossover():
-    gains, tuning = classical.design("pidtune", load_plant("test3"), ACTUAL, ClassicalSettings())
-    report = stability_report("test3", gains)
+    gains, tuning = classical.design("pidtune", TEST3, ACTUAL, ClassicalSettings())
+    report = stability_report(TEST3, gains, disturbance=ACTUAL)
     assert report.phase_margin_deg == pytest.approx(60.0, abs=0.5)
     assert report.gain_margin_db >= 6.0
     assert report.gain_crossover_hz == pytest.approx(tuning["crossover_hz"], rel=0.01)
     # a higher crossover with PM 60 would cost the 6 dB gain margin
-    faster = stability_report("test3", PIDGains(gains.P * 1.15, gains.I * 1.15, 0.0))
+    faster = stability_report(
+        TEST3, PIDGains(gains.P * 1.15, gains.I * 1.15, 0.0), disturbance=ACTUAL
+    )
     assert faster.gain_margin_db < 6.0
 
 
 @pytest.mark.parametrize("method", ["amigo-pi", "migo"])
 def test_robust_designs_meet_the_constraints_on_the_loop_as_it_runs(method):
     for plant in ("test2", "test3", "test4"):
-        gains, _ = classical.design(method, load_plant(plant), ACTUAL, ClassicalSettings())
-        assert stability_report(plant, gains).meets(1.6, 6.0), (method, plant)
+        model = load_plant(plant)
+        gains, _ = classical.design(method, model, ACTUAL, ClassicalSettings())
+        assert stability_report(model, gains, disturbance=ACTUAL).meets(1.6, 6.0), (method, plant)
 
 
 def test_all_methods_from_the_command_line(tmp_path, capsys, small_eval_config):
@@ -122,7 +128,7 @@ def test_a_rules_knob_is_set_to_its_best_feasible_value(method):
     gains, tuning = classical.constrained_design(
         method, inputs.plant, ACTUAL, ClassicalSettings(), scorer
     )
-    assert stability_report("test2", gains).meets(1.6, 6.0)
+    assert stability_report(TEST2, gains, disturbance=ACTUAL).meets(1.6, 6.0)
     knob = tuning["knob"]
     assert tuning["on_bound"] == [] and knob["range"][0] < knob["value"] < knob["range"][1]
     best = scorer.score(gains.as_array()[None, :])
@@ -140,13 +146,16 @@ def test_simc_at_tau_c_equal_theta_misses_ms_and_its_knob_repairs_it():
     textbook allows; with its knob it meets Ms <= 1.6."""
     from tuners.tasks import make_scorer
 
-    fixed, _ = classical.design("simc", load_plant("test2"), ACTUAL, ClassicalSettings())
-    assert stability_report("test2", fixed).ms > 1.6
+    fixed, _ = classical.design("simc", TEST2, ACTUAL, ClassicalSettings())
+    assert stability_report(TEST2, fixed, disturbance=ACTUAL).ms > 1.6
     inputs = _inputs("test2")
     gains, tuning = classical.constrained_design(
         "simc", inputs.plant, ACTUAL, ClassicalSettings(), make_scorer(inputs)
     )
-    assert stability_report("test2", gains).ms <= 1.6 and tuning["knob"]["value"] > 1.0
+    assert (
+        stability_report(TEST2, gains, disturbance=ACTUAL).ms <= 1.6
+        and tuning["knob"]["value"] > 1.0
+    )
 
 
 def _inputs(plant):
@@ -155,9 +164,9 @@ def _inputs(plant):
 
     p = load_plant(plant)
     return cli.Inputs(p, ACTUAL, load_reference("step", p.dt_s), EvaluationSettings(), "actual",
-                      "step")  # fmt: skip
+                      "step", OBJECTIVE, IDEAL)  # fmt: skip
 
 
 def test_unknown_method_is_refused(tmp_path, capsys):
     with pytest.raises(ValueError, match="unknown method"):
-        classical.design("zn", load_plant("test2"), ACTUAL, ClassicalSettings())
+        classical.design("zn", TEST2, ACTUAL, ClassicalSettings())

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from gripper_env.evaluation.metrics import compute_metrics
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
+from gripper_env.model.plants import load_plant
 from gripper_env.model.references import step_profile
 from gripper_env.sim import simulate
 from tuners.benchmark.limit import least_iae
@@ -14,7 +16,9 @@ from tuners.benchmark.oracle import OracleSettings, run_oracle
 from tuners.probe import probe_disturbance
 
 SHORT = step_profile(hold_s=0.3, grip_s=1.5, ungrip_s=1.5)  # 3.3 s
-HOLD = probe_disturbance("actual")  # the transfer function with the 20 ms hold, 0-180 deg
+TEST2 = load_plant("test2")
+ACTUAL, IDEAL = load_disturbance("actual"), load_disturbance("ideal")
+HOLD = probe_disturbance(ACTUAL, IDEAL)  # the transfer function with the 20 ms hold, 0-180 deg
 
 
 def _iae(traj) -> float:
@@ -23,7 +27,7 @@ def _iae(traj) -> float:
 
 @pytest.fixture(scope="module")
 def limit():
-    return least_iae("test2", SHORT, "actual")
+    return least_iae(TEST2, SHORT, ACTUAL)
 
 
 def test_the_limits_commands_replayed_through_the_core_give_its_iae(limit):
@@ -47,19 +51,19 @@ def test_no_controller_beats_the_limit(limit):
 
 def test_an_unbounded_command_range_is_refused():
     with pytest.raises(ValueError, match="bounded command range"):
-        least_iae("test2", SHORT, "ideal")
+        least_iae(TEST2, SHORT, IDEAL)
 
 
 def test_the_oracle_that_knows_everything_reaches_the_limit(limit):
     """On the frictionless loop it models exactly, with the profile ahead, the MPC's receding
     horizon gives (nearly) the limit: an independent check of both."""
-    traj = run_oracle("test2", SHORT, HOLD, np.array([0]), randomize=False,
+    traj = run_oracle(TEST2, SHORT, HOLD, np.array([0]), randomize=False,
                       settings=OracleSettings(preview=True))  # fmt: skip
     assert _iae(traj) == pytest.approx(limit.iae, rel=0.02)
 
 
 def test_the_oracle_on_the_actual_gripper_settles_and_tracks():
-    traj = run_oracle("test2", SHORT, "actual", np.array([100000, 100001]),
+    traj = run_oracle(TEST2, SHORT, ACTUAL, np.array([100000, 100001]),
                       settings=OracleSettings(preview=False))  # fmt: skip
     m = compute_metrics(traj, "true")
     assert m.stable.all() and np.all(m.run["iae"] < 20.0)

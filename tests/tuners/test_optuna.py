@@ -299,9 +299,12 @@ def test_results_meet_the_constraints_and_flag_bounds(
     content = json.loads(out)
     assert content["tuning"]["feasible"] and content["robustness"]["meets_constraints"]
     from gripper_env.evaluation.stability import stability_report
+    from gripper_env.model.disturbances import load_disturbance
     from gripper_env.model.pid import PIDGains
+    from gripper_env.model.plants import load_plant
 
-    report = stability_report("test2", PIDGains(content["P"], content["I"], content["D"]))
+    gains = PIDGains(content["P"], content["I"], content["D"])
+    report = stability_report(load_plant("test2"), gains, disturbance=load_disturbance("actual"))
     assert report.ms <= 1.6 and report.gain_margin_db >= 6.0
     space = content["tuning"]["search_space"]["ranges"]
     assert space["I"]["high"] == pytest.approx(3.0 * 90.83, rel=0.01)  # scaled by the plant

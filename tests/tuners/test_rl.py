@@ -12,12 +12,20 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
+from gripper_env.evaluation.objective import load_objective
 from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 from tests.tuners.conftest import REPO
 from tuners import cli
 from tuners.rl import command as rl
 from tuners.settings import OptunaSettings, load_settings
+
+TEST2 = load_plant("test2")
+ACTUAL, IDEAL = load_disturbance("actual"), load_disturbance("ideal")
+OBJECTIVE = load_objective()
 
 #: The budget option appended to each command of the README and docs (the only change).
 BUDGET = {
@@ -102,7 +110,7 @@ def test_the_tuner_exports_the_best_evaluated_gains(tmp_path, capsys, small_eval
     # the exported gains meet the constraints on the loop as it runs (checked independently)
     from gripper_env.model.pid import PIDGains
 
-    assert stability_report("test2", PIDGains(*best["gains"])).meets(1.6, 6.0)
+    assert stability_report(TEST2, PIDGains(*best["gains"]), disturbance=ACTUAL).meets(1.6, 6.0)
 
 
 def test_the_same_seed_gives_the_same_gains(tmp_path, small_eval_config):
@@ -148,12 +156,15 @@ def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins
     assert not (validation & tuning) and not (validation & held_out) and not (tuning & held_out)
     # the base's figures are what every tuner's evaluation gives that PID
     options = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
-    pid = evaluate("test2", PIDGains_(2.4, 39.0, 0.0), options, seeds=sorted(held_out))
+    pid = evaluate(
+        TEST2, PIDGains_(2.4, 39.0, 0.0), options, profile=load_reference("step", TEST2.dt_s),
+        disturbance=ACTUAL, ideal=IDEAL, objective=OBJECTIVE, seeds=sorted(held_out),
+    )  # fmt: skip
     assert content["base"]["actual"]["mean"]["cost"] == pytest.approx(
         pid.actual["mean"]["cost"], rel=1e-12
     )
     # the base PID's measured gain margin is its linear one (the probe's validation)
-    linear = stability_report("test2", PIDGains_(2.4, 39.0, 0.0)).gain_margin_db
+    linear = stability_report(TEST2, PIDGains_(2.4, 39.0, 0.0), disturbance=ACTUAL).gain_margin_db
     assert content["base"]["measured_margins"]["gain_margin_db"] == pytest.approx(linear, abs=0.3)
     assert set(content["measured_margins"]["per_seed"]) == {"0", "1"}
     # per held-out seed, the row's cost is the mean over the training seeds

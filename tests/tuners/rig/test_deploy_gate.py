@@ -3,9 +3,14 @@
 import json
 
 from gripper_env.evaluation.stability import stability_report
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.gains_file import load_gains_file
 from gripper_env.model.pid import PIDGains
+from gripper_env.model.plants import load_plant
 from tests.tuners.conftest import REPO, run_cli
+
+TEST2 = load_plant("test2")
+ACTUAL = load_disturbance("actual")  # the loop as the board runs it: the 20 ms command hold
 
 # The old Optuna winner scaled by 1.5: 48 dB of gain margin at 1 ms, unstable with the hold.
 FRAGILE = (1.5 * 0.3712425, 1.5 * 98.640685, 1.5 * -0.0025673578)
@@ -23,7 +28,7 @@ def _gains_file(path, gains):
 
 
 def test_gains_stable_at_1ms_but_not_with_the_hold_are_refused(tmp_path):
-    report = stability_report("test2", PIDGains(*FRAGILE))
+    report = stability_report(TEST2, PIDGains(*FRAGILE), disturbance=ACTUAL)
     assert report.loop_1ms["stable"] and report.loop_1ms["gain_margin_db"] > 40
     assert not report.stable
     out = tmp_path / "out"
@@ -47,7 +52,7 @@ def test_a_plant_tuned_from_a_users_file_is_gated_on_that_plant(tmp_path):
     plant_file = tmp_path / "mygripper.yaml"
     plant_file.write_text(yaml.safe_dump(spec))
     robust_on_test2 = (3.43, 67.5, -0.0087)  # Ms 1.52, GM 10.9 dB on test2 with the hold
-    assert stability_report("test2", PIDGains(*robust_on_test2)).stable
+    assert stability_report(TEST2, PIDGains(*robust_on_test2), disturbance=ACTUAL).stable
     proc = run_cli(
         "tuners.manual", "--plant", str(plant_file), "--out", str(tmp_path / "res"),
         "--gains", ",".join(map(str, robust_on_test2)), "--json",
