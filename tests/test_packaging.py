@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 SETUPTOOLS = PYPROJECT["tool"]["setuptools"]
 #: What the wheel is built from (the rest of the tree is not packaged).
-SOURCES = ("pyproject.toml", "README.md", "gripper_env", "tuners", "rig", "benchmarks", "configs")
+SOURCES = ("pyproject.toml", "README.md", "gripper_env", "tuners", "configs")
 
 
 def _package_dir(package: str) -> Path:
@@ -61,6 +61,8 @@ def test_every_package_of_the_source_tree_is_listed():
     # no other top-level package hides beside them (tests are not shipped)
     tops = {p.name for p in ROOT.iterdir() if (p / "__init__.py").is_file()} - {"tests"}
     assert tops <= set(SOURCES), tops
+    # the wheel installs no generic top-level name (no `rig`, no `benchmarks`)
+    assert {package.split(".")[0] for package in listed} == {"gripper_env", "tuners"}
 
 
 def test_every_config_file_is_package_data():
