@@ -38,8 +38,10 @@ from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
+from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.gains_file import load_gains_file
 from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import load_plant
 from gripper_env.model.references import step_profile
 from gripper_env.paper import PID_GAINS
 from gripper_env.sim import simulate
@@ -59,13 +61,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.gains is None:
         plant, gains = "test2", PIDGains(*PID_GAINS["tuned_tf"])
         options = PIDOptions(output_limits=(21.0, 92.0), anti_windup="clamping")
-        label = "the paper's tuned gains"
+        label, model = "the paper's tuned gains", load_plant(plant)
     else:
         loaded = load_gains_file(args.gains)
         plant, gains, options, label = loaded.plant, loaded.gains, loaded.options, args.gains
+        model = loaded.plant_model()  # the transfer function the gains were tuned on
 
-    # the gate: refuse gains whose loop, as the board runs it, is unstable
-    report = stability_report(plant, gains, options.sign)
+    # the gate: refuse gains whose loop, as the board runs it (the actual servo's 20 ms command
+    # hold and sensor delay), is unstable
+    report = stability_report(model, gains, options.sign, disturbance=load_disturbance("actual"))
     gm = report.gain_margin_db
     print(
         f"gate: {label} on {plant} are {'stable' if report.stable else 'UNSTABLE'} with the "

@@ -26,9 +26,6 @@ from __future__ import annotations
 import argparse
 import time
 
-from gripper_env.model.disturbances import load_disturbance
-from gripper_env.model.plants import load_plant
-from gripper_env.model.references import load_reference
 from tuners import cli
 from tuners.interface import Budget
 from tuners.manual import PAPER_GAINS
@@ -39,16 +36,8 @@ from tuners.settings import EvaluationSettings, SeedRange
 def make_inputs(plant_name: str, eval_seeds: int) -> cli.Inputs:
     """What every tuner is given: the plant, the ``actual`` preset, the paper's step profile,
     and ``eval_seeds`` held-out disturbance seeds (disjoint from Optuna's tuning seeds)."""
-    plant = load_plant(plant_name)
     settings = EvaluationSettings(seeds=SeedRange(start=100_000, count=eval_seeds))
-    return cli.Inputs(
-        plant=plant,
-        disturbance=load_disturbance("actual"),
-        reference=load_reference("step", plant.dt_s),
-        settings=settings,
-        disturbance_name="actual",
-        profile_name="step",
-    )
+    return cli.load_inputs(plant_name, "actual", "step", settings=settings)
 
 
 def margins(robustness: dict) -> str:

@@ -143,16 +143,44 @@ class Inputs:
         return replace(self, plant=plant, reference=ref)
 
 
+def load_inputs(
+    plant: str = "test2",
+    disturbance: str = "actual",
+    profile: str = "step",
+    *,
+    settings: EvaluationSettings | None = None,
+    eval_config: str | None = None,
+    objective: str | None = None,
+) -> Inputs:
+    """The common inputs from names or file paths, each loaded once: what every tuner is given.
+
+    Parameters
+    ----------
+    plant, disturbance, profile : str
+        A plant, an actual-gripper preset and a reference profile (names or YAML/CSV paths).
+    settings : EvaluationSettings, optional
+        How gains are evaluated (held-out seeds, randomisation); default ``eval_config``'s.
+    eval_config, objective : str, optional
+        YAML files of the evaluation settings and of the objective (default: the shipped ones).
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError, ValueError
+        A name, path or file that does not load; the message names it.
+    """
+    p = load_plant(plant)
+    return Inputs(
+        p, load_disturbance(disturbance), load_reference(profile, p.dt_s),
+        settings or load_settings(EvaluationSettings, eval_config), str(disturbance),
+        str(profile), load_objective(objective), load_disturbance("ideal"),
+    )  # fmt: skip
+
+
 def resolve(args: argparse.Namespace) -> Inputs:
     """Load and check the common inputs (ConfigError/ValueError) before anything is written."""
-    plant = load_plant(args.plant)
-    disturbance = load_disturbance(args.disturbance)
-    reference = load_reference(args.profile, plant.dt_s)
-    settings = load_settings(EvaluationSettings, args.eval_config)
-    objective = load_objective(getattr(args, "objective", None))
-    return Inputs(
-        plant, disturbance, reference, settings, str(args.disturbance), str(args.profile),
-        objective, load_disturbance("ideal"),
+    return load_inputs(
+        args.plant, args.disturbance, args.profile,
+        eval_config=args.eval_config, objective=getattr(args, "objective", None),
     )  # fmt: skip
 
 
