@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
 from gripper_env.evaluation.metrics import step_metrics
 from gripper_env.io.files import save_figure
@@ -538,12 +539,16 @@ def budget_plot(
         ax.step(x, y, where="post", label=label)
     ax.set_xscale("log")
     ax.set_yscale("log")
+    # plain numbers at 1, 1.2, 1.5, 2, 3, 5, 7 per decade: the final costs sit within a decade
+    ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 1.2, 1.5, 2.0, 3.0, 5.0, 7.0)))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("simulated episodes (20 s runs on the actual model)")
     ax.set_ylabel("best feasible cost so far (tuning seeds)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    return save_figure(fig, path, bbox_inches="tight")
+    return save_figure(fig, path, bbox_inches="tight", colors=256)
 
 
 def learning_curve_plot(
@@ -567,10 +572,11 @@ def learning_curve_plot(
     """
     fig, ax = plt.subplots(figsize=(7, 4.2))
     x = np.asarray(curves[0][0], dtype=float)
-    ys = np.array([np.asarray(c[1], dtype=float) for c in curves if len(c[1]) == len(x)])
-    for i, y in enumerate(ys):
-        ax.plot(x, y, lw=0.7, alpha=0.5,
-                label=(labels[i] if labels else ("seeds" if i == 0 else None)))  # fmt: skip
+    keep = [i for i, c in enumerate(curves) if len(c[1]) == len(x)]
+    ys = np.array([np.asarray(curves[i][1], dtype=float) for i in keep])
+    for j, (i, y) in enumerate(zip(keep, ys, strict=True)):  # each seed its colour, not the mean's
+        ax.plot(x, y, lw=0.8, alpha=0.7, color=f"C{j % 9 + 1}",
+                label=(labels[i] if labels else ("seeds" if j == 0 else None)))  # fmt: skip
     if len(ys) > 1:
         with np.errstate(all="ignore"):
             lo, hi, mean = np.nanmin(ys, axis=0), np.nanmax(ys, axis=0), np.nanmean(ys, axis=0)
@@ -588,8 +594,9 @@ def learning_curve_plot(
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    return save_figure(fig, path, bbox_inches="tight")
+    # beside the axes: the curves fill them, and a legend inside hid a part of them
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return save_figure(fig, path, bbox_inches="tight", colors=256)
 
 
 _KIND_STYLE = {
@@ -673,4 +680,4 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    return save_figure(fig, path, bbox_inches="tight")
+    return save_figure(fig, path, bbox_inches="tight", colors=256)
