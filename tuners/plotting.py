@@ -43,11 +43,13 @@ __all__ = [
 #: Most moves that get a zoom of their own (the step profile has two: the grip and the un-grip);
 #: a longer profile gets a zoom on its first grip and its first un-grip.
 MAX_ZOOMS = 4
-#: The zoom starts this long before the move (s).
+#: The zoom starts this long before the move (s): before a step; before a ramp's end (or
+#: before it settled, if earlier).
 ZOOM_BEFORE_S = 0.05
 #: The zoom ends this many times the later settling time (model or median seed) after the
-#: move, at least :data:`ZOOM_MIN_S`, at most :data:`ZOOM_MAX_S` (a later settling, a wobble
-#: out of the band long after the transient, is marked at the zoom's edge) and the segment.
+#: reference arrived, at least :data:`ZOOM_MIN_S`, at most :data:`ZOOM_MAX_S` after it (a
+#: later settling, a wobble out of the band long after the transient, is marked at the zoom's
+#: edge), and within the segment.
 ZOOM_SETTLING_FACTOR = 1.3
 ZOOM_MIN_S = 0.3
 ZOOM_MAX_S = 2.0
@@ -70,6 +72,9 @@ class StepZoom:
         The move (sample indices, initial and final reference in deg, kind).
     window_s : tuple of float
         The zoom's time span, from the move's first sample (s).
+    arrive_s : float
+        When the reference reaches its final value, from the move's first sample (s): 0 for a
+        step, the ramp's length for a ramp (the zoom is on its end).
     band_deg, model_band_deg : float
         Half-widths of the settling bands around the final value (deg): the actual model's
         (``max(2 %, the objective's floor on its preset)``) and the model's (on the ``ideal``
@@ -90,6 +95,7 @@ class StepZoom:
 
     segment: Segment
     window_s: tuple[float, float]
+    arrive_s: float
     band_deg: float
     model_band_deg: float
     model: dict[str, float]
@@ -187,11 +193,16 @@ def step_zooms(
         median_marks = _marks(ts, y[med, seg.start : seg.stop], seg, med_m) if stable[med] else {}
         settled = [d.get("settled_s", math.nan) for d in (model_marks, median_marks)]
         settled = [s for s in settled if np.isfinite(s)]
+        # a step arrives at once; a ramp at its end, where the overshoot and settling are
+        arrived = np.flatnonzero(np.isclose(ideal.r[0, seg.start : seg.stop], seg.final_deg))
+        arrive = float(ts[arrived[0]]) if arrived.size else 0.0
+        start = min([arrive, *settled]) - ZOOM_BEFORE_S
+        start = max(start, -(t[seg.start] - t[0]))
         span = ts[-1]
-        end = min(span, ZOOM_MAX_S,
-                  max(ZOOM_MIN_S, ZOOM_SETTLING_FACTOR * max(settled, default=span)))  # fmt: skip
-        zooms.append(StepZoom(seg, (-min(ZOOM_BEFORE_S, t[seg.start] - t[0]), float(end)),
-                              float(band), float(model_band), m, per, mean, med, model_marks,
+        late = ZOOM_SETTLING_FACTOR * (max(settled, default=span) - arrive)
+        end = min(span, arrive + ZOOM_MAX_S, arrive + max(ZOOM_MIN_S, late))
+        zooms.append(StepZoom(seg, (float(start), float(end)), float(arrive), float(band),
+                              float(model_band), m, per, mean, med, model_marks,
                               median_marks))  # fmt: skip
     return zooms
 
@@ -281,7 +292,7 @@ def response_figure(
         act_label += f" ({n_all - n_ok} diverged, not drawn)"
     if unstable:
         act_label += f"; {unstable} of {n_all} unstable (metrics inf)"
-    med_label = f"actual model, median seed ({seeds[med] if med < len(seeds) else med})"
+    med_label = f"actual model, median seed by IAE ({seeds[med] if med < len(seeds) else med})"
 
     # overview: the whole run, the zoom windows lettered
     ax = fig.add_subplot(grid[0], label="overview")
@@ -439,8 +450,9 @@ def _draw_zoom(
             multialignment="left",
             bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.92},
             zorder=6)  # fmt: skip
-    ax.set_title(f"{letter}: {seg.kind} {seg.initial_deg:g} → {final:g} deg at t = "
-                 f"{t[seg.start]:g} s", fontsize=9)  # fmt: skip
+    when = (f"at t = {t[seg.start]:g} s" if z.arrive_s == 0 else
+            f"ramp from t = {t[seg.start]:.3g} s to {t[seg.start] + z.arrive_s:.3g} s")  # fmt: skip
+    ax.set_title(f"{letter}: {seg.kind} {seg.initial_deg:g} → {final:g} deg {when}", fontsize=9)
     ax.set_ylabel("jaw angle (deg)", fontsize=8)
     ax.grid(alpha=0.3)
     ax.tick_params(labelsize=8, labelbottom=False)

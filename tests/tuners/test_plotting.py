@@ -178,7 +178,7 @@ def test_the_seeds_are_a_band_with_the_median_drawn(untuned, figure):
     assert iae[med] == sorted(iae)[len(iae) // 2]
     assert any(np.array_equal(line.get_ydata(), y[med]) for line in ax.lines)
     labels = [t.get_text() for t in figure.legends[0].get_texts()]
-    assert f"actual model, median seed ({SEEDS[med]})" in labels
+    assert f"actual model, median seed by IAE ({SEEDS[med]})" in labels
     assert f"actual model, min-max of {len(SEEDS)} seeds" in labels
 
 
@@ -200,3 +200,16 @@ def test_response_plot_writes_a_small_png(untuned, tmp_path):
         assert image.format == "PNG" and image.mode == "P"  # a palette: a third of the bytes
         assert image.size[0] >= 1000
     assert 20_000 < path.stat().st_size < 150_000
+
+
+def test_a_ramps_zoom_is_on_its_end():
+    """On a ramp the overshoot and the settling come where the reference arrives: the zoom is
+    there, not on the ramp's start."""
+    ev = evaluate("test2", PIDGains(1.0, 9.0, -0.001, 100.0), PIDOptions(), profile="ramp3",
+                  seeds=SEEDS[:1])  # fmt: skip
+    (z,) = step_zooms(ev, BAND)
+    assert z.arrive_s == pytest.approx(3.0, abs=2e-3)  # ramp3: 92 -> 21 deg over 3 s
+    assert z.window_s[0] < z.arrive_s < z.window_s[1] <= z.arrive_s + ZOOM_MAX_S
+    fig = response_figure(ev, "ramp", BAND)
+    assert "ramp from t = 1 s to 4 s" in fig.axes[1].get_title()
+    plt.close(fig)
