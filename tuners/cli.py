@@ -34,7 +34,7 @@ from tuners.evaluation import PAPER_PLANTS, Evaluation, evaluate, metric_rows
 from tuners.plotting import response_plot
 from tuners.settings import EvaluationSettings, load_settings
 
-__all__ = ["Inputs", "base_parser", "format_table", "publish", "resolve", "run"]
+__all__ = ["Inputs", "base_parser", "format_table", "plot_response", "publish", "resolve", "run"]
 
 #: Where commands write unless told otherwise (``--out``): not committed (``.gitignore``). The
 #: committed ``results/`` are regenerated explicitly (``python -m tuners.results``).
@@ -326,9 +326,20 @@ def write_result(
         f"P={content['P']:.4g} I={content['I']:.4g} D={content['D']:.4g} N={content['N']:.4g}, "
         f"{content['sign_convention']}, profile {inputs.profile_name}"
     )
-    band = inputs.objective.settling_band_deg(inputs.disturbance)
-    response_plot(ev, title, folder / f"{tuner}.png", settling_band_deg=band)
+    plot_response(inputs, ev, title, folder / f"{tuner}.png")
     return write_result_json(folder / f"{tuner}.json", content)
+
+
+def plot_response(inputs: Inputs, ev: Evaluation, title: str, path: Path) -> Path:
+    """:func:`tuners.plotting.response_plot` of ``ev`` with the objective's signal and settling
+    bands: on the inputs' preset for the actual model, on ``ideal`` for the model (each as
+    the evaluation scored it)."""
+    obj = inputs.objective
+    return response_plot(
+        ev, title, path, settling_band_deg=obj.settling_band_deg(inputs.disturbance),
+        model_settling_band_deg=obj.settling_band_deg(load_disturbance("ideal")),
+        signal=obj.signal,
+    )  # fmt: skip
 
 
 def publish(

@@ -12,7 +12,13 @@ import numpy as np
 
 from gripper_env.envs.episode import Episode, draw_episode
 from gripper_env.envs.plant_slots import PlantSlots
-from gripper_env.envs.rendering import RENDER_MODES, EpisodePlot, envelope, ylim_deg
+from gripper_env.envs.rendering import (
+    RENDER_MODES,
+    EpisodePlot,
+    command_ylim_deg,
+    envelope,
+    ylim_deg,
+)
 from gripper_env.envs.settings import Settings, parse_settings
 from gripper_env.envs.spaces import (
     OBS_BOUND,
@@ -491,7 +497,10 @@ class EpisodeRenderer:
         if self.plot is None:
             self.plot = EpisodePlot(human=self.mode == "human")
         ylim = ylim_deg(self.settings.jaw_range_deg, reference)
-        self.plot.start(self.title, len(reference) * dt, ylim)  # a new title: a full draw
+        span = self.settings.command_range_deg
+        # a new title: a full draw; the command axis holds the whole run's PID output
+        self.plot.start(self.title, len(reference) * dt, ylim, span,
+                        command_ylim_deg(span, runs.get("command")))  # fmt: skip
         if self.mode == "rgb_array":
             return self.plot.rgb(t_s, series)
         self.plot.show(t_s, series)

@@ -1,4 +1,5 @@
-"""Rendering of an episode: reference, jaw position and servo command against time (matplotlib).
+"""Rendering of an episode against time (matplotlib): the reference and the jaw position above,
+the controller's command below on its own axis with the servo's command range marked.
 
 :class:`EpisodePlot` keeps one figure for its environment's lifetime. Axes, ticks, legend and
 title are drawn once per episode (:meth:`EpisodePlot.start`; the time axis spans the whole
@@ -7,6 +8,10 @@ the canvas (matplotlib's ``draw_artist``), so a frame costs about the same at th
 episode as at its start, and far less than a full figure draw. The lines hold at most two points
 per control period (:class:`EpisodeRecorder`: the period's lowest and highest sample, at their own
 times), so the drawn envelope is the full 1 ms trace's at this resolution.
+
+The command's axis holds the command range and every command drawn so far: a command beyond it
+(a PID's output before the servo clips it) widens the axis and the frame is drawn again whole,
+so no spike is cut at the edge.
 
 ``rgb_array`` draws on an off-screen Agg canvas and returns an (H, W, 3) uint8 image; ``human``
 draws in a pyplot window (shown only if the backend is interactive; under a non-interactive
@@ -20,7 +25,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RENDER_MODES", "EpisodePlot", "EpisodeRecorder", "RowRenderer", "envelope", "ylim_deg"]
+__all__ = [
+    "RENDER_MODES",
+    "EpisodePlot",
+    "EpisodeRecorder",
+    "RowRenderer",
+    "command_ylim_deg",
+    "envelope",
+    "ylim_deg",
+]
 
 #: The render modes every simulated environment offers.
 RENDER_MODES = ("human", "rgb_array")
@@ -29,6 +42,8 @@ _FIGSIZE_IN = (6.4, 4.0)
 _DPI = 80
 SERIES = ("reference", "position", "command")
 _STYLES = {"reference": ("k--", 1.2), "position": ("C0-", 1.5), "command": ("C1-", 0.8)}
+#: The servo's command range (deg): the command axis's default, marked by dotted lines.
+SERVO_RANGE_DEG = (0.0, 180.0)
 _NON_INTERACTIVE = ("agg", "pdf", "ps", "svg", "cairo", "template")
 
 
@@ -138,37 +153,76 @@ class EpisodePlot:
             self.fig = Figure(figsize=_FIGSIZE_IN, dpi=_DPI)
             FigureCanvasAgg(self.fig)
         self.human = human
-        ax = self.fig.add_subplot(1, 1, 1)
+        grid = self.fig.add_gridspec(2, 1, height_ratios=[2.3, 1.0], hspace=0.08)
+        ax = self.fig.add_subplot(grid[0])
+        cax = self.fig.add_subplot(grid[1], sharex=ax)
         self.lines = {}
         for name in SERIES:
             style, width = _STYLES[name]
-            (line,) = ax.plot([], [], style, lw=width, label=f"{name} (deg)", animated=True)
+            (line,) = (cax if name == "command" else ax).plot(
+                [], [], style, lw=width, label=f"{name} (deg)", animated=True
+            )
             self.lines[name] = line
-        ax.set_xlabel("time (s)")
-        ax.set_ylabel("jaw angle (deg)")
-        ax.grid(True, alpha=0.3)
+        self._range_lines = [
+            cax.axhline(v, color="tab:red", ls=":", lw=0.8) for v in SERVO_RANGE_DEG
+        ]
+        ax.set_ylabel("jaw angle (deg)", fontsize=8)
+        ax.tick_params(labelbottom=False, labelsize=7)
+        cax.set_xlabel("time (s)", fontsize=8)
+        cax.set_ylabel("command (deg)", fontsize=8)
+        cax.tick_params(labelsize=7)
+        for a in (ax, cax):
+            a.grid(True, alpha=0.3)
         # the legend sits outside the axes: the frames' segments are drawn over what is there
         self.fig.legend(
-            handles=list(self.lines.values()), loc="lower center", ncol=3, fontsize=8,
-            frameon=False,
+            handles=[*self.lines.values(), self._range_lines[0]],
+            labels=[*(line.get_label() for line in self.lines.values()), "command range"],
+            loc="lower center", ncol=4, fontsize=7, frameon=False,
         )  # fmt: skip
-        self._title = ax.set_title("", fontsize=10)
+        self._title = ax.set_title("", fontsize=9)
         self.ax = ax
+        self.cax = cax
         self._drawn = 0  # points of the series already on the canvas
         self._started = False
         self._shown = False
         self._laid_out = False
 
-    def start(self, title: str, duration_s: float, ylim_deg: tuple[float, float]) -> None:
-        """A new episode: fixed axes for its whole duration, drawn once without lines."""
+    def start(
+        self,
+        title: str,
+        duration_s: float,
+        ylim_deg: tuple[float, float],
+        command_range_deg: tuple[float, float] = SERVO_RANGE_DEG,
+        command_ylim: tuple[float, float] | None = None,
+    ) -> None:
+        """A new episode: fixed axes for its whole duration, drawn once without lines.
+
+        Parameters
+        ----------
+        title : str
+            Title of the frames.
+        duration_s : float
+            The episode's length (s): the time axis.
+        ylim_deg : (float, float)
+            The angle axis (deg; :func:`ylim_deg`).
+        command_range_deg : (float, float)
+            The servo's command range (deg), marked on the command axis.
+        command_ylim : (float, float), optional
+            The command axis (deg); default :func:`command_ylim_deg` of the range alone. It
+            widens as commands beyond it are drawn.
+        """
         self._title.set_text(title)
         self.ax.set_xlim(0.0, max(duration_s, 1e-3))
         self.ax.set_ylim(*ylim_deg)
+        for line, value in zip(self._range_lines, command_range_deg, strict=True):
+            line.set_ydata([value, value])
+        self._command_range = command_range_deg
+        self.cax.set_ylim(*(command_ylim or command_ylim_deg(command_range_deg)))
         if self._plt is not None and self.interactive and not self._shown:
             self._plt.show(block=False)
             self._shown = True
         if not self._laid_out:  # once: the layout does not change between episodes
-            self.fig.tight_layout(rect=(0.0, 0.06, 1.0, 1.0))
+            self.fig.subplots_adjust(left=0.11, right=0.98, top=0.92, bottom=0.2)
             self._laid_out = True
         self.fig.canvas.draw()  # the lines are animated: not drawn here
         self._drawn = 0
@@ -181,12 +235,21 @@ class EpisodePlot:
         if n < self._drawn:
             raise ValueError("EpisodePlot: the series got shorter; call start() for a new episode")
         first = max(self._drawn - 1, 0)  # the new segments start at the last point drawn
+        command = series.get("command")
+        if command is not None and n > first:
+            lo, hi = self.cax.get_ylim()
+            new = np.asarray(command[first:n], dtype=float)
+            new = new[np.isfinite(new)]
+            if new.size and (new.min() < lo or new.max() > hi):  # widen, then draw all again
+                self.cax.set_ylim(*command_ylim_deg(self._command_range, command[:n]))
+                self.fig.canvas.draw()
+                first = 0
         for name, line in self.lines.items():
             values = series.get(name)
             if values is None or n - first < 2:
                 continue
             line.set_data(t_s[first:n], values[first:n])
-            self.ax.draw_artist(line)
+            (self.cax if name == "command" else self.ax).draw_artist(line)
         self._drawn = n
 
     def rgb(self, t_s: np.ndarray, series: dict[str, np.ndarray]) -> np.ndarray:
@@ -216,11 +279,26 @@ class EpisodePlot:
 
 
 def ylim_deg(jaw_range_deg: tuple[float, float], reference: np.ndarray) -> tuple[float, float]:
-    """Vertical range of the plot: the jaw range and the reference with a quarter range of room
-    (commands beyond it are drawn clipped at its edge)."""
+    """Vertical range of the angle axis: the jaw range and the reference with a quarter range
+    of room."""
     lo = min(jaw_range_deg[0], float(np.min(reference)))
     hi = max(jaw_range_deg[1], float(np.max(reference)))
     pad = 0.25 * (hi - lo)
+    return lo - pad, hi + pad
+
+
+def command_ylim_deg(
+    command_range_deg: tuple[float, float], command: np.ndarray | None = None
+) -> tuple[float, float]:
+    """Vertical range of the command axis: the command range and every (finite) value of
+    ``command`` (deg), with a tenth of the span of room."""
+    lo, hi = command_range_deg
+    if command is not None:
+        values = np.asarray(command, dtype=float)
+        values = values[np.isfinite(values)]
+        if values.size:
+            lo, hi = min(lo, float(values.min())), max(hi, float(values.max()))
+    pad = 0.1 * (hi - lo)
     return lo - pad, hi + pad
 
 
@@ -254,7 +332,8 @@ class RowRenderer:
             self.plot = EpisodePlot(human=self.mode == "human")
         s = self.batch.settings
         duration = n_periods * s.n_sub * s.dt_s
-        self.plot.start(f"{self.name}: {title}", duration, ylim_deg(s.jaw_range_deg, values))
+        self.plot.start(f"{self.name}: {title}", duration, ylim_deg(s.jaw_range_deg, values),
+                        s.command_range_deg)  # fmt: skip
         self.started = True
 
     def record(self) -> None:

@@ -5,7 +5,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import ENV_IDS, GAIN_SCHEDULE, SERVO
+from helpers import ENV_IDS, GAIN_SCHEDULE, PID_TUNE, SERVO
 
 import gripper_env  # noqa: F401
 
@@ -83,3 +83,42 @@ def test_human_under_agg(env_id):
         env.step(env.action_space.sample())
         assert env.render() is None
         env.close()
+
+
+def test_the_command_has_its_own_axis_that_holds_every_command():
+    """Below the angle, the controller's output on its own axis, the servo's range dotted; a
+    command beyond the axis widens it and the frame is drawn again whole (nothing cut at the
+    edge, nothing lost)."""
+    env = gym.make(GAIN_SCHEDULE, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    first = None
+    for i in range(400):
+        env.step(env.action_space.sample())
+        if i % 50 == 49:
+            image = env.render()
+            first = first or env.unwrapped._renderer.plot.cax.get_ylim()
+    plot = env.unwrapped._renderer.plot
+    _, series = env.unwrapped._renderer.recorder.series()
+    lo, hi = plot.cax.get_ylim()
+    command = series["command"]
+    assert command.max() > 180.0 or command.min() < 0.0  # gains that push the PID's output out
+    assert lo < min(0.0, command.min()) and hi > max(180.0, command.max())
+    assert (lo, hi) != first  # widened on the way
+    levels = sorted(line.get_ydata()[0] for line in plot.cax.lines if line.get_linestyle() == ":")
+    assert levels == [0.0, 180.0]
+    t, _ = position_pixels(env, image)
+    assert t.min() == pytest.approx(0.0, abs=0.1)  # the redraw kept the episode's start
+    env.close()
+
+
+def test_a_pid_tune_frame_holds_the_whole_runs_command():
+    env = gym.make(PID_TUNE, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.ones(env.action_space.shape, np.float32))  # the largest gains
+    env.render()
+    renderer = env.unwrapped._renderer
+    lo, hi = renderer.plot.cax.get_ylim()
+    u = renderer.run[2]
+    assert lo < min(0.0, u.min()) and hi > max(180.0, u.max())
+    env.close()

@@ -73,6 +73,30 @@ def test_save_figure_writes_the_format_of_the_suffix_and_closes(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["f.png", "f.svg"]
 
 
+def test_save_figure_with_a_palette_is_smaller_and_refuses_other_formats(tmp_path):
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    def figure():
+        fig, ax = plt.subplots()
+        x = np.linspace(0, 20, 4000)
+        ax.plot(x, np.sin(x) + 0.05 * np.random.default_rng(0).standard_normal(x.size))
+        ax.fill_between(x, np.sin(x) - 0.3, np.sin(x) + 0.3, alpha=0.3)
+        return fig
+
+    full = save_figure(figure(), tmp_path / "full.png")
+    small = save_figure(figure(), tmp_path / "small.png", colors=256)
+    with Image.open(small) as image:
+        assert image.mode == "P" and image.size == Image.open(full).size
+    assert small.stat().st_size < 0.7 * full.stat().st_size
+    for name, colors in (("f.svg", 256), ("f.png", 1), ("f.png", 257)):
+        fig = figure()
+        with pytest.raises(ValueError, match="palette of 2 to 256"):
+            save_figure(fig, tmp_path / name, colors=colors)
+        assert not plt.fignum_exists(fig.number)
+    assert sorted(os.listdir(tmp_path)) == ["full.png", "small.png"]
+
+
 def test_read_format_json_names_the_file_and_what_is_wrong(tmp_path):
     good = write_json(tmp_path / "g.json", {"format": "gripper-x", "a": 1})
     assert read_format_json(good, "gripper-x", "x file") == {"format": "gripper-x", "a": 1}

@@ -492,6 +492,7 @@ def figures(data: dict[str, Any], out: Path) -> list[Path]:
                 curves, out / "figures" / f"rl_tune_{where}.png",
                 f"{where}: RL PID tuner, the policy's gains on the tuning seeds "
                 f"({len(curves)} seeds)", "training episodes", "tuning cost", lines=lines,
+                labels=[f"seed {k}" for k in t["curves"]],
             ))  # fmt: skip
         elif row["kind"] == "controller" and row.get("learning_curve"):
             c = row["learning_curve"]

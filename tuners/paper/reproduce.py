@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +56,62 @@ def _fmt(x: float, digits: int = 3) -> str:
     return "inf" if not np.isfinite(x) else f"{x:.{digits}f}"
 
 
+#: The `step` profile's moves (s): the grip and the un-grip.
+STEP_MOVES_S = (1.0, 10.0)
+
+
+def zoom_insets(
+    ax: Any,
+    draw: Callable[[Any], None],
+    windows_s: Sequence[tuple[float, float]],
+    rects: Sequence[tuple[float, float, float, float]],
+) -> list[Any]:
+    """Zoomed copies of a time plot: ``draw(axes)`` once per window, each in an inset at
+    ``rect`` (axes fractions, where the curves never go), linked to its window on ``ax``.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        The whole run.
+    draw : callable
+        Draws the curves on the axes it is given (the same as on ``ax``).
+    windows_s : sequence of (float, float)
+        Time spans to zoom on (s).
+    rects : sequence of (x, y, width, height)
+        Where each inset sits, in fractions of ``ax``.
+
+    Returns
+    -------
+    list of matplotlib.axes.Axes
+        The insets, labelled ``zoom A``, ``zoom B``, ...; the vertical range of each holds
+        every curve within its window.
+    """
+    insets = []
+    for i, ((t0, t1), rect) in enumerate(zip(windows_s, rects, strict=True)):
+        axin = ax.inset_axes(rect, label=f"zoom {chr(ord('A') + i)}")
+        draw(axin)
+        ys = [np.asarray(line.get_ydata(), dtype=float)[
+                  (np.asarray(line.get_xdata(), dtype=float) >= t0)
+                  & (np.asarray(line.get_xdata(), dtype=float) <= t1)]
+              for line in axin.lines]  # fmt: skip
+        for coll in axin.collections:
+            for path in coll.get_paths():
+                v = path.vertices
+                ys.append(v[(v[:, 0] >= t0) & (v[:, 0] <= t1), 1])
+        y = np.concatenate(ys)
+        y = y[np.isfinite(y)]
+        pad = 0.06 * (y.max() - y.min()) if y.size else 1.0
+        axin.set_xlim(t0, t1)
+        if y.size:
+            axin.set_ylim(y.min() - pad, y.max() + pad)
+        axin.set_title(f"{chr(ord('A') + i)}: t = {t0:g} to {t1:g} s", fontsize=7, pad=2)
+        axin.tick_params(labelsize=6)
+        axin.grid(alpha=0.3)
+        ax.indicate_inset_zoom(axin, edgecolor="0.35")
+        insets.append(axin)
+    return insets
+
+
 def _plants_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
     import matplotlib.pyplot as plt
 
@@ -68,8 +126,7 @@ def _plants_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
         "| plant | transfer function | paper fit % | poles (rad/s) | DC gain | grip rise / settling (s) | grip overshoot % | un-grip rise / settling (s) |",  # noqa: E501
         "|---|---|---|---|---|---|---|---|",
     ]
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    ax.plot(ref.t_s, ref.values_deg, "k--", lw=1, label="desired")
+    curves = []
     for name in PLANTS:
         plant = load_plant(name)
         traj = simulate(plant, ref, gains=None, disturbance="ideal")
@@ -83,14 +140,28 @@ def _plants_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
             f"{_fmt(m.grip['overshoot_pct'][0], 2)} | "
             f"{_fmt(m.ungrip['rise_time_s'][0])} / {_fmt(m.ungrip['settling_time_s'][0])} |"
         )
-        ax.plot(traj.t, traj.y_true[0], label=f"TF {name}")
+        curves.append((traj.t, traj.y_true[0], f"TF {name}"))
     actual = simulate("test2", ref, gains=None, disturbance="actual", seeds=seeds[:1])
-    ax.plot(actual.t, actual.y[0], lw=0.8, label="actual (simulated, measured)")
-    ax.set(xlabel="time (s)", ylabel="jaw angle (deg)", title="Open-loop step responses")
-    ax.legend(loc="center right", fontsize=8)
+    curves.append((actual.t, actual.y[0], f"actual (simulated, measured; seed {seeds[0]})"))
+
+    def draw(ax: Any) -> None:  # the actual gripper (test2 with friction) beneath TF test2
+        ax.plot(ref.t_s, ref.values_deg, "k--", lw=1, label="desired", zorder=3)
+        for i, (t, y, label) in enumerate(curves):
+            actual = "actual" in label
+            ax.plot(t, y, lw=0.8 if actual else 1.3, color=f"C{i}", label=label,
+                    zorder=1 if actual else 2)  # fmt: skip
+
+    fig, ax = plt.subplots(figsize=(9, 5))
+    draw(ax)
+    zoom_insets(ax, draw, [(m - 0.05, m + 0.6) for m in STEP_MOVES_S],
+                [(0.14, 0.2, 0.3, 0.45), (0.6, 0.09, 0.36, 0.45)])  # fmt: skip
+    ax.set(xlabel="time (s)", ylabel="jaw angle (deg)",
+           title="Open-loop step responses (insets: the first 0.6 s of each step)")  # fmt: skip
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=6, fontsize=8,
+               frameon=False, columnspacing=1.2)  # fmt: skip
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, fig_dir / "plants_step.png", dpi=110)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    save_figure(fig, fig_dir / "plants_step.png", dpi=110, colors=256)
     lines += [
         "",
         "test1's slow complex poles (time constant about 20 s) barely move within the 9 s hold:",
@@ -140,7 +211,11 @@ def _table2_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
     ungrip = (ref.t_s > 60.5) & (ref.t_s < 64.0)
     for ax, window, title in ((axes[0], grip, "(a) grip"), (axes[1], ungrip, "(b) un-grip")):
         ax.plot(ref.t_s[window], ref.values_deg[window], "k--", lw=1, label="desired")
-        ax.plot(actual.t[window], actual.y[0, window], lw=1.2, label="actual (simulated)")
+        ax.fill_between(actual.t[window], actual.y[:, window].min(axis=0),
+                        actual.y[:, window].max(axis=0), color="C0", alpha=0.3, lw=0,
+                        label=f"actual (simulated), min-max of {len(seeds)} seeds")  # fmt: skip
+        ax.plot(actual.t[window], actual.y[0, window], lw=0.8, color="C0",
+                label=f"actual, seed {seeds[0]}")  # fmt: skip
         ax.set(title=title, xlabel="time (s)", ylabel="jaw angle (deg)")
     gaps = {}
     for name in PLANTS:
@@ -154,12 +229,13 @@ def _table2_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
             f"{paper_gap:.3f} |"
         )
         for ax, window in ((axes[0], grip), (axes[1], ungrip)):
-            ax.plot(traj.t[window], traj.y_true[0, window], lw=1, label=f"TF {name}")
+            ax.plot(traj.t[window], traj.y_true[0, window], lw=1.2,
+                    color=f"C{1 + PLANTS.index(name)}", label=f"TF {name}")  # fmt: skip
     axes[1].legend(fontsize=8)
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    save_figure(fig, fig_dir / "figure9_direct_response.png", dpi=110)
+    save_figure(fig, fig_dir / "figure9_direct_response.png", dpi=110, colors=256)
     best = min(gaps, key=lambda k: abs(gaps[k]))
     fast = [gaps[k] for k in PLANTS[1:]]
     lines += [
@@ -181,8 +257,6 @@ def _table2_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
 
 
 def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
-    import matplotlib.pyplot as plt
-
     ref = load_reference("step")
     lines += [
         "## 3. Validation stage 2: PID on test2 (Tables 3-4, Figure 11)",
@@ -200,7 +274,7 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
         "| gains | P | I | D | error sign | model: grip / un-grip overshoot % | actual: grip / un-grip overshoot % | GM dB / Ms (20 ms hold) | model SD | actual SD | paper SD (model / actual) |",  # noqa: E501
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    panels = {}
     findings = {}
     for label, gains in PAPER_GAINS.items():
         hardware = "hardware" in label
@@ -209,18 +283,8 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
             lines.append(row)
             findings[(label, sign)] = (mm, at)
             if not hardware:
-                kind = "untuned" if label.startswith("untuned") else "tuned"
-                ax = axes[0] if kind == "untuned" else axes[1]
-                ax.plot(ref.t_s, ref.values_deg, "k--", lw=1, label="desired")
-                ax.plot(model.t, model.y_true[0], lw=1.2, label="model (TF test2)")
-                ax.plot(act.t, act.y[0], lw=0.9, label="actual (simulated)")
-                ax.set(title=f"({'a' if kind == 'untuned' else 'b'}) {kind} PID",
-                       xlabel="time (s)")  # fmt: skip
-                ax.grid(alpha=0.3)
-    axes[0].set_ylabel("jaw angle (deg)")
-    axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    save_figure(fig, fig_dir / "figure11_pid.png", dpi=110)
+                panels["untuned" if label.startswith("untuned") else "tuned"] = (model, act, at)
+    save_figure(figure11(ref, panels), fig_dir / "figure11_pid.png", dpi=110, colors=256)
     untuned, untuned_act = findings[("untuned (TF test2)", 1)]
     tuned, tuned_act = findings[("tuned (TF test2)", 1)]
     lines += [
@@ -237,6 +301,46 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
         "![Figure 11](figures/figure11_pid.png)",
         "",
     ]
+
+
+def figure11(ref: Reference, panels: dict[str, tuple[Trajectory, Trajectory, Metrics]]) -> Any:
+    """The paper's Figure 11: per gain set (``untuned``, ``tuned``: the model's trajectory, the
+    actual gripper's over the seeds and their metrics of the true angle), the model's response
+    and the actual gripper's measured angle (what the paper's Arduino recorded) over the seeds
+    as a band (min to max) with the median seed (by IAE), and a zoom inset on each step."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), sharey=True)
+    for ax, (kind, (model, act, at)) in zip(axes, panels.items(), strict=False):
+        ok = np.isfinite(act.y).all(axis=1)
+        iae = np.where(np.isfinite(at.run["iae"]), at.run["iae"], np.inf)
+        med = int(np.argsort(iae, kind="stable")[len(iae) // 2])
+
+        draw = partial(_figure11_curves, ref=ref, model=model, act=act, ok=ok, med=med)
+        draw(ax)
+        zoom_insets(ax, draw, [(m - 0.1, m + 1.0) for m in STEP_MOVES_S],
+                    [(0.18, 0.42, 0.28, 0.5), (0.6, 0.08, 0.37, 0.45)])  # fmt: skip
+        ax.set(title=f"({'a' if kind == 'untuned' else 'b'}) {kind} PID", xlabel="time (s)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("jaw angle (deg)")
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize=8,
+               frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    return fig
+
+
+def _figure11_curves(
+    ax: Any, *, ref: Reference, model: Trajectory, act: Trajectory, ok: np.ndarray, med: int
+) -> None:
+    """Figure 11's curves on ``ax``: the actual gripper's seeds ``ok`` as a band, its seed
+    ``med`` and the model."""
+    ax.plot(ref.t_s, ref.values_deg, "k--", lw=1, label="desired")
+    if ok.any():
+        ax.fill_between(act.t, act.y[ok].min(axis=0), act.y[ok].max(axis=0), color="C1",
+                        alpha=0.3, lw=0,
+                        label=f"actual (simulated), min-max of {int(ok.sum())} seeds")  # fmt: skip
+    ax.plot(act.t, act.y[med], color="C1", lw=0.8, label="actual, median seed")
+    ax.plot(model.t, model.y_true[0], color="C0", lw=1.2, label="model (TF test2)")
 
 
 def _table34_row(

@@ -134,7 +134,6 @@ def _f(x: float | None) -> str:
 def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) -> dict[str, Any]:
     """Run ``agent`` on the inputs' plant, preset and profile over the held-out seeds: print the
     metrics table, write the response plot and a metrics file under ``<out>/play/``."""
-    from tuners.plotting import response_plot
     from tuners.rl.agents import agent_kwargs
     from tuners.rl.controller import evaluate_policy
 
@@ -148,9 +147,9 @@ def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) 
     name = f"{inputs.plant.name}-{Path(inputs.disturbance_name).stem}"
     folder = Path(out) / "play" / name
     ev = Evaluation(ideal, summary, runs, {}, [int(s) for s in seeds], ideal_traj, actual_traj)
-    plot = response_plot(ev, f"{inputs.plant.name}, agent {agent.facts.get('seed', '')} "
-                             f"({agent.env_id}), preset {inputs.disturbance_name}",
-                         folder / "response.png")  # fmt: skip
+    plot = cli.plot_response(inputs, ev, f"{inputs.plant.name}, agent "
+                             f"{agent.facts.get('seed', '')} ({agent.env_id}), preset "
+                             f"{inputs.disturbance_name}", folder / "response.png")  # fmt: skip
     content = {
         "format": "gripper-policy-metrics",
         "plant": inputs.plant.name,
