@@ -14,6 +14,8 @@ from PIL import Image
 from gripper_env.evaluation.objective import load_objective
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import load_plant
+from gripper_env.model.references import load_reference
 from tuners.evaluation import evaluate
 from tuners.plotting import (
     SERVO_RANGE_DEG,
@@ -29,15 +31,18 @@ from tuners.plotting import (
 )
 
 SEEDS = (100000, 100001, 100002)
+TEST2, ACTUAL, IDEAL = load_plant("test2"), load_disturbance("actual"), load_disturbance("ideal")
+OBJECTIVE = load_objective()
 #: The actual model's settling-band floor with the shipped objective (its friction band, deg).
-BAND = load_objective().settling_band_deg(load_disturbance("actual"))
+BAND = OBJECTIVE.settling_band_deg(ACTUAL)
 
 
-def _evaluate(gains: tuple[float, float, float]):
+def _evaluate(gains: tuple[float, float, float], profile: str = "step", seeds=SEEDS):
     return evaluate(
-        "test2", PIDGains(*gains, 100.0),
+        TEST2, PIDGains(*gains, 100.0),
         PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping"),
-        seeds=SEEDS, ideal_options=PIDOptions(),
+        profile=load_reference(profile, TEST2.dt_s), disturbance=ACTUAL, ideal=IDEAL,
+        objective=OBJECTIVE, seeds=seeds, ideal_options=PIDOptions(),
     )  # fmt: skip
 
 
@@ -205,8 +210,9 @@ def test_response_plot_writes_a_small_png(untuned, tmp_path):
 def test_a_ramps_zoom_is_on_its_end():
     """On a ramp the overshoot and the settling come where the reference arrives: the zoom is
     there, not on the ramp's start."""
-    ev = evaluate("test2", PIDGains(1.0, 9.0, -0.001, 100.0), PIDOptions(), profile="ramp3",
-                  seeds=SEEDS[:1])  # fmt: skip
+    ev = evaluate(TEST2, PIDGains(1.0, 9.0, -0.001, 100.0), PIDOptions(),
+                  profile=load_reference("ramp3", TEST2.dt_s), disturbance=ACTUAL, ideal=IDEAL,
+                  objective=OBJECTIVE, seeds=SEEDS[:1])  # fmt: skip
     (z,) = step_zooms(ev, BAND)
     assert z.arrive_s == pytest.approx(3.0, abs=2e-3)  # ramp3: 92 -> 21 deg over 3 s
     assert z.window_s[0] < z.arrive_s < z.window_s[1] <= z.arrive_s + ZOOM_MAX_S
