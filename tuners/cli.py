@@ -24,7 +24,7 @@ from typing import Any
 
 from gripper_env.evaluation.objective import Objective, load_objective
 from gripper_env.io.config import ConfigError
-from gripper_env.io.files import write_result_json
+from gripper_env.io.files import collect_provenance, write_result_json
 from gripper_env.model.disturbances import Disturbance, load_disturbance
 from gripper_env.model.gains_file import GainsFileError, build_gains_file, provenance
 from gripper_env.model.pid import PIDGains, PIDOptions
@@ -316,8 +316,10 @@ def guard_overwrite(path: Path, budget: int, force: bool, key: str = "budget_epi
 def write_result(
     out: str | Path, inputs: Inputs, content: dict[str, Any], ev: Evaluation, force: bool = False
 ) -> Path:
-    """Write ``<out>/<plant>/<tuner>.png`` and ``.json`` (atomically); return the JSON path.
-    A result from a larger budget is kept unless ``force`` (:func:`guard_overwrite`)."""
+    """Write ``<out>/<plant>/<tuner>.png`` and ``.json`` (atomically) and the run's provenance
+    sidecar ``<tuner>.provenance.json`` (inside another run, such as the benchmark, that run's
+    sidecar holds it); return the JSON path. A result from a larger budget is kept unless
+    ``force`` (:func:`guard_overwrite`)."""
     folder = Path(out) / inputs.plant.name
     tuner, label = content["tuner"], content.get("label", "")
     guard_overwrite(folder / f"{tuner}.json", int(content.get("budget_episodes", 0)), force)
@@ -326,8 +328,11 @@ def write_result(
         f"P={content['P']:.4g} I={content['I']:.4g} D={content['D']:.4g} N={content['N']:.4g}, "
         f"{content['sign_convention']}, profile {inputs.profile_name}"
     )
-    plot_response(inputs, ev, title, folder / f"{tuner}.png")
-    return write_result_json(folder / f"{tuner}.json", content)
+    # one sidecar for the run (<tuner>.provenance.json), or the enclosing run's (the benchmark's)
+    command = (content.get("provenance") or {}).get("command")
+    with collect_provenance(folder, tuner, command=command):
+        plot_response(inputs, ev, title, folder / f"{tuner}.png")
+        return write_result_json(folder / f"{tuner}.json", content)
 
 
 def plot_response(inputs: Inputs, ev: Evaluation, title: str, path: Path) -> Path:

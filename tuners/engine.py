@@ -124,9 +124,10 @@ def gather_files(folder: str | os.PathLike[str]) -> dict[str, bytes]:
 
 
 def write_files(folder: str | os.PathLike[str], files: dict[str, bytes]) -> None:
-    """Write what :func:`gather_files` gathered under ``folder`` (on the driver); a result's
-    provenance sidecar goes where the driver's provenance goes
-    (:func:`gripper_env.io.files.record_provenance`)."""
+    """Write what :func:`gather_files` gathered under ``folder`` (on the driver); a task's
+    provenance sidecar is not written: the volatile values it took out of the task's files go
+    where the driver's provenance goes (:func:`gripper_env.io.files.record_provenance`, the
+    driver's run's sidecar)."""
     import json
 
     from gripper_env.io.files import record_provenance, write_atomic
@@ -134,7 +135,7 @@ def write_files(folder: str | os.PathLike[str], files: dict[str, bytes]) -> None
     for rel, data in files.items():
         target = Path(folder) / rel
         if target.name.endswith(".provenance.json"):
-            result = target.with_name(target.name.replace(".provenance.json", ".json"))
-            record_provenance(result, json.loads(data))
+            for name, volatile in (json.loads(data).get("files") or {}).items():
+                record_provenance(target.parent / name, volatile)
             continue
         write_atomic(target, data)

@@ -528,7 +528,7 @@ def response_plot(
     fig = response_figure(evaluation, title, settling_band_deg,
                           model_settling_band_deg=model_settling_band_deg,
                           signal=signal)  # fmt: skip
-    return save_figure(fig, path, dpi=100, colors=256)
+    return save_figure(fig, path, dpi=100)
 
 
 def budget_plot(
@@ -560,7 +560,7 @@ def budget_plot(
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    return save_figure(fig, path, bbox_inches="tight", colors=256)
+    return save_figure(fig, path, bbox_inches="tight")
 
 
 def learning_curve_plot(
@@ -608,7 +608,7 @@ def learning_curve_plot(
     ax.grid(alpha=0.3)
     # beside the axes: the curves fill them, and a legend inside hid a part of them
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    return save_figure(fig, path, bbox_inches="tight", colors=256)
+    return save_figure(fig, path, bbox_inches="tight")
 
 
 _KIND_STYLE = {
@@ -692,4 +692,4 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    return save_figure(fig, path, bbox_inches="tight", colors=256)
+    return save_figure(fig, path, bbox_inches="tight")

@@ -5,7 +5,16 @@ figures) writes through :func:`write_atomic`: a temporary file in the same folde
 :func:`os.replace`, which is atomic on the same file system. An interrupted write leaves the old
 file (or none), never a truncated one. On top of it, one of each flavour: :func:`write_json`
 (indented, numpy values made plain, non-finite numbers as ``null``), :func:`write_csv` (numeric
-columns under a header line, 6 decimals) and :func:`save_figure` (a matplotlib figure).
+columns under a header line, 6 decimals) and :func:`save_figure` (a matplotlib figure, without
+version or date, so the same figure gives the same bytes).
+
+Provenance (the commit, date, version, machine, command line and wall time of a run) is kept
+apart from the results, in one sidecar per run, ``<name>.provenance.json``
+(:func:`write_provenance`): every command that writes results opens
+:func:`collect_provenance` around its writes, and :func:`write_result_json` moves the volatile
+values of a JSON result (:data:`VOLATILE_KEYS`) into that sidecar. The results then depend on
+the numbers only: a rerun that reproduces them leaves every file, the sidecar included, as it
+was (the sidecar stays the one of the run that first wrote them).
 
 Logs that grow while a run goes (the rig's telemetry) are the exception: they are written under
 a ``.partial`` name and renamed when complete
@@ -16,12 +25,18 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import datetime as _dt
 import io
 import json
 import math
 import os
+import platform
+import subprocess
+import sys
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,17 +45,22 @@ import numpy as np
 from gripper_env.io.config import MAX_DATA_BYTES
 
 __all__ = [
+    "PROVENANCE_FORMAT",
     "VOLATILE_KEYS",
+    "ProvenanceRun",
     "collect_provenance",
+    "git_commit",
     "json_ready",
     "provenance_path",
     "read_format_json",
     "record_provenance",
+    "run_facts",
     "save_figure",
     "split_volatile",
     "write_atomic",
     "write_csv",
     "write_json",
+    "write_provenance",
     "write_result_json",
 ]
 
@@ -81,6 +101,9 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    run = _RUN.get()
+    if run is not None:
+        run.wrote(p, data if isinstance(data, bytes) else data.encode("utf-8"))
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     try:
         if isinstance(data, bytes):
@@ -96,26 +119,44 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     return p
 
 
-def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
+def write_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -> Path:
     """Write ``obj`` (made :func:`json_ready`) as indented JSON, atomically.
+
+    The same content gives the same bytes: keys in the order the content was built (the
+    writers build it in a fixed order), floats as Python's shortest round-trip ``repr``,
+    non-finite numbers as ``null``, a newline at the end.
 
     Raises
     ------
     ValueError
         ``obj`` holds something JSON cannot represent.
     """
-    return write_atomic(path, json.dumps(json_ready(obj), indent=2, allow_nan=False) + "\n")
+    text = json.dumps(json_ready(obj), indent=indent, allow_nan=False)
+    return write_atomic(path, text + "\n")
 
 
 #: Keys whose values change from run to run when the results do not (who ran it, when, how
-#: long): :func:`write_result_json` moves them to a provenance sidecar.
+#: long): :func:`write_result_json` moves them, at any depth, to the run's provenance sidecar.
 VOLATILE_KEYS = frozenset(
-    {"git_commit", "date", "python", "wall_time_s", "train_wall_time_s", "search_wall_time_s"}
+    {
+        "git_commit",
+        "date",
+        "python",
+        "wall_time_s",
+        "train_wall_time_s",
+        "search_wall_time_s",
+        "elapsed_s",
+    }
 )
 
-_SINK: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar(
-    "provenance_sink", default=None
-)
+#: The ``format`` of a provenance sidecar.
+PROVENANCE_FORMAT = "gripper-provenance"
+
+#: Libraries whose versions a sidecar records when the run loaded them.
+_LIBRARIES = (
+    "numpy", "scipy", "numba", "matplotlib", "gymnasium", "stable_baselines3", "torch",
+    "optuna", "control", "pydantic",
+)  # fmt: skip
 
 
 def split_volatile(obj: Any, where: str = "") -> tuple[Any, dict[str, Any]]:
@@ -143,42 +184,198 @@ def split_volatile(obj: Any, where: str = "") -> tuple[Any, dict[str, Any]]:
 
 
 def provenance_path(path: str | os.PathLike[str]) -> Path:
-    """``x.json`` -> ``x.provenance.json``: where a result's volatile provenance goes."""
+    """``x.json`` (or ``x.md``, ``x``) -> ``x.provenance.json``: a result's sidecar."""
     p = Path(path)
-    return p.with_name(f"{p.stem}.provenance{p.suffix or '.json'}")
+    return p.with_name(f"{p.stem if p.suffix else p.name}.provenance.json")
 
 
-def write_result_json(path: str | os.PathLike[str], obj: Any) -> Path:
-    """Write a result as :func:`write_json` does, its volatile provenance (commit, date, wall
-    times: :data:`VOLATILE_KEYS`) apart: into the sink of an enclosing
-    :func:`collect_provenance`, else into :func:`provenance_path`. A rerun with equal numbers
-    then leaves the result file byte for byte unchanged."""
-    stable, volatile = split_volatile(json_ready(obj))
-    record_provenance(path, volatile)
-    return write_json(path, stable)
+def git_commit() -> str | None:
+    """The commit of the project's checkout this code runs from (``None`` outside git)."""
+    out = _git("rev-parse", "HEAD")
+    return out.strip() or None if out is not None else None
 
 
-def record_provenance(path: str | os.PathLike[str], volatile: dict[str, Any]) -> None:
-    """Put a result's volatile provenance where :func:`write_result_json` puts it: the sink of
-    an enclosing :func:`collect_provenance`, else the sidecar :func:`provenance_path`."""
-    sink = _SINK.get()
-    if sink is not None:
-        sink[str(path)] = volatile
-    elif volatile:
-        write_json(provenance_path(path), volatile)
+def _git(*args: str) -> str | None:
+    try:
+        return subprocess.run(
+            ["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True,
+            timeout=10, check=True,
+        ).stdout  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def run_facts() -> dict[str, Any]:
+    """Who ran, where and when: the project's version and commit (``git_dirty``: with changes
+    not committed, to tracked files), Python, the machine, the versions of the libraries the run
+    loaded, the date (UTC) and the process's ``argv``."""
+    from gripper_env._version import __version__
+
+    status = _git("status", "--porcelain", "--untracked-files=no")
+    libraries = {}
+    for name in _LIBRARIES:
+        module = sys.modules.get(name)
+        if module is not None and isinstance(getattr(module, "__version__", None), str):
+            libraries[name] = module.__version__
+    return {
+        "version": __version__,
+        "git_commit": git_commit(),
+        "git_dirty": None if status is None else bool(status.strip()),
+        "python": platform.python_version(),
+        "machine": {
+            "system": platform.system(),
+            "release": platform.release(),
+            "arch": platform.machine(),
+            "cpus": os.cpu_count(),
+        },
+        "libraries": libraries,
+        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "argv": list(sys.argv),
+    }
+
+
+def write_provenance(
+    out_dir: str | os.PathLike[str],
+    name: str,
+    *,
+    command: str | None = None,
+    wall_time_s: float | None = None,
+    files: dict[str, dict[str, Any]] | None = None,
+    **extra: Any,
+) -> Path:
+    """Write a run's provenance sidecar, ``<out_dir>/<name>.provenance.json``: the command,
+    :func:`run_facts`, the wall time, ``extra`` facts of the command (load averages, thread
+    counts, ...) and ``files``: the volatile values taken out of each result file
+    (``{path relative to out_dir: {JSON pointer: value}}``, :func:`write_result_json`).
+
+    The one place where a result's commit, date, version, machine and wall time are written:
+    the result files themselves hold none of them, so that a rerun with the same numbers leaves
+    them byte for byte unchanged.
+    """
+    record = {
+        "format": PROVENANCE_FORMAT,
+        "command": command,
+        **run_facts(),
+        "wall_time_s": wall_time_s,
+        **extra,
+        "files": dict(sorted((files or {}).items())),
+    }
+    return write_json(Path(out_dir) / f"{name}.provenance.json", record)
+
+
+@dataclass
+class ProvenanceRun:
+    """What :func:`collect_provenance` gathers while its block runs."""
+
+    root: Path
+    #: volatile values per result file (path relative to ``root``)
+    files: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: facts of the command for the sidecar (:func:`write_provenance`'s ``extra``)
+    extra: dict[str, Any] = field(default_factory=dict)
+    written: int = 0
+    changed: bool = False
+
+    def key(self, path: str | os.PathLike[str]) -> str:
+        p = Path(path).resolve()
+        try:
+            return p.relative_to(self.root.resolve()).as_posix()
+        except ValueError:
+            return str(p)
+
+    def wrote(self, path: Path, data: bytes) -> None:
+        """Note a file written in the block and whether its bytes differ from the old file."""
+        self.written += 1
+        if not self.changed:
+            try:
+                same = path.stat().st_size == len(data) and path.read_bytes() == data
+            except OSError:
+                same = False
+            self.changed = not same
+
+
+_RUN: contextvars.ContextVar[ProvenanceRun | None] = contextvars.ContextVar(
+    "provenance_run", default=None
+)
 
 
 @contextlib.contextmanager
-def collect_provenance(path: str | os.PathLike[str], **extra: Any) -> Iterator[dict[str, Any]]:
-    """Gather the volatile provenance of every :func:`write_result_json` inside the block into
-    one sidecar at ``path`` (one per run), written when the block ends."""
-    sink: dict[str, Any] = {}
-    token = _SINK.set(sink)
+def collect_provenance(
+    out_dir: str | os.PathLike[str],
+    name: str,
+    *,
+    command: str | None = None,
+    started: float | None = None,
+    own: bool = False,
+    **extra: Any,
+) -> Iterator[ProvenanceRun]:
+    """One provenance sidecar for everything written inside the block (one per run):
+    ``<out_dir>/<name>.provenance.json`` (:func:`write_provenance`), written when the block
+    ends without an exception. ``started`` (:func:`time.perf_counter`) is when the run began
+    (default: when the block does); ``extra`` and the yielded run's ``extra`` are the command's
+    own facts.
+
+    Inside another run's block the block adds to that run (one sidecar, the outer one's),
+    unless ``own`` (a task's scratch folder whose files are sent back to the run that started
+    it: :func:`tuners.engine.write_files`).
+
+    A rerun whose files are byte for byte those on disk keeps the sidecar that is there (those
+    files are the earlier run's results, reproduced; the sidecar is only touched), so that
+    rerunning a command that reproduces its numbers leaves ``git diff`` empty.
+    """
+    outer = _RUN.get()
+    if outer is not None and not own:
+        outer.extra.update(extra)
+        yield outer
+        return
+    start = time.perf_counter() if started is None else started
+    run = ProvenanceRun(Path(out_dir), extra=dict(extra))
+    token = _RUN.set(run)
     try:
-        yield sink
+        yield run
     finally:
-        _SINK.reset(token)
-        write_json(path, {**extra, "files": dict(sorted(sink.items()))})
+        _RUN.reset(token)
+    sidecar = Path(out_dir) / f"{name}.provenance.json"
+    token = _RUN.set(None)  # the sidecar is no file of an enclosing run
+    try:
+        if run.written and not run.changed and sidecar.is_file():
+            os.utime(sidecar)
+        else:
+            write_provenance(out_dir, name, command=command,
+                             wall_time_s=time.perf_counter() - start, files=run.files,
+                             **run.extra)  # fmt: skip
+    finally:
+        _RUN.reset(token)
+
+
+def record_provenance(path: str | os.PathLike[str], volatile: dict[str, Any]) -> None:
+    """Put the volatile values taken out of the result at ``path`` into the run's sidecar
+    (:func:`collect_provenance`); outside a run, into a sidecar of its own
+    (:func:`provenance_path`)."""
+    if not volatile:
+        return
+    run = _RUN.get()
+    if run is not None:
+        run.files.setdefault(run.key(path), {}).update(volatile)
+        return
+    p = Path(path)
+    write_provenance(p.parent, provenance_path(p).name.removesuffix(".provenance.json"),
+                     files={p.name: volatile})  # fmt: skip
+
+
+def write_result_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -> Path:
+    """Write a result as :func:`write_json` does, its volatile values (commit, date, wall
+    times: :data:`VOLATILE_KEYS`) apart, in the run's provenance sidecar
+    (:func:`collect_provenance`; outside a run, in a sidecar of its own,
+    :func:`provenance_path`). A rerun with equal numbers then leaves the file byte for byte
+    unchanged."""
+    p = Path(path)
+    stable, volatile = split_volatile(json_ready(obj))
+    if _RUN.get() is not None:
+        record_provenance(p, volatile)
+        return write_json(p, stable, indent)
+    with collect_provenance(p.parent, provenance_path(p).name.removesuffix(".provenance.json")):
+        record_provenance(p, volatile)
+        return write_json(p, stable, indent)
 
 
 def read_format_json(
@@ -248,10 +445,13 @@ def save_figure(
     fig: Any,
     path: str | os.PathLike[str],
     dpi: float = 110,
-    colors: int | None = None,
+    palette: bool = True,
     **savefig_kwargs: Any,
 ) -> Path:
     """Render a matplotlib figure to ``path`` atomically, then close it.
+
+    The same figure gives the same bytes: no software version or date in the file (PNG text
+    chunks, PDF and SVG dates).
 
     Parameters
     ----------
@@ -261,30 +461,46 @@ def save_figure(
         Destination; its suffix is the format (``.png`` when it has none).
     dpi : float
         Resolution (dots per inch).
-    colors : int, optional
-        A PNG only: store it with a palette of at most this many colours (2 to 256, chosen
-        for the image). A line plot looks the same with 256 and takes about a third of the
-        bytes of full colour (figures committed to the repository stay small).
+    palette : bool
+        PNG: an opaque figure is stored with at most 256 colours (median cut, no dithering,
+        maximum compression): line plots look the same at about a third of the size. False
+        keeps every colour.
     **savefig_kwargs
         More options of :meth:`~matplotlib.figure.Figure.savefig` (``bbox_inches="tight"``).
     """
+    import matplotlib
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
-    fmt = Path(path).suffix.lstrip(".") or "png"
-    try:
-        if colors is not None and (fmt != "png" or not 2 <= colors <= 256):
-            raise ValueError(f"colors: a PNG's palette of 2 to 256, got {colors} for .{fmt}")
-        fig.savefig(buf, dpi=dpi, format=fmt, **savefig_kwargs)
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    metadata = {"png": {"Software": None}, "pdf": {"CreationDate": None, "Producer": None},
+                "svg": {"Date": None}}.get(fmt)  # fmt: skip
+    if metadata is not None:
+        savefig_kwargs.setdefault("metadata", metadata)
+    try:  # an SVG's element ids from a fixed salt, not from the process
+        with matplotlib.rc_context({"svg.hashsalt": "gripper-env"}):
+            fig.savefig(buf, dpi=dpi, format=fmt, **savefig_kwargs)
     finally:
         plt.close(fig)
-    if colors is None:
-        return write_atomic(path, buf.getvalue())
-    from PIL import Image  # matplotlib's own dependency
+    data = buf.getvalue()
+    if fmt == "png":
+        data = _compact_png(data, dpi, palette)
+    return write_atomic(path, data)
 
-    buf.seek(0)
-    with Image.open(buf) as image:
-        small = image.convert("RGB").quantize(colors, method=Image.Quantize.MEDIANCUT)
-    out = io.BytesIO()
-    small.save(out, format="PNG", optimize=True)
-    return write_atomic(path, out.getvalue())
+
+def _compact_png(data: bytes, dpi: float, palette: bool) -> bytes:
+    """The PNG again, with no text chunks, maximum compression and, with ``palette`` and no
+    transparency, at most 256 colours."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(data)) as image:
+        image.load()
+        im = image
+        if palette and im.mode == "RGBA" and im.getextrema()[3][0] == 255:
+            im = im.convert("RGB")
+        if palette and im.mode == "RGB":
+            im = im.quantize(colors=256, method=Image.Quantize.MEDIANCUT,
+                             dither=Image.Dither.NONE)  # fmt: skip
+        out = io.BytesIO()
+        im.save(out, format="png", optimize=True, dpi=(dpi, dpi))
+    return out.getvalue()

@@ -30,10 +30,10 @@
                                 and the worst case (``tuners.evaluation.cross_model``)
     tuning                      what the tuner wants to record (trials, best cost, study, search
                                 ranges, on_bound: gains within 2 % of a search bound, ...)
-    provenance                  command, config, seed, version (the commit, date, Python and
-                                wall times go to the sidecar ``<name>.provenance.json``, or
-                                the run's, :func:`gripper_env.io.files.write_result_json`: a rerun
-                                with equal numbers leaves the gains file unchanged)
+    provenance                  command, config, seed (the version, commit, date, machine and
+                                wall time go to the run's sidecar ``<name>.provenance.json``,
+                                :func:`gripper_env.io.files.write_provenance`: a rerun with
+                                equal numbers leaves the gains file unchanged)
 
 Infinite or undefined numbers (a run that never settles, an unstable run) are written as
 ``null``. Files are written atomically (:func:`gripper_env.io.files.write_json`), so a reader
@@ -42,10 +42,8 @@ never sees half a file.
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 import os
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,38 +75,22 @@ class GainsFileError(ValueError):
     """A gains file is missing, malformed, or from an incompatible format version."""
 
 
-def _git_commit() -> str | None:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=True,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
-
-
 def provenance(
     config: dict[str, Any] | None = None,
     seed: int | None = None,
     wall_time_s: float | None = None,
     command: str | None = None,
 ) -> dict[str, Any]:
-    """Who made a result: command line, configuration, seed, versions, date (UTC)."""
+    """What a result was made with: command line, configuration, seed, and how long it took
+    (``wall_time_s``, which :func:`gripper_env.io.files.write_result_json` moves to the run's
+    provenance sidecar with the commit, date and version,
+    :func:`gripper_env.io.files.write_provenance`)."""
     if command is None:
         command = " ".join(["python", *sys.argv])
     return {
         "command": command,
         "config": config or {},
         "seed": seed,
-        "version": __version__,
-        "git_commit": _git_commit(),
-        "python": sys.version.split()[0],
-        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "wall_time_s": wall_time_s,
     }
 

@@ -2,8 +2,9 @@
 as tables a reviewer can check against issue 23's acceptance figures.
 
 The Markdown holds only what the seeds determine (a rerun with equal numbers leaves it
-unchanged); the command, the run time and every record's numbers go in the JSON sidecar
-(:func:`sidecar`).
+unchanged); every record's numbers go in ``identification_coverage.json`` (:func:`sidecar`), the
+run times, commit and date in the run's provenance sidecar
+(:func:`gripper_env.io.files.write_provenance`).
 """
 
 from __future__ import annotations
@@ -94,8 +95,9 @@ def render_coverage_report(
         "# Identification you can trust: the delay sweep and the coverage of the 95 % intervals",
         "",
         f"Written by `{command}` (issue 23); every record is simulated from a known truth, so the",
-        "numbers are the estimator's, not a gripper's. Per-record numbers, the run time and the",
-        "commit are in `identification_coverage.json` beside this file.",
+        "numbers are the estimator's, not a gripper's. Per-record numbers are in",
+        "`identification_coverage.json` beside this file; the run times, commit and date in",
+        "`identification_coverage.provenance.json`.",
         "",
         "## 1. Dead time over the advertised range",
         "",
@@ -165,17 +167,15 @@ def _rounded(obj: Any, digits: int = 6) -> Any:
 
 
 def sidecar(
-    command: str,
-    elapsed_s: float,
     sweep: Sequence[SweepRow],
     tf: Coverage,
     greybox: Coverage,
-    provenance: dict[str, Any],
 ) -> dict[str, Any]:
-    """The JSON sidecar: provenance, run times and every record (floats to 6 digits)."""
+    """``identification_coverage.json``: every record (floats to 6 digits) and the coverage
+    fractions; the run times in it (``elapsed_s``) go to the run's provenance sidecar
+    (:func:`gripper_env.io.files.write_result_json`)."""
     return _rounded(
         {
-            "provenance": {**provenance, "command": command, "wall_time_s": round(elapsed_s, 1)},
             "delay_sweep": [
                 {
                     "true_s": r.true_s,

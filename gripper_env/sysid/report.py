@@ -9,13 +9,11 @@ beside the truth when the gripper was simulated).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
 from gripper_env import paper
-from gripper_env._version import __version__
 from gripper_env.io.files import save_figure
 from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.plants import Plant
@@ -212,7 +210,6 @@ def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plan
         "and the servo coefficients' hold every friction in that region (`python -m",
         "gripper_env.sysid coverage` checks that they cover the truth: "
         "`identification_coverage.md`).",
-        f"It took {a.elapsed_s:.1f} s.",
         "",
         "| parameter | identified | 95 % interval | truth (simulated gripper) | error |",
         "|---|---|---|---|---|",
@@ -267,7 +264,6 @@ def render_report(
     command: str,
     validation_text: str,
     figures: dict[str, str],
-    elapsed_s: float | None = None,
     true_plant: Plant | None = None,
     truth: Disturbance | None = None,
     plant_files: Sequence[Path] = (),
@@ -285,14 +281,12 @@ def render_report(
     figures : dict
         ``"validation"``, ``"actual"`` (with a grey-box fit) and each test name -> figure path
         relative to the report.
-    elapsed_s : float, optional
-        Wall time of the session (s).
     true_plant, truth : Plant and Disturbance, optional
         The simulated gripper, when simulated.
     plant_files : sequence of Path
         Plant (and preset) files written.
     """
-    lines = _header(run, command, elapsed_s)
+    lines = _header(run, command)
     lines += _table1_section(run, true_plant, figures)
     lines += _table2_section(run, validation_text, figures)
     if run.actual is not None:
@@ -301,8 +295,8 @@ def render_report(
     return "\n".join(lines)
 
 
-def _header(run: IdentificationRun, command: str, elapsed_s: float | None) -> list[str]:
-    """Title, provenance, the headline fits and the record's source."""
+def _header(run: IdentificationRun, command: str) -> list[str]:
+    """Title, the command, the headline fits and the record's source."""
     val = run.validation
     best = max(val.rows, key=lambda r: r.fit_pct)
     where = "simulated gripper" if run.source.startswith("simulated") else "board"
@@ -318,9 +312,8 @@ def _header(run: IdentificationRun, command: str, elapsed_s: float | None) -> li
     return [
         "# System identification: the paper's Table 1 and Table 2, rerun",
         "",
-        f"Written by `{command}` (gripper-env {__version__}, "
-        f"{datetime.now(UTC).strftime('%Y-%m-%d')})"
-        + (f"; the session took {elapsed_s:.1f} s." if elapsed_s is not None else "."),
+        f"Written by `{command}`; its commit, date, version, machine and run times: "
+        "`identification.provenance.json`.",
         f"Paper: {paper.CITATION}. Pipeline: `gripper_env.sysid.session`.",
         "",
         headline + ".",

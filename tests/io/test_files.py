@@ -73,7 +73,7 @@ def test_save_figure_writes_the_format_of_the_suffix_and_closes(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["f.png", "f.svg"]
 
 
-def test_save_figure_with_a_palette_is_smaller_and_refuses_other_formats(tmp_path):
+def test_save_figure_stores_a_palette_png_smaller_than_full_colour(tmp_path):
     import matplotlib.pyplot as plt
     from PIL import Image
 
@@ -84,17 +84,15 @@ def test_save_figure_with_a_palette_is_smaller_and_refuses_other_formats(tmp_pat
         ax.fill_between(x, np.sin(x) - 0.3, np.sin(x) + 0.3, alpha=0.3)
         return fig
 
-    full = save_figure(figure(), tmp_path / "full.png")
-    small = save_figure(figure(), tmp_path / "small.png", colors=256)
-    with Image.open(small) as image:
-        assert image.mode == "P" and image.size == Image.open(full).size
+    full = save_figure(figure(), tmp_path / "full.png", palette=False)
+    small = save_figure(figure(), tmp_path / "small.png")
+    with Image.open(small) as image, Image.open(full) as reference:
+        assert image.mode == "P" and image.size == reference.size
     assert small.stat().st_size < 0.7 * full.stat().st_size
-    for name, colors in (("f.svg", 256), ("f.png", 1), ("f.png", 257)):
-        fig = figure()
-        with pytest.raises(ValueError, match="palette of 2 to 256"):
-            save_figure(fig, tmp_path / name, colors=colors)
-        assert not plt.fignum_exists(fig.number)
-    assert sorted(os.listdir(tmp_path)) == ["full.png", "small.png"]
+    fig = figure()
+    assert not plt.fignum_exists(fig.number) or save_figure(fig, tmp_path / "f.svg")
+    assert not plt.fignum_exists(fig.number)  # closed whichever the format
+    assert sorted(os.listdir(tmp_path)) == ["f.svg", "full.png", "small.png"]
 
 
 def test_read_format_json_names_the_file_and_what_is_wrong(tmp_path):
@@ -109,3 +107,98 @@ def test_read_format_json_names_the_file_and_what_is_wrong(tmp_path):
         read_format_json(good, "gripper-y", "y file")
     with pytest.raises(ValueError, match=r"cannot read x file .*none\.json: No such file"):
         read_format_json(tmp_path / "none.json", "gripper-x", "x file")
+
+
+def test_a_run_writes_one_sidecar_with_its_provenance_and_the_volatile_values(tmp_path):
+    from gripper_env.io.files import collect_provenance, write_result_json
+
+    result = {"P": 1.0, "provenance": {"command": "x", "wall_time_s": 3.5},
+              "rows": [{"cost": 2.0, "train_wall_time_s": 9.0}]}  # fmt: skip
+    with collect_provenance(tmp_path, "study", command="python -m x", extra_fact=7):
+        write_result_json(tmp_path / "a.json", result)
+        with collect_provenance(tmp_path / "sub", "inner"):  # adds to the enclosing run
+            write_result_json(tmp_path / "sub" / "b.json", {"date": "today", "n": 1})
+        write_atomic(tmp_path / "c.md", "text\n")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == [
+        "a.json", "b.json", "c.md", "study.provenance.json", "sub"]  # fmt: skip
+    assert json.loads((tmp_path / "a.json").read_text()) == {
+        "P": 1.0, "provenance": {"command": "x"}, "rows": [{"cost": 2.0}]}  # fmt: skip
+    side = json.loads((tmp_path / "study.provenance.json").read_text())
+    assert side["format"] == "gripper-provenance" and side["command"] == "python -m x"
+    for key in ("version", "git_commit", "git_dirty", "python", "machine", "libraries", "date",
+                "argv", "wall_time_s"):  # fmt: skip
+        assert key in side
+    assert side["extra_fact"] == 7 and side["libraries"]["numpy"] == np.__version__
+    assert side["files"] == {
+        "a.json": {"/provenance/wall_time_s": 3.5, "/rows/0/train_wall_time_s": 9.0},
+        "sub/b.json": {"/date": "today"},
+    }
+
+
+def test_a_rerun_that_reproduces_every_file_keeps_the_sidecar(tmp_path):
+    """The no-churn rule: same bytes, same sidecar (only touched); a changed file, a new one."""
+    from gripper_env.io.files import collect_provenance, write_result_json
+
+    def run(value, wall):
+        with collect_provenance(tmp_path, "r", command="c"):
+            write_result_json(tmp_path / "r.json", {"v": value, "wall_time_s": wall})
+            write_atomic(tmp_path / "r.md", f"v = {value}\n")
+
+    run(1, 1.0)
+    sidecar = tmp_path / "r.provenance.json"
+    first = sidecar.read_bytes()
+    os.utime(sidecar, (0, 0))
+    run(1, 2.0)  # same numbers, another wall time
+    assert sidecar.read_bytes() == first and sidecar.stat().st_mtime > 0
+    run(2, 3.0)
+    assert json.loads(sidecar.read_text())["files"]["r.json"] == {"/wall_time_s": 3.0}
+
+
+def test_no_sidecar_for_a_failed_run_and_one_of_its_own_outside_a_run(tmp_path):
+    from gripper_env.io.files import collect_provenance, write_result_json
+
+    with pytest.raises(RuntimeError), collect_provenance(tmp_path, "failed"):
+        write_atomic(tmp_path / "partial.md", "x")
+        raise RuntimeError("boom")
+    assert not (tmp_path / "failed.provenance.json").exists()
+    write_result_json(tmp_path / "alone.json", {"v": 1, "elapsed_s": 0.5})
+    side = json.loads((tmp_path / "alone.provenance.json").read_text())
+    assert side["files"] == {"alone.json": {"/elapsed_s": 0.5}} and side["date"]
+
+
+def test_a_task_with_its_own_sidecar_inside_a_run(tmp_path):
+    """A task's scratch folder keeps its own sidecar (sent back to the driver, which records
+    its values: tuners.engine.write_files); the driver's run does not count the task's
+    sidecar as one of its files."""
+    from gripper_env.io.files import collect_provenance, write_result_json
+    from tuners.engine import gather_files, write_files
+
+    with collect_provenance(tmp_path / "out", "driver") as driver:
+        with collect_provenance(tmp_path / "task", "task", own=True):
+            write_result_json(tmp_path / "task" / "history.json", {"train_wall_time_s": 4.0})
+        assert driver.written == 0
+        write_files(tmp_path / "out" / "seed-0", gather_files(tmp_path / "task"))
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == [
+        "driver.provenance.json", "history.json", "seed-0"]  # fmt: skip
+    side = json.loads((tmp_path / "out" / "driver.provenance.json").read_text())
+    assert side["files"] == {"seed-0/history.json": {"/train_wall_time_s": 4.0}}
+
+
+def test_a_figure_gives_the_same_bytes_without_version_or_date(tmp_path):
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    def draw(name):
+        fig, ax = plt.subplots()
+        ax.plot(np.linspace(0, 1, 50), np.sin(np.linspace(0, 6, 50)), label="sin")
+        ax.fill_between([0, 1], [0, 0], [0.5, 0.5], alpha=0.2)
+        ax.legend()
+        return save_figure(fig, tmp_path / name, dpi=60)
+
+    a, b = draw("a.png"), draw("b.png")
+    assert a.read_bytes() == b.read_bytes()
+    with Image.open(a) as im:
+        assert im.mode == "P" and "Software" not in im.info  # 256 colours, no text chunk
+    for suffix in (".svg", ".pdf"):
+        first, second = draw(f"c{suffix}"), draw(f"d{suffix}")
+        assert first.read_bytes() == second.read_bytes(), suffix

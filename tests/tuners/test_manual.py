@@ -33,9 +33,18 @@ def test_paper_untuned_overshoots_and_tuned_does_not(tmp_path, capsys, small_eva
     for name in ("manual-paper-untuned", "manual-paper-tuned"):
         assert (tmp_path / "test2" / f"{name}.json").is_file()
         assert (tmp_path / "test2" / f"{name}.png").stat().st_size > 10_000
-    assert tuned["provenance"]["version"] and "date" not in tuned["provenance"]
+    # who ran it, when, on what: not in the gains file, in the run's one sidecar
+    assert tuned["provenance"]["command"].startswith("python -m tuners.manual")
+    assert not {"version", "git_commit", "date", "wall_time_s"} & set(tuned["provenance"])
     sidecar = json.loads((tmp_path / "test2" / "manual-paper-tuned.provenance.json").read_text())
-    assert sidecar["/provenance/date"] and "/provenance/git_commit" in sidecar
+    assert sidecar["format"] == "gripper-provenance" and sidecar["date"] and sidecar["version"]
+    assert "git_commit" in sidecar and sidecar["machine"]["cpus"] >= 1
+    assert sidecar["command"] == tuned["provenance"]["command"]
+    assert "/provenance/wall_time_s" in sidecar["files"]["manual-paper-tuned.json"]
+    assert sorted(p.name for p in (tmp_path / "test2").iterdir()) == [
+        f"{name}{ext}" for name in ("manual-paper-tuned", "manual-paper-untuned")
+        for ext in (".json", ".png", ".provenance.json")
+    ]  # fmt: skip
 
 
 def test_hardware_gains_use_the_opposite_sign_and_say_so(tmp_path, capsys, small_eval_config):

@@ -1,9 +1,14 @@
 """Results are never clobbered: users' runs go to runs/, a smaller budget never silently
-replaces a larger one's result, and the committed results/ match their manifest."""
+replaces a larger one's result, and the committed results/ match their manifest. They do not
+churn (issue 24): provenance only in one sidecar per run, few and small binaries, and a rerun
+of a committed command leaves git diff empty."""
 
 import json
+import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -84,3 +89,111 @@ def test_help_says_where_runs_go(module):
     proc = subprocess.run([sys.executable, "-m", module, "--help"], cwd=REPO,
                           capture_output=True, text=True, timeout=60)  # fmt: skip
     assert proc.returncode == 0 and "runs" in proc.stdout
+
+
+# ---- issue 24: results that do not churn ------------------------------------------------------
+
+
+def _tracked_results() -> list[str]:
+    out = subprocess.run(["git", "ls-files", "results"], cwd=REPO, capture_output=True,
+                         text=True, check=True).stdout  # fmt: skip
+    return [line for line in out.splitlines() if line]
+
+
+#: What a result file's text may not hold: a run's date, version and machine are the sidecar's.
+_VOLATILE_TEXT = [
+    re.compile(r"\b20\d\d-\d\d-\d\d\b"),  # a date
+    re.compile(r"gripper-env \d"),  # "(gripper-env 0.1.0, ...)"
+    re.compile(r"\btook [\d.]+ ?s\b"),  # "the session took 35.3 s"
+    re.compile(r"Python \d\.\d+"),
+    re.compile(r"\b[0-9a-f]{40}\b"),  # a commit
+]
+
+
+def test_committed_results_keep_their_provenance_in_sidecars_only():
+    """Commit, date, version, machine and wall times are in each run's *.provenance.json, and
+    in no other file under results/ (so a rerun with the same numbers changes nothing)."""
+    from gripper_env.io.files import PROVENANCE_FORMAT, split_volatile
+
+    problems = []
+    for rel in _tracked_results():
+        path = REPO / rel
+        if rel.endswith(".provenance.json"):
+            assert json.loads(path.read_text())["format"] == PROVENANCE_FORMAT, rel
+            continue
+        if path.suffix not in (".json", ".md", ".csv", ".txt", ".yaml"):
+            continue
+        text = path.read_text()
+        if path.suffix == ".json":
+            _, volatile = split_volatile(json.loads(text))
+            if volatile:
+                problems.append(f"{rel}: {sorted(volatile)[:3]}")
+            if '"machine"' in text:
+                problems.append(f"{rel}: a machine")
+        for pattern in _VOLATILE_TEXT:
+            found = pattern.search(text)
+            if found:
+                problems.append(f"{rel}: {found.group(0)!r}")
+    assert problems == [], "\n".join(problems[:20])
+
+
+def test_every_results_command_writes_one_provenance_sidecar():
+    manifest = json.loads((REPO / "results" / "manifest.json").read_text())["commands"]
+    assert set(manifest) == {c.name for c in results.COMMANDS}
+    for name, entry in manifest.items():
+        sidecars = [p for p in entry["writes"] if p.endswith(".provenance.json")]
+        assert len(sidecars) == 1, (name, sidecars)
+
+
+#: Binary files allowed under results/, where, and how large each may be (bytes).
+_BINARIES = {
+    ".png": (("results/figures/", "results/identification/"), 100_000),
+    # the RL controllers' agents: tests/tuners/test_committed_agents.py reloads every one and
+    # reproduces its held-out runs; the README loads one (docs/architecture.md, results/)
+    ".zip": (("results/rl/controller-",), 160_000),
+    ".pkl": (("results/rl/controller-",), 8_000),
+}
+
+
+def test_binary_results_are_few_small_and_where_they_belong():
+    """Issue 24: the summary figures (paper, identification, benchmark) and the agents the
+    tests and the README load; no per-row plot, nothing else binary."""
+    binaries = []
+    for rel in _tracked_results():
+        data = (REPO / rel).read_bytes()
+        suffix = Path(rel).suffix
+        if suffix in _BINARIES or b"\0" in data[:8192]:
+            folders, limit = _BINARIES.get(suffix, ((), 0))
+            assert rel.startswith(folders), f"{rel}: a binary file where none belongs"
+            assert len(data) <= limit, f"{rel}: {len(data)} bytes > {limit}"
+            binaries.append(len(data))
+    assert len(binaries) <= 60 and sum(binaries) <= 3_500_000, (len(binaries), sum(binaries))
+
+
+def test_rerunning_a_results_command_leaves_no_diff(tmp_path):
+    """The paper reproduction (about 10 s) rerun as the manifest says, into a copy of its
+    committed files (a git repository of their own), leaves ``git diff --exit-code results/``
+    clean and no new file: same code and seeds, same bytes; the sidecar stays the one of the
+    run that wrote them."""
+    command = next(c for c in results.COMMANDS if c.name == "paper")
+    writes = json.loads((REPO / "results" / "manifest.json").read_text())["commands"]["paper"]
+    copy = tmp_path / "repo"
+    for rel in writes["writes"]:  # as staged (git diff compares the work tree with the index)
+        blob = subprocess.run(["git", "show", f":{rel}"], cwd=REPO, capture_output=True,
+                              check=True).stdout  # fmt: skip
+        (copy / rel).parent.mkdir(parents=True, exist_ok=True)
+        (copy / rel).write_bytes(blob)
+    git = ["git", "-C", str(copy), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(["git", "init", "-q", str(copy)], check=True)
+    subprocess.run([*git, "add", "-A"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "committed results"], check=True)
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(REPO))  # this checkout's code
+    proc = subprocess.run([sys.executable, *command.argv[1:]], cwd=copy, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    diff = subprocess.run([*git, "diff", "--exit-code", "--stat", "results/"],
+                          capture_output=True, text=True)  # fmt: skip
+    assert diff.returncode == 0, diff.stdout
+    status = subprocess.run([*git, "status", "--porcelain", "--untracked-files=all"],
+                            capture_output=True, text=True, check=True).stdout  # fmt: skip
+    assert status == "", status

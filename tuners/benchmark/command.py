@@ -1,9 +1,11 @@
 """``python -m tuners.benchmark``: every row on every plant, judged and ranked; the report.
 
-Writes ``<out>/benchmark.md`` (the verdict), ``<out>/benchmark.json`` (every row's figures and
-per-seed costs), ``<out>/benchmark.provenance.json`` (commit, date, wall time: the only file
-that changes when a rerun gives the same numbers), ``<out>/figures/`` and every row's gains
-file and response plot under ``<out>/<plant>/``.
+Writes ``<out>/benchmark.md`` (the verdict), ``<out>/benchmark.json`` (what the verdict is
+computed from and every row's per-seed costs: :func:`tuners.benchmark.leaderboard.stored`),
+``<out>/benchmark.provenance.json`` (the run's commit, date, version, machine and wall times,
+the row's too: kept as it is when a rerun reproduces every file), ``<out>/figures/`` and every
+row's gains file and response plot under ``<out>/<plant>/`` (the response plots are not
+committed: each is redrawn from its gains file in a second).
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ from typing import Any
 from gripper_env.evaluation.objective import load_objective
 from gripper_env.io.config import config_file
 from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
-from gripper_env.model.gains_file import provenance
 from tuners import cli
 from tuners.benchmark import leaderboard
 from tuners.benchmark.run import run_benchmark
@@ -83,13 +84,12 @@ def _main(argv: list[str] | None = None) -> int:
     if args.quick:  # a smoke run never replaces a full one by accident
         cli.guard_overwrite(args.out / "benchmark.json", 0, args.force)
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
-    with collect_provenance(args.out / "benchmark.provenance.json") as sink:
+    with collect_provenance(args.out, "benchmark", command=args.command, started=start,
+                            seed=bench.seed):  # fmt: skip
         data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log,
                              command=args.command, objective=objective,
                              force=args.force, engine=args.engine)  # fmt: skip
         _report(args, bench, ev, objective, data)
-        sink["run"] = provenance(seed=bench.seed, wall_time_s=time.perf_counter() - start,
-                                 command=args.command)  # fmt: skip
     if args.json:
         print(json.dumps(json.loads((args.out / "benchmark.json").read_text()), indent=2))
     else:
@@ -114,6 +114,6 @@ def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data:
     leaderboard.figures(data, args.out)
     budget = sum(r["episodes"] for p in data["plants"].values() for r in (p.get("rows") or {})
                  .values())  # fmt: skip
-    write_result_json(args.out / "benchmark.json", {"meta": meta, "budget_episodes": budget,
-                                                    **data})  # fmt: skip
+    content = {"meta": meta, "budget_episodes": budget, **data}
+    write_result_json(args.out / "benchmark.json", leaderboard.stored(content))
     write_atomic(args.out / "benchmark.md", leaderboard.render_markdown(data, meta))

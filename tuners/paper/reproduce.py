@@ -1,7 +1,8 @@
 """Reproduce the paper's tables and figures: ``python -m tuners.paper``.
 
-Writes ``results/paper_reproduction.md`` and PNG figures under ``results/figures/`` (``--out``
-chooses another folder than ``results/`` of the working directory):
+Writes ``results/paper_reproduction.md``, PNG figures under ``results/figures/`` and the run's
+provenance, ``results/paper_reproduction.provenance.json`` (``--out`` chooses another folder
+than ``results/`` of the working directory; the same code writes the same bytes):
 
 1. the four identified plants (Table 1, Figure 7): poles, DC gain, and their open-loop response to
    the grip/un-grip step, with step metrics;
@@ -22,7 +23,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
-from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -30,10 +30,9 @@ from typing import Any
 import numpy as np
 
 from gripper_env import paper
-from gripper_env._version import __version__
 from gripper_env.evaluation.metrics import Metrics, compute_metrics, fit_percent, sample_sd
 from gripper_env.evaluation.stability import stability_report
-from gripper_env.io.files import save_figure, write_atomic
+from gripper_env.io.files import collect_provenance, save_figure, write_atomic
 from gripper_env.model.disturbances import describe, load_disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import load_plant
@@ -161,7 +160,7 @@ def _plants_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
                frameon=False, columnspacing=1.2)  # fmt: skip
     ax.grid(alpha=0.3)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    save_figure(fig, fig_dir / "plants_step.png", dpi=110, colors=256)
+    save_figure(fig, fig_dir / "plants_step.png", dpi=110)
     lines += [
         "",
         "test1's slow complex poles (time constant about 20 s) barely move within the 9 s hold:",
@@ -235,7 +234,7 @@ def _table2_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    save_figure(fig, fig_dir / "figure9_direct_response.png", dpi=110, colors=256)
+    save_figure(fig, fig_dir / "figure9_direct_response.png", dpi=110)
     best = min(gaps, key=lambda k: abs(gaps[k]))
     fast = [gaps[k] for k in PLANTS[1:]]
     lines += [
@@ -284,7 +283,7 @@ def _table34_section(lines: list[str], fig_dir: Path, seeds: np.ndarray) -> None
             findings[(label, sign)] = (mm, at)
             if not hardware:
                 panels["untuned" if label.startswith("untuned") else "tuned"] = (model, act, at)
-    save_figure(figure11(ref, panels), fig_dir / "figure11_pid.png", dpi=110, colors=256)
+    save_figure(figure11(ref, panels), fig_dir / "figure11_pid.png", dpi=110)
     untuned, untuned_act = findings[("untuned (TF test2)", 1)]
     tuned, tuned_act = findings[("tuned (TF test2)", 1)]
     lines += [
@@ -459,11 +458,12 @@ def main(argv: list[str] | None = None) -> int:
     fig_dir = args.out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     seeds = np.arange(1000, 1000 + args.seeds)
+    command = " ".join(["python -m tuners.paper", *(sys.argv[1:] if argv is None else argv)])
     lines = [
         "# Reproducing the paper",
         "",
-        f"Written by `python -m tuners.paper` (gripper-env {__version__}, "
-        f"{datetime.now(UTC).strftime('%Y-%m-%d')}). Paper: {paper.CITATION}.",
+        f"Written by `python -m tuners.paper`. Paper: {paper.CITATION}. Provenance (commit, "
+        "date, version, machine): `paper_reproduction.provenance.json`.",
         "",
         "The simulated actual gripper (`actual` preset, nominal values; randomised per seed):",
         "",
@@ -472,11 +472,12 @@ def main(argv: list[str] | None = None) -> int:
         "```",
         "",
     ]
-    _plants_section(lines, fig_dir, seeds)
-    _table2_section(lines, fig_dir, seeds)
-    _table34_section(lines, fig_dir, seeds)
-    _sign_section(lines)
-    path = write_atomic(args.out / "paper_reproduction.md", "\n".join(lines))
+    with collect_provenance(args.out, "paper_reproduction", command=command):
+        _plants_section(lines, fig_dir, seeds)
+        _table2_section(lines, fig_dir, seeds)
+        _table34_section(lines, fig_dir, seeds)
+        _sign_section(lines)
+        path = write_atomic(args.out / "paper_reproduction.md", "\n".join(lines))
     print(f"wrote {path} and figures in {fig_dir}")
     return 0
 

@@ -31,10 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.files import write_json
+from gripper_env.io.files import write_atomic, write_json
 from gripper_env.model.pid import PIDGains
 
-__all__ = ["AGENT_FORMAT", "Agent", "agent_kwargs", "load_agent", "save_agent", "save_model"]
+__all__ = [
+    "AGENT_FORMAT",
+    "Agent",
+    "agent_kwargs",
+    "load_agent",
+    "reproducible_zip",
+    "save_agent",
+    "save_model",
+]
 
 AGENT_FORMAT = "gripper-agent"
 
@@ -94,8 +102,8 @@ def save_agent(agent: Agent, folder: str | os.PathLike[str], facts: dict[str, An
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     save_model(agent.model, folder / "model.zip")
-    if agent.normalizer is not None:
-        agent.normalizer.save(str(folder / "vecnormalize.pkl"))
+    if agent.normalizer is not None:  # VecNormalize.save's pickle, written atomically
+        write_atomic(folder / "vecnormalize.pkl", pickle.dumps(agent.normalizer))
     base = agent.base
     write_json(
         folder / "agent.json",
@@ -118,12 +126,13 @@ _UNSTABLE_PARAMS = ("start_time", "ep_info_buffer", "ep_success_buffer")
 
 
 def save_model(model: Any, path: str | os.PathLike[str]) -> Path:
-    """``model.save`` whose bytes depend on the training only, not on the process or the clock:
-    without the time-dependent parameters, with the spaces saved without a random generator,
-    the memory addresses in the zip's readable ``data`` (``<function ... at 0x7f...>``)
-    dropped, and entries dated 1980. The same training gives the same file on every engine."""
-    import re
-    import zipfile
+    """``model.save`` whose bytes depend on the training only, not on the process, the clock or
+    the machine: without the time-dependent parameters, with the spaces saved without a random
+    generator, the memory addresses in the zip's readable ``data`` (``<function ... at
+    0x7f...>``) dropped, without ``system_info.txt`` (the machine's OS and library versions:
+    the run's provenance sidecar has them; loading does not read it) and entries dated 1980.
+    The same training gives the same file on every engine and machine."""
+    import io
 
     import gymnasium as gym
 
@@ -132,20 +141,31 @@ def save_model(model: Any, path: str | os.PathLike[str]) -> Path:
         space = getattr(model, name)
         if isinstance(space, gym.spaces.Box):
             setattr(model, name, gym.spaces.Box(space.low, space.high, space.shape, space.dtype))
-    model.save(path, exclude=list(_UNSTABLE_PARAMS))
-    with zipfile.ZipFile(path) as src:
-        entries = [(info, src.read(info)) for info in src.infolist()]
-    tmp = path.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w") as dst:
-        for info, data in entries:
+    saved = io.BytesIO()
+    model.save(saved, exclude=list(_UNSTABLE_PARAMS))
+    return write_atomic(path, reproducible_zip(saved.getvalue()))
+
+
+def reproducible_zip(data: bytes) -> bytes:
+    """A saved model's zip (bytes) without what differs between runs of the same training
+    (:func:`save_model`)."""
+    import io
+    import re
+    import zipfile
+
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as src, zipfile.ZipFile(out, "w") as dst:
+        for info in src.infolist():
+            if info.filename == "system_info.txt":
+                continue
+            content = src.read(info)
             if info.filename == "data":
-                data = re.sub(rb" at 0x[0-9a-f]+>", b">", data)
+                content = re.sub(rb" at 0x[0-9a-f]+>", b">", content)
             fixed = zipfile.ZipInfo(info.filename, date_time=(1980, 1, 1, 0, 0, 0))
             fixed.compress_type = info.compress_type
             fixed.external_attr = info.external_attr
-            dst.writestr(fixed, data)
-    os.replace(tmp, path)
-    return path
+            dst.writestr(fixed, content)
+    return out.getvalue()
 
 
 def load_agent(folder: str | os.PathLike[str]) -> Agent:

@@ -42,7 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from gripper_env.evaluation.scoring import score_trajectory
 from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
-from gripper_env.io.files import json_ready, write_result_json
+from gripper_env.io.files import collect_provenance, json_ready, write_result_json
 from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains
 from gripper_env.model.plants import load_plant
@@ -434,10 +434,12 @@ def _run_seed(task: _SeedTask) -> dict[str, Any]:
     inputs = task.inputs
     held_out = inputs.settings.seeds.seeds()
     with tempfile.TemporaryDirectory() as tmp:
-        agent, facts = train_controller(
-            inputs, task.base, task.settings, tmp, seed=task.seed, plants=task.plants,
-            timesteps=task.timesteps, progress=task.progress, log=lambda m: None,
-        )  # fmt: skip
+        # the task's own sidecar, sent back with its files (tuners.engine.write_files)
+        with collect_provenance(tmp, "task", own=True):
+            agent, facts = train_controller(
+                inputs, task.base, task.settings, tmp, seed=task.seed, plants=task.plants,
+                timesteps=task.timesteps, progress=task.progress, log=lambda m: None,
+            )  # fmt: skip
         entry: dict[str, Any] = {"seed": task.seed, "training": facts, "plants": {}}
         for p in task.plants:
             ideal, runs, _, _ = evaluate_policy(agent, inputs, task.kwargs, held_out, p)

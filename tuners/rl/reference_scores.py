@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from gripper_env.io.config import CONFIG_DIR
-from gripper_env.io.files import write_atomic, write_result_json
+from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
 from tuners import cli
 
 __all__ = ["IDS", "main", "reference_scores"]
@@ -256,19 +256,19 @@ def render(table: dict[str, Any], pid_source: str) -> str:
         "`gym.make`; **normalised** = 100 (R - R_random) / (R_best PID - R_random): 0 is "
         f"random, 100 the best deployable PID ({pid_source}). PPO and SAC: the shipped rl-zoo3 "
         "recipes (`configs/rl_zoo/`), mean ± sd over training seeds. The module docstring of "
-        "`tuners/rl/reference_scores.py` says how each policy runs through its environment.",
+        "`tuners/rl/reference_scores.py` says how each policy runs through its environment. "
+        "Wall times (training included), commit and date: `reference_scores.provenance.json`.",
     ]
     for entry in table.values():
         lines += ["", f"## `{entry['env_id']}`, {entry['setting']} settings "
                   f"(`{entry['env_kwargs'] or 'gym.make defaults'}`)", "",
-                  "| policy | return | normalised | budget (steps) | wall time s |",
-                  "|---|---|---|---|---|"]  # fmt: skip
+                  "| policy | return | normalised | budget (steps) |",
+                  "|---|---|---|---|"]  # fmt: skip
         for name, r in entry["rows"].items():
             spread = (f" ± {r['normalized_std']:.0f} ({r['seeds']} seeds)"
                       if "normalized_std" in r else "")  # fmt: skip
             lines.append(f"| {name} | {r['return_mean']:.4g} ± {r['return_std']:.2g} | "
-                         f"{r['normalized']:.0f}{spread} | {r['budget_steps']:g} | "
-                         f"{r['wall_time_s']:.0f} |")  # fmt: skip
+                         f"{r['normalized']:.0f}{spread} | {r['budget_steps']:g} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -299,10 +299,13 @@ def _main(argv: list[str] | None = None) -> int:
     from gripper_env.model.gains_file import load_gains_file
 
     pid = load_gains_file(args.pid).gains
-    table = reference_scores(pid, args.seeds, args.timesteps)
-    write_result_json(args.out / "reference_scores.json", {"pid_source": str(args.pid),
-                                                           "table": table})  # fmt: skip
-    write_atomic(args.out / "reference_scores.md", render(table, str(args.pid)))
+    command = " ".join(["python -m tuners.rl.reference_scores",
+                        *(sys.argv[1:] if argv is None else argv)])  # fmt: skip
+    with collect_provenance(args.out, "reference_scores", command=command):
+        table = reference_scores(pid, args.seeds, args.timesteps)
+        write_result_json(args.out / "reference_scores.json", {"pid_source": str(args.pid),
+                                                               "table": table})  # fmt: skip
+        write_atomic(args.out / "reference_scores.md", render(table, str(args.pid)))
     print(f"wrote {args.out / 'reference_scores.md'}")
     return 0
 

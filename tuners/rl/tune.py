@@ -326,14 +326,17 @@ def _tune_seed(task: _TuneTask) -> tuple[TuneRun, dict[str, bytes]]:
     """Train one seed in a scratch folder; return the run and its files."""
     import tempfile
 
+    from gripper_env.io.files import collect_provenance
     from tuners.engine import gather_files
 
     with tempfile.TemporaryDirectory() as tmp:
-        run = train_tuner(
-            task.inputs, task.settings, seed=task.seed, run_dir=tmp, plants=task.plants,
-            episodes=task.episodes, optuna_settings=task.optuna_settings,
-            progress=task.progress, log=lambda m: None, designed=task.designed,
-        )  # fmt: skip
+        # the task's own sidecar, sent back with its files (tuners.engine.write_files)
+        with collect_provenance(tmp, "task", own=True):
+            run = train_tuner(
+                task.inputs, task.settings, seed=task.seed, run_dir=tmp, plants=task.plants,
+                episodes=task.episodes, optuna_settings=task.optuna_settings,
+                progress=task.progress, log=lambda m: None, designed=task.designed,
+            )  # fmt: skip
         return run, gather_files(tmp)
 
 

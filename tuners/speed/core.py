@@ -14,8 +14,9 @@
   1024 (the N sweep), the cost of an ``rgb_array`` frame, and ``GripperPIDTune-v0`` episodes per
   second;
 
-and writes ``results/speed.md`` and ``results/speed.json``. The machine is shared and noisy:
-figures are medians and the ratios are measured in the same run.
+and writes ``results/speed.md``, ``results/speed.json`` and ``results/speed.provenance.json``
+(the machine's platform, Python and library versions, commit, date). The machine is shared and
+noisy: figures are medians and the ratios are measured in the same run.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -32,10 +32,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import control
-import numba
 import numpy as np
 
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model import pid
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
@@ -168,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--no-envs", action="store_true", help="skip the environments' timings")
     args = parser.parse_args(argv)
+    started = time.perf_counter()
 
     episode_steps = len(load_reference("step"))
     single = _median_time(_simulator(1, record=True), args.repeats)
@@ -186,13 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         "batch1024_recorded_steps_per_s": 1024 * episode_steps / batch_rec,
         "batch1024_unrecorded_s": batch_norec,
         "batch1024_unrecorded_steps_per_s": 1024 * episode_steps / batch_norec,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "python": platform.python_version(),
-            "numba": numba.__version__,
-            "numpy": np.__version__,
-            "control": control.__version__,
-        },
+        "cpus": os.cpu_count(),
         "repeats": args.repeats,
         "slow_repeats": args.slow_repeats,
         "command": " ".join(
@@ -201,12 +195,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     if not args.no_envs:
         figures["envs"] = envs_speed.measure(args.envs_repeats)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "speed.json", json.dumps(figures, indent=2) + "\n")
     text = _markdown(figures)
     if "envs" in figures:
         text += "\n" + envs_speed.markdown(figures["envs"])
-    write_atomic(args.out / "speed.md", text)
+    # the machine's platform and library versions, commit and date: speed.provenance.json
+    with collect_provenance(args.out, "speed", command=figures["command"], started=started):
+        write_atomic(args.out / "speed.json", json.dumps(figures, indent=2) + "\n")
+        write_atomic(args.out / "speed.md", text)
     print(text)
     return 0
 
@@ -234,12 +229,11 @@ def _markdown(f: dict) -> str:
          ok(norec >= 5e7)),
     ]  # fmt: skip
     table = "\n".join(f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows)
-    m = f["machine"]
     return f"""# Speed
 
 ## Simulation core
 
-`{f["command"]}` on {m["cpus"]} cores, Python {m["python"]}, numba {m["numba"]};
+`{f["command"]}` on {f["cpus"]} cores (platform and versions: `speed.provenance.json`);
 medians of {f["repeats"]} repeats ({f["slow_repeats"]} for the slow references), all in the same
 run. Episode: the `step` profile (20 s, {f["episode_steps"]} physics steps at 1 ms) on plant test2
 through the full `actual` chain (1-deg commands at 50 Hz, Choudhury stiction, stops, 10-bit ADC,

@@ -33,7 +33,6 @@ import argparse
 import contextlib
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -48,7 +47,7 @@ import numpy as np
 
 import gripper_env  # noqa: F401  (registers the ids)
 from gripper_env.envs import kernels
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.sim.compile import compile_kernel
 
 SERVO = "gripper_env/GripperServo-v0"
@@ -386,7 +385,7 @@ def markdown(fig: dict) -> str:
         "",
         f"Numba threads {fig['numba_threads']:.0f}, {load} (the machine is shared with other "
         f"work: the figures are medians of {fig['repeats']:.0f} interleaved repeats, in the same "
-        f"run as the core's figures above), gymnasium {gym.__version__}. `GripperServo-v0` with "
+        f"run as the core's figures above). `GripperServo-v0` with "
         "its defaults: plant test2, the full `actual` chain (1-deg commands at 50 Hz, Choudhury "
         "stiction, stops, 10-bit ADC, noise), 20 ms control period = 20 physics steps of 1 ms per "
         "step. Random actions, the same for both sides of a comparison; only `step` calls are "
@@ -584,9 +583,6 @@ def loaded(
         "cpus": os.cpu_count(),
         "numba_threads": numba.get_num_threads(),
         "threading_layer": None,
-        "python": platform.python_version(),
-        "numba": numba.__version__,
-        "gymnasium": gym.__version__,
         "command": "",
         "sections": [],
     }
@@ -615,9 +611,9 @@ def loaded_markdown(fig: dict) -> str:
     lines = [
         "# Native vector env against SyncVectorEnv, idle and loaded",
         "",
-        f"`{fig['command']}` on {fig['cpus']} CPUs, numba {fig['numba']} "
-        f"({fig['numba_threads']} threads, {fig['threading_layer']} layer), Python "
-        f"{fig['python']}, gymnasium {fig['gymnasium']}. Every figure comes from this one run: "
+        f"`{fig['command']}` on {fig['cpus']} CPUs, {fig['numba_threads']} numba threads "
+        f"({fig['threading_layer']} layer; platform, Python and library versions: "
+        "`envs_speed_loaded.provenance.json`). Every figure comes from this one run: "
         f"medians of {fig['repeats']} interleaved repeats (time per vector step in us, of "
         "`GripperServo-v0` with its defaults, random actions, autoresets included). Sync: "
         '`gym.make_vec(..., vectorization_mode="sync")` over N `gym.make` environments. '
@@ -725,6 +721,7 @@ def main(argv: list[str] | None = None) -> dict:
         fig = measure(args.repeats, args.quick, tuple(args.num_envs or SWEEP_N))
         print(markdown(fig))
         return fig
+    started = time.perf_counter()
     fig = loaded(args.repeats, args.quick, tuple(args.num_envs or LOADED_N), args.busy,
                  not args.no_ppo, args.ppo_repeats)  # fmt: skip
     fig["command"] = " ".join(
@@ -732,9 +729,10 @@ def main(argv: list[str] | None = None) -> dict:
     )
     text = loaded_markdown(fig)
     if args.out is not None:
-        args.out.mkdir(parents=True, exist_ok=True)
-        write_atomic(args.out / "envs_speed_loaded.json", json.dumps(fig, indent=2) + "\n")
-        write_atomic(args.out / "envs_speed_loaded.md", text + "\n")
+        with collect_provenance(args.out, "envs_speed_loaded", command=fig["command"],
+                                started=started):  # fmt: skip
+            write_atomic(args.out / "envs_speed_loaded.json", json.dumps(fig, indent=2) + "\n")
+            write_atomic(args.out / "envs_speed_loaded.md", text + "\n")
     print(text)
     return fig
 

@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import subprocess
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,7 +56,7 @@ from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import Reference, load_reference
 
@@ -335,7 +335,7 @@ def report(result: dict[str, Any]) -> str:
         "## Emulation speed",
         "",
         f"{result['speed_x']:.1f}x real time (median of the runs above, emulated seconds per wall "
-        f"second) on {result['machine']}.",
+        "second) on the machine of `firmware_speed.provenance.json`.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -558,8 +558,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--fuzz must be 0..10000000 frames, got {args.fuzz}")
     image, harness = ensure_built(args.image, rebuild=args.image is None)
     print(f"image {image}, harness {harness}", flush=True)
+    started = time.perf_counter()
     result: dict[str, Any] = {
-        "machine": f"{platform.machine()}, Python {platform.python_version()}",
         "duration_s": args.duration,
         "image": image_size(image),
     }
@@ -580,10 +580,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     speeds = [r["emulated_s"] / r["wall_s"] for r in (result["closed_loop"], result["pty"])]
     result["speed_x"] = float(np.median(speeds))
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "firmware_speed.json", json.dumps(result, indent=2, default=float) + "\n")
     text = report(result)
-    write_atomic(out / "firmware_speed.md", text)
+    command = " ".join(["python -m tuners.speed.firmware", *(sys.argv[1:] if argv is None
+                                                             else argv)])  # fmt: skip
+    with collect_provenance(out, "firmware_speed", command=command, started=started):
+        write_atomic(out / "firmware_speed.json",
+                     json.dumps(result, indent=2, default=float) + "\n")  # fmt: skip
+        write_atomic(out / "firmware_speed.md", text)
     print(text)
     return 0
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,7 +34,7 @@ from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.twin.firmware import Firmware
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import step_profile
 from tuners.rig.virtual import parse_speed
@@ -119,21 +119,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", default="results", help="output folder (default: results)")
     args = parser.parse_args(argv)
     speeds = [parse_speed(s) for s in args.speeds.split(",")]
+    started = time.perf_counter()
     result: dict[str, Any] = {
-        "machine": f"{platform.machine()}, {platform.python_version()}",
         "round_trip": round_trips(),
         "tick": tick_cost(),
         "closed_loop": [closed_loop_run(args.duration, s) for s in speeds],
     }
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "hardware_speed.json", json.dumps(result, indent=2) + "\n")
     rt, tk = result["round_trip"], result["tick"]
     lines = [
         "# Host <-> board link speed over the virtual device",
         "",
-        "`python -m tuners.speed.hardware` on "
-        f"{result['machine']} (virtual board and host on the same machine).",
+        "`python -m tuners.speed.hardware`, virtual board and host on the same machine (its "
+        "platform and versions: `hardware_speed.provenance.json`).",
         "",
         "| quantity | value |",
         "|---|---|",
@@ -158,7 +156,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{r['device_frames_lost']} | {r['missing_samples']} | {r['board_overruns']} | "
             f"{r['missed_deadlines']} / {r['host_periods']} |"
         )
-    write_atomic(out / "hardware_speed.md", "\n".join(lines) + "\n")
+    command = " ".join(["python -m tuners.speed.hardware", *(sys.argv[1:] if argv is None
+                                                             else argv)])  # fmt: skip
+    with collect_provenance(out, "hardware_speed", command=command, started=started):
+        write_atomic(out / "hardware_speed.json", json.dumps(result, indent=2) + "\n")
+        write_atomic(out / "hardware_speed.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 

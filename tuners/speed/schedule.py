@@ -29,7 +29,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
 from gripper_env.model.plants import load_plant
@@ -148,12 +148,12 @@ def markdown(idle: list[dict], busy: list[dict], repeats: int, command: str) -> 
     load = os.getloadavg()[0]
     return f"""# Chunk scheduling against plain prange
 
-`{command}` on {os.cpu_count()} cores, {numba.get_num_threads()} numba threads, numba
-{numba.__version__}, 1-min load average {load:.2f} at the end; medians of {repeats} interleaved
-repeats. The core's parallel kernel with `gripper_env.sim.schedule` (workers take chunks of rows
-from an atomic counter) and with a plain `prange` over the rows (numba's static split): plant
-test2, the `actual` gripper, the paper's tuned PID, state only (no recording). Both give
-identical states (checked).
+`{command}` on {os.cpu_count()} cores, {numba.get_num_threads()} numba threads (versions:
+`schedule_speed.provenance.json`), 1-min load average {load:.2f} at the end; medians of
+{repeats} interleaved repeats. The core's parallel kernel with `gripper_env.sim.schedule`
+(workers take chunks of rows from an atomic counter) and with a plain `prange` over the rows
+(numba's static split): plant test2, the `actual` gripper, the paper's tuned PID, state only (no
+recording). Both give identical states (checked).
 
 The machine as it is:
 
@@ -174,14 +174,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=21, help="interleaved repeats per case")
     parser.add_argument("--out", type=Path, default=RESULTS, help="folder for the results page")
     args = parser.parse_args(argv)
+    started = time.perf_counter()
     idle = measure(args.repeats)
     busy = measure_contended(args.repeats)
     command = " ".join(
         ["python -m tuners.speed.schedule", *(argv if argv is not None else sys.argv[1:])]
     )
     text = markdown(idle, busy, args.repeats, command)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "schedule_speed.md", text)
+    with collect_provenance(args.out, "schedule_speed", command=command, started=started):
+        write_atomic(args.out / "schedule_speed.md", text)
     print(text)
     return 0
 

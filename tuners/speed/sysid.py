@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 import warnings
@@ -30,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.sim import simulate
 from gripper_env.sysid import identify_actual, tfest
 from gripper_env.sysid.zoh import zoh_response
@@ -83,6 +82,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--greybox-repeats", type=int, default=3,
                         help="timed grey-box fits (default 3)")  # fmt: skip
     args = parser.parse_args(argv)
+    started = time.perf_counter()
+    command = (f"python -m tuners.speed.sysid --repeats {args.repeats} "
+               f"--greybox-repeats {args.greybox_repeats}")  # fmt: skip
     warnings.simplefilter("ignore")
     u, y = make_record()
     t_delay, est = _timed(lambda: tfest(DT_S, u, y, input_delay_s="estimate"), args.repeats)
@@ -99,8 +101,7 @@ def main(argv: list[str] | None = None) -> None:
     ok = {True: "met", False: "**missed**"}
     text = (
         "# Identification speed\n\n"
-        f"Written by `python -m tuners.speed.sysid --repeats {args.repeats} "
-        f"--greybox-repeats {args.greybox_repeats}`; medians after one warm-up.\n\n"
+        f"Written by `{command}`; medians after one warm-up.\n\n"
         "| what | median | target | runs |\n|---|---|---|---|\n"
         f"| `tfest`, 60 s of 1 ms data ({u.size} samples), order 2/1, delay estimated | "
         f"**{med_delay:.3f} s** | <= {TFEST_TARGET_S:g} s ({ok[med_delay <= TFEST_TARGET_S]}) | "
@@ -121,11 +122,13 @@ def main(argv: list[str] | None = None) -> None:
         f"{grey.fit_pct:.2f} %. Of its time, the friction grids' core runs and inner fits take "
         "most: 81 + 81 candidates, each a 131 s run of the core and a transfer-function fit on "
         "the 20 ms tick grid.\n\n"
-        f"Machine: {platform.machine()}, {os.cpu_count()} CPUs (shared), Python "
-        f"{platform.python_version()}, 1-min load average {load:.2f} at the end. `tfest` runs "
-        "BLAS on one thread (threadpoolctl): its solves are small.\n"
+        f"Machine: {os.cpu_count()} CPUs (shared; platform and versions: "
+        f"`{Path(args.out).stem}.provenance.json`), 1-min load average {load:.2f} at the end. "
+        "`tfest` runs BLAS on one thread (threadpoolctl): its solves are small.\n"
     )
-    write_atomic(Path(args.out), text)
+    out = Path(args.out)
+    with collect_provenance(out.parent, out.stem, command=command, started=started):
+        write_atomic(out, text)
     print(text)
 
 

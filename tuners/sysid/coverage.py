@@ -1,14 +1,14 @@
 """``python -m tuners.sysid coverage``: the delay sweep and the coverage of the 95 % intervals.
 
 Fits synthetic records with a known truth (:mod:`gripper_env.sysid.coverage`) and writes
-``results/identification_coverage.md`` with a JSON sidecar (per-record numbers, run time,
-commit). The default study takes about ten minutes on two cores; ``--quick`` a minute.
+``results/identification_coverage.md``, ``identification_coverage.json`` (per-record numbers)
+and ``identification_coverage.provenance.json`` (run times, commit, date). The default study
+takes about ten minutes on two cores; ``--quick`` a minute.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -68,8 +68,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the ``coverage`` command; returns the exit status."""
-    from gripper_env.io.files import write_atomic
-    from gripper_env.model.gains_file import provenance
+    from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
     from gripper_env.sysid.coverage import delay_sweep, greybox_coverage, tf_coverage
     from gripper_env.sysid.coverage_report import render_coverage_report, sidecar
 
@@ -104,10 +103,12 @@ def run(args: argparse.Namespace) -> int:
             ]
             command = " ".join([command, *[e for e in extra if e]])
         text = render_coverage_report(command, sweep, tf, gb, sweep_settings, tf_settings)
-        md = write_atomic(args.out / "identification_coverage.md", text)
-        side = sidecar(command, elapsed, sweep, tf, gb, provenance(command=command))
-        js = write_atomic(args.out / "identification_coverage.json",
-                          json.dumps(side, indent=1, default=float) + "\n")  # fmt: skip
+        # run times (the whole run's, each part's, each grey-box record's) go to the sidecar
+        with collect_provenance(args.out, "identification_coverage", command=command,
+                                started=started):  # fmt: skip
+            md = write_atomic(args.out / "identification_coverage.md", text)
+            js = write_result_json(args.out / "identification_coverage.json",
+                                   sidecar(sweep, tf, gb), indent=1)  # fmt: skip
     except BAD_INPUT as exc:
         return errors_as_exit_2(PROG, exc)
     print(f"wrote {md} and {js} ({elapsed:.0f} s)")

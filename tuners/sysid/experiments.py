@@ -132,7 +132,7 @@ def _command(args: argparse.Namespace) -> str:
 
 
 def _session(args: argparse.Namespace, started: float) -> dict[str, Any]:
-    from gripper_env.io.files import write_atomic
+    from gripper_env.io.files import collect_provenance, write_atomic
     from gripper_env.sysid.report import (
         actual_figure,
         experiment_figure,
@@ -158,54 +158,58 @@ def _session(args: argparse.Namespace, started: float) -> dict[str, Any]:
         source = recorder.describe()
     hold = QUICK_VALIDATION_HOLD_S if args.quick else VALIDATION_HOLD_S
     log_dir = args.out / "identification"
-    run = run_identification(
-        recorder, log_dir, QUICK_EXPERIMENTS if args.quick else EXPERIMENTS,
-        validation_reference(hold), source=source, progress=say, greybox=not args.no_greybox,
-    )  # fmt: skip
-    import matplotlib
+    # one provenance sidecar for the session: identification.provenance.json
+    with collect_provenance(args.out, "identification", command=_command(args),
+                            started=started) as prov:  # fmt: skip
+        run = run_identification(
+            recorder, log_dir, QUICK_EXPERIMENTS if args.quick else EXPERIMENTS,
+            validation_reference(hold), source=source, progress=say, greybox=not args.no_greybox,
+        )  # fmt: skip
+        import matplotlib
 
-    matplotlib.use("Agg")
-    figures = {
-        item.experiment.name: experiment_figure(item, log_dir / f"{item.experiment.label}.png")
-        for item in run.experiments
-    }
-    figures["validation"] = validation_figure(run, log_dir / "validation.png")
-    if run.actual is not None:
-        figures["actual"] = actual_figure(run, log_dir / "actual.png")
-    files = []
-    if args.save_plants:
-        files = save_plants(run, args.save_plants, source.splitlines()[0])
+        matplotlib.use("Agg")
+        figures = {
+            item.experiment.name: experiment_figure(item, log_dir / f"{item.experiment.label}.png")
+            for item in run.experiments
+        }
+        figures["validation"] = validation_figure(run, log_dir / "validation.png")
         if run.actual is not None:
-            stem = f"actual_{run.actual_from}"
-            files += save_actual(
-                run.actual, args.save_plants / f"{stem}.yaml",
-                args.save_plants / f"{stem}_preset.yaml", name=stem,
-                source=f"{run.actual_from}.csv", command=_command(args),
-            )  # fmt: skip
-    report_path = args.out / "identification.md"
-    text = render_report(
-        run,
-        command=_command(args),
-        validation_text=(
-            f"Validation profile: 1 s at 92 deg (open), grip step to 21 deg, {hold:g} s hold, "
-            f"un-grip step to 92 deg, {hold:g} s hold ({1 + 2 * hold:g} s; the profile of "
-            "`gripper_env.paper` section 2). The paper does not publish its validation profile."
-        ),
-        figures={k: os.path.relpath(v, report_path.parent) for k, v in figures.items()},
-        elapsed_s=time.perf_counter() - started,
-        true_plant=true_plant,
-        truth=truth,
-        plant_files=files,
-    )
-    write_atomic(report_path, text)
-    summary = run.to_dict()
-    summary.update(
-        command=_command(args),
-        report=str(report_path),
-        figures={k: str(v) for k, v in figures.items()},
-        plant_files=[str(p) for p in files],
-        elapsed_s=time.perf_counter() - started,
-    )
+            figures["actual"] = actual_figure(run, log_dir / "actual.png")
+        files = []
+        if args.save_plants:
+            files = save_plants(run, args.save_plants, source.splitlines()[0])
+            if run.actual is not None:
+                stem = f"actual_{run.actual_from}"
+                files += save_actual(
+                    run.actual, args.save_plants / f"{stem}.yaml",
+                    args.save_plants / f"{stem}_preset.yaml", name=stem,
+                    source=f"{run.actual_from}.csv", command=_command(args),
+                )  # fmt: skip
+        report_path = args.out / "identification.md"
+        text = render_report(
+            run,
+            command=_command(args),
+            validation_text=(
+                f"Validation profile: 1 s at 92 deg (open), grip step to 21 deg, {hold:g} s hold, "
+                f"un-grip step to 92 deg, {hold:g} s hold ({1 + 2 * hold:g} s; the profile of "
+                "`gripper_env.paper` section 2). The paper does not publish its validation profile."
+            ),
+            figures={k: os.path.relpath(v, report_path.parent) for k, v in figures.items()},
+            true_plant=true_plant,
+            truth=truth,
+            plant_files=files,
+        )
+        write_atomic(report_path, text)
+        if run.actual is not None:
+            prov.extra["greybox_s"] = run.actual.elapsed_s
+        summary = run.to_dict()
+        summary.update(
+            command=_command(args),
+            report=str(report_path),
+            figures={k: str(v) for k, v in figures.items()},
+            plant_files=[str(p) for p in files],
+            elapsed_s=time.perf_counter() - started,
+        )
     return summary
 
 

@@ -28,10 +28,21 @@ def test_quick_benchmark_writes_report_json_and_figures(quick):
         assert len(row["per_seed_cost"]) == row["metrics"]["actual"]["n_seeds"]
         if row["controller"] == "pid":
             assert (out / "test2" / f"{name}.json").is_file()
-    # provenance in its own file, not in the report
+    # provenance in the run's one sidecar, not in the report, the JSON or the gains files
     sidecar = json.loads((out / "benchmark.provenance.json").read_text())
-    assert "git_commit" in sidecar["files"]["run"]
-    assert "git_commit" not in (out / "benchmark.json").read_text()
+    assert sidecar["git_commit"] and sidecar["date"] and sidecar["wall_time_s"] > 0
+    assert sidecar["command"].startswith("python -m tuners.benchmark --quick")
+    assert "/provenance/wall_time_s" in sidecar["files"]["test2/optuna.json"]
+    assert not [k for k in sidecar["files"] if k.startswith("/")]  # paths under the out folder
+    assert list(out.rglob("*.provenance.json")) == [out / "benchmark.provenance.json"]
+    for path in [out / "benchmark.json", *out.glob("test2/*.json")]:
+        text = path.read_text()
+        assert "git_commit" not in text and "wall_time_s" not in text, path
+    # benchmark.json leaves out what nothing reads (the gains files have it)
+    row = data["plants"]["test2"]["rows"]["optuna"]
+    assert set(row["metrics"]) == {"actual"} and "std" not in row["metrics"]["actual"]
+    gains = json.loads((out / "test2" / "optuna.json").read_text())
+    assert {"ideal", "actual", "sim_to_real_gap"} <= set(gains["metrics"])
 
 
 def test_test1_is_reported_infeasible_with_the_bang_bang_bound(quick):
