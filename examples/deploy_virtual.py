@@ -31,7 +31,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from gripper_env.evaluation.metrics import compute_metrics, fit_percent
+from gripper_env.evaluation.metrics import compute_metrics
 from gripper_env.evaluation.stability import stability_report
 from gripper_env.hardware.host.calibration import Calibration
 from gripper_env.hardware.host.device import GripperDevice
@@ -44,7 +44,7 @@ from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import load_plant
 from gripper_env.model.references import step_profile
 from gripper_env.paper import PID_GAINS
-from gripper_env.sim import simulate
+from tuners.rig.deploy import prediction
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -95,13 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         # leaving the block stopped the board at its safe (open) position
 
     measured = recording.trajectory()
-    predicted = simulate(
-        plant, measured.r[0], gains=[gains.as_array()], disturbance="actual",
-        pid_options=options, y0_deg=float(measured.y[0, 0]),
-    )  # fmt: skip
-    predicted.reference = measured.reference  # the same grip and un-grip segments
+    _, fit = prediction(model, measured, gains, options, "actual")  # the simulation's view
     m = compute_metrics(measured).as_dict()
-    fit = float(fit_percent(measured.y[0], predicted.y[0]))
     print(
         f"run: {len(recording.samples)} samples, complete {recording.complete}, "
         f"{recording.frames_lost} frames lost"

@@ -183,10 +183,19 @@ def split_volatile(obj: Any, where: str = "") -> tuple[Any, dict[str, Any]]:
     return obj, taken
 
 
+def _run_name(path: Path) -> str:
+    """The name of a result's own run: ``x.json`` (or ``x.md``, ``x``) -> ``x``."""
+    return path.stem if path.suffix else path.name
+
+
+def _sidecar(out_dir: str | os.PathLike[str], name: str) -> Path:
+    return Path(out_dir) / f"{name}.provenance.json"
+
+
 def provenance_path(path: str | os.PathLike[str]) -> Path:
     """``x.json`` (or ``x.md``, ``x``) -> ``x.provenance.json``: a result's sidecar."""
     p = Path(path)
-    return p.with_name(f"{p.stem if p.suffix else p.name}.provenance.json")
+    return _sidecar(p.parent, _run_name(p))
 
 
 def git_commit() -> str | None:
@@ -260,7 +269,7 @@ def write_provenance(
         **extra,
         "files": dict(sorted((files or {}).items())),
     }
-    return write_json(Path(out_dir) / f"{name}.provenance.json", record)
+    return write_json(_sidecar(out_dir, name), record)
 
 
 @dataclass
@@ -334,7 +343,7 @@ def collect_provenance(
         yield run
     finally:
         _RUN.reset(token)
-    sidecar = Path(out_dir) / f"{name}.provenance.json"
+    sidecar = _sidecar(out_dir, name)
     token = _RUN.set(None)  # the sidecar is no file of an enclosing run
     try:
         if run.written and not run.changed and sidecar.is_file():
@@ -358,8 +367,7 @@ def record_provenance(path: str | os.PathLike[str], volatile: dict[str, Any]) ->
         run.files.setdefault(run.key(path), {}).update(volatile)
         return
     p = Path(path)
-    write_provenance(p.parent, provenance_path(p).name.removesuffix(".provenance.json"),
-                     files={p.name: volatile})  # fmt: skip
+    write_provenance(p.parent, _run_name(p), files={p.name: volatile})
 
 
 def write_result_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -> Path:
@@ -370,10 +378,9 @@ def write_result_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -
     unchanged."""
     p = Path(path)
     stable, volatile = split_volatile(json_ready(obj))
-    if _RUN.get() is not None:
-        record_provenance(p, volatile)
-        return write_json(p, stable, indent)
-    with collect_provenance(p.parent, provenance_path(p).name.removesuffix(".provenance.json")):
+    # inside a run, its sidecar; outside, a run of this one file
+    own = _RUN.get() is None
+    with collect_provenance(p.parent, _run_name(p)) if own else contextlib.nullcontext():
         record_provenance(p, volatile)
         return write_json(p, stable, indent)
 

@@ -47,7 +47,7 @@ from gripper_env.model.references import PROFILES, load_reference
 from gripper_env.sim import Trajectory, simulate
 from tuners.rig.cli import add_device_arguments, run_cli
 
-__all__ = ["DEPLOY_COLUMNS", "main"]
+__all__ = ["DEPLOY_COLUMNS", "main", "prediction"]
 
 #: The log's columns: a :class:`~gripper_env.sim.Trajectory`'s CSV columns.
 DEPLOY_COLUMNS = Trajectory.CSV_COLUMNS
@@ -159,6 +159,28 @@ def _gate(
     return report
 
 
+def prediction(
+    model: Plant,
+    measured: Trajectory,
+    gains: PIDGains,
+    options: PIDOptions,
+    disturbance: str | Disturbance = "actual",
+) -> tuple[Trajectory, float]:
+    """What the simulation predicts for a recorded closed-loop run, and the fit (%) of the
+    measured angle to it: ``model`` under ``gains`` on the run's own reference, from its first
+    measured angle, with the run's grip and un-grip segments for the metrics."""
+    predicted = simulate(
+        model,
+        measured.r[0],
+        gains=[gains.as_array()],
+        disturbance=disturbance,
+        pid_options=options,
+        y0_deg=float(measured.y[0, 0]),
+    )
+    predicted.reference = measured.reference  # same segments for the metrics
+    return predicted, float(fit_percent(measured.y[0], predicted.y[0]))
+
+
 def _run(args: argparse.Namespace) -> int:
     loaded = load_gains_file(args.gains)
     plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
@@ -185,16 +207,7 @@ def _run(args: argparse.Namespace) -> int:
         device.configure(gains, options)
         rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
-    predicted = simulate(
-        model,
-        measured.r[0],
-        gains=[gains.as_array()],
-        disturbance=args.disturbance,
-        pid_options=options,
-        y0_deg=float(measured.y[0, 0]),
-    )
-    predicted.reference = measured.reference  # same segments for the metrics
-    fit = float(fit_percent(measured.y[0], predicted.y[0]))
+    predicted, fit = prediction(model, measured, gains, options, args.disturbance)
     content = {
         "plant": plant,
         "tuner": tuner,
