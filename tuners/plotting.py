@@ -30,6 +30,7 @@ from gripper_env.model.references import Segment
 __all__ = [
     "StepZoom",
     "budget_plot",
+    "grasp_plot",
     "learning_curve_plot",
     "median_seed",
     "metrics_table",
@@ -692,4 +693,69 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return save_figure(fig, path, bbox_inches="tight")
+
+
+def grasp_plot(
+    runs: Sequence[tuple[str, Any]],
+    path: str | os.PathLike[str],
+    title: str,
+) -> Path:
+    """The grasp-and-hold scenario: the true jaw angle (top) and the fingertip force (bottom)
+    against time from the close command, one line per controller (the mean over its runs), the
+    object and the close command, the hold window shaded, the required force and the stall
+    force, and an x where the overload criterion first trips (earliest run).
+
+    Parameters
+    ----------
+    runs : sequence of (label, GraspRun)
+        :class:`gripper_env.evaluation.grasp.GraspRun` of each controller, one scenario.
+    """
+    if not runs:
+        raise ValueError("no grasp runs to draw")
+    scenario = runs[0][1].scenario
+    fig, (ax_jaw, ax_force) = plt.subplots(2, 1, figsize=(9.5, 6.4), sharex=True,
+                                           height_ratios=(1.0, 1.2))  # fmt: skip
+    lo, hi = scenario.hold_window_s
+    t = runs[0][1].t_s
+    styles = ("-", "--", "-.", ":")
+    for j, (label, run) in enumerate(runs):
+        color, ls = f"C{j % 10}", styles[(j // 10 + j) % len(styles)]
+        with np.errstate(all="ignore"):
+            jaw = np.nanmean(run.jaw_deg, axis=0)
+            force = np.nanmean(run.force_n, axis=0)
+        ax_jaw.plot(run.t_s, jaw, color=color, ls=ls, lw=1.3, label=label)
+        ax_force.plot(run.t_s, force, color=color, ls=ls, lw=1.3, label=label)
+        trips = [x for x in run.overload_at_s if x is not None]
+        if trips:
+            k = min(int(np.searchsorted(run.t_s, min(trips))), len(run.t_s) - 1)
+            ax_force.plot([min(trips)], [force[k]], "x", color=color, ms=9, mew=2)
+    for ax in (ax_jaw, ax_force):
+        ax.axvspan(lo, hi, color="tab:green", alpha=0.08, lw=0)
+        ax.axvline(0.0, color="0.5", lw=0.8)
+        ax.grid(alpha=0.3)
+    if scenario.object_deg is not None:
+        ax_jaw.axhline(scenario.object_deg, color="k", lw=1.0, ls="--",
+                       label=f"object ({scenario.object_deg:g} deg)")  # fmt: skip
+    ax_jaw.axhline(scenario.close_command_deg, color="0.4", lw=0.8, ls=":",
+                   label=f"close command ({scenario.close_command_deg:g} deg)")  # fmt: skip
+    ax_jaw.set_ylabel("true jaw angle (deg)")
+    ax_jaw.set_title(title, fontsize=10)
+    stall = runs[0][1].stall_force_n
+    ax_force.axhline(scenario.required_force_n, color="tab:red", lw=1.2, ls="--",
+                     label=f"required {scenario.required_force_n:g} N")  # fmt: skip
+    ax_force.axhline(stall, color="0.3", lw=0.8, ls=":", label=f"stall force {stall:.3g} N")
+    ax_force.plot([], [], "x", color="0.3", ms=8, mew=2, label="overload trips (earliest run)")
+    ax_force.plot([], [], color="tab:green", alpha=0.3, lw=6, label="hold window")
+    ax_force.set_ylim(-0.05 * stall, 1.12 * stall)
+    ax_force.set_ylabel("fingertip force (N)")
+    ax_force.set_xlabel("time from the close command (s); lines: mean over the runs")
+    ax_force.set_xlim(max(float(t[0]), -0.2), float(t[-1]))
+    handles: dict[str, Any] = {}
+    for ax in (ax_jaw, ax_force):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(lab, h)
+    fig.legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(0.99, 0.95),
+               fontsize=8, frameon=False)  # fmt: skip
+    fig.tight_layout()
     return save_figure(fig, path, bbox_inches="tight")

@@ -66,6 +66,8 @@ COMMANDS: tuple[Command, ...] = (
             "whether identification's 95 % intervals cover known truths (synthetic records)"),
     Command("benchmark", _py("-m", "tuners.benchmark", "--out", RESULTS),
             "every tuner and learned controller on every plant: the verdict"),
+    Command("grasp", _py("-m", "tuners.benchmark.grasp", "--out", RESULTS),
+            "grasp and hold: time to grasp, holding force, overload (committed gains files)"),
     Command("reference-scores", _py("-m", "tuners.rl.reference_scores", "--out", RESULTS),
             "what random, doing nothing, the best PID, PPO and SAC score on each environment"),
     Command("speed", _py("-m", "tuners.speed.core", "--repeats", "21", "--slow-repeats", "3",

@@ -377,6 +377,10 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
         lines += _plant_table(plant, pdata, lb["per_plant"][plant])
     lines += _rl_section(data)
     lines += _margin_check(data)
+    if data.get("grasp"):
+        from tuners.benchmark.grasp import benchmark_section
+
+        lines += benchmark_section(data["grasp"])
     lines += [
         "",
         "## How to read it",

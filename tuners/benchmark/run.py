@@ -178,9 +178,30 @@ def run_benchmark(
             evaluations[key][plant] = row
             _log_row(log, plant, tuner.name, row)
     data["evaluations"] = evaluations
+    data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
     data["pareto_fronts"] = {p: _pareto_front(_inputs(p, ev), bench, quick)
                              for p in feasible}  # fmt: skip
     return data
+
+
+def _grasp(
+    plants: list[str], data: dict[str, Any], bench: BenchmarkSettings, ev: EvaluationSettings,
+    inputs_of: Callable[..., cli.Inputs], log: Callable[..., None],
+) -> dict[str, Any]:  # fmt: skip
+    """The grasp-and-hold scenario (:mod:`tuners.benchmark.grasp`) for each plant's PID rows
+    and the servo alone, on the benchmark's preset."""
+    from gripper_env.evaluation.grasp import GraspScenario
+    from tuners.benchmark.grasp import benchmark_grasp
+
+    scenario = GraspScenario()
+    out: dict[str, Any] = {"scenario": scenario.as_dict(), "plants": {}}
+    for plant in plants:
+        inputs = inputs_of(plant, ev)
+        rows = benchmark_grasp(inputs.plant, inputs.disturbance, data["plants"][plant]["rows"],
+                               ev, scenario)  # fmt: skip
+        out["plants"][plant] = rows
+        log(f"  {plant} grasp and hold: {sum(r['held'] for r in rows)} of {len(rows)} held")
+    return out
 
 
 def _references(

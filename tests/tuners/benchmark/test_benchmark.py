@@ -45,6 +45,19 @@ def test_quick_benchmark_writes_report_json_and_figures(quick):
     assert {"ideal", "actual", "sim_to_real_gap"} <= set(gains["metrics"])
 
 
+def test_the_quick_report_has_the_grasp_section(quick):
+    """Every PID row of a ranked plant and the servo alone through the grasp-and-hold scenario
+    (tuners.benchmark.grasp), in the JSON and the report."""
+    out, data = quick
+    rows = data["plants"]["test2"]["rows"]
+    pid = [name for name, row in rows.items() if row["controller"] == "pid"]
+    grasp = data["grasp"]["plants"]
+    assert list(grasp) == ["test2"]  # test1 is not ranked
+    names = [r["controller"].split(" P=")[0] for r in grasp["test2"]]
+    assert names == ["servo alone (no host loop)", *pid]
+    assert "## Grasp and hold" in (out / "benchmark.md").read_text()
+
+
 def test_test1_is_reported_infeasible_with_the_bang_bang_bound(quick):
     out, data = quick
     t1 = data["plants"]["test1"]

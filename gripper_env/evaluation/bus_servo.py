@@ -1,0 +1,396 @@
+"""Judging a bus servo's registers: tracking, grasp-and-hold, and the margins of its loop.
+
+Two scenarios run on the simulation core (:func:`gripper_env.sim.bus_servo.simulate_bus`):
+
+* **tracking** (:func:`tracking_goal`): the free jaw (no object) from its open position through
+  steps of 4, 10 and 30 deg closing and 4, 10 and 30 deg opening, each held 0.6 s. Small steps
+  show the dead band the static friction leaves at low gain, large ones the overshoot and the
+  saturation. Measured: IAE (deg s) and the sum over steps of each step's IAE over its size (s),
+  the largest overshoot past a target (deg), the mean
+  settled error at the end of the holds (deg: the dead band), and the chatter (the duty's
+  variation per second over the last 200 ms of the holds: the "shakiness" users report).
+* **grasp and hold** (:func:`hold_goal`): from open, the goal jumps to the closed stop with an
+  object in the jaws at :attr:`~gripper_env.model.bus_servo.Jaw.object_deg`, and is held for
+  :data:`HOLD_S`. Measured: time to grasp (to the force first reaching 90 % of its hold value),
+  the mean and least holding force over the hold window (N at the fingertip), and whether and
+  when the overload or thermal protection tripped.
+
+The **margins** (:func:`loop_margins`) are those of the loop as the firmware runs it: the
+register PID at 1 kHz on the quantised encoder with a one-tick computation delay, the duty
+held over the tick (zero-order hold) into the motor and jaw ``omega0 / (s (tau_m s + 1))``,
+free and pressed on the object (its spring), the friction and the output limit left out (they
+only add damping or cut the gain). :func:`judge` scores a register set: the cost to minimise and
+the constraints, robust over the identified model's uncertainty (:func:`corner_models`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NONE, BusRun, simulate_bus
+
+__all__ = [
+    "GM_MIN_DB",
+    "HOLD_FORCE_FRAC",
+    "HOLD_S",
+    "MS_MAX",
+    "BusScore",
+    "HoldMetrics",
+    "Margins",
+    "TrackingMetrics",
+    "corner_models",
+    "hold_goal",
+    "hold_metrics",
+    "judge",
+    "loop_margins",
+    "tracking_goal",
+    "tracking_metrics",
+]
+
+#: Robustness constraints, the same as the Arduino gripper's (``configs/objective.yaml``).
+MS_MAX = 1.6
+GM_MIN_DB = 6.0
+#: The grasp: hold this long (s) ...
+HOLD_S = 10.0
+#: ... with at least this fraction of the stall force at the fingertip, all through the hold.
+HOLD_FORCE_FRAC = 0.2
+#: ... and grasp within this time (s).
+GRASP_MAX_S = 1.0
+#: Tracking steps (deg, relative to the open position) and how long each is held (s).
+TRACK_STEPS_DEG: tuple[float, ...] = (-4.0, -14.0, -44.0, -40.0, -30.0, 0.0)
+TRACK_HOLD_S = 0.6
+_SETTLE_S = 0.2  # the last part of each hold: settled error and chatter
+_GRASP_AT_S = 0.2  # when the grasp's goal jumps to the closed stop
+
+#: Cost weights: per deg s of IAE, deg of overshoot, deg of settled error, unit of chatter.
+#: The tracking term is the IAE of each step over its size, summed (s): a 4 deg step counts as much
+#: as a 40 deg one, so the dead band of small moves weighs as much as the slew of large ones.
+WEIGHTS = {"iae_per_deg": 5.0, "overshoot": 0.5, "settled": 2.0, "chatter": 0.002, "grasp": 1.0}
+
+
+def tracking_goal(model: BusServoModel) -> tuple[np.ndarray, np.ndarray]:
+    """The tracking scenario's goal per 1 ms tick (deg) and the tick where each step starts."""
+    n = round(TRACK_HOLD_S / DT)
+    start = model.jaw.open_deg
+    levels = [start, *(start + s for s in TRACK_STEPS_DEG)]
+    goal = np.repeat(np.array(levels), n)
+    return goal, np.arange(len(levels)) * n
+
+
+def hold_goal(model: BusServoModel, hold_s: float = HOLD_S) -> np.ndarray:
+    """The grasp scenario's goal per tick (deg): open, then the closed stop for ``hold_s``."""
+    pre = round(_GRASP_AT_S / DT)
+    return np.concatenate(
+        [
+            np.full(pre, model.jaw.open_deg),
+            np.full(round(hold_s / DT), model.jaw.limits_deg[0]),
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class TrackingMetrics:
+    """Tracking of the free jaw (see the module docstring); angles in deg, times in s."""
+
+    iae: float
+    iae_per_deg_s: float
+    overshoot_deg: float
+    settled_error_deg: float
+    chatter: float
+    max_duty: float
+
+
+@dataclass(frozen=True)
+class HoldMetrics:
+    """Grasp and hold (see the module docstring)."""
+
+    time_to_grasp_s: float
+    holding_force_n: float
+    min_force_n: float
+    required_force_n: float
+    overload: bool
+    trip_at_s: float | None
+    trip: str
+    max_temperature_c: float
+    held: bool
+
+
+def tracking_metrics(model: BusServoModel, run: BusRun, row: int = 0) -> TrackingMetrics:
+    """Metrics of row ``row`` of a tracking run (:func:`tracking_goal`)."""
+    goal, starts = tracking_goal(model)
+    y = run.position[row] * model.deg_per_tick
+    err = goal - y
+    iae = float(np.sum(np.abs(err)) * DT)
+    n = round(TRACK_HOLD_S / DT)
+    m = round(_SETTLE_S / DT)
+    over, settled, chatter, per_deg = 0.0, [], [], 0.0
+    for k, s in enumerate(starts[1:], start=1):
+        seg = slice(s, s + n)
+        size = goal[s] - goal[starts[k - 1]]
+        direction = np.sign(size)
+        per_deg += float(np.sum(np.abs(err[seg])) * DT / abs(size))
+        if direction != 0:
+            over = max(over, float(np.max((y[seg] - goal[s]) * direction)))
+        settled.append(float(np.mean(np.abs(err[s + n - m : s + n]))))
+        chatter.append(float(np.sum(np.abs(np.diff(run.duty[row, s + n - m : s + n]))) / _SETTLE_S))
+    return TrackingMetrics(
+        iae=iae,
+        iae_per_deg_s=per_deg,
+        overshoot_deg=max(over, 0.0),
+        settled_error_deg=float(np.mean(settled)),
+        chatter=float(np.mean(chatter)),
+        max_duty=float(np.max(np.abs(run.duty[row]))),
+    )
+
+
+def hold_metrics(model: BusServoModel, run: BusRun, row: int = 0) -> HoldMetrics:
+    """Metrics of row ``row`` of a grasp-and-hold run (:func:`hold_goal`)."""
+    stall = model.stall_force_n()
+    force = run.force[row] * stall
+    pre = round(_GRASP_AT_S / DT)
+    hold = force[pre:]
+    settle = min(round(GRASP_MAX_S / DT), hold.size // 2)
+    window = hold[settle:]
+    mean = float(np.mean(window))
+    reached = np.flatnonzero(hold >= 0.9 * mean) if mean > 0 else np.array([], dtype=int)
+    t_grasp = float(reached[0] * DT) if reached.size else math.nan
+    trips = np.flatnonzero(run.trip[row] > TRIP_NONE)
+    trip_at = float(trips[0] * DT - _GRASP_AT_S) if trips.size else None
+    kind = {0: "none", 1: "overload", 2: "overheat"}[int(run.trip[row, -1])]
+    required = HOLD_FORCE_FRAC * stall
+    held = bool(trip_at is None and window.size and np.min(window) >= required)
+    held = held and t_grasp <= GRASP_MAX_S
+    return HoldMetrics(
+        time_to_grasp_s=t_grasp,
+        holding_force_n=mean,
+        min_force_n=float(np.min(window)) if window.size else math.nan,
+        required_force_n=required,
+        overload=trip_at is not None,
+        trip_at_s=trip_at,
+        trip=kind,
+        max_temperature_c=float(np.max(run.temperature[row])),
+        held=held,
+    )
+
+
+@dataclass(frozen=True)
+class Margins:
+    """Margins of the sampled-data loop (see :func:`loop_margins`); the worse of free and
+    pressed on the object."""
+
+    ms: float
+    gm_db: float
+    pm_deg: float
+    stable: bool
+
+    def feasible(self) -> bool:
+        """Stable, ``Ms <= MS_MAX`` and gain margin ``>= GM_MIN_DB``."""
+        return self.stable and self.ms <= MS_MAX + 1e-9 and self.gm_db >= GM_MIN_DB - 1e-9
+
+
+_W = np.concatenate([np.logspace(-1, math.log10(math.pi / DT) - 1e-6, 1500)])
+
+
+def _loop_response(model: BusServoModel, regs: RegisterSet, k_contact: float) -> np.ndarray:
+    """The open loop ``L(e^{j w T})`` from error (ticks) to encoder (ticks) on the grid ``_W``."""
+    ph, sc = model.physics, model.scale
+    w0, tau = ph.omega0_deg_s, ph.tau_m_s
+    z = np.exp(1j * _W * DT)
+    zi = 1.0 / z
+    c = sc.kp * regs.p + sc.kd * regs.d * (1 - zi) + sc.ki * regs.i * DT / (1 - zi)
+    # motor and jaw: tau_m/w0 * th'' + th'/w0 + k th = u (fractions of stall, deg)
+    a2, a1, a0 = tau / w0, 1.0 / w0, k_contact
+    # exact ZOH discretisation of 1 / (a2 s^2 + a1 s + a0)
+    g = _zoh(a2, a1, a0, z)
+    return c * g * zi ** (1 + _lag(model)) / model.deg_per_tick
+
+
+def _lag(model: BusServoModel) -> int:
+    """The loop delay in whole ticks, as the simulation core applies it."""
+    return min(round(model.physics.loop_delay_s / DT), MAX_LAG)
+
+
+def _zoh(a2: float, a1: float, a0: float, z: np.ndarray) -> np.ndarray:
+    """ZOH-sampled ``1 / (a2 s^2 + a1 s + a0)`` at the points ``z`` (period :data:`DT`)."""
+    import scipy.signal as sig
+
+    num, den = sig.cont2discrete(([1.0], [a2, a1, a0]), DT, method="zoh")[:2]
+    num = np.atleast_1d(np.squeeze(num))
+    return np.polyval(num, z) / np.polyval(den, z)
+
+
+def _closed_loop_stable(model: BusServoModel, regs: RegisterSet, k_contact: float) -> bool:
+    """Roots of ``1 + L(z)`` inside the unit circle."""
+    import scipy.signal as sig
+
+    ph, sc = model.physics, model.scale
+    num, den = sig.cont2discrete(([1.0], [ph.tau_m_s / ph.omega0_deg_s, 1 / ph.omega0_deg_s,
+                                          k_contact]), DT, method="zoh")[:2]  # fmt: skip
+    gn, gd = np.atleast_1d(np.squeeze(num)) / model.deg_per_tick, np.atleast_1d(den)
+    kp, kd, ki = sc.kp * regs.p, sc.kd * regs.d, sc.ki * regs.i * DT
+    # C(z) = (kp + kd (1 - 1/z) + ki / (1 - 1/z)) -> over z (z - 1)
+    if ki > 0.0:
+        p_part = kp * np.array([1.0, -1.0, 0.0])
+        d_part = kd * np.array([1.0, -2.0, 1.0])
+        cn = np.polyadd(np.polyadd(p_part, d_part), ki * np.array([1.0, 0.0, 0.0]))
+        cd = np.array([1.0, -1.0, 0.0])
+    else:  # no integrator: C(z) = ((kp + kd) z - kd) / z (no cancelled pole at z = 1)
+        cn, cd = np.array([kp + kd, -kd]), np.array([1.0, 0.0])
+    # L = C G / z
+    ln = np.polymul(cn, gn)
+    ld = np.polymul(np.polymul(cd, gd), np.eye(1, 2 + _lag(model)).ravel())
+    char = np.polyadd(ld, ln)
+    roots = np.roots(np.trim_zeros(char, "f"))
+    return bool(np.all(np.abs(roots) < 1.0 - 1e-9))
+
+
+def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
+    """Peak sensitivity, gain and phase margins of the servo's loop, free and on the object.
+
+    The worse of the two is returned (largest ``Ms``, smallest margins); an unstable closed loop
+    gives ``Ms = inf``.
+    """
+    worst_ms, worst_gm, worst_pm, stable = 0.0, math.inf, math.inf, True
+    for k in (0.0, model.jaw.contact_stiffness):
+        if not _closed_loop_stable(model, regs, k):
+            return Margins(ms=math.inf, gm_db=-math.inf, pm_deg=-math.inf, stable=False)
+        loop = _loop_response(model, regs, k)
+        worst_ms = max(worst_ms, float(np.max(1.0 / np.abs(1.0 + loop))))
+        ang = np.unwrap(np.angle(loop))
+        mag = np.abs(loop)
+        # gain margin: where the phase crosses -180 deg (mod 360)
+        cross = np.flatnonzero(np.diff(np.floor((ang + math.pi) / (2 * math.pi))) != 0)
+        for i in cross:
+            worst_gm = min(worst_gm, -20 * math.log10(max(mag[i], 1e-300)))
+        up = np.flatnonzero((mag[:-1] >= 1.0) & (mag[1:] < 1.0))
+        for i in up:
+            pm = math.degrees(math.pi + ang[i]) % 360.0
+            worst_pm = min(worst_pm, pm)
+    return Margins(ms=worst_ms, gm_db=worst_gm, pm_deg=worst_pm, stable=stable)
+
+
+def corner_models(
+    model: BusServoModel, rel_std: dict[str, float] | None = None, k: float = 2.0
+) -> list[BusServoModel]:
+    """The model and its ``k``-sigma corners in the loop gain ``kp`` and the time constant.
+
+    ``rel_std`` maps ``"kp"``, ``"kd"``, ``"tau_m_s"`` to relative standard errors (an
+    identification's); missing ones count as 10 %.
+    """
+    rel = {"kp": 0.1, "kd": 0.1, "tau_m_s": 0.1, **(rel_std or {})}
+    out = [model]
+    for sk in (-1, 1):
+        for st in (-1, 1):
+            scale = model.scale.model_copy(
+                update={
+                    "kp": model.scale.kp * max(1 + sk * k * rel["kp"], 0.05),
+                    "kd": model.scale.kd * max(1 + sk * k * rel["kd"], 0.05),
+                }
+            )
+            physics = model.physics.model_copy(
+                update={"tau_m_s": model.physics.tau_m_s * max(1 + st * k * rel["tau_m_s"], 0.05)}
+            )
+            out.append(model.model_copy(update={"scale": scale, "physics": physics}))
+    return out
+
+
+@dataclass(frozen=True)
+class BusScore:
+    """A register set judged on a model: cost, constraints and every measure behind them."""
+
+    registers: RegisterSet
+    cost: float
+    feasible: bool
+    violations: tuple[str, ...]
+    tracking: TrackingMetrics
+    hold: HoldMetrics
+    margins: Margins
+    robust_margins: Margins
+    extra: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready dict."""
+        return {
+            "registers": self.registers.model_dump(),
+            "cost": self.cost,
+            "feasible": self.feasible,
+            "violations": list(self.violations),
+            "tracking": asdict(self.tracking),
+            "hold": asdict(self.hold),
+            "margins": asdict(self.margins),
+            "robust_margins": asdict(self.robust_margins),
+        }
+
+
+def judge(
+    model: BusServoModel,
+    registers: Sequence[RegisterSet],
+    *,
+    rel_std: dict[str, float] | None = None,
+) -> list[BusScore]:
+    """Score register sets on ``model``: one batch per scenario through the simulation core.
+
+    Cost (lower is better): ``5 sum(IAE / step size) + 0.5 overshoot + 2 settled error + 0.002
+    chatter + time to grasp`` (s, deg, deg, 1/s, s). Constraints: the loop's margins
+    (``Ms <= 1.6``, gain margin
+    ``>= 6 dB``) on the model and on its uncertainty corners (:func:`corner_models`), and the
+    hold: grasp within 1 s, hold at least 20 % of stall force for 10 s without a trip.
+    """
+    regs = list(registers)
+    track_goal, _ = tracking_goal(model)
+    track = simulate_bus(model, regs, track_goal)
+    grasp = simulate_bus(model, regs, hold_goal(model), with_object=True)
+    corners = corner_models(model, rel_std)[1:]
+    scores = []
+    for i, r in enumerate(regs):
+        tm = tracking_metrics(model, track, i)
+        hm = hold_metrics(model, grasp, i)
+        mg = loop_margins(model, r)
+        robust = [mg, *(loop_margins(c, r) for c in corners)]
+        worst = Margins(
+            ms=max(m.ms for m in robust),
+            gm_db=min(m.gm_db for m in robust),
+            pm_deg=min(m.pm_deg for m in robust),
+            stable=all(m.stable for m in robust),
+        )
+        violations = []
+        if not worst.stable:
+            violations.append("unstable loop (model or an uncertainty corner)")
+        else:
+            if worst.ms > MS_MAX + 1e-9:
+                violations.append(f"Ms {worst.ms:.2f} > {MS_MAX}")
+            if worst.gm_db < GM_MIN_DB - 1e-9:
+                violations.append(f"gain margin {worst.gm_db:.1f} dB < {GM_MIN_DB}")
+        if hm.overload:
+            violations.append(f"{hm.trip} trips at {hm.trip_at_s:.2f} s of the hold")
+        elif not hm.held:
+            violations.append(
+                f"hold: least force {hm.min_force_n:.1f} N (need {hm.required_force_n:.1f}), "
+                f"grasp in {hm.time_to_grasp_s:.2f} s (need <= {GRASP_MAX_S:g})"
+            )
+        t_grasp = hm.time_to_grasp_s if math.isfinite(hm.time_to_grasp_s) else 10.0
+        cost = (
+            WEIGHTS["iae_per_deg"] * tm.iae_per_deg_s
+            + WEIGHTS["overshoot"] * tm.overshoot_deg
+            + WEIGHTS["settled"] * tm.settled_error_deg
+            + WEIGHTS["chatter"] * tm.chatter
+            + WEIGHTS["grasp"] * t_grasp
+        )
+        scores.append(
+            BusScore(
+                registers=r,
+                cost=float(cost) if math.isfinite(cost) else 1e6,
+                feasible=not violations,
+                violations=tuple(violations),
+                tracking=tm,
+                hold=hm,
+                margins=mg,
+                robust_margins=worst,
+            )
+        )
+    return scores

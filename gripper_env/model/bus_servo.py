@@ -1,0 +1,347 @@
+"""A serial bus servo (Feetech STS3215, Dynamixel XL330 / XL430) as a gripper: its internal
+position loop in register units, the motor and jaw behind it, and the registers a user tunes.
+
+A bus servo closes its own position loop at 1 kHz on its magnetic encoder (4096 ticks per
+turn) and drives the motor with a PWM duty computed from integer gain registers. This module
+holds what the simulation core (:mod:`gripper_env.sim.bus_servo`) needs to run one:
+
+* :class:`RegisterSet`: the registers that shape the loop (P, I, D, torque limit, acceleration,
+  velocity limit, deadband), as the integers written on the bus;
+* :class:`LoopScale`: the register-to-physics mapping (duty per register unit and tick), the
+  part of the firmware that vendors document only partly and that identification estimates;
+* :class:`ServoPhysics`: motor, jaw and friction (no-load speed, mechanical time constant,
+  Coulomb and static friction as fractions of stall torque), the delay of the loop as a host
+  sees it;
+* :class:`Protection`: the overload timer and the thermal cut-out;
+* :class:`Jaw`: the stops, the object, the finger lever that turns torque into grip force;
+* :class:`BusServoModel`: all of them, loaded from ``configs/bus_servos/<family>.yaml``
+  (:func:`load_bus_servo`) or from an identified model file.
+
+The controller (per 1 ms tick, register units)::
+
+    e     = setpoint - position                         (ticks; setpoint = profiled goal)
+    e     = 0 if |e| <= deadband
+    duty  = kp * P * e + ki * I * sum(e dt) + kd * D * (e - e_prev)
+    duty  = clip(duty, -limit, limit)                   (limit = torque limit, or the trip's)
+
+and the motor pushes with ``tau = duty - omega / omega0`` (fractions of stall torque) against
+static and Coulomb friction, the stops and the object (a stiff spring).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from gripper_env.io.config import find_config, load_yaml, validate
+
+__all__ = [
+    "FAMILIES",
+    "BusServoModel",
+    "Jaw",
+    "LoopScale",
+    "Protection",
+    "RegisterSet",
+    "ServoPhysics",
+    "load_bus_servo",
+    "load_registers_file",
+]
+
+_STRICT = ConfigDict(extra="forbid", frozen=True)
+
+#: The servo families with a shipped model, ``configs/bus_servos/<family>.yaml``.
+FAMILIES: tuple[str, ...] = ("sts3215", "xl330", "xl430")
+
+#: Encoder ticks per turn, all three families.
+TICKS_PER_REV = 4096
+DEG_PER_TICK = 360.0 / TICKS_PER_REV
+
+
+class RegisterSet(BaseModel):
+    """The loop's registers, as integers in the servo's own units.
+
+    Attributes
+    ----------
+    p, i, d : int
+        Position-loop gains (STS3215 ``P/I/D_Coefficient``; Dynamixel ``Position P/I/D Gain``).
+    torque_limit : int
+        Output limit (STS3215 ``Torque_Limit``, 0-1000 = 0-100 % of stall; Dynamixel
+        ``Goal PWM``, 0-885 = 0-100 % duty).
+    acceleration : int
+        Profile acceleration (STS3215 ``Acceleration``, 100 ticks/s^2 per unit; Dynamixel
+        ``Profile Acceleration``, 214.577 rev/min^2 per unit); 0 = unlimited.
+    velocity : int
+        Profile velocity (STS3215 ``Goal_Velocity``, ticks/s; Dynamixel ``Profile Velocity``,
+        0.229 rev/min per unit); 0 = unlimited.
+    deadband : int
+        Dead zone (ticks) in which the error counts as zero (STS3215 ``CW/CCW_Dead_Zone``;
+        Dynamixel: none, 0).
+    """
+
+    model_config = _STRICT
+
+    p: int = Field(ge=0)
+    i: int = Field(0, ge=0)
+    d: int = Field(0, ge=0)
+    torque_limit: int = Field(ge=0)
+    acceleration: int = Field(0, ge=0)
+    velocity: int = Field(0, ge=0)
+    deadband: int = Field(0, ge=0)
+
+    def label(self) -> str:
+        """``P=32 I=0 D=32 limit=1000`` (and acceleration, velocity, deadband when set)."""
+        text = f"P={self.p} I={self.i} D={self.d} limit={self.torque_limit}"
+        for name in ("acceleration", "velocity", "deadband"):
+            if getattr(self, name):
+                text += f" {name[:3] if name != 'deadband' else 'db'}={getattr(self, name)}"
+        return text
+
+
+class LoopScale(BaseModel):
+    """The register-to-physics mapping of the firmware's position loop.
+
+    Attributes
+    ----------
+    kp : float
+        Duty (fraction of full PWM) per P unit per tick of error.
+    ki : float
+        Duty per I unit per tick-second of integrated error.
+    kd : float
+        Duty per D unit per tick of error change over one 1 ms tick.
+    duty_full : int
+        The torque-limit register value meaning 100 % (STS3215 1000, Dynamixel 885).
+    acceleration_unit : float
+        deg/s^2 per acceleration register unit.
+    velocity_unit : float
+        deg/s per velocity register unit.
+    """
+
+    model_config = _STRICT
+
+    kp: float = Field(gt=0.0)
+    ki: float = Field(ge=0.0)
+    kd: float = Field(ge=0.0)
+    duty_full: int = Field(gt=0)
+    acceleration_unit: float = Field(gt=0.0)
+    velocity_unit: float = Field(gt=0.0)
+
+
+class ServoPhysics(BaseModel):
+    """Motor, gear train and jaw, in fractions of the motor's stall torque.
+
+    Attributes
+    ----------
+    stall_torque_nm : float
+        Stall torque at the output shaft at full duty (N m; datasheet).
+    omega0_deg_s : float
+        No-load speed at full duty (deg/s; datasheet).
+    tau_m_s : float
+        Mechanical time constant (s): the jaw's reflected inertia times ``omega0`` over the stall
+        torque.
+    coulomb : float
+        Coulomb (sliding) friction, fraction of stall torque.
+    static : float
+        Static (break-away) friction, fraction of stall torque, ``>= coulomb``.
+    delay_s : float
+        Delay from a goal written on the bus to the loop acting on it (s).
+    loop_delay_s : float
+        Delay inside the position loop, from the encoder reading to the duty reaching the motor
+        (s; sensing, computation, PWM update), whole 1 ms ticks: the phase lag that limits the
+        gain.
+    """
+
+    model_config = _STRICT
+
+    stall_torque_nm: float = Field(gt=0.0)
+    omega0_deg_s: float = Field(gt=0.0)
+    tau_m_s: float = Field(gt=0.0)
+    coulomb: float = Field(ge=0.0, lt=1.0)
+    static: float = Field(ge=0.0, lt=1.0)
+    delay_s: float = Field(0.0, ge=0.0, le=0.1)
+    loop_delay_s: float = Field(0.0, ge=0.0, le=0.015)
+
+    @model_validator(mode="after")
+    def _static_at_least_coulomb(self) -> ServoPhysics:
+        if self.static < self.coulomb:
+            raise ValueError(f"static friction {self.static} below Coulomb {self.coulomb}")
+        return self
+
+
+class Protection(BaseModel):
+    """The servo's protections: an overload timer and a thermal cut-out.
+
+    Attributes
+    ----------
+    overload_duty : float
+        Duty (fraction) at or above which the overload timer runs.
+    overload_time_s : float
+        Time above ``overload_duty`` that trips the overload protection (s); the timer runs down
+        at the same rate below it.
+    tripped_duty : float
+        Output limit after a trip (fraction): STS3215 keeps a protective torque, Dynamixel turns
+        the torque off (0).
+    ambient_c, rise_c, tau_thermal_s, max_temp_c : float
+        Thermal model: the winding heats towards ``ambient + rise * duty^2`` with time constant
+        ``tau_thermal_s``; at ``max_temp_c`` the servo trips (overheat).
+    """
+
+    model_config = _STRICT
+
+    overload_duty: float = Field(gt=0.0, le=1.0)
+    overload_time_s: float = Field(gt=0.0)
+    tripped_duty: float = Field(ge=0.0, le=1.0)
+    ambient_c: float = 25.0
+    rise_c: float = Field(gt=0.0)
+    tau_thermal_s: float = Field(gt=0.0)
+    max_temp_c: float = 70.0
+
+
+class Jaw(BaseModel):
+    """The gripper built on the servo: stops, object, finger lever.
+
+    Attributes
+    ----------
+    limits_deg : (float, float)
+        Mechanical stops, closed and open (deg of the servo shaft).
+    open_deg : float
+        The open position the scenarios start from (deg).
+    object_deg : float
+        Where an object of the grasp scenario meets the jaw (deg).
+    contact_stiffness : float
+        Stiffness of the object and of the stops, fraction of stall torque per deg.
+    finger_lever_m : float
+        Lever from the shaft to the fingertip (m): force = torque / lever.
+    """
+
+    model_config = _STRICT
+
+    limits_deg: tuple[float, float]
+    open_deg: float
+    object_deg: float
+    contact_stiffness: float = Field(gt=0.0)
+    finger_lever_m: float = Field(gt=0.0)
+
+    @field_validator("limits_deg")
+    @classmethod
+    def _ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not v[0] < v[1]:
+            raise ValueError(f"must be [closed_deg, open_deg] with closed < open, got {list(v)}")
+        return v
+
+
+class BusServoModel(BaseModel):
+    """One bus servo as a gripper: everything the simulation core runs.
+
+    Attributes
+    ----------
+    family : {"sts3215", "xl330", "xl430"}
+        The servo family (its control table: :mod:`gripper_env.hardware.bus.tables`).
+    name : str
+        The model's name (the family for a shipped model, the user's for an identified one).
+    scale, physics, protection, jaw
+        See :class:`LoopScale`, :class:`ServoPhysics`, :class:`Protection`, :class:`Jaw`.
+    factory : RegisterSet
+        The registers the servo ships with.
+    community : dict of str to RegisterSet
+        Register sets a community ships (LeRobot's P = 16 on the SO-100 / SO-101, ...), the
+        baselines a tuning result must beat.
+    """
+
+    model_config = _STRICT
+
+    family: Literal["sts3215", "xl330", "xl430"]
+    name: str
+    scale: LoopScale
+    physics: ServoPhysics
+    protection: Protection
+    jaw: Jaw
+    factory: RegisterSet
+    community: dict[str, RegisterSet] = Field(default_factory=dict)
+
+    @property
+    def deg_per_tick(self) -> float:
+        """Encoder resolution (deg per tick)."""
+        return DEG_PER_TICK
+
+    def baselines(self) -> dict[str, RegisterSet]:
+        """The factory registers and the community's, by name (``factory`` first)."""
+        return {"factory": self.factory, **self.community}
+
+    def limit_fraction(self, regs: RegisterSet) -> float:
+        """The torque-limit register as a fraction of full output (0 to 1)."""
+        return min(regs.torque_limit / self.scale.duty_full, 1.0)
+
+    def stall_force_n(self) -> float:
+        """Fingertip force at stall torque (N)."""
+        return self.physics.stall_torque_nm / self.jaw.finger_lever_m
+
+    def with_updates(self, **parts: Any) -> BusServoModel:
+        """A copy with whole parts replaced (``physics=..., scale=...``), validated."""
+        data = self.model_dump()
+        for key, value in parts.items():
+            data[key] = value.model_dump() if isinstance(value, BaseModel) else value
+        return BusServoModel.model_validate(data)
+
+
+def load_bus_servo(model: str | os.PathLike[str] | BusServoModel = "sts3215") -> BusServoModel:
+    """A bus servo model by family name (``configs/bus_servos/``), or from a YAML/JSON path.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        Unknown name (listing the shipped ones), missing file, unknown key or a value out of
+        range; the message names the file and the key.
+    """
+    if isinstance(model, BusServoModel):
+        return model
+    text = os.fspath(model)
+    if text.endswith(".json"):
+        from pathlib import Path
+
+        from gripper_env.io.config import ConfigError
+
+        path = Path(text)
+        if not path.is_file():
+            raise ConfigError(f"bus servo model file {text!r} does not exist")
+        import json
+
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{text}: not a JSON bus servo model ({exc})") from None
+        data = data.get("model", data) if isinstance(data, dict) else data
+        if not isinstance(data, dict):
+            raise ConfigError(f"{text}: expected a JSON object with the model")
+        return validate(BusServoModel, data, text)
+    found = find_config("bus_servos", text)
+    return validate(BusServoModel, load_yaml(found), str(found))
+
+
+def load_registers_file(path: str | os.PathLike[str]) -> tuple[BusServoModel, RegisterSet, dict]:
+    """A tuned registers file (what ``python -m tuners.bus.tune`` writes): the model it was tuned
+    on, the registers, and the whole document.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        A missing or malformed file, naming it and what is wrong.
+    """
+    import json
+    from pathlib import Path
+
+    from gripper_env.io.config import ConfigError
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"registers file {os.fspath(path)!r} does not exist")
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{p}: not a JSON registers file ({exc})") from None
+    if not isinstance(doc, dict) or "registers" not in doc or "model" not in doc:
+        raise ConfigError(f"{p}: a registers file needs 'model' and 'registers' keys")
+    model = validate(BusServoModel, doc["model"], f"{p}: model")
+    regs = validate(RegisterSet, doc["registers"], f"{p}: registers")
+    return model, regs, doc

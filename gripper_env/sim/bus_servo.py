@@ -1,0 +1,340 @@
+"""The bus servo block of the simulation core: a servo's own position loop in register units,
+its motor, the jaw with static and Coulomb friction, the stops and an object, and the overload
+and thermal protections.
+
+One call of the kernel advances ``B`` servos by ``T`` control ticks of 1 ms (the firmware's
+loop rate); inside a tick the mechanics take :data:`SUBSTEPS` semi-implicit Euler steps, because
+the object and the stops are stiff springs. The same kernel runs the batches of the tuners and
+the identification (:func:`simulate_bus`) and, a few ticks at a time, the virtual servo behind a
+pseudo-terminal (:class:`gripper_env.hardware.bus.unit.ServoUnit`), so the servo a host talks to
+and the model it is tuned on are one code.
+
+Friction is a stick-slip (Karnopp) model at torque level: a resting jaw breaks away when the net
+torque exceeds the static friction, slides against the Coulomb friction and sticks again when
+its speed crosses zero with the net torque inside the static band. At torque level, the dead
+band in degrees is ``static / (kp * P)``: it shrinks as the gain grows, which is the trade-off a
+user tuning P faces (the position-level models of :mod:`gripper_env.sim.friction` take the band
+in degrees as fixed, right for a servo whose gain nobody changes).
+
+Parameter row (:data:`BUS_PARAMS`), register row (:data:`BUS_REGS`), state row
+(:data:`BUS_STATE`): see :func:`bus_params`, :func:`bus_registers`, :func:`bus_state`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+
+__all__ = [
+    "BUS_PARAMS",
+    "BUS_REGS",
+    "BUS_STATE",
+    "DT",
+    "MAX_LAG",
+    "SUBSTEPS",
+    "BusRun",
+    "bus_params",
+    "bus_registers",
+    "bus_state",
+    "run_bus",
+    "simulate_bus",
+]
+
+#: Control tick (s): the servo firmware's loop period.
+DT = 1e-3
+#: Mechanics steps per control tick.
+SUBSTEPS = 8
+
+# parameter columns
+(
+    PB_KP, PB_KI, PB_KD, PB_W0, PB_TAUM, PB_FC, PB_FS, PB_DEGTICK, PB_LO, PB_HI, PB_OBJ, PB_KOBJ,
+    PB_OVL_DUTY, PB_OVL_TIME, PB_TRIP_DUTY, PB_TAMB, PB_TRISE, PB_TAUTH, PB_TMAX, PB_LAG,
+) = range(20)  # fmt: skip
+BUS_PARAMS = 20
+#: Longest loop delay (ticks) the duty's delay line holds.
+MAX_LAG = 15
+# register columns (physical units: duty fractions, deg/s^2, deg/s, ticks)
+RB_P, RB_I, RB_D, RB_LIMIT, RB_ACC, RB_VEL, RB_DB, RB_ON = range(8)
+BUS_REGS = 8
+# state columns
+(
+    SB_TH, SB_W, SB_STUCK, SB_INT, SB_EPREV, SB_SP, SB_SPV, SB_OVT, SB_TEMP, SB_TRIP, SB_DUTY,
+    SB_FORCE, SB_TICK, SB_BUF,
+) = range(14)  # fmt: skip
+BUS_STATE = SB_BUF + MAX_LAG + 1  # the last columns: the duty's delay line
+
+#: Trip codes in the state's ``SB_TRIP`` column and the run's ``trip`` output.
+TRIP_NONE, TRIP_OVERLOAD, TRIP_OVERHEAT = 0, 1, 2
+
+
+def bus_params(model: BusServoModel, *, with_object: bool = False) -> np.ndarray:
+    """The parameter row of ``model`` (an object at ``model.jaw.object_deg`` if ``with_object``)."""
+    s, ph, pr, jaw = model.scale, model.physics, model.protection, model.jaw
+    row = np.zeros(BUS_PARAMS)
+    row[PB_KP], row[PB_KI], row[PB_KD] = s.kp, s.ki, s.kd
+    row[PB_W0], row[PB_TAUM] = ph.omega0_deg_s, ph.tau_m_s
+    row[PB_FC], row[PB_FS] = ph.coulomb, ph.static
+    row[PB_DEGTICK] = model.deg_per_tick
+    row[PB_LO], row[PB_HI] = jaw.limits_deg
+    row[PB_OBJ] = jaw.object_deg if with_object else -math.inf
+    row[PB_KOBJ] = jaw.contact_stiffness
+    row[PB_OVL_DUTY], row[PB_OVL_TIME] = pr.overload_duty, pr.overload_time_s
+    row[PB_TRIP_DUTY] = pr.tripped_duty
+    row[PB_TAMB], row[PB_TRISE], row[PB_TAUTH] = pr.ambient_c, pr.rise_c, pr.tau_thermal_s
+    row[PB_TMAX] = pr.max_temp_c
+    row[PB_LAG] = min(round(model.physics.loop_delay_s / DT), MAX_LAG)
+    return row
+
+
+def bus_registers(model: BusServoModel, regs: RegisterSet, *, torque_on: bool = True) -> np.ndarray:
+    """The register row of ``regs`` in physical units (the gains stay register integers)."""
+    row = np.zeros(BUS_REGS)
+    row[RB_P], row[RB_I], row[RB_D] = regs.p, regs.i, regs.d
+    row[RB_LIMIT] = model.limit_fraction(regs)
+    row[RB_ACC] = regs.acceleration * model.scale.acceleration_unit
+    row[RB_VEL] = regs.velocity * model.scale.velocity_unit
+    row[RB_DB] = regs.deadband
+    row[RB_ON] = 1.0 if torque_on else 0.0
+    return row
+
+
+def bus_state(model: BusServoModel, angle_deg: float | None = None) -> np.ndarray:
+    """A servo at rest at ``angle_deg`` (default the jaw's open position), cold, not tripped."""
+    th = model.jaw.open_deg if angle_deg is None else float(angle_deg)
+    row = np.zeros(BUS_STATE)
+    row[SB_TH] = th
+    row[SB_STUCK] = 1.0
+    row[SB_SP] = round(th / model.deg_per_tick)
+    row[SB_TEMP] = model.protection.ambient_c
+    return row
+
+
+@njit(inline="always")
+def _profile(sp: float, spv: float, goal: float, acc: float, vel: float) -> tuple[float, float]:
+    """One tick of the servo's goal profile (ticks, ticks/s): limited velocity and acceleration."""
+    d = goal - sp
+    if acc <= 0.0 and vel <= 0.0:
+        return goal, 0.0
+    direction = 1.0 if d > 0 else -1.0
+    want = abs(d) / DT
+    if acc > 0.0:
+        want = min(want, math.sqrt(2.0 * acc * abs(d)))
+    if vel > 0.0:
+        want = min(want, vel)
+    want *= direction
+    if acc > 0.0:
+        dv = acc * DT
+        spv = min(max(want, spv - dv), spv + dv)
+    else:
+        spv = want
+    nxt = sp + spv * DT
+    if (goal - nxt) * direction <= 0.0:
+        return goal, 0.0
+    return nxt, spv
+
+
+@njit(nogil=True)
+def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
+    kp, ki, kd = p[PB_KP], p[PB_KI], p[PB_KD]
+    w0, taum, fc, fs = p[PB_W0], p[PB_TAUM], p[PB_FC], p[PB_FS]
+    degtick, lo, hi, obj, kobj = p[PB_DEGTICK], p[PB_LO], p[PB_HI], p[PB_OBJ], p[PB_KOBJ]
+    gain = w0 / taum  # deg/s^2 per unit of net torque (fractions of stall)
+    cobj = 2.0 * 0.7 * math.sqrt(kobj * taum / w0)  # contact damping, ~0.7 of critical
+    kstop = 4.0 * kobj
+    cstop = 2.0 * 0.7 * math.sqrt(kstop * taum / w0)
+    h = DT / SUBSTEPS
+    acc_t, vel_t = r[RB_ACC] / degtick, r[RB_VEL] / degtick  # ticks/s^2, ticks/s
+    th, w, stuck = s[SB_TH], s[SB_W], s[SB_STUCK]
+    integ, eprev, sp, spv = s[SB_INT], s[SB_EPREV], s[SB_SP], s[SB_SPV]
+    ovt, tmp, tripped, u = s[SB_OVT], s[SB_TEMP], s[SB_TRIP], s[SB_DUTY]
+    f_contact = s[SB_FORCE]
+    lag = int(p[PB_LAG])
+    nbuf = MAX_LAG + 1
+    tick = int(s[SB_TICK])
+    for k in range(goal.shape[0]):
+        # --- the firmware's loop: encoder, profile, PID in register units, output limit
+        meas = math.floor(th / degtick + 0.5)
+        sp, spv = _profile(sp, spv, goal[k], acc_t, vel_t)
+        e = math.floor(sp + 0.5) - meas
+        if abs(e) <= r[RB_DB]:
+            e = 0.0
+        limit = r[RB_LIMIT]
+        if tripped > 0.0:
+            limit = min(limit, p[PB_TRIP_DUTY])
+        if r[RB_ON] > 0.0 and limit > 0.0:
+            if r[RB_I] > 0.0:
+                integ += e * DT
+                cap = limit / (ki * r[RB_I])
+                integ = min(max(integ, -cap), cap)
+            else:
+                integ = 0.0
+            u = kp * r[RB_P] * e + ki * r[RB_I] * integ + kd * r[RB_D] * (e - eprev)
+            u = min(max(u, -limit), limit)
+        else:
+            u, integ = 0.0, 0.0
+        eprev = e
+        # --- protections: overload timer and winding temperature
+        if abs(u) >= p[PB_OVL_DUTY] - 1e-12:
+            ovt += DT
+        else:
+            ovt = max(ovt - DT, 0.0)
+        tmp += DT / p[PB_TAUTH] * (p[PB_TAMB] + p[PB_TRISE] * u * u - tmp)
+        if tripped == 0.0:
+            if ovt >= p[PB_OVL_TIME] - 1e-9:
+                tripped = 1.0
+            elif tmp >= p[PB_TMAX]:
+                tripped = 2.0
+        # --- the loop's delay (sensing, computation, PWM): the motor gets the duty of lag ticks ago
+        s[SB_BUF + (tick % nbuf)] = u
+        ua = s[SB_BUF + ((tick - lag) % nbuf)]
+        tick += 1
+        # --- mechanics: motor, stops, object, stick-slip friction
+        for _ in range(SUBSTEPS):
+            tau = ua - w / w0
+            fobj = 0.0
+            if th < obj:
+                fobj = kobj * (obj - th)
+                tau += fobj - cobj * w
+            if th < lo:
+                tau += kstop * (lo - th) - cstop * w
+            elif th > hi:
+                tau -= kstop * (th - hi) + cstop * w
+            if stuck > 0.0:
+                if abs(tau) <= fs:
+                    w = 0.0
+                    f_contact = fobj
+                    continue
+                stuck = 0.0
+            if w != 0.0:
+                fr = fc if w > 0.0 else -fc
+            else:
+                fr = fc if tau > 0.0 else -fc
+            w_new = w + (tau - fr) * gain * h
+            if (w != 0.0 and w_new * w <= 0.0) or w_new == 0.0:
+                if abs(tau) <= fs:
+                    w_new = 0.0
+                    stuck = 1.0
+            w = w_new
+            th += w * h
+            f_contact = fobj
+        pos[k] = meas
+        duty[k] = u
+        force[k] = f_contact
+        trip[k] = tripped
+        temp[k] = tmp
+    s[SB_TH], s[SB_W], s[SB_STUCK] = th, w, stuck
+    s[SB_INT], s[SB_EPREV], s[SB_SP], s[SB_SPV] = integ, eprev, sp, spv
+    s[SB_OVT], s[SB_TEMP], s[SB_TRIP], s[SB_DUTY] = ovt, tmp, tripped, u
+    s[SB_FORCE] = f_contact
+    s[SB_TICK] = tick
+
+
+@njit(nogil=True, parallel=True, cache=True)
+def _run_batch(params, regs, state, goal, pos, duty, force, trip, temp):
+    for b in prange(params.shape[0]):
+        _run_row(params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b])
+
+
+@njit(nogil=True, cache=True)
+def _run_one(params, regs, state, goal, pos, duty, force, trip, temp):
+    for b in range(params.shape[0]):
+        _run_row(params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b])
+
+
+@dataclass(frozen=True)
+class BusRun:
+    """What :func:`run_bus` returns, arrays of shape ``(B, T)``, one value per 1 ms tick.
+
+    Attributes
+    ----------
+    position : ndarray
+        Encoder reading (ticks), as the firmware saw it at the start of the tick.
+    duty : ndarray
+        Motor duty (fraction of full output, signed).
+    force : ndarray
+        Contact force of the object on the jaw (fraction of stall torque).
+    trip : ndarray
+        0 before any trip, then 1 (overload) or 2 (overheat).
+    temperature : ndarray
+        Winding temperature (deg C).
+    """
+
+    position: np.ndarray
+    duty: np.ndarray
+    force: np.ndarray
+    trip: np.ndarray
+    temperature: np.ndarray
+
+
+def run_bus(
+    params: np.ndarray, regs: np.ndarray, state: np.ndarray, goal_ticks: np.ndarray
+) -> BusRun:
+    """Advance ``B`` servos by ``T`` ticks in place (``state`` is updated).
+
+    Parameters
+    ----------
+    params : ndarray, shape (B, BUS_PARAMS)
+    regs : ndarray, shape (B, BUS_REGS)
+    state : ndarray, shape (B, BUS_STATE)
+        Updated in place.
+    goal_ticks : ndarray, shape (T,) or (B, T)
+        The goal position register per tick (ticks).
+    """
+    params = np.ascontiguousarray(params, dtype=np.float64)
+    regs = np.ascontiguousarray(regs, dtype=np.float64)
+    n = params.shape[0]
+    goal = np.asarray(goal_ticks, dtype=np.float64)
+    if goal.ndim == 1:
+        goal = np.broadcast_to(goal, (n, goal.shape[0]))
+    goal = np.ascontiguousarray(goal)
+    if regs.shape[0] != n or state.shape[0] != n or goal.shape[0] != n:
+        raise ValueError(
+            f"batch sizes differ: params {n}, registers {regs.shape[0]}, state {state.shape[0]}, "
+            f"goal {goal.shape[0]}"
+        )
+    if not np.all(np.isfinite(goal)):
+        raise ValueError("goal positions must be finite (ticks)")
+    t = goal.shape[1]
+    out = [np.empty((n, t)) for _ in range(5)]
+    kernel = _run_batch if n * t >= 200_000 and n > 1 else _run_one
+    kernel(params, regs, state, goal, *out)
+    return BusRun(*out)
+
+
+def simulate_bus(
+    model: BusServoModel,
+    registers: RegisterSet | list[RegisterSet],
+    goal_deg: np.ndarray,
+    *,
+    with_object: bool = False,
+    start_deg: float | None = None,
+    params: np.ndarray | None = None,
+) -> BusRun:
+    """Run register sets (a batch) on one model from rest, the goal given per tick in deg.
+
+    The model's delay shifts the goal by whole ticks. ``params`` (shape (B, BUS_PARAMS)) replaces
+    the model's parameter rows (identification runs candidate models this way).
+    """
+    regs_list = [registers] if isinstance(registers, RegisterSet) else list(registers)
+    goal = np.asarray(goal_deg, dtype=np.float64)
+    n = len(regs_list) if params is None else params.shape[0]
+    if params is None:
+        rows = np.repeat(bus_params(model, with_object=with_object)[None], n, axis=0)
+    else:
+        rows = np.asarray(params, dtype=np.float64)
+    if len(regs_list) == 1 and n > 1:
+        regs_list = regs_list * n
+    regs = np.stack([bus_registers(model, r) for r in regs_list])
+    start = goal.reshape(-1, goal.shape[-1])[0, 0] if start_deg is None else start_deg
+    state = np.repeat(bus_state(model, start)[None], n, axis=0)
+    lag = round(model.physics.delay_s / DT)
+    ticks = goal / model.deg_per_tick
+    if lag:
+        pad = np.repeat(ticks[..., :1], lag, axis=-1)
+        ticks = np.concatenate([pad, ticks[..., :-lag]], axis=-1)
+    return run_bus(rows, regs, state, np.round(ticks))

@@ -1,0 +1,519 @@
+"""Identification of a bus servo's loop from step records at several gain settings.
+
+A bus servo's user sees registers, not physics: how much duty one P unit gives per tick of
+error, how fast the jaw answers, how much static friction it must overcome, how late the loop
+acts. :func:`identify_bus_servo` estimates those from records of steps taken at several
+register settings (``python -m tuners.bus.record``: the goal written, the position read back
+over the bus, with the host's time stamps): a grey-box fit of the model that the virtual servo
+and the tuner run (:mod:`gripper_env.sim.bus_servo`), by running the simulation core on
+batches of candidate parameter sets (the Jacobian's columns are one batch).
+
+Estimated: the register-to-physics mapping ``kp`` (and ``kd``, and ``ki`` when a record has
+I > 0), the mechanical time constant, the no-load speed, Coulomb and static friction, the goal's
+delay and the loop's own delay (whole milliseconds, by search). Known and kept: the encoder
+resolution, the registers of each record, the jaw's stops, the protections (no record should
+trip them). Several P settings are what separate the gain scale from the friction: the dead band
+a step stops in is ``static / (kp * P)`` ticks, so records at two or more P pin both.
+
+Uncertainties: the covariance of :func:`gripper_env.sysid.error_model.parameter_covariance`
+(white noise plus the time-stamp jitter measured from the record), inflated by the residuals'
+correlation time (a residual that stays put for ``m`` samples carries one sample's information,
+not ``m``): standard errors, relative ones, and the 95 % ranges are in the estimate.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from gripper_env.io.config import read_bounded
+from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+from gripper_env.sim.bus_servo import DT, bus_params, bus_registers, bus_state, run_bus
+from gripper_env.sysid.error_model import parameter_covariance
+
+__all__ = [
+    "BusEstimate",
+    "BusRecord",
+    "identify_bus_servo",
+    "read_bus_record",
+    "write_bus_record",
+]
+
+#: The fitted continuous parameters, in the order of the estimate's vectors.
+FIT_NAMES: tuple[str, ...] = ("kp", "kd", "ki", "tau_m_s", "omega0_deg_s", "coulomb", "static")
+_MAX_DELAY_TICKS = 8
+_MAX_RECORD_BYTES = 50_000_000
+
+
+@dataclass(frozen=True)
+class BusRecord:
+    """One record: the goal the host wrote and the position it read back, at one setting.
+
+    Attributes
+    ----------
+    family : str
+        The servo family.
+    registers : RegisterSet
+        The registers in force during the record.
+    t_s : ndarray
+        Host time of each position reading (s, from the record's start).
+    goal_deg : ndarray
+        The goal in force at each reading (deg).
+    position_deg : ndarray
+        The position read back (deg).
+    goal_times_s, goal_values_deg : ndarray
+        When each goal was written (s) and its value (deg): the input.
+    """
+
+    family: str
+    registers: RegisterSet
+    t_s: np.ndarray
+    goal_deg: np.ndarray
+    position_deg: np.ndarray
+    goal_times_s: np.ndarray
+    goal_values_deg: np.ndarray
+
+    def goal_per_tick(self, delay_ticks: int = 0) -> np.ndarray:
+        """The goal per 1 ms tick from the record's start, shifted by ``delay_ticks``."""
+        n = math.ceil(self.t_s[-1] / DT) + 2
+        ticks = np.arange(n) * DT
+        idx = np.searchsorted(self.goal_times_s, ticks - delay_ticks * DT, side="right") - 1
+        idx = np.clip(idx, 0, None)
+        return self.goal_values_deg[idx]
+
+
+def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
+    """Write a record as CSV: a ``# family=... p=... i=...`` header line, then
+    ``t_s,goal_deg,position_deg,goal_written`` rows (``goal_written`` 1 where the goal was
+    written just before that reading)."""
+    from gripper_env.io.files import write_atomic
+
+    buf = io.StringIO()
+    r = record.registers
+    buf.write(
+        f"# family={record.family} " + " ".join(f"{k}={v}" for k, v in r.model_dump().items())
+    )
+    buf.write("\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["t_s", "goal_deg", "position_deg", "goal_written"])
+    written = set(np.searchsorted(record.t_s, record.goal_times_s).tolist())
+    rows = zip(record.t_s, record.goal_deg, record.position_deg, strict=True)
+    for k, (t, g, y) in enumerate(rows):
+        w.writerow([f"{t:.6f}", f"{g:.4f}", f"{y:.4f}", 1 if k in written else 0])
+    # goal writes: their exact times as comment rows would be lost by CSV readers; keep a second
+    # section instead
+    buf.write("# goals\n")
+    for t, g in zip(record.goal_times_s, record.goal_values_deg, strict=False):
+        buf.write(f"# {t:.6f},{g:.4f}\n")
+    return write_atomic(path, buf.getvalue())
+
+
+def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
+    """Read a record written by :func:`write_bus_record`.
+
+    Raises
+    ------
+    ValueError
+        A malformed file: the message names the file and the line.
+    """
+    p = Path(path)
+    text = read_bounded(p, _MAX_RECORD_BYTES, "bus record").decode("utf-8", errors="replace")
+    lines = text.splitlines()
+    if not lines or not lines[0].startswith("# family="):
+        raise ValueError(f"{p}: line 1: expected '# family=... p=...' (a tuners.bus.record file)")
+    meta = dict(item.split("=", 1) for item in lines[0][2:].split() if "=" in item)
+    family = meta.pop("family")
+    try:
+        regs = RegisterSet(**{k: int(v) for k, v in meta.items()})
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{p}: line 1: bad registers ({exc})") from None
+    rows, goals = [], []
+    in_goals = False
+    for n, line in enumerate(lines[1:], start=2):
+        if line.startswith("# goals"):
+            in_goals = True
+            continue
+        if in_goals:
+            try:
+                t, g = (float(x) for x in line[2:].split(","))
+            except ValueError:
+                raise ValueError(f"{p}: line {n}: expected '# t_s,goal_deg'") from None
+            goals.append((t, g))
+            continue
+        if line.startswith("t_s") or not line.strip():
+            continue
+        parts = line.split(",")
+        try:
+            rows.append([float(x) for x in parts[:3]])
+        except ValueError:
+            raise ValueError(f"{p}: line {n}: expected numbers, got {line[:60]!r}") from None
+    data = np.array(rows, dtype=float).reshape(-1, 3)
+    if data.shape[0] < 10 or not goals:
+        raise ValueError(f"{p}: too short ({data.shape[0]} readings, {len(goals)} goals)")
+    if not np.all(np.isfinite(data)):
+        bad = int(np.flatnonzero(~np.isfinite(data).all(axis=1))[0])
+        raise ValueError(f"{p}: reading {bad + 1} is not finite")
+    if np.any(np.diff(data[:, 0]) <= 0):
+        bad = int(np.flatnonzero(np.diff(data[:, 0]) <= 0)[0])
+        raise ValueError(f"{p}: time stamps not increasing at reading {bad + 2}")
+    writes = np.array(goals)
+    return BusRecord(family, regs, data[:, 0], data[:, 1], data[:, 2], writes[:, 0], writes[:, 1])
+
+
+@dataclass(frozen=True)
+class BusEstimate:
+    """An identified bus servo: the model, and how well the data pin it down.
+
+    Attributes
+    ----------
+    model : BusServoModel
+        The prior with the estimated parameters in.
+    values, std : dict of str to float
+        Estimates and standard errors of :data:`FIT_NAMES` (``std`` inf: not determined).
+    delay_s, loop_delay_s : float
+        The goal's delay and the loop's own delay (s, whole ticks).
+    fit_pct : float
+        NRMSE fit of the model to all records (100 = perfect),
+        ``100 (1 - |y - yhat| / |y - mean|)``.
+    rmse_deg : float
+        Residual RMS (deg).
+    per_record_fit : list of float
+        Fit of each record.
+    notes : list of str
+        What the data could not determine, and why.
+    """
+
+    model: BusServoModel
+    values: dict[str, float]
+    std: dict[str, float]
+    delay_s: float
+    loop_delay_s: float
+    fit_pct: float
+    rmse_deg: float
+    per_record_fit: list[float]
+    notes: list[str] = field(default_factory=list)
+
+    def rel_std(self) -> dict[str, float]:
+        """Relative standard errors (``std / |value|``)."""
+        return {k: self.std[k] / abs(v) if v else math.inf for k, v in self.values.items()}
+
+    def dead_band_deg(self, p: int) -> float:
+        """The friction dead band (deg) at proportional gain register ``p``."""
+        return self.values["static"] / (self.values["kp"] * max(p, 1)) * self.model.deg_per_tick
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready dict (the model under ``"model"``; ``tuners.bus.tune`` reads it)."""
+        rel = self.rel_std()
+        return {
+            "model": self.model.model_dump(),
+            "values": self.values,
+            "std": {k: (v if math.isfinite(v) else None) for k, v in self.std.items()},
+            "uncertainty": {k: v for k, v in rel.items() if math.isfinite(v)},
+            "ranges_95": {
+                k: [self.values[k] - 1.96 * s, self.values[k] + 1.96 * s]
+                for k, s in self.std.items()
+                if math.isfinite(s)
+            },
+            "delay_s": self.delay_s,
+            "loop_delay_s": self.loop_delay_s,
+            "fit_pct": self.fit_pct,
+            "rmse_deg": self.rmse_deg,
+            "per_record_fit": self.per_record_fit,
+            "notes": self.notes,
+        }
+
+
+class _Problem:
+    """Simulate every record for a batch of candidate parameter vectors."""
+
+    def __init__(self, prior: BusServoModel, records: Sequence[BusRecord], fit: list[str]):
+        self.prior, self.records, self.fit = prior, list(records), fit
+        self.start_deg = [float(r.position_deg[0]) for r in records]
+
+    def _rows(self, thetas: np.ndarray, loop_ticks: int) -> np.ndarray:
+        base = bus_params(self.prior.with_updates(physics=self.prior.physics.model_copy(
+            update={"loop_delay_s": loop_ticks * DT})))  # fmt: skip
+        from gripper_env.sim import bus_servo as core
+
+        cols = {
+            "kp": core.PB_KP, "kd": core.PB_KD, "ki": core.PB_KI, "tau_m_s": core.PB_TAUM,
+            "omega0_deg_s": core.PB_W0, "coulomb": core.PB_FC, "static": core.PB_FS,
+        }  # fmt: skip
+        rows = np.repeat(base[None], thetas.shape[0], axis=0)
+        for j, name in enumerate(self.fit):
+            rows[:, cols[name]] = thetas[:, j]
+        rows[:, core.PB_FS] = np.maximum(rows[:, core.PB_FS], rows[:, core.PB_FC])
+        return rows
+
+    def simulate(self, thetas: np.ndarray, delay_ticks: int, loop_ticks: int) -> list[np.ndarray]:
+        """Position (deg) at each record's readings, per candidate: a list over records of
+        arrays shaped (candidates, readings)."""
+        rows = self._rows(thetas, loop_ticks)
+        out = []
+        for rec, start in zip(self.records, self.start_deg, strict=False):
+            goal = rec.goal_per_tick(delay_ticks) / self.prior.deg_per_tick
+            regs = np.repeat(bus_registers(self.prior, rec.registers)[None], rows.shape[0], axis=0)
+            state = np.repeat(bus_state(self.prior, start)[None], rows.shape[0], axis=0)
+            run = run_bus(rows, regs, state, np.round(goal))
+            # a reading at host time t sees the encoder of the tick it falls in
+            idx = np.clip((rec.t_s / DT).astype(int), 0, goal.size - 1)
+            out.append(run.position[:, idx] * self.prior.deg_per_tick)
+        return out
+
+    def residuals(self, thetas: np.ndarray, delay_ticks: int, loop_ticks: int) -> np.ndarray:
+        sims = self.simulate(thetas, delay_ticks, loop_ticks)
+        return np.concatenate(
+            [s - r.position_deg[None] for s, r in zip(sims, self.records, strict=False)], axis=1
+        )
+
+
+def _fit_pct(y: np.ndarray, yhat: np.ndarray) -> float:
+    den = np.linalg.norm(y - np.mean(y))
+    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den)) if den > 0 else math.nan
+
+
+def _correlation_ticks(r: np.ndarray) -> float:
+    """Integrated autocorrelation time of the residuals (samples, >= 1)."""
+    x = r - np.mean(r)
+    var = float(x @ x)
+    if var <= 0:
+        return 1.0
+    total = 1.0
+    for lag in range(1, min(len(x) // 4, 400)):
+        rho = float(x[:-lag] @ x[lag:]) / var
+        if rho <= 0.05:
+            break
+        total += 2.0 * rho
+    return total
+
+
+def identify_bus_servo(
+    records: Sequence[BusRecord],
+    prior: BusServoModel,
+    *,
+    name: str = "mine",
+    seed: int = 0,
+    generations: int = 120,
+) -> BusEstimate:
+    """Fit the bus servo's loop to records at several register settings.
+
+    Parameters
+    ----------
+    records : sequence of BusRecord
+        Step records (at least two P settings to separate gain scale and friction).
+    prior : BusServoModel
+        The family's shipped model: the start of the search and the parts kept (jaw,
+        protections, encoder).
+    name : str
+        The identified model's name.
+    seed : int
+        Seed of the global search.
+    generations : int
+        Generations of the global search (16 candidates each).
+
+    Raises
+    ------
+    ValueError
+        No records, records of another family, or a single P setting (the gain scale and the
+        static friction cannot be told apart).
+    """
+    if not records:
+        raise ValueError("no records to identify from")
+    fams = {r.family for r in records}
+    if fams != {prior.family}:
+        raise ValueError(f"records of family {sorted(fams)} against a {prior.family} prior")
+    ps = {r.registers.p for r in records}
+    if len(ps) < 2:
+        raise ValueError(
+            f"all records use P = {ps.pop()}: record at two or more P settings (the dead band "
+            "is static / (kp P), one P cannot separate them)"
+        )
+    fit = ["kp", "tau_m_s", "omega0_deg_s", "coulomb", "static"]
+    notes = []
+    if any(r.registers.d > 0 for r in records):
+        fit.insert(1, "kd")
+    else:
+        notes.append("kd not identified: every record has D = 0 (kept at the prior)")
+    if any(r.registers.i > 0 for r in records):
+        fit.insert(2, "ki")
+    else:
+        notes.append("ki not identified: every record has I = 0 (kept at the prior)")
+    problem = _Problem(prior, records, fit)
+    x0 = np.array([_prior_value(prior, k) for k in fit])
+    lo = x0 * 0.1
+    hi = x0 * 10.0
+    for j, k in enumerate(fit):
+        if k in ("coulomb", "static"):
+            lo[j], hi[j] = 1e-4, 0.9
+    y = np.concatenate([r.position_deg for r in records])
+
+    def solve(x_start: np.ndarray, delay: int, loop: int) -> tuple[np.ndarray, float]:
+        def fun(th: np.ndarray) -> np.ndarray:
+            return problem.residuals(th[None], delay, loop)[0]
+
+        res = least_squares(fun, x_start, bounds=(lo, hi), x_scale=x_start, diff_step=0.05,
+                            max_nfev=40 * len(fit))  # fmt: skip
+        return res.x, float(np.sum(res.fun**2))
+
+    # Global search first (the cost is flat in places and has many basins: the friction's
+    # sticking events switch as parameters move): CMA-ES over the log-parameters and the two
+    # delays (rounded to ticks), each generation one batch through the core; then a
+    # least-squares polish at the delays it found.
+    x, delay, loop = _global_search(problem, x0, lo, hi, seed=seed, generations=generations)
+    x, _cost = solve(x, delay, loop)
+    # Jacobian in one batch: central differences
+    h = np.maximum(np.abs(x) * 0.05, 1e-9)  # a secant over the encoder's steps
+    thetas = np.vstack([x, x + np.diag(h), x - np.diag(h)])
+    res = problem.residuals(thetas, delay, loop)
+    r0 = res[0]
+    jac = ((res[1 : 1 + len(fit)] - res[1 + len(fit) :]) / (2 * h[:, None])).T
+    sims = y + r0  # model output
+    rate = np.gradient(sims) / np.maximum(
+        np.gradient(np.concatenate([r.t_s for r in records])), 1e-4
+    )
+    dt_host = np.concatenate([np.diff(r.t_s) for r in records])
+    stamp_std = float(np.std(dt_host) / math.sqrt(2))
+    # columns no reading changes with (a friction level no sticking event depends on within
+    # +-5 %) are left out of the covariance and given a profile range instead
+    seen = np.linalg.norm(jac, axis=0) > 0
+    corr = _correlation_ticks(r0)
+    std = np.full(len(fit), math.inf)
+    if seen.any():
+        cov = parameter_covariance(jac[:, seen], r0, rate=np.clip(rate, -1e4, 1e4),
+                                   stamp_std_s=stamp_std)  # fmt: skip
+        std[seen] = np.sqrt(np.clip(np.diag(cov), 0, None) * corr)
+    values = {k: float(v) for k, v in zip(fit, x, strict=False)}
+    stds = {k: float(s) for k, s in zip(fit, std, strict=False)}
+    sigma2 = float(r0 @ r0) / max(r0.size - len(fit), 1) * corr
+    for j in np.flatnonzero(~seen).tolist():
+        lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
+        stds[fit[j]] = (hi_j - lo_j) / 3.92
+        notes.append(
+            f"{fit[j]}: no reading changes within +-5 % of {x[j]:.4g}; the records are "
+            f"consistent with {lo_j:.4g} to {hi_j:.4g} (95 %); small steps at low P pin it"
+        )
+    for k in FIT_NAMES:
+        if k not in values:
+            values[k] = _prior_value(prior, k)
+            stds[k] = math.inf
+    for j, k in enumerate(fit):
+        if x[j] <= lo[j] * 1.001 or x[j] >= hi[j] * 0.999:
+            notes.append(f"{k} = {x[j]:.4g} on the search bound: not determined by these records")
+    physics = prior.physics.model_copy(
+        update={
+            "tau_m_s": values["tau_m_s"],
+            "omega0_deg_s": values["omega0_deg_s"],
+            "coulomb": min(values["coulomb"], values["static"]),
+            "static": values["static"],
+            "delay_s": delay * DT,
+            "loop_delay_s": loop * DT,
+        }
+    )
+    scale = prior.scale.model_copy(update={"kp": values["kp"], "kd": values["kd"],
+                                           "ki": values["ki"]})  # fmt: skip
+    model = prior.with_updates(name=name, physics=physics, scale=scale)
+    per = []
+    off = 0
+    for r in records:
+        n = r.position_deg.size
+        per.append(_fit_pct(r.position_deg, sims[off : off + n]))
+        off += n
+    return BusEstimate(
+        model=model,
+        values=values,
+        std=stds,
+        delay_s=delay * DT,
+        loop_delay_s=loop * DT,
+        fit_pct=_fit_pct(y, sims),
+        rmse_deg=float(np.sqrt(np.mean(r0**2))),
+        per_record_fit=per,
+        notes=notes,
+    )
+
+
+def _profile_range(
+    problem: _Problem, x: np.ndarray, j: int, delay: int, loop: int, cost: float,
+    sigma2: float, lo: np.ndarray, hi: np.ndarray,
+) -> tuple[float, float]:  # fmt: skip
+    """The values of parameter ``j`` (others held) whose cost stays within the 95 % threshold
+    ``cost + 3.84 sigma2`` of the optimum: one batch over a log grid."""
+    grid = np.geomspace(max(lo[j], x[j] / 4), min(hi[j], x[j] * 4), 41)
+    thetas = np.repeat(x[None], grid.size, axis=0)
+    thetas[:, j] = grid
+    costs = np.sum(problem.residuals(thetas, delay, loop) ** 2, axis=1)
+    ok = grid[costs <= cost + 3.84 * sigma2]
+    if ok.size == 0:
+        return float(x[j]), float(x[j])
+    return float(min(ok.min(), x[j])), float(max(ok.max(), x[j]))
+
+
+def _global_search(
+    problem: _Problem,
+    x0: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    *,
+    seed: int,
+    generations: int,
+) -> tuple[np.ndarray, int, int]:
+    """CMA-ES over ``log(theta)`` and the goal and loop delays (ticks)."""
+    n = x0.size
+    best = (math.inf, np.concatenate([np.log(x0), [2.0, 2.0]]))
+    for k, (d0, l0) in enumerate(_DELAY_STARTS):
+        mean = np.concatenate([np.log(x0), [d0, l0]])
+        cost, v = _cma(problem, mean, lo, hi, seed=seed + k, generations=generations)
+        if cost < best[0]:
+            best = (cost, v)
+    v = best[1]
+    return np.exp(v[:n]), round(v[n]), round(v[n + 1])
+
+
+#: Starting delays (goal, loop; ticks) of the global search's restarts.
+_DELAY_STARTS = ((1.0, 1.0), (1.0, 5.0), (5.0, 1.0), (5.0, 5.0))
+
+
+def _cma(
+    problem: _Problem, mean: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, seed: int,
+    generations: int,
+) -> tuple[float, np.ndarray]:  # fmt: skip
+    from cmaes import CMA
+
+    n = lo.size
+    bounds = np.vstack(
+        [
+            np.column_stack([np.log(lo), np.log(hi)]),
+            [[0.0, _MAX_DELAY_TICKS], [0.0, _MAX_DELAY_TICKS]],
+        ]
+    )
+    opt = CMA(mean=mean, sigma=0.3, bounds=bounds, seed=seed, population_size=16)
+    best = (math.inf, mean)
+    for _ in range(generations):
+        cands = np.array([opt.ask() for _ in range(opt.population_size)])
+        costs = np.empty(len(cands))
+        # one batch per (delay, loop) pair present in the generation
+        keys = np.round(cands[:, n:]).astype(int)
+        for key in {tuple(k) for k in keys.tolist()}:
+            rows = np.flatnonzero((keys == key).all(axis=1))
+            res = problem.residuals(np.exp(cands[rows, :n]), key[0], key[1])
+            costs[rows] = np.sum(res**2, axis=1)
+        opt.tell(list(zip(cands, costs, strict=False)))
+        k = int(np.argmin(costs))
+        if costs[k] < best[0]:
+            best = (float(costs[k]), cands[k])
+        if opt.should_stop():
+            break
+    return best
+
+
+def _prior_value(model: BusServoModel, name: str) -> float:
+    if name in ("kp", "kd", "ki"):
+        return float(getattr(model.scale, name))
+    return float(getattr(model.physics, name))

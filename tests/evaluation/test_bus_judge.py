@@ -1,0 +1,86 @@
+"""Judging bus-servo registers: the loop's margins against python-control, the scenarios'
+measures on hand-checkable cases."""
+
+from __future__ import annotations
+
+import math
+
+import control as ct
+import numpy as np
+import pytest
+
+from gripper_env.evaluation.bus_servo import hold_metrics, judge, loop_margins
+from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
+from gripper_env.sim.bus_servo import DT
+
+
+def _ct_loop(m, regs, k_contact=0.0):
+    ph, sc = m.physics, m.scale
+    plant = ct.sample_system(
+        ct.tf([1.0], [ph.tau_m_s / ph.omega0_deg_s, 1 / ph.omega0_deg_s, k_contact]), DT, "zoh"
+    )
+    z = ct.tf([1.0, 0.0], [1.0], DT)
+    c = sc.kp * regs.p + sc.kd * regs.d * (1 - 1 / z)
+    if regs.i:
+        c = c + sc.ki * regs.i * DT / (1 - 1 / z)
+    lag = round(ph.loop_delay_s / DT)
+    return ct.minreal(c * plant / m.deg_per_tick * (1 / z) ** (1 + lag), verbose=False)
+
+
+@pytest.mark.parametrize(
+    ("family", "regs"),
+    [
+        ("sts3215", RegisterSet(p=32, i=0, d=32, torque_limit=1000)),
+        ("sts3215", RegisterSet(p=120, i=8, d=60, torque_limit=700)),
+        ("xl330", RegisterSet(p=400, i=0, d=0, torque_limit=885)),
+        ("xl430", RegisterSet(p=640, i=0, d=4000, torque_limit=885)),
+    ],
+)
+def test_margins_match_python_control(family, regs):
+    m = load_bus_servo(family)
+    got = loop_margins(m, regs)
+    worst_ms, worst_gm = 0.0, math.inf
+    for k in (0.0, m.jaw.contact_stiffness):
+        loop = _ct_loop(m, regs, k)
+        gm, _, _, _, _, _ = ct.stability_margins(loop)
+        w = np.logspace(-1, math.log10(math.pi / DT) - 1e-6, 4000)
+        resp = loop(np.exp(1j * w * DT))
+        worst_ms = max(worst_ms, float(np.max(1 / np.abs(1 + resp))))
+        worst_gm = min(worst_gm, 20 * math.log10(gm))
+        assert ct.feedback(loop, 1).poles().__abs__().max() < 1
+    assert got.stable
+    assert got.ms == pytest.approx(worst_ms, rel=0.01)
+    assert got.gm_db == pytest.approx(worst_gm, abs=0.2)
+
+
+def test_an_unstable_gain_is_caught():
+    m = load_bus_servo("sts3215")
+    got = loop_margins(m, RegisterSet(p=254, i=0, d=0, torque_limit=1000))
+    loop = _ct_loop(m, RegisterSet(p=254, i=0, d=0, torque_limit=1000))
+    assert (np.abs(ct.feedback(loop, 1).poles()).max() > 1) == (not got.stable)
+
+
+def test_factory_registers_trip_and_the_lerobot_cut_holds():
+    """Closing on an object at full torque limit trips the STS3215's overload after its 2 s;
+    LeRobot's 50 % torque limit holds (the reason LeRobot cut it)."""
+    m = load_bus_servo("sts3215")
+    factory, lerobot = judge(m, [m.factory, m.community["lerobot"]])
+    assert factory.hold.overload and factory.hold.trip == "overload"
+    assert factory.hold.trip_at_s == pytest.approx(m.protection.overload_time_s, abs=0.1)
+    assert not lerobot.hold.overload and lerobot.hold.held
+    # the held force is the duty limit times stall force, less what the static friction holds
+    stall = m.stall_force_n()
+    assert lerobot.hold.holding_force_n == pytest.approx(0.5 * stall, abs=m.physics.static * stall)
+    # and P = 16 leaves a wider dead band than P = 32
+    assert lerobot.tracking.settled_error_deg > factory.tracking.settled_error_deg
+
+
+def test_hold_metrics_without_object_contact():
+    m = load_bus_servo("sts3215")
+    from gripper_env.evaluation.bus_servo import hold_goal
+    from gripper_env.sim.bus_servo import simulate_bus
+
+    run = simulate_bus(m, m.factory.model_copy(update={"torque_limit": 0}), hold_goal(m),
+                       with_object=True, start_deg=m.jaw.open_deg)  # fmt: skip
+    h = hold_metrics(m, run)
+    assert h.holding_force_n == 0 and math.isnan(h.time_to_grasp_s) and not h.held

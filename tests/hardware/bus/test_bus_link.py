@@ -1,0 +1,187 @@
+"""The host's link through the vendors' SDKs, against the virtual servos: values by name,
+read-back verification, and one clear error for each way a transaction fails."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import scservo_sdk
+
+from gripper_env.hardware.bus import (
+    BusAlertError,
+    BusCorruptError,
+    BusLink,
+    BusModelError,
+    BusPortError,
+    BusServoError,
+    BusTimeoutError,
+    BusUnsupportedError,
+    BusVerifyError,
+    ControlTable,
+    VirtualBus,
+)
+
+
+class DeafToGains(ControlTable):
+    """A servo that acknowledges writes to its P gain but keeps the old value."""
+
+    def write(self, address: int, data: bytes) -> int:
+        if address == self.spec.role("p_gain").address:
+            return 0
+        return super().write(address, data)
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330", "xl430"])
+def test_read_write_by_name_and_role(family):
+    with VirtualBus(family, ids=(1, 2)) as bus, BusLink(bus.path, family, ids=(1, 2)) as link:
+        assert link.ping_all() == {1: bus.spec.model_number, 2: bus.spec.model_number}
+        link.write(1, "p_gain", 20)  # a role ...
+        assert bus.table(1).get_role("p_gain") == 20
+        assert link.read(1, bus.spec.roles["p_gain"]) == 20  # ... or the vendor's name
+        if family != "sts3215":  # the position limits bind in position control mode:
+            with pytest.raises(BusServoError, match="data limit error"):
+                link.write(2, "goal_position", -100)
+            link.write(2, "operating_mode", 4)  # extended position control
+        link.write(2, "goal_position", -100)  # signed: sign-magnitude or two's complement
+        assert link.read(2, "present_position") == -100
+        link.torque(2, True)
+        assert bus.table(2).torque_on
+        link.sync_write("goal_position", {1: 1000, 2: 3000}, verify=True)
+        assert link.sync_read("present_position") == {1: 1000, 2: 3000}
+        assert link.sync_read("present_position", [2]) == {2: 3000}
+        link.write_many(1, {"acceleration": 5, "velocity_limit": 100})
+        assert link.read(1, "acceleration") == 5
+
+
+def test_sts_values_are_immune_to_the_sdks_global_byte_order():
+    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215") as link:
+        scservo_sdk.SCS_SETEND(1)  # someone else made a big-endian (SCS) packet handler
+        try:
+            link.write(1, "goal_position", 1000)
+            assert bus.table(1).get("goal_position") == 1000
+            assert link.read(1, "present_position") == 1000
+            assert link.sync_read("present_position") == {1: 1000}
+            link.sync_write("goal_position", {1: 300})
+            assert link.read(1, "goal_position") == 300
+            assert link.ping(1) == 777
+        finally:
+            scservo_sdk.SCS_SETEND(0)
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_a_write_that_does_not_stick_fails_verification(family):
+    table = DeafToGains(family, servo_id=1)
+    with VirtualBus(family, ids=[table]) as bus, BusLink(bus.path, family) as link:
+        gain = bus.spec.roles["p_gain"]
+        default = bus.spec.field(gain).default
+        with pytest.raises(BusVerifyError) as caught:
+            link.write(1, "p_gain", 7)
+        assert str(caught.value) == (
+            f"servo 1 on {bus.path}: wrote 7 to {gain}, read back {default}"
+        )
+        link.write(1, "p_gain", 7, verify=False)  # acknowledged: no error without verify
+        with pytest.raises(BusVerifyError):
+            link.write_many(1, {"acceleration": 3, gain: 9})
+        assert bus.table(1).get_role("acceleration") == 3
+
+
+@pytest.mark.parametrize(
+    ("family", "sdk_text"),
+    [
+        ("sts3215", "[TxRxResult] There is no status packet!"),
+        ("xl430", "[TxRxResult] There is no status packet!"),
+    ],
+)
+def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
+    with VirtualBus(family, ids=(1, 3)) as bus, BusLink(bus.path, family) as link:
+        with pytest.raises(BusTimeoutError) as caught:
+            link.read(2, "goal_position")
+        assert str(caught.value) == (
+            f"servo 2 on {bus.path}: no reply reading goal_position (the SDK: {sdk_text})"
+        )
+        with pytest.raises(BusTimeoutError, match=f"servo 2 on {re.escape(bus.path)}: no reply "):
+            link.sync_read("present_position", [1, 2, 3])
+        with pytest.raises(BusTimeoutError, match="no reply pinging"):
+            link.ping(2)
+
+
+def test_model_mismatch_on_a_shared_protocol():
+    with VirtualBus("xl330", ids=[ControlTable("xl430", 1)]) as bus:
+        with BusLink(bus.path, "xl330") as link, pytest.raises(BusModelError) as caught:
+            link.ping_all()
+        assert "model number 1060, not the xl330's 1200" in str(caught.value)
+
+
+def test_values_out_of_range_are_refused_before_sending():
+    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215") as link:
+        before = bus.packets_received
+        with pytest.raises(ValueError, match=r"p_coefficient must be in \[0, 254\], got 300"):
+            link.write(1, "p_gain", 300)
+        with pytest.raises(ValueError, match="present_position is read-only"):
+            link.write(1, "present_position", 5)
+        with pytest.raises(ValueError, match="goal_position"):
+            link.sync_write("goal_position", {1: 10, 2: 40000})
+        with pytest.raises(ValueError, match="acceleration"):
+            link.write_many(1, {"p_gain": 5, "acceleration": 999})
+        assert bus.packets_received == before
+        assert bus.table(1).get("p_coefficient") == 32
+
+
+def test_servo_refusals_and_hardware_alerts():
+    with VirtualBus("xl330") as bus, BusLink(bus.path, "xl330", raise_on_alert=True) as link:
+        link.torque(1, True)
+        with pytest.raises(BusServoError) as caught:
+            link.write(1, "id", 4)
+        assert str(caught.value) == (
+            f"servo 1 on {bus.path}: refused writing 4 to id: access error (read-only, or an "
+            "EEPROM register while torque is on) (the SDK: [RxPacketError] Writing or Reading is "
+            "not available to target address!)"
+        )
+        bus.table(1).set_role("error_status", bus.spec.error_bits["overheat"])
+        with pytest.raises(BusAlertError, match=r"hardware alert \(read hardware_error_status\)"):
+            link.read(1, "present_position")
+        link.raise_on_alert = False
+        assert link.read(1, "hardware_error_status") == 4
+        assert link.alerts[1] == 0x80
+        link.torque(1, False)
+        with pytest.raises(BusServoError, match=r"result fail \(torque stays off"):
+            link.torque(1, True)
+        link.reboot(1)
+        assert link.read(1, "hardware_error_status") == 0 and link.alerts[1] == 0
+        link.torque(1, True)
+
+
+def test_sts_alerts_name_the_status_bits():
+    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215", raise_on_alert=True) as link:
+        bus.table(1).set_role("error_status", 0x24)
+        with pytest.raises(BusAlertError) as caught:
+            link.read(1, "goal_position")
+        assert str(caught.value) == (
+            f"servo 1 on {bus.path}: hardware alert (overheat, overload) reading goal_position "
+            "(the SDK: [RxPacketError] Overheat error!)"
+        )
+        with pytest.raises(BusUnsupportedError, match="no REBOOT instruction"):
+            link.reboot(1)
+
+
+def test_corrupt_replies():
+    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430") as link:
+        bus.corrupt_replies(1)
+        with pytest.raises(BusCorruptError) as caught:
+            link.read(1, "present_position")
+        assert str(caught.value) == (
+            f"servo 1 on {bus.path}: corrupt reply reading present_position (the SDK: "
+            "[TxRxResult] Incorrect status packet!)"
+        )
+        bus.inject_garbage(b"\xff\xff\xfd\x00\x01\x07")
+        assert link.read(1, "present_position") == 2048
+
+
+def test_opening_the_port():
+    with pytest.raises(ValueError, match="unknown servo family 'mx28'; known: sts3215, xl330"):
+        BusLink("/dev/null", "mx28")
+    with pytest.raises(ValueError, match="cannot open a port at 12345 baud; it offers"):
+        BusLink("/dev/null", "xl330", baudrate=12345)
+    with pytest.raises(BusPortError, match="cannot open /nonexistent/tty at 57600 baud"):
+        BusLink("/nonexistent/tty", "xl330", baudrate=57600)

@@ -1,0 +1,462 @@
+"""``python -m tuners.benchmark.grasp``: the grasp-and-hold scenario on the benchmark's grippers.
+
+The jaw closes on an object and holds it (:mod:`gripper_env.evaluation.grasp`): time to grasp,
+holding force, the lowest force over the hold window, whether the overload criterion trips, and
+whether the object is held. The Arduino (hobby-servo) gripper runs with the paper's tuned and
+untuned gains, the committed gains files of the benchmark (``<gains-from>/<plant>/<row>.json``:
+the paper's hardware gains, Optuna, the best textbook rules) and the servo alone (no host loop,
+commanded the close angle), on the actual-gripper preset over the held-out seeds.
+
+Writes ``<out>/grasp.md`` (the table), ``<out>/grasp.json`` (the scenario, the servo, the
+overload criterion and every row), ``<out>/figures/grasp.png`` (jaw angle and force against
+time per controller) and the run's provenance sidecar ``<out>/grasp.provenance.json``.
+
+Other grippers add their rows through ``extra`` (:func:`grasp_rows`, :func:`main`): callables
+that return lists of :class:`~gripper_env.evaluation.grasp.GraspResult`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gripper_env.evaluation.grasp import (
+    CONTINUOUS_CURRENT_FRACTION,
+    FULL_STALL_LIMIT_S,
+    GRASP_FRACTION,
+    SERVO_NAME,
+    STALL_TORQUE_NM,
+    THERMAL_TIME_CONSTANT_S,
+    GraspResult,
+    GraspRun,
+    GraspScenario,
+    describe_gains,
+    simulate_grasp,
+    stall_force_n,
+)
+from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
+from gripper_env.model.disturbances import Disturbance, load_disturbance
+from gripper_env.model.gains_file import load_gains_file
+from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.plants import Plant, load_plant
+from tuners import cli
+from tuners.settings import EvaluationSettings, load_settings
+
+__all__ = [
+    "COMMITTED_ROWS",
+    "GainSet",
+    "RowProvider",
+    "arduino_runs",
+    "benchmark_grasp",
+    "benchmark_section",
+    "build_parser",
+    "gain_sets",
+    "grasp_rows",
+    "main",
+    "render_markdown",
+    "result_json",
+    "table_lines",
+]
+
+#: A source of more rows (another gripper): called once, returns its results.
+RowProvider = Callable[[], list[GraspResult]]
+
+#: The committed gains files read from ``<gains-from>/<plant>/`` (table order; a missing one is
+#: left out and said): the paper's hardware gains (admitted to the headline), Optuna, the
+#: headline's best textbook design (tuned on test2-test4) and the textbook rules best tuned
+#: for one identification.
+COMMITTED_ROWS = (
+    "manual-paper-hw-tuned",
+    "optuna",
+    "classical-amigo-pi-robust",
+    "classical-simc",
+    "classical-pidtune",
+)
+#: The paper's Table-3 presets of :mod:`tuners.manual`, run from their gains (no file needed).
+PAPER_PRESETS = ("paper-tuned", "paper-untuned")
+#: The row without a host loop: the servo commanded the close angle directly.
+SERVO_ALONE = "servo alone"
+
+
+@dataclass(frozen=True)
+class GainSet:
+    """A controller of the Arduino gripper: its label, gains (``None``: no host loop) and PID
+    options (limits, anti-windup, sign)."""
+
+    label: str
+    gains: PIDGains | None
+    options: PIDOptions
+
+
+def gain_sets(
+    plant: str, gains_from: Path | None, settings: EvaluationSettings
+) -> tuple[list[GainSet], list[str]]:
+    """The servo alone, the paper's presets and the committed gains files of ``plant`` found
+    under ``gains_from``; and the files not found (``gains_from`` ``None``: none looked for)."""
+    from tuners.manual import PAPER_GAINS
+
+    _, actual = settings.options(1)
+    sets = [GainSet(SERVO_ALONE, None, actual)]
+    for name in PAPER_PRESETS:
+        preset = PAPER_GAINS[name]
+        sets.append(GainSet(name, preset.gains, settings.options(preset.sign)[1]))
+    missing: list[str] = []
+    if gains_from is None:
+        return sets, missing
+    for name in COMMITTED_ROWS:
+        path = Path(gains_from) / plant / f"{name}.json"
+        if not path.is_file():
+            missing.append(str(path))
+            continue
+        f = load_gains_file(path)
+        label = name.removeprefix("manual-")
+        if f.options.sign != 1:
+            label += " (e = y - r)"
+        sets.append(GainSet(label, f.gains, f.options))
+    return sets, missing
+
+
+def arduino_runs(
+    plant: str,
+    *,
+    scenario: GraspScenario,
+    seeds: Sequence[int] | np.ndarray,
+    gains_from: Path | None = Path("results"),
+    disturbance: str | Disturbance = "actual",
+    settings: EvaluationSettings | None = None,
+    log: Callable[..., None] = print,
+) -> list[tuple[GainSet, GraspRun]]:
+    """Every :func:`gain_sets` controller through ``scenario`` on the Arduino gripper."""
+    s = settings or load_settings(EvaluationSettings)
+    p = load_plant(plant)
+    dist = load_disturbance(disturbance)
+    sets, missing = gain_sets(p.name, gains_from, s)
+    for path in missing:
+        log(f"  {path}: not found, its row left out")
+    runs = []
+    for g in sets:
+        run = simulate_grasp(p, dist, g.gains, scenario, options=g.options, seeds=seeds,
+                             randomize=s.randomize)  # fmt: skip
+        runs.append((g, run))
+    return runs
+
+
+def _gripper(plant: str, disturbance: str) -> str:
+    return f"arduino {plant} ({disturbance})"
+
+
+def _rows(runs: Sequence[tuple[GainSet, GraspRun]], gripper: str) -> list[GraspResult]:
+    return [run.result(gripper, describe_gains(g.gains, g.label)) for g, run in runs]
+
+
+def grasp_rows(
+    plant_name: str,
+    *,
+    extra: Sequence[RowProvider] = (),
+    scenario: GraspScenario | None = None,
+    seeds: Sequence[int] | np.ndarray | None = None,
+    gains_from: Path | None = Path("results"),
+    disturbance: str = "actual",
+    settings: EvaluationSettings | None = None,
+) -> list[GraspResult]:
+    """The table's rows: the Arduino gripper on ``plant_name`` with every controller of
+    :func:`gain_sets` (held-out seeds of the evaluation settings unless ``seeds``), then the rows
+    of each ``extra`` provider in turn (another gripper: the bus servo)."""
+    s = settings or load_settings(EvaluationSettings)
+    runs = arduino_runs(plant_name, scenario=scenario or GraspScenario(),
+                        seeds=s.seeds.seeds() if seeds is None else seeds,
+                        gains_from=gains_from, disturbance=disturbance, settings=s,
+                        log=lambda *a: None)  # fmt: skip
+    rows = _rows(runs, _gripper(plant_name, disturbance))
+    for provider in extra:
+        rows += provider()
+    return rows
+
+
+def _trip_s(fraction: float) -> float:
+    """When a constant push at ``fraction`` of stall trips the thermal criterion, from cold (s)."""
+    trip = CONTINUOUS_CURRENT_FRACTION**2
+    return -THERMAL_TIME_CONSTANT_S * math.log(1.0 - trip / fraction**2)
+
+
+def _num(x: float, fmt: str) -> str:
+    return "-" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
+def table_lines(rows: Sequence[GraspResult]) -> list[str]:
+    """The Markdown table of ``rows``."""
+    lines = [
+        "| gripper | controller | time to grasp s | holding force N (% of stall) | "
+        "min force N | overload (at s) | held |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        overload = f"yes ({r.overload_at_s:.2f})" if r.overload_at_s is not None else "no"
+        if r.overload and r.overload_at_s is None:
+            overload = "yes"
+        grasp = _num(r.time_to_grasp_s, ".3f") if math.isfinite(r.time_to_grasp_s) else "never"
+        lines.append(
+            f"| {r.gripper} | {r.controller} | {grasp} | {_num(r.holding_force_n, '.2f')} "
+            f"({_num(r.holding_force_pct, '.0f')} %) | {_num(r.min_force_n, '.2f')} | "
+            f"{overload} | {'yes' if r.held else '**no**'} |"
+        )
+    return lines
+
+
+def render_markdown(
+    rows: Sequence[GraspResult],
+    *,
+    scenario: GraspScenario | None = None,
+    context: str = "",
+    command: str = "python -m tuners.benchmark.grasp",
+) -> str:
+    """The report: the scenario and its criteria (``scenario``, default
+    :class:`GraspScenario`'s), ``context`` (the plant, preset and seeds), the table, what it
+    says."""
+    sc = scenario or GraspScenario()
+    lo, hi = sc.hold_window_s
+    stall = stall_force_n(sc)
+    obj = "no object" if sc.object_deg is None else f"an object at {sc.object_deg:g} deg"
+    lines = [
+        "# Grasp and hold",
+        "",
+        f"Generated by `{command}`. Provenance (commit, date, version, machine, wall time): "
+        "`grasp.provenance.json`.",
+        "",
+        f"**The scenario.** The jaw rests open at {sc.open_deg:g} deg; at t = 0 it is commanded "
+        f"to {sc.close_command_deg:g} deg, past {obj}, and must hold it from {lo:g} s to "
+        f"{hi:g} s (the hold window, {sc.hold_s:g} s) with at least {sc.required_force_n:g} N "
+        "at the fingertip (a 50 g object between two pads with friction coefficient 0.5 needs "
+        "0.49 N; twice that). " + context,
+        "",
+        "**Force.** A position servo held against an object pushes with a torque that grows with "
+        "how far its command lies beyond the jaw, `min(push / stall band, 1)` of its stall torque "
+        "(the simulation core's mechanics block, stall band 5 deg on the preset), at the "
+        f"fingertip `* {STALL_TORQUE_NM:.4f} N m / {sc.finger_lever_m:g} m` = {stall:.2f} N at "
+        f"stall: the {SERVO_NAME}, 3.8 kg cm at 6 V (the paper names no servo; its Figure 1a "
+        "shows this class).",
+        "",
+        "**Overload.** A hobby servo has no overload protection; its current is proportional "
+        "to its torque, and what gives out is its winding. The criterion is the I^2 t thermal "
+        f"model of motor protection: x' = (i^2 - x) / tau (i: the current as a fraction of "
+        f"stall), tripping at x >= {CONTINUOUS_CURRENT_FRACTION:g}^2 (a brushed DC motor "
+        f"carries {100 * CONTINUOUS_CURRENT_FRACTION:g} % of its stall current indefinitely: "
+        f"Pololu's guidance), tau = {THERMAL_TIME_CONSTANT_S:.1f} s so that a full stall from "
+        "cold trips after "
+        f"{FULL_STALL_LIMIT_S:g} s (stall damage within seconds; hobby servo datasheets warn "
+        f"against continuous stall). A push at 60 % of stall trips after {_trip_s(0.6):.1f} s, "
+        f"one at 40 % after {_trip_s(0.4):.1f} s, one at "
+        f"{100 * CONTINUOUS_CURRENT_FRACTION:g} % or less never.",
+        "",
+        f"**Read it as the worst case over the runs**: time to grasp (from the close command "
+        f"until the jaw touches the object and the force reaches {100 * GRASP_FRACTION:g} % of "
+        "its hold value) of the slowest run, the lowest force of any run, the earliest trip; held "
+        "only if every run held. The holding force is the mean over the runs and the window.",
+        "",
+        *table_lines(rows),
+        "",
+    ]
+    held = [r.controller for r in rows if r.held]
+    tripped = [r for r in rows if r.overload]
+    lines += [
+        "## What it says",
+        "",
+        f"* Held: {len(held)} of {len(rows)} ({', '.join(held) if held else 'none'}).",
+    ]
+    if tripped:
+        first = min(tripped, key=lambda r: r.overload_at_s or math.inf)
+        lines.append(
+            f"* Overloaded: {len(tripped)} (the first, {first.controller}, at "
+            f"{_num(first.overload_at_s or math.nan, '.2f')} s)."
+        )
+    lines += [
+        "* Why a host PID with integral action cannot hold gently: the object keeps the jaw "
+        "short of the reference, so the error never vanishes and the integrator charges until "
+        "the PID's output limit (the servo's command range), far past the object: full stall "
+        "current until something gives. The servo's own position loop (no host loop) squeezes "
+        "with a force set by how far its command lies past the object. A grasp needs a force "
+        "mode: "
+        "the integrator frozen, or the command held a set distance past the jaw, once the jaw "
+        "touches.",
+        "",
+        "Figure: `figures/grasp.png` (jaw angle and force against time per controller, the mean "
+        "over the runs).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def result_json(
+    rows: Sequence[GraspResult],
+    *,
+    scenario: GraspScenario,
+    plant: str,
+    disturbance: str,
+    seeds: Sequence[int],
+) -> dict[str, Any]:
+    """``grasp.json``'s content."""
+    return {
+        "scenario": scenario.as_dict(),
+        "gripper": {
+            "plant": plant,
+            "disturbance": disturbance,
+            "seeds": [int(s) for s in seeds],
+            "servo": SERVO_NAME,
+            "stall_torque_nm": STALL_TORQUE_NM,
+            "stall_force_n": stall_force_n(scenario),
+            "stall_torque_source": "3.8 kg cm at 6 V (Pololu item 3441; FEETECH FS5103B)",
+        },
+        "overload_criterion": {
+            "model": "I^2 t: x' = (i^2 - x) / tau, trip at x >= i_c^2",
+            "continuous_current_fraction": CONTINUOUS_CURRENT_FRACTION,
+            "full_stall_trip_s": FULL_STALL_LIMIT_S,
+            "tau_s": THERMAL_TIME_CONSTANT_S,
+        },
+        "grasp_fraction": GRASP_FRACTION,
+        "rows": [r.as_dict() for r in rows],
+    }
+
+
+def benchmark_grasp(
+    plant: Plant,
+    disturbance: Disturbance,
+    rows: dict[str, dict[str, Any]],
+    settings: EvaluationSettings,
+    scenario: GraspScenario | None = None,
+) -> list[dict[str, Any]]:
+    """The benchmark's grasp rows on one plant (:func:`benchmark_section` renders them): the
+    servo alone and every PID row of ``rows`` (the benchmark's rows of that plant: ``P``, ``I``,
+    ``D``, ``N``, ``sign``; learned controllers are left out), over the held-out seeds, as
+    :meth:`GraspResult.as_dict`."""
+    sc = scenario or GraspScenario()
+    seeds = settings.seeds.seeds()
+    sets = [GainSet(SERVO_ALONE, None, settings.options(1)[1])]
+    for name, row in rows.items():
+        if row.get("controller") != "pid":
+            continue
+        gains = PIDGains(row["P"], row["I"], row["D"], row["N"])
+        sets.append(GainSet(name, gains, settings.options(int(row["sign"]))[1]))
+    gripper = _gripper(plant.name, disturbance.name)
+    out = []
+    for g in sets:
+        run = simulate_grasp(plant, disturbance, g.gains, sc, options=g.options, seeds=seeds,
+                             randomize=settings.randomize)  # fmt: skip
+        out.append(run.result(gripper, describe_gains(g.gains, g.label)).as_dict())
+    return out
+
+
+def benchmark_section(grasp: dict[str, Any]) -> list[str]:
+    """The benchmark report's section (Markdown lines) from its stored grasp data
+    (``{"scenario": ..., "plants": {plant: [row dicts]}}``)."""
+    sc = GraspScenario(**grasp["scenario"])
+    lo, hi = sc.hold_window_s
+    lines = [
+        "",
+        "## Grasp and hold",
+        "",
+        f"Each PID row and the servo alone (no host loop) closing on an object at "
+        f"{sc.object_deg:g} deg, commanded {sc.close_command_deg:g} deg, held from {lo:g} to "
+        f"{hi:g} s after the close command with at least {sc.required_force_n:g} N at the "
+        f"fingertip; the hobby servo's force from the mechanics block "
+        f"({stall_force_n(sc):.2f} N at stall on a {sc.finger_lever_m * 100:g} cm finger), "
+        f"overload when its I^2 t estimate trips (a full stall: after {FULL_STALL_LIMIT_S:g} s). "
+        "Worst case over the held-out seeds; the scenario, its criteria and a figure: "
+        "`grasp.md` (`python -m tuners.benchmark.grasp`).",
+    ]
+    for plant, rows in grasp["plants"].items():
+        results = [GraspResult.from_dict(r) for r in rows]
+        held = sum(r.held for r in results)
+        lines += ["", f"### {plant}: {held} of {len(results)} held", "", *table_lines(results)]
+    return lines
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.benchmark.grasp",
+        description="The grasp-and-hold scenario: time to grasp, holding force, overload.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--plant", default="test2", help="the Arduino gripper's plant")
+    parser.add_argument("--disturbance", default="actual", help="actual-gripper preset")
+    parser.add_argument("--out", type=Path, default=cli.DEFAULT_OUT,
+                        help="output folder (the committed results/ are regenerated by "
+                             "python -m tuners.results)")  # fmt: skip
+    parser.add_argument(
+        "--gains-from",
+        type=Path,
+        default=Path("results"),
+        help="folder of the committed gains files (<folder>/<plant>/<row>.json)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="the first N held-out seeds (default: all of the evaluation settings')",
+    )
+    parser.add_argument(
+        "--eval-config",
+        type=Path,
+        default=None,
+        help="evaluation settings; default configs/tuners/evaluation.yaml",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None, *, extra: Sequence[RowProvider] = ()) -> int:
+    """Entry point of ``python -m tuners.benchmark.grasp`` (``extra``: more rows, another
+    gripper's)."""
+    return cli.run(lambda a: _main(a, extra), argv)
+
+
+def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
+    from tuners.plotting import grasp_plot
+
+    args = cli.parse(build_parser(), argv)
+    start = time.perf_counter()
+    settings = load_settings(EvaluationSettings, args.eval_config)
+    seeds = settings.seeds.seeds()
+    if args.seeds is not None:
+        if not 1 <= args.seeds <= len(seeds):
+            raise ValueError(f"--seeds must be 1 to {len(seeds)}, got {args.seeds}")
+        seeds = seeds[: args.seeds]
+    plant = load_plant(args.plant)
+    dist = load_disturbance(args.disturbance)
+    scenario = GraspScenario()
+    runs = arduino_runs(args.plant, scenario=scenario, seeds=seeds, gains_from=args.gains_from,
+                        disturbance=dist, settings=settings)  # fmt: skip
+    gripper = _gripper(plant.name, dist.name)
+    rows = _rows(runs, gripper)
+    for provider in extra:
+        rows += provider()
+    context = (
+        f"Arduino gripper: plant {plant.name}, actual-gripper preset `{dist.name}` (the servo's "
+        f"20 ms command hold and whole degrees, stiction, stops, ADC), {len(seeds)} held-out "
+        f"seed{'s' if len(seeds) > 1 else ''} (friction, noise and stops drawn per seed); the "
+        f"PID at 1 kHz, its output limited to the servo's 0-180 deg with clamping anti-windup."
+    )
+    with collect_provenance(args.out, "grasp", command=args.command, started=start):
+        content = result_json(rows, scenario=scenario, plant=plant.name, disturbance=dist.name,
+                              seeds=[int(s) for s in seeds])  # fmt: skip
+        write_result_json(args.out / "grasp.json", content)
+        write_atomic(args.out / "grasp.md",
+                     render_markdown(rows, scenario=scenario, context=context,
+                                     command=args.command))  # fmt: skip
+        grasp_plot([(g.label, run) for g, run in runs], args.out / "figures" / "grasp.png",
+                   f"Grasp and hold: {gripper}, close command {scenario.close_command_deg:g} "
+                   f"deg on an object at {scenario.object_deg:g} deg")  # fmt: skip
+    print("\n".join(table_lines(rows)))
+    print(f"wrote {args.out / 'grasp.md'}, grasp.json and figures/grasp.png in "
+          f"{time.perf_counter() - start:.1f} s")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

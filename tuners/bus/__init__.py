@@ -1,0 +1,1 @@
+"""The bus servos' commands (``python -m tuners.bus.tune``)."""
