@@ -27,9 +27,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.signal import cont2discrete
 
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NONE, BusRun, simulate_bus
@@ -193,21 +194,7 @@ class Margins:
         return self.stable and self.ms <= MS_MAX + 1e-9 and self.gm_db >= GM_MIN_DB - 1e-9
 
 
-_W = np.concatenate([np.logspace(-1, math.log10(math.pi / DT) - 1e-6, 1500)])
-
-
-def _loop_response(model: BusServoModel, regs: RegisterSet, k_contact: float) -> np.ndarray:
-    """The open loop ``L(e^{j w T})`` from error (ticks) to encoder (ticks) on the grid ``_W``."""
-    ph, sc = model.physics, model.scale
-    w0, tau = ph.omega0_deg_s, ph.tau_m_s
-    z = np.exp(1j * _W * DT)
-    zi = 1.0 / z
-    c = sc.kp * regs.p + sc.kd * regs.d * (1 - zi) + sc.ki * regs.i * DT / (1 - zi)
-    # motor and jaw: tau_m/w0 * th'' + th'/w0 + k th = u (fractions of stall, deg)
-    a2, a1, a0 = tau / w0, 1.0 / w0, k_contact
-    # exact ZOH discretisation of 1 / (a2 s^2 + a1 s + a0)
-    g = _zoh(a2, a1, a0, z)
-    return c * g * zi ** (1 + _lag(model)) / model.deg_per_tick
+_W = np.logspace(-1, math.log10(math.pi / DT) - 1e-6, 1500)  # rad/s, up to Nyquist
 
 
 def _lag(model: BusServoModel) -> int:
@@ -215,38 +202,32 @@ def _lag(model: BusServoModel) -> int:
     return min(round(model.physics.loop_delay_s / DT), MAX_LAG)
 
 
-def _zoh(a2: float, a1: float, a0: float, z: np.ndarray) -> np.ndarray:
-    """ZOH-sampled ``1 / (a2 s^2 + a1 s + a0)`` at the points ``z`` (period :data:`DT`)."""
-    import scipy.signal as sig
+def _open_loop(
+    model: BusServoModel, regs: RegisterSet, k_contact: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator (polynomials in ``z``) of the open loop from error (ticks) to
+    encoder (ticks): ``L = C(z) G(z) / z^(1 + lag)``.
 
-    num, den = sig.cont2discrete(([1.0], [a2, a1, a0]), DT, method="zoh")[:2]
-    num = np.atleast_1d(np.squeeze(num))
-    return np.polyval(num, z) / np.polyval(den, z)
-
-
-def _closed_loop_stable(model: BusServoModel, regs: RegisterSet, k_contact: float) -> bool:
-    """Roots of ``1 + L(z)`` inside the unit circle."""
-    import scipy.signal as sig
-
+    ``G`` is the exact ZOH discretisation of the motor and jaw, ``tau_m/w0 th'' + th'/w0 + k th
+    = u`` (fractions of stall, deg; ``k`` the object's spring when pressed on it); ``C`` the
+    register PID, ``kp + kd (1 - 1/z) + ki T / (1 - 1/z)``, over ``z (z - 1)`` with an integrator
+    and over ``z`` without (no cancelled pole at ``z = 1``).
+    """
     ph, sc = model.physics, model.scale
-    num, den = sig.cont2discrete(([1.0], [ph.tau_m_s / ph.omega0_deg_s, 1 / ph.omega0_deg_s,
-                                          k_contact]), DT, method="zoh")[:2]  # fmt: skip
+    num, den = cont2discrete(
+        ([1.0], [ph.tau_m_s / ph.omega0_deg_s, 1 / ph.omega0_deg_s, k_contact]), DT, method="zoh"
+    )[:2]
     gn, gd = np.atleast_1d(np.squeeze(num)) / model.deg_per_tick, np.atleast_1d(den)
     kp, kd, ki = sc.kp * regs.p, sc.kd * regs.d, sc.ki * regs.i * DT
-    # C(z) = (kp + kd (1 - 1/z) + ki / (1 - 1/z)) -> over z (z - 1)
     if ki > 0.0:
         p_part = kp * np.array([1.0, -1.0, 0.0])
         d_part = kd * np.array([1.0, -2.0, 1.0])
         cn = np.polyadd(np.polyadd(p_part, d_part), ki * np.array([1.0, 0.0, 0.0]))
         cd = np.array([1.0, -1.0, 0.0])
-    else:  # no integrator: C(z) = ((kp + kd) z - kd) / z (no cancelled pole at z = 1)
+    else:
         cn, cd = np.array([kp + kd, -kd]), np.array([1.0, 0.0])
-    # L = C G / z
-    ln = np.polymul(cn, gn)
-    ld = np.polymul(np.polymul(cd, gd), np.eye(1, 2 + _lag(model)).ravel())
-    char = np.polyadd(ld, ln)
-    roots = np.roots(np.trim_zeros(char, "f"))
-    return bool(np.all(np.abs(roots) < 1.0 - 1e-9))
+    delay = np.eye(1, 2 + _lag(model)).ravel()  # z^(1 + lag)
+    return np.polymul(cn, gn), np.polymul(np.polymul(cd, gd), delay)
 
 
 def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
@@ -257,9 +238,12 @@ def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
     """
     worst_ms, worst_gm, worst_pm, stable = 0.0, math.inf, math.inf, True
     for k in (0.0, model.jaw.contact_stiffness):
-        if not _closed_loop_stable(model, regs, k):
+        ln, ld = _open_loop(model, regs, k)
+        roots = np.roots(np.trim_zeros(np.polyadd(ld, ln), "f"))  # of 1 + L(z)
+        if not np.all(np.abs(roots) < 1.0 - 1e-9):
             return Margins(ms=math.inf, gm_db=-math.inf, pm_deg=-math.inf, stable=False)
-        loop = _loop_response(model, regs, k)
+        z = np.exp(1j * _W * DT)
+        loop = np.polyval(ln, z) / np.polyval(ld, z)
         worst_ms = max(worst_ms, float(np.max(1.0 / np.abs(1.0 + loop))))
         ang = np.unwrap(np.angle(loop))
         mag = np.abs(loop)
@@ -311,7 +295,6 @@ class BusScore:
     hold: HoldMetrics
     margins: Margins
     robust_margins: Margins
-    extra: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready dict."""

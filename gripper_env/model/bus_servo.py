@@ -30,12 +30,21 @@ static and Coulomb friction, the stops and the object (a stiff spring).
 
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from gripper_env.io.config import find_config, load_yaml, validate
+from gripper_env.io.config import (
+    MAX_CONFIG_BYTES,
+    ConfigError,
+    find_config,
+    load_yaml,
+    read_bounded,
+    validate,
+)
 
 __all__ = [
     "FAMILIES",
@@ -285,8 +294,30 @@ class BusServoModel(BaseModel):
         return BusServoModel.model_validate(data)
 
 
+def _read_json_object(path: str | os.PathLike[str], what: str) -> dict[str, Any]:
+    """A JSON object from ``path``, size-bounded like every configuration file.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        A missing file, one too large, not JSON, or not an object; naming the file.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{what} file {os.fspath(path)!r} does not exist")
+    try:
+        data = json.loads(read_bounded(p, MAX_CONFIG_BYTES, what))
+    except ValueError as exc:
+        raise ConfigError(f"{p}: not a JSON {what} ({exc})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a JSON object (a {what})")
+    return data
+
+
 def load_bus_servo(model: str | os.PathLike[str] | BusServoModel = "sts3215") -> BusServoModel:
-    """A bus servo model by family name (``configs/bus_servos/``), or from a YAML/JSON path.
+    """A bus servo model by family name (``configs/bus_servos/``), or from a YAML path or a JSON
+    file (an identified model, ``python -m tuners.bus.identify``, or a registers file: its
+    ``"model"``).
 
     Raises
     ------
@@ -298,28 +329,18 @@ def load_bus_servo(model: str | os.PathLike[str] | BusServoModel = "sts3215") ->
         return model
     text = os.fspath(model)
     if text.endswith(".json"):
-        from pathlib import Path
-
-        from gripper_env.io.config import ConfigError
-
-        path = Path(text)
-        if not path.is_file():
-            raise ConfigError(f"bus servo model file {text!r} does not exist")
-        import json
-
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{text}: not a JSON bus servo model ({exc})") from None
-        data = data.get("model", data) if isinstance(data, dict) else data
+        data = _read_json_object(text, "bus servo model")
+        data = data.get("model", data)
         if not isinstance(data, dict):
-            raise ConfigError(f"{text}: expected a JSON object with the model")
+            raise ConfigError(f"{text}: 'model' must be a JSON object")
         return validate(BusServoModel, data, text)
     found = find_config("bus_servos", text)
     return validate(BusServoModel, load_yaml(found), str(found))
 
 
-def load_registers_file(path: str | os.PathLike[str]) -> tuple[BusServoModel, RegisterSet, dict]:
+def load_registers_file(
+    path: str | os.PathLike[str],
+) -> tuple[BusServoModel, RegisterSet, dict[str, Any]]:
     """A tuned registers file (what ``python -m tuners.bus.tune`` writes): the model it was tuned
     on, the registers, and the whole document.
 
@@ -328,20 +349,9 @@ def load_registers_file(path: str | os.PathLike[str]) -> tuple[BusServoModel, Re
     gripper_env.io.config.ConfigError
         A missing or malformed file, naming it and what is wrong.
     """
-    import json
-    from pathlib import Path
-
-    from gripper_env.io.config import ConfigError
-
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"registers file {os.fspath(path)!r} does not exist")
-    try:
-        doc = json.loads(p.read_text())
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"{p}: not a JSON registers file ({exc})") from None
-    if not isinstance(doc, dict) or "registers" not in doc or "model" not in doc:
-        raise ConfigError(f"{p}: a registers file needs 'model' and 'registers' keys")
-    model = validate(BusServoModel, doc["model"], f"{p}: model")
-    regs = validate(RegisterSet, doc["registers"], f"{p}: registers")
+    doc = _read_json_object(path, "registers")
+    if "registers" not in doc or "model" not in doc:
+        raise ConfigError(f"{path}: a registers file needs 'model' and 'registers' keys")
+    model = validate(BusServoModel, doc["model"], f"{path}: model")
+    regs = validate(RegisterSet, doc["registers"], f"{path}: registers")
     return model, regs, doc

@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit, prange
 
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+from gripper_env.sim.compile import compile_kernel
 
 __all__ = [
     "BUS_PARAMS",
@@ -234,16 +235,13 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
     s[SB_TICK] = tick
 
 
-@njit(nogil=True, parallel=True, cache=True)
-def _run_batch(params, regs, state, goal, pos, duty, force, trip, temp):
+def _run_impl(params, regs, state, goal, pos, duty, force, trip, temp):
     for b in prange(params.shape[0]):
         _run_row(params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b])
 
 
-@njit(nogil=True, cache=True)
-def _run_one(params, regs, state, goal, pos, duty, force, trip, temp):
-    for b in range(params.shape[0]):
-        _run_row(params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b])
+#: The serial and parallel copies, cached per source version like the core's other kernels.
+_RUN = compile_kernel(_run_impl, nogil=True)
 
 
 @dataclass(frozen=True)
@@ -301,7 +299,7 @@ def run_bus(
         raise ValueError("goal positions must be finite (ticks)")
     t = goal.shape[1]
     out = [np.empty((n, t)) for _ in range(5)]
-    kernel = _run_batch if n * t >= 200_000 and n > 1 else _run_one
+    kernel = _RUN.parallel if n * t >= 200_000 and n > 1 else _RUN.serial
     kernel(params, regs, state, goal, *out)
     return BusRun(*out)
 

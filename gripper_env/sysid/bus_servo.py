@@ -36,6 +36,7 @@ from scipy.optimize import least_squares
 
 from gripper_env.io.config import read_bounded
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+from gripper_env.sim import bus_servo as core
 from gripper_env.sim.bus_servo import DT, bus_params, bus_registers, bus_state, run_bus
 from gripper_env.sysid.error_model import parameter_covariance
 
@@ -50,6 +51,11 @@ __all__ = [
 #: The fitted continuous parameters, in the order of the estimate's vectors.
 FIT_NAMES: tuple[str, ...] = ("kp", "kd", "ki", "tau_m_s", "omega0_deg_s", "coulomb", "static")
 _MAX_DELAY_TICKS = 8
+#: The parameter-row column of each fitted parameter.
+_COLUMNS = {
+    "kp": core.PB_KP, "kd": core.PB_KD, "ki": core.PB_KI, "tau_m_s": core.PB_TAUM,
+    "omega0_deg_s": core.PB_W0, "coulomb": core.PB_FC, "static": core.PB_FS,
+}  # fmt: skip
 _MAX_RECORD_BYTES = 50_000_000
 
 
@@ -108,8 +114,8 @@ def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
     rows = zip(record.t_s, record.goal_deg, record.position_deg, strict=True)
     for k, (t, g, y) in enumerate(rows):
         w.writerow([f"{t:.6f}", f"{g:.4f}", f"{y:.4f}", 1 if k in written else 0])
-    # goal writes: their exact times as comment rows would be lost by CSV readers; keep a second
-    # section instead
+    # the exact write times (the fit's input) follow as comment lines, which CSV readers that
+    # skip comments leave out
     buf.write("# goals\n")
     for t, g in zip(record.goal_times_s, record.goal_values_deg, strict=False):
         buf.write(f"# {t:.6f},{g:.4f}\n")
@@ -237,19 +243,13 @@ class _Problem:
     def __init__(self, prior: BusServoModel, records: Sequence[BusRecord], fit: list[str]):
         self.prior, self.records, self.fit = prior, list(records), fit
         self.start_deg = [float(r.position_deg[0]) for r in records]
+        self._base = bus_params(prior)
+        self._cols = [_COLUMNS[name] for name in fit]
 
     def _rows(self, thetas: np.ndarray, loop_ticks: int) -> np.ndarray:
-        base = bus_params(self.prior.with_updates(physics=self.prior.physics.model_copy(
-            update={"loop_delay_s": loop_ticks * DT})))  # fmt: skip
-        from gripper_env.sim import bus_servo as core
-
-        cols = {
-            "kp": core.PB_KP, "kd": core.PB_KD, "ki": core.PB_KI, "tau_m_s": core.PB_TAUM,
-            "omega0_deg_s": core.PB_W0, "coulomb": core.PB_FC, "static": core.PB_FS,
-        }  # fmt: skip
-        rows = np.repeat(base[None], thetas.shape[0], axis=0)
-        for j, name in enumerate(self.fit):
-            rows[:, cols[name]] = thetas[:, j]
+        rows = np.repeat(self._base[None], thetas.shape[0], axis=0)
+        rows[:, self._cols] = thetas
+        rows[:, core.PB_LAG] = loop_ticks
         rows[:, core.PB_FS] = np.maximum(rows[:, core.PB_FS], rows[:, core.PB_FC])
         return rows
 
