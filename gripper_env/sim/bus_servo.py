@@ -55,8 +55,9 @@ SUBSTEPS = 8
 (
     PB_KP, PB_KI, PB_KD, PB_W0, PB_TAUM, PB_FC, PB_FS, PB_DEGTICK, PB_LO, PB_HI, PB_OBJ, PB_KOBJ,
     PB_OVL_DUTY, PB_OVL_TIME, PB_TRIP_DUTY, PB_TAMB, PB_TRISE, PB_TAUTH, PB_TMAX, PB_LAG,
-) = range(20)  # fmt: skip
-BUS_PARAMS = 20
+    PB_EXACT,
+) = range(21)  # fmt: skip
+BUS_PARAMS = 21
 #: Longest loop delay (ticks) the duty's delay line holds.
 MAX_LAG = 15
 # register columns (physical units: duty fractions, deg/s^2, deg/s, ticks)
@@ -159,7 +160,8 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
     tick = int(s[SB_TICK])
     for k in range(goal.shape[0]):
         # --- the firmware's loop: encoder, profile, PID in register units, output limit
-        meas = math.floor(th / degtick + 0.5)
+        th_read = th / degtick
+        meas = math.floor(th_read + 0.5)
         sp, spv = _profile(sp, spv, goal[k], acc_t, vel_t)
         e = math.floor(sp + 0.5) - meas
         if abs(e) <= r[RB_DB]:
@@ -223,7 +225,9 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
             w = w_new
             th += w * h
             f_contact = fobj
-        pos[k] = meas
+        # the encoder's reading, or (identification) the shaft's exact angle in ticks: a fit
+        # compares quantised readings with it, and its cost is then not flat between ticks
+        pos[k] = meas if p[PB_EXACT] == 0.0 else th_read
         duty[k] = u
         force[k] = f_contact
         trip[k] = tripped

@@ -250,6 +250,7 @@ class _Problem:
         rows = np.repeat(self._base[None], thetas.shape[0], axis=0)
         rows[:, self._cols] = thetas
         rows[:, core.PB_LAG] = loop_ticks
+        rows[:, core.PB_EXACT] = 1.0
         rows[:, core.PB_FS] = np.maximum(rows[:, core.PB_FS], rows[:, core.PB_FC])
         return rows
 
@@ -301,7 +302,7 @@ def identify_bus_servo(
     *,
     name: str = "mine",
     seed: int = 0,
-    generations: int = 120,
+    generations: int = 80,
 ) -> BusEstimate:
     """Fit the bus servo's loop to records at several register settings.
 
@@ -368,7 +369,41 @@ def identify_bus_servo(
     # delays (rounded to ticks), each generation one batch through the core; then a
     # least-squares polish at the delays it found.
     x, delay, loop = _global_search(problem, x0, lo, hi, seed=seed, generations=generations)
-    x, _cost = solve(x, delay, loop)
+    x, cost = solve(x, delay, loop)
+    # the delays are whole ticks the global search rounds: a wrong tick is a basin of its own,
+    # which the continuous parameters partly make up for. Walk to the best neighbouring pair,
+    # polishing at each, until none is better.
+    seen_pairs = {(delay, loop)}
+    improved = True
+    while improved:
+        improved = False
+        for dd, dl in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, 1), (1, -1), (-1, -1), (1, 1)):
+            pair = (delay + dd, loop + dl)
+            if pair in seen_pairs or not all(0 <= v <= _MAX_DELAY_TICKS for v in pair):
+                continue
+            seen_pairs.add(pair)
+            # a short local CMA-ES at the pair, then the polish: least squares alone stalls on
+            # the sticking events' steps
+            mean = np.concatenate([np.log(x), pair])
+            _c, v = _cma(problem, mean, lo, hi, seed=seed, generations=max(generations // 4, 10),
+                         sigma=0.05, fixed_delays=pair)  # fmt: skip
+            x_n, cost_n = solve(np.exp(v[: x.size]), *pair)
+            if cost_n < cost * (1 - 1e-6):
+                x, cost, (delay, loop), improved = x_n, cost_n, pair, True
+                break
+    # The friction levels move the cost in steps (a sticking event comes or goes), where the
+    # polish stalls: scan each over +-25 % in one batch (others held), polish from a better one.
+    for name in ("static", "coulomb"):
+        j = fit.index(name)
+        grid = x[j] * np.linspace(0.75, 1.25, 51)
+        thetas = np.repeat(x[None], grid.size, axis=0)
+        thetas[:, j] = np.clip(grid, lo[j], hi[j])
+        costs = np.sum(problem.residuals(thetas, delay, loop) ** 2, axis=1)
+        k = int(np.argmin(costs))
+        if costs[k] < cost * (1 - 1e-6):
+            x_n, cost_n = solve(thetas[k], delay, loop)
+            if cost_n < cost:
+                x, cost = x_n, cost_n
     # Jacobian in one batch: central differences
     h = np.maximum(np.abs(x) * 0.05, 1e-9)  # a secant over the encoder's steps
     thetas = np.vstack([x, x + np.diag(h), x - np.diag(h)])
@@ -390,6 +425,14 @@ def identify_bus_servo(
         cov = parameter_covariance(jac[:, seen], r0, rate=np.clip(rate, -1e4, 1e4),
                                    stamp_std_s=stamp_std)  # fmt: skip
         std[seen] = np.sqrt(np.clip(np.diag(cov), 0, None) * corr)
+    # The covariance above knows the noise, not the model's errors (a reading taken before its
+    # time stamp, a friction that is not quite Karnopp's, a cost with steps where sticking events
+    # switch), which bias every record alike and show as disagreement between records: the
+    # leave-one-record-out jackknife measures that, and the standard errors hold both.
+    jack = _jackknife(prior, records, fit, x, delay, loop, lo, hi)
+    if jack is not None:
+        std = np.sqrt(np.where(np.isfinite(std), std**2, 0.0) + jack**2)
+        std[~seen] = math.inf
     values = {k: float(v) for k, v in zip(fit, x, strict=False)}
     stds = {k: float(s) for k, s in zip(fit, std, strict=False)}
     sigma2 = float(r0 @ r0) / max(r0.size - len(fit), 1) * corr
@@ -400,6 +443,13 @@ def identify_bus_servo(
             f"{fit[j]}: no reading changes within +-5 % of {x[j]:.4g}; the records are "
             f"consistent with {lo_j:.4g} to {hi_j:.4g} (95 %); small steps at low P pin it"
         )
+    # The friction levels move the cost by sticking events that come or go: a secant over them
+    # overstates the curvature. Their profile range (others held) is the honest width when wider.
+    for name in ("static", "coulomb"):
+        j = fit.index(name)
+        if seen[j]:
+            lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
+            stds[name] = max(stds[name], (hi_j - lo_j) / 3.92)
     for k in FIT_NAMES:
         if k not in values:
             values[k] = _prior_value(prior, k)
@@ -439,13 +489,38 @@ def identify_bus_servo(
     )
 
 
+def _jackknife(
+    prior: BusServoModel, records: Sequence[BusRecord], fit: list[str], x: np.ndarray,
+    delay: int, loop: int, lo: np.ndarray, hi: np.ndarray,
+) -> np.ndarray | None:  # fmt: skip
+    """Jackknife standard errors of ``x``: refits (polished from ``x``, same delays) leaving out
+    one record at a time; ``None`` with fewer than three records."""
+    n = len(records)
+    if n < 3:
+        return None
+    est = []
+    for k in range(n):
+        problem = _Problem(prior, [r for j, r in enumerate(records) if j != k], fit)
+        res = least_squares(
+            lambda th, pr=problem: pr.residuals(th[None], delay, loop)[0], x,
+            bounds=(lo, hi), x_scale=x, diff_step=0.02, max_nfev=20 * len(fit),
+        )  # fmt: skip
+        est.append(res.x)
+    e = np.array(est)
+    return np.sqrt((n - 1) / n * np.sum((e - e.mean(axis=0)) ** 2, axis=0))
+
+
 def _profile_range(
     problem: _Problem, x: np.ndarray, j: int, delay: int, loop: int, cost: float,
     sigma2: float, lo: np.ndarray, hi: np.ndarray,
 ) -> tuple[float, float]:  # fmt: skip
     """The values of parameter ``j`` (others held) whose cost stays within the 95 % threshold
     ``cost + 3.84 sigma2`` of the optimum: one batch over a log grid."""
-    grid = np.geomspace(max(lo[j], x[j] / 4), min(hi[j], x[j] * 4), 41)
+    grid = np.unique(np.concatenate([
+        np.geomspace(max(lo[j], x[j] / 4), min(hi[j], x[j] * 4), 41),
+        x[j] * np.linspace(0.7, 1.3, 61),
+    ]))  # fmt: skip
+    grid = grid[(grid >= lo[j]) & (grid <= hi[j])]
     thetas = np.repeat(x[None], grid.size, axis=0)
     thetas[:, j] = grid
     costs = np.sum(problem.residuals(thetas, delay, loop) ** 2, axis=1)
@@ -482,18 +557,20 @@ _DELAY_STARTS = ((1.0, 1.0), (1.0, 5.0), (5.0, 1.0), (5.0, 5.0))
 
 def _cma(
     problem: _Problem, mean: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, seed: int,
-    generations: int,
+    generations: int, sigma: float = 0.3, fixed_delays: tuple[int, int] | None = None,
 ) -> tuple[float, np.ndarray]:  # fmt: skip
+    """CMA-ES over ``log(theta)`` and the two delays (ticks; held at ``fixed_delays`` if
+    given); the best (cost, vector) seen."""
     from cmaes import CMA
 
     n = lo.size
-    bounds = np.vstack(
-        [
-            np.column_stack([np.log(lo), np.log(hi)]),
-            [[0.0, _MAX_DELAY_TICKS], [0.0, _MAX_DELAY_TICKS]],
-        ]
-    )
-    opt = CMA(mean=mean, sigma=0.3, bounds=bounds, seed=seed, population_size=16)
+    if fixed_delays is None:
+        delay_bounds = [[0.0, _MAX_DELAY_TICKS], [0.0, _MAX_DELAY_TICKS]]
+    else:
+        delay_bounds = [[d - 0.4, d + 0.4] for d in fixed_delays]
+    bounds = np.vstack([np.column_stack([np.log(lo), np.log(hi)]), delay_bounds])
+    mean = np.clip(mean, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
+    opt = CMA(mean=mean, sigma=sigma, bounds=bounds, seed=seed, population_size=16)
     best = (math.inf, mean)
     for _ in range(generations):
         cands = np.array([opt.ask() for _ in range(opt.population_size)])

@@ -1,0 +1,251 @@
+"""The identification experiment of a bus servo: which register settings to record, which goals
+to send, and the recording itself over the bus.
+
+A record (:class:`~gripper_env.sysid.bus_servo.BusRecord`) is one register setting and one goal
+plan (:func:`record_plan`), the position read back over the bus with the host's time stamps:
+
+* **steps** of 30, 10 and 4 deg closing and opening from the open position: the loop's gain
+  scale, damping, speed and delays;
+* a **creep**: the goal walks 1 tick every 20 ms, 5 deg closing then back. The jaw sticks until
+  the error's torque ``kp P e`` exceeds the static friction, slips, and sticks again, so each
+  breakaway marks ``static = kp P e``: the static friction, which the steps alone leave loose
+  (where a step stops depends on it only through the sticking).
+
+The settings (:data:`RECORD_SETTINGS`) differ in P, which separates the gain scale from the
+friction (the dead band is ``static / (kp P)``), and include a D and an I setting so their scales
+are seen. Every setting is checked stable on the family's model before anything is sent
+(:func:`check_settings`): an identification experiment must not make a servo oscillate.
+
+:class:`BusRecorder` runs the plan on a :class:`~gripper_env.hardware.bus.gripper.BusGripper`
+(registers written and read back, torque on, settled at the open position, then the plan, the
+position read every ``sample_s``); :func:`simulate_record` is the same experiment on a model, the
+host's sampling included (a dry run, and the tests' truth).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gripper_env.evaluation.bus_servo import loop_margins
+from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+from gripper_env.sim.bus_servo import DT, simulate_bus
+from gripper_env.sysid.bus_servo import BusRecord
+
+if TYPE_CHECKING:
+    from gripper_env.hardware.bus.gripper import BusGripper
+
+__all__ = [
+    "RECORD_SETTINGS",
+    "BusRecorder",
+    "GoalPlan",
+    "check_settings",
+    "record_plan",
+    "settings_registers",
+    "simulate_record",
+]
+
+#: Register settings (P, I, D) recorded per family: three P values an octave apart around the
+#: factory P (D at its factory value), then one with D and one with I where the factory has none.
+RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "sts3215": ((16, 0, 32), (32, 0, 32), (64, 0, 32), (32, 0, 0), (32, 4, 32)),
+    "xl330": ((200, 0, 0), (400, 0, 0), (800, 0, 0), (800, 0, 800), (400, 200, 0)),
+    "xl430": ((320, 0, 2000), (640, 0, 2000), (1280, 0, 2000), (640, 0, 0), (640, 200, 2000)),
+}
+
+#: Steps of the plan (deg from the open position) and how long each is held (s).
+STEPS_DEG: tuple[float, ...] = (-30.0, 0.0, -10.0, 0.0, -4.0, 0.0)
+STEP_HOLD_S = 0.5
+#: The creep: ticks per goal change, the goal's period (s), and its reach (ticks).
+CREEP_PERIOD_S = 0.02
+CREEP_TICKS = 60
+_SETTLE_S = 0.5  # at the open position before the record starts
+_TAIL_S = 0.3  # after the last goal
+
+
+@dataclass(frozen=True)
+class GoalPlan:
+    """Goal writes of a record: when (s from the record's start) and what (deg)."""
+
+    times_s: np.ndarray
+    goals_deg: np.ndarray
+    duration_s: float
+
+    def per_tick(self) -> np.ndarray:
+        """The goal in force at each 1 ms tick (deg)."""
+        ticks = np.arange(round(self.duration_s / DT)) * DT
+        idx = np.searchsorted(self.times_s, ticks + 1e-9, side="right") - 1
+        return self.goals_deg[np.clip(idx, 0, None)]
+
+
+def record_plan(model: BusServoModel) -> GoalPlan:
+    """The goal plan of one record on ``model``'s jaw: steps, then the creep (see the module)."""
+    open_deg = model.jaw.open_deg
+    times, goals = [0.0], [open_deg]
+    t = 0.1
+    for step in STEPS_DEG:
+        times.append(t)
+        goals.append(open_deg + step)
+        t += STEP_HOLD_S
+    tick = model.deg_per_tick
+    walk = np.concatenate([-np.arange(1, CREEP_TICKS + 1), -np.arange(CREEP_TICKS - 1, -1, -1)])
+    for k in walk:
+        times.append(t)
+        goals.append(open_deg + k * tick)
+        t += CREEP_PERIOD_S
+    return GoalPlan(np.array(times), np.array(goals), t + _TAIL_S)
+
+
+def settings_registers(
+    model: BusServoModel, settings: Sequence[tuple[int, int, int]] | None = None
+) -> list[RegisterSet]:
+    """The register sets of ``settings`` (default :data:`RECORD_SETTINGS` of the family): the
+    factory registers with P, I, D replaced."""
+    chosen = RECORD_SETTINGS[model.family] if settings is None else settings
+    return [model.factory.model_copy(update={"p": p, "i": i, "d": d}) for p, i, d in chosen]
+
+
+def check_settings(model: BusServoModel, registers: Sequence[RegisterSet]) -> None:
+    """Refuse register sets whose loop is unstable on ``model`` (free or on an object).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two P values, or an unstable setting (named).
+    """
+    if len({r.p for r in registers}) < 2:
+        raise ValueError(
+            "record at two or more P settings: one P cannot separate the gain scale from the "
+            "static friction"
+        )
+    for regs in registers:
+        if not loop_margins(model, regs).stable:
+            raise ValueError(
+                f"refusing to record {regs.label()}: its loop is unstable on the {model.name} "
+                "model (choose smaller gains)"
+            )
+
+
+class BusRecorder:
+    """Records the plan on a servo over the bus.
+
+    Parameters
+    ----------
+    gripper : BusGripper
+        The servo (its model gives the plan's angles).
+    sample_s : float
+        Period of the position readings (s); the bus's round trip bounds it from below.
+    clock : callable
+        Host time (s); default :func:`time.perf_counter`.
+    """
+
+    def __init__(
+        self,
+        gripper: BusGripper,
+        sample_s: float = 0.002,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
+        if not 0.0 < sample_s <= 0.1:
+            raise ValueError(f"sample period must be in (0, 0.1] s, got {sample_s}")
+        self.gripper = gripper
+        self.sample_s = float(sample_s)
+        self.clock = clock
+
+    def settle(self, angle_deg: float, seconds: float = _SETTLE_S) -> None:
+        """Send ``angle_deg`` and wait ``seconds``, reading the position (a live link)."""
+        self.gripper.goal_deg(angle_deg)
+        end = self.clock() + seconds
+        while self.clock() < end:
+            self.gripper.position_deg()
+            time.sleep(0.01)
+
+    def record(self, registers: RegisterSet, plan: GoalPlan | None = None) -> BusRecord:
+        """Write ``registers`` (read back), turn the torque on, settle open, run ``plan``.
+
+        The torque stays on afterwards (the caller's ``with`` block relaxes the servo on an
+        error).
+        """
+        g = self.gripper
+        plan = plan or record_plan(g.model)
+        got = g.write_registers(registers)
+        g.torque(True)
+        self.settle(float(plan.goals_deg[0]))
+        t_read: list[float] = []
+        y_read: list[float] = []
+        t_goal: list[float] = []
+        y_goal: list[float] = []
+        t0 = self.clock()
+        k = 0
+        next_read = 0.0
+        while True:
+            now = self.clock() - t0
+            if now >= plan.duration_s:
+                break
+            if k < plan.times_s.size and now >= plan.times_s[k]:
+                t_goal.append(self.clock() - t0)  # sent just after: the fit finds the delay
+                y_goal.append(g.goal_deg(float(plan.goals_deg[k])))
+                k += 1
+                continue
+            if now >= next_read:
+                before = self.clock()
+                y = g.position_deg()
+                after = self.clock()
+                t_read.append(0.5 * (before + after) - t0)  # the reading's middle
+                y_read.append(y)
+                next_read += self.sample_s
+                if next_read < now:  # fell behind: no burst to catch up
+                    next_read = now + self.sample_s
+                continue
+            wait = min(next_read, plan.times_s[k] if k < plan.times_s.size else math.inf) - now
+            if wait > 2e-4:
+                time.sleep(wait - 1e-4)
+        return _record(g.model, got, t_read, y_read, t_goal, y_goal)
+
+
+def simulate_record(
+    model: BusServoModel,
+    registers: RegisterSet,
+    plan: GoalPlan | None = None,
+    *,
+    sample_s: tuple[float, float] = (0.002, 0.004),
+    reading_lag_s: float = 0.0005,
+    noise_ticks: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> BusRecord:
+    """The record a host would take of ``model`` under ``registers``: the plan's goals, the
+    position sampled at random intervals in ``sample_s`` (s), each reading taken up to
+    ``reading_lag_s`` (s) before its time stamp (the bus's round trip), plus encoder noise of
+    ``noise_ticks`` (ticks, standard deviation) before quantisation."""
+    rng = rng or np.random.default_rng(0)
+    plan = plan or record_plan(model)
+    goal = plan.per_tick()
+    run = simulate_bus(model, registers, goal, start_deg=float(goal[0]))
+    n = goal.size
+    t = np.cumsum(rng.uniform(*sample_s, size=int(plan.duration_s / sample_s[0]) + 2))
+    t = t[t < (n - 1) * DT]
+    seen = np.clip(t - rng.uniform(0.0, reading_lag_s, t.size), 0.0, None)
+    ticks = run.position[0][(seen / DT).astype(int)]
+    if noise_ticks > 0:
+        ticks = np.round(ticks + rng.normal(0.0, noise_ticks, ticks.size))
+    return _record(model, registers, t, ticks * model.deg_per_tick, plan.times_s, plan.goals_deg)
+
+
+def _record(
+    model: BusServoModel,
+    registers: RegisterSet,
+    t_read: Sequence[float] | np.ndarray,
+    y_read: Sequence[float] | np.ndarray,
+    t_goal: Sequence[float] | np.ndarray,
+    y_goal: Sequence[float] | np.ndarray,
+) -> BusRecord:
+    t = np.asarray(t_read, dtype=float)
+    y = np.asarray(y_read, dtype=float)
+    tg = np.asarray(t_goal, dtype=float)
+    g = np.asarray(y_goal, dtype=float)
+    idx = np.clip(np.searchsorted(tg, t, side="right") - 1, 0, None)
+    return BusRecord(model.family, registers, t, g[idx], y, tg, g)
