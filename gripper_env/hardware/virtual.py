@@ -41,10 +41,10 @@ import os
 import select
 import threading
 import time
-import tty
 from typing import TYPE_CHECKING
 
 from gripper_env.hardware import protocol as proto
+from gripper_env.hardware.pty import PtyDevice, PtyEndpoint, write_pending
 from gripper_env.hardware.twin.firmware import UART_BYTES_PER_TICK
 from gripper_env.hardware.twin.firmware_config import TICK_PERIOD_US
 from gripper_env.hardware.twin.rig import VIRTUAL_DEVICE_ID, TwinBoard, VirtualRig
@@ -59,7 +59,7 @@ _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20
 _MAX_AHEAD_US = 200_000  # at speed 0, device time runs at most this far past the last host frame
 
 
-class VirtualDevice:
+class VirtualDevice(PtyDevice):
     """The virtual board on a pseudo-terminal, run by a background thread.
 
     Parameters
@@ -127,11 +127,7 @@ class VirtualDevice:
         self.firmware = self.board.firmware
         self.ticks = 0
         self.lock = threading.Lock()
-        self._master: int | None = None
-        self._slave: int | None = None
-        self._path = ""
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._pty = PtyEndpoint("virtual device")
         self._out = bytearray()
         self._frame = bytearray()  # a device frame being assembled while faults are armed
         self._drop = self._corrupt = self._truncate = 0
@@ -142,60 +138,29 @@ class VirtualDevice:
         self._lose: dict[int, int] = {}  # host frames to lose on the way in, by message type
         self.host_frames_lost = 0
         self.resets = 0
-        self.error: BaseException | None = None
         self.bytes_sent = self.bytes_received = 0
 
     # ---- lifecycle -----------------------------------------------------------------------------
 
-    @property
-    def path(self) -> str:
-        """Path of the pseudo-terminal the host opens (``/dev/pts/N``)."""
-        if not self._path:
-            raise RuntimeError("the virtual device is not started")
-        return self._path
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
-
     def start(self) -> VirtualDevice:
         """Open the pty and start the board's thread; returns ``self``."""
-        if self._thread is not None:
-            raise RuntimeError("the virtual device was already started")
-        master, slave = os.openpty()
-        tty.setraw(slave)  # no echo, no line discipline: bytes pass unchanged
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        self._path = os.ttyname(slave)
-        self._thread = threading.Thread(target=self._run, name="virtual-gripper", daemon=True)
-        self._thread.start()
+        # what ends the loop is kept in error, and raised in the thread too (its excepthook
+        # reports it)
+        self._pty.start(self._loop, name="virtual-gripper", reraise=True)
         return self
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop the thread and close the pty (idempotent)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-        self._close_fds()
+        self._pty.stop(timeout_s)
         close = getattr(self.board, "close", None)
         if close is not None and not self.running:
             close()
 
     def __enter__(self) -> VirtualDevice:
-        return self.start() if self._thread is None else self
+        return self if self._pty.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-    def _close_fds(self) -> None:
-        for name in ("_master", "_slave"):
-            fd = getattr(self, name)
-            if fd is not None:
-                setattr(self, name, None)
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
 
     # ---- fault injection -----------------------------------------------------------------------
 
@@ -255,38 +220,24 @@ class VirtualDevice:
 
     def vanish(self) -> None:
         """The USB cable is pulled: the pty closes under the host and the board stops."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(5.0)
-        self._close_fds()
+        self._pty.stop(5.0)
 
     # ---- the board's loop ----------------------------------------------------------------------
 
     def _now_us(self) -> int:
         return (self.ticks * TICK_PERIOD_US) & 0xFFFFFFFF
 
-    def _run(self) -> None:
-        try:
-            self._loop()
-        except OSError as exc:  # the pty went away under us (vanish, or closed by stop)
-            if not self._stop.is_set():
-                self.error = exc
-        except BaseException as exc:  # kept for the owner to inspect, then re-raised
-            self.error = exc
-            raise
-
-    def _loop(self) -> None:
-        master = self._master
-        assert master is not None
+    def _loop(self, master: int, wake: int) -> None:
+        """Run the board until stopped (the thread's body; see :class:`PtyEndpoint`)."""
         board = self.board
         ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
         t0 = time.perf_counter()
-        while not self._stop.is_set():
+        while not self._pty.stopping.is_set():
             if ticks_per_s > 0:
                 behind = (time.perf_counter() - t0) * ticks_per_s - self.ticks
                 if behind < 1.0:
                     wait = (1.0 - behind) / ticks_per_s
-                    self._read_input(master, min(wait, 0.05))
+                    self._read_input(master, wake, min(wait, 0.05))
                     continue
                 n = min(int(behind), _MAX_TICKS_PER_PASS)
             else:
@@ -298,11 +249,11 @@ class VirtualDevice:
                 ahead_us = (self._now_us() - board.last_rx_us) & 0xFFFFFFFF
                 if board.active and ahead_us > _MAX_AHEAD_US:
                     if time.perf_counter() - self._paced_since < 1.0:
-                        self._read_input(master, 0.002)
+                        self._read_input(master, wake, 0.002)
                         continue
                 else:
                     self._paced_since = time.perf_counter()
-            self._read_input(master, 0.0)
+            self._read_input(master, wake, 0.0)
             with self.lock:
                 for k in range(n):
                     now = (self.ticks * TICK_PERIOD_US) & 0xFFFFFFFF
@@ -315,9 +266,10 @@ class VirtualDevice:
                         self._emit(data)
             self._write_output(master)
 
-    def _read_input(self, master: int, timeout_s: float) -> None:
-        readable, _, _ = select.select([master], [], [], timeout_s)
-        if not readable:
+    def _read_input(self, master: int, wake: int, timeout_s: float) -> None:
+        # the wake pipe ends the wait when stop() or vanish() is called
+        readable, _, _ = select.select([master, wake], [], [], timeout_s)
+        if master not in readable:
             return
         try:
             data = os.read(master, 4096)
@@ -410,14 +362,7 @@ class VirtualDevice:
                 if not self._silent:
                     self._out += self._garbage
                 self._garbage.clear()
-            if not self._out:
-                return
-            try:
-                written = os.write(master, self._out)  # non-blocking: never waits
-            except BlockingIOError:
-                return
-            self.bytes_sent += written
-            del self._out[:written]
+            self.bytes_sent += write_pending(master, self._out)
 
     # ---- introspection for tests ---------------------------------------------------------------
 

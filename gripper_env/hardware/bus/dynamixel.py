@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from gripper_env.hardware.bus.framing import FrameParser
+
 __all__ = [
     "BROADCAST_ID",
     "ERRBIT_ALERT",
@@ -213,88 +215,40 @@ def decode_packet(data: bytes) -> Packet:
     ValueError
         If ``data`` is not exactly one valid packet (header, length, CRC).
     """
-    parser = Parser()
-    packets = parser.feed(data)
-    if len(packets) != 1 or parser.pending or parser.garbage_bytes or parser.bad_crc:
-        raise ValueError(f"not one valid Protocol 2.0 packet: {bytes(data).hex(' ')}")
-    return packets[0]
+    return Parser.decode_one(data)
 
 
-class Parser:
-    """Incremental decoder: feed it bytes as they come, it returns the whole packets.
+class Parser(FrameParser[Packet]):
+    """Incremental decoder of Protocol 2.0 packets: feed it bytes as they come, it returns the
+    whole packets (:class:`~gripper_env.hardware.bus.framing.FrameParser`: its resynchronising
+    loop, :attr:`garbage_bytes`, :attr:`pending`, :meth:`reset`).
 
-    Bytes before a header and packets whose CRC fails are dropped: it resynchronises on the
-    next header (searching from the byte after the failed one, so a packet inside garbage is
-    still found).
+    Its header is ``FF FF FD 00`` (stuffing turns one in the payload into ``FF FF FD FD``).
 
     Attributes
     ----------
-    garbage_bytes : int
-        Bytes dropped while looking for a header (a failed packet's first byte included).
     bad_crc : int
-        Packets dropped for their CRC.
+        Packets dropped for their CRC (:attr:`bad_packets` under this protocol's name).
     """
 
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self.garbage_bytes = 0
-        self.bad_crc = 0
+    HEADER = HEADER
+    HEAD_SIZE = 7  # FF FF FD 00 ID LEN_L LEN_H
+    PROTOCOL = "Protocol 2.0"
+
+    def _total_length(self, head: bytearray) -> int | None:
+        packet_id = head[4]
+        length = head[5] | head[6] << 8
+        if packet_id > 0xFE or packet_id == 0xFD or not 3 <= length <= _MAX_LENGTH:
+            return None
+        return 7 + length
+
+    def _check(self, packet: bytes) -> bool:
+        return crc16(packet[:-2]) == packet[-2] | packet[-1] << 8
+
+    def _decode(self, packet: bytes) -> Packet:
+        body = unstuff(packet[7:-2])
+        return Packet(packet[4], body[0], body[1:])
 
     @property
-    def pending(self) -> int:
-        """Bytes held waiting for the rest of a packet."""
-        return len(self._buf)
-
-    def reset(self) -> None:
-        """Forget a partial packet (an inter-byte timeout)."""
-        self.garbage_bytes += len(self._buf)
-        self._buf.clear()
-
-    def feed(self, data: bytes | bytearray) -> list[Packet]:
-        """Add ``data``; return the packets it completes, in order."""
-        buf = self._buf
-        buf += data
-        packets: list[Packet] = []
-        while True:
-            start = self._find_header(buf)
-            if start < 0:
-                keep = self._partial_header(buf)
-                self.garbage_bytes += len(buf) - keep
-                del buf[: len(buf) - keep]
-                return packets
-            if start:
-                self.garbage_bytes += start
-                del buf[:start]
-            if len(buf) < 7:
-                return packets
-            packet_id = buf[4]
-            length = buf[5] | buf[6] << 8
-            if packet_id > 0xFE or packet_id == 0xFD or not 3 <= length <= _MAX_LENGTH:
-                self.garbage_bytes += 1
-                del buf[:1]
-                continue
-            total = 7 + length
-            if len(buf) < total:
-                return packets
-            crc = buf[total - 2] | buf[total - 1] << 8
-            if crc16(buf[: total - 2]) != crc:
-                self.bad_crc += 1
-                self.garbage_bytes += 1
-                del buf[:1]
-                continue
-            body = unstuff(bytes(buf[7 : total - 2]))
-            packets.append(Packet(packet_id, body[0], body[1:]))
-            del buf[:total]
-
-    @staticmethod
-    def _find_header(buf: bytearray) -> int:
-        """Index of the first whole header (``FF FF FD 00``; stuffing is ``FF FF FD FD``)."""
-        return buf.find(HEADER)
-
-    @staticmethod
-    def _partial_header(buf: bytearray) -> int:
-        """How many trailing bytes of ``buf`` could begin a header."""
-        for n in (3, 2, 1):
-            if len(buf) >= n and buf[-n:] == HEADER[:n]:
-                return n
-        return 0
+    def bad_crc(self) -> int:
+        return self.bad_packets

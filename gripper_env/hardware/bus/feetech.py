@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from gripper_env.hardware.bus.framing import FrameParser
+
 __all__ = [
     "BROADCAST_ID",
     "ERRBIT_ANGLE",
@@ -130,73 +132,39 @@ def decode_packet(data: bytes) -> Packet:
     ValueError
         If ``data`` is not exactly one valid packet.
     """
-    parser = Parser()
-    packets = parser.feed(data)
-    if len(packets) != 1 or parser.pending or parser.garbage_bytes or parser.bad_checksum:
-        raise ValueError(f"not one valid SCS/STS packet: {bytes(data).hex(' ')}")
-    return packets[0]
+    return Parser.decode_one(data)
 
 
-class Parser:
-    """Incremental decoder: feed it bytes as they come, it returns the whole packets.
+class Parser(FrameParser[Packet]):
+    """Incremental decoder of SCS/STS packets: feed it bytes as they come, it returns the
+    whole packets (:class:`~gripper_env.hardware.bus.framing.FrameParser`: its resynchronising
+    loop, :attr:`garbage_bytes`, :attr:`pending`, :meth:`reset`).
 
-    Bytes before a header ``FF FF`` and packets whose checksum fails are dropped: it
-    resynchronises on the next header, searching from the byte after the failed packet's first
-    byte (so a packet inside garbage is still found). Like the SDK, it skips a second ``FF``
-    before the ID (``FF FF FF ID`` is a header preceded by noise).
+    It skips a second ``FF`` before the ID, like the SDK (``FF FF FF ID`` is a header preceded by
+    noise).
 
     Attributes
     ----------
-    garbage_bytes : int
-        Bytes dropped while looking for a header (a failed packet's first byte included).
     bad_checksum : int
-        Packets dropped for their checksum.
+        Packets dropped for their checksum (:attr:`bad_packets` under this protocol's name).
     """
 
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self.garbage_bytes = 0
-        self.bad_checksum = 0
+    HEADER = HEADER
+    HEAD_SIZE = 4  # FF FF ID LEN
+    PROTOCOL = "SCS/STS"
+
+    def _total_length(self, head: bytearray) -> int | None:
+        packet_id, length = head[2], head[3]
+        if packet_id == 0xFF or length < 2:  # FF FF FF...: noise before the header
+            return None
+        return length + 4
+
+    def _check(self, packet: bytes) -> bool:
+        return checksum(packet[2:-1]) == packet[-1]
+
+    def _decode(self, packet: bytes) -> Packet:
+        return Packet(packet[2], packet[4], packet[5:-1])
 
     @property
-    def pending(self) -> int:
-        """Bytes held waiting for the rest of a packet."""
-        return len(self._buf)
-
-    def reset(self) -> None:
-        """Forget a partial packet (an inter-byte timeout)."""
-        self.garbage_bytes += len(self._buf)
-        self._buf.clear()
-
-    def feed(self, data: bytes | bytearray) -> list[Packet]:
-        """Add ``data``; return the packets it completes, in order."""
-        buf = self._buf
-        buf += data
-        packets: list[Packet] = []
-        while True:
-            start = buf.find(HEADER)
-            if start < 0:
-                keep = 1 if buf[-1:] == b"\xff" else 0
-                self.garbage_bytes += len(buf) - keep
-                del buf[: len(buf) - keep]
-                return packets
-            if start:
-                self.garbage_bytes += start
-                del buf[:start]
-            if len(buf) < 4:
-                return packets
-            packet_id, length = buf[2], buf[3]
-            if packet_id == 0xFF or length < 2:  # FF FF FF...: noise before the header
-                self.garbage_bytes += 1
-                del buf[:1]
-                continue
-            total = length + 4
-            if len(buf) < total:
-                return packets
-            if checksum(buf[2 : total - 1]) != buf[total - 1]:
-                self.bad_checksum += 1
-                self.garbage_bytes += 1
-                del buf[:1]
-                continue
-            packets.append(Packet(packet_id, buf[4], bytes(buf[5 : total - 1])))
-            del buf[:total]
+    def bad_checksum(self) -> int:
+        return self.bad_packets

@@ -49,7 +49,6 @@ import os
 import select
 import threading
 import time
-import tty
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -58,6 +57,7 @@ from gripper_env.hardware.bus import feetech as scs
 from gripper_env.hardware.bus.control_table import ControlTable
 from gripper_env.hardware.bus.physics import MirrorPhysics, Physics
 from gripper_env.hardware.bus.tables import get_spec
+from gripper_env.hardware.pty import PtyDevice, PtyEndpoint, write_pending
 
 __all__ = ["Physics", "VirtualBus"]
 
@@ -71,7 +71,7 @@ class _Servo:
     silent: bool = False
 
 
-class VirtualBus:
+class VirtualBus(PtyDevice):
     """Virtual bus servos on a pseudo-terminal, served by a background thread.
 
     Parameters
@@ -144,69 +144,33 @@ class VirtualBus:
         self._parser: scs.Parser | dxl.Parser = (
             scs.Parser() if self.spec.protocol == "feetech" else dxl.Parser()
         )
-        self._master: int | None = None
-        self._slave: int | None = None
-        self._wake: tuple[int, int] | None = None  # a pipe that wakes the thread to stop
-        self._path = ""
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._pty = PtyEndpoint("virtual bus")
         self._t0 = 0.0
         self._out = bytearray()
         self._garbage = bytearray()
         self._corrupt = self._truncate = self._drop = 0
         self.packets_received = self.replies_sent = 0
         self.bytes_received = self.bytes_sent = 0
-        self.error: BaseException | None = None
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
-    @property
-    def path(self) -> str:
-        """Path of the pseudo-terminal the host opens (``/dev/pts/N``)."""
-        if not self._path:
-            raise RuntimeError("the virtual bus is not started")
-        return self._path
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
-
     def start(self) -> VirtualBus:
         """Open the pty and start the servos' thread; returns ``self``."""
-        if self._thread is not None:
+        if self._pty.started:
             raise RuntimeError("the virtual bus was already started")
-        master, slave = os.openpty()
-        tty.setraw(slave)  # no echo, no line discipline: bytes pass unchanged
-        os.set_blocking(master, False)
-        self._master, self._slave = master, slave
-        self._wake = os.pipe()
-        self._path = os.ttyname(slave)
         self._t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="virtual-bus", daemon=True)
-        self._thread.start()
+        self._pty.start(self._loop, name="virtual-bus")
         return self
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop the thread and close the pty (idempotent); re-raises what stopped the thread."""
-        self._stop.set()
-        if self._wake is not None:
-            os.write(self._wake[1], b"\0")
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout_s)
-        fds = [self._master, self._slave, *(self._wake or ())]
-        self._master = self._slave = self._wake = None
-        for fd in fds:
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-        if self.error is not None:
-            error, self.error = self.error, None
+        self._pty.stop(timeout_s)
+        error, self._pty.error = self._pty.error, None
+        if error is not None:
             raise RuntimeError(f"the virtual bus stopped: {error!r}") from error
 
     def __enter__(self) -> VirtualBus:
-        return self.start() if self._thread is None else self
+        return self if self._pty.started else self.start()
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
         if exc_type is None:
@@ -288,27 +252,16 @@ class VirtualBus:
     @property
     def bad_packets(self) -> int:
         """Packets from the host dropped for their checksum (CRC)."""
-        parser = self._parser
-        return parser.bad_checksum if isinstance(parser, scs.Parser) else parser.bad_crc
+        return self._parser.bad_packets
 
     # ---- the thread ------------------------------------------------------------------------------
 
-    def _run(self) -> None:
-        try:
-            self._loop()
-        except OSError as exc:  # the pty closed under us
-            if not self._stop.is_set():
-                self.error = exc
-        except BaseException as exc:  # kept for stop() to re-raise
-            self.error = exc
-
-    def _loop(self) -> None:
-        master, wake = self._master, self._wake
-        assert master is not None and wake is not None
+    def _loop(self, master: int, wake: int) -> None:
+        """Serve the host until stopped (the thread's body; see :class:`PtyEndpoint`)."""
         last_rx = time.monotonic()
-        while not self._stop.is_set():
+        while not self._pty.stopping.is_set():
             timeout = 0.005 if self._parser.pending or self._out else 0.5
-            readable, _, _ = select.select([master, wake[0]], [], [], timeout)
+            readable, _, _ = select.select([master, wake], [], [], timeout)
             self._flush(master)
             if master not in readable:
                 if self._parser.pending and time.monotonic() - last_rx > _INTERBYTE_TIMEOUT_S:
@@ -367,14 +320,7 @@ class VirtualBus:
 
     def _flush(self, master: int) -> None:
         with self.lock:
-            if not self._out:
-                return
-            try:
-                written = os.write(master, self._out)  # non-blocking: never waits
-            except BlockingIOError:
-                return
-            self.bytes_sent += written
-            del self._out[:written]
+            self.bytes_sent += write_pending(master, self._out)
 
     def _targets(self, packet_id: int) -> list[_Servo]:
         """The listening servos an instruction to ``packet_id`` reaches, in ID order."""
