@@ -6,6 +6,9 @@ id                                     the agent ...
 ``gripper_env/GripperServo-v0``        is the controller: sets the servo command every 20 ms
 ``gripper_env/GripperPIDTune-v0``      is the tuner: one step = PID gains for a whole episode
 ``gripper_env/GripperGainSchedule-v0`` schedules the PID's gains every 20 ms
+``gripper_env/GripperBusServo-v0``     is the host of a bus servo (STS3215, XL330, XL430):
+                                       sends its goal every 20 ms, the servo's own register
+                                       PID runs at 1 ms
 =====================================  =====================================================
 
 ``gripper_env/GripperServoHardware-v0`` is ``GripperServo-v0`` on the real board (or the virtual
@@ -15,15 +18,18 @@ one), host in the loop at 50 Hz; it needs ``port=...`` at ``gym.make`` and is no
 ``gym.make("gripper_env:gripper_env/GripperServo-v0")`` works without importing the package
 first; ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` gives the
 native vector environment (:mod:`gripper_env.envs.vector`; stable-baselines3 steps it through
-:class:`gripper_env.envs.sb3.NativeVecEnv`). The step-by-step ids are registered with a
-``TimeLimit``
-of 1000 steps; ``GripperPIDTune-v0`` without one (its one step ends the episode, terminated).
+:class:`gripper_env.envs.sb3.NativeVecEnv`), for every simulated id but ``GripperBusServo-v0``,
+which has none (``gym.make_vec`` gives it a ``SyncVectorEnv``). The step-by-step ids are
+registered with a ``TimeLimit`` of 1000 steps; ``GripperPIDTune-v0`` without one (its one step
+ends the episode, terminated).
 The classes are imported lazily, so importing :mod:`gripper_env` does not compile the
 environments' kernels.
 
-Modules: one per environment (``servo``, ``gain_schedule``, ``pid_tune``, ``servo_hardware``)
-and their native vector forms (``vector``); ``control_env`` (the base of the step-by-step ones),
-``control_batch`` (a batch of them on one core simulator), ``kernels`` (its compiled step),
+Modules: one per environment (``servo``, ``gain_schedule``, ``pid_tune``, ``servo_hardware``,
+``bus_servo``, ``bus_servo_hardware``) and their native vector forms (``vector``);
+``bus_settings`` (what the two bus-servo environments share: arguments, references, reward,
+observation); ``control_env`` (the base of the step-by-step ones), ``control_batch`` (a batch
+of them on one core simulator), ``kernels`` (its compiled step),
 ``plant_slots`` (the core simulator whose rows may each draw their plant), ``settings`` (the
 validated arguments), ``episode`` (one episode's random draws), ``spaces`` (observations,
 actions, context features), ``rendering``, ``rollout`` (a policy's whole episodes as a
@@ -35,8 +41,11 @@ from __future__ import annotations
 from typing import Any
 
 __all__ = [
+    "BUS_HARDWARE_ENV_ID",
     "ENV_IDS",
     "HARDWARE_ENV_ID",
+    "GripperBusServoEnv",
+    "GripperBusServoHardwareEnv",
     "GripperGainScheduleEnv",
     "GripperGainScheduleVectorEnv",
     "GripperPIDTuneEnv",
@@ -47,8 +56,9 @@ __all__ = [
     "register_envs",
 ]
 
-#: id -> (entry point, vector entry point, max_episode_steps or None for no TimeLimit)
-_SPECS: dict[str, tuple[str, str, int | None]] = {
+#: id -> (entry point, vector entry point or None for none, max_episode_steps or None for no
+#: TimeLimit)
+_SPECS: dict[str, tuple[str, str | None, int | None]] = {
     "gripper_env/GripperServo-v0": (
         "gripper_env.envs.servo:GripperServoEnv",
         "gripper_env.envs.vector:GripperServoVectorEnv",
@@ -66,6 +76,11 @@ _SPECS: dict[str, tuple[str, str, int | None]] = {
         "gripper_env.envs.vector:GripperGainScheduleVectorEnv",
         1000,
     ),
+    "gripper_env/GripperBusServo-v0": (
+        "gripper_env.envs.bus_servo:GripperBusServoEnv",
+        None,  # no native vector form: gym.make_vec makes a SyncVectorEnv
+        1000,  # 20 s at the 20 ms control period
+    ),
 }
 ENV_IDS = tuple(_SPECS)
 
@@ -73,9 +88,14 @@ ENV_IDS = tuple(_SPECS)
 HARDWARE_ENV_ID = "gripper_env/GripperServoHardware-v0"
 _HARDWARE_ENTRY = "gripper_env.envs.servo_hardware:GripperServoHardwareEnv"
 _HARDWARE_STEPS = 1000
+#: A bus servo on its bus (or a virtual one): one servo, one environment; 20 s at 20 ms.
+BUS_HARDWARE_ENV_ID = "gripper_env/GripperBusServoHardware-v0"
+_BUS_HARDWARE_ENTRY = "gripper_env.envs.bus_servo_hardware:GripperBusServoHardwareEnv"
 
 _LAZY = {
     "GripperServoEnv": "gripper_env.envs.servo",
+    "GripperBusServoEnv": "gripper_env.envs.bus_servo",
+    "GripperBusServoHardwareEnv": "gripper_env.envs.bus_servo_hardware",
     "GripperServoHardwareEnv": "gripper_env.envs.servo_hardware",
     "GripperPIDTuneEnv": "gripper_env.envs.pid_tune",
     "GripperGainScheduleEnv": "gripper_env.envs.gain_schedule",
@@ -98,13 +118,17 @@ def register_envs() -> None:
             vector_entry_point=vector_entry,
             max_episode_steps=max_steps,
         )
-    if HARDWARE_ENV_ID not in gymnasium.registry:
-        gymnasium.register(
-            id=HARDWARE_ENV_ID,
-            entry_point=_HARDWARE_ENTRY,
-            max_episode_steps=_HARDWARE_STEPS,
-            nondeterministic=True,  # real measurements: the checkers skip their determinism tests
-        )
+    for env_id, entry in (
+        (HARDWARE_ENV_ID, _HARDWARE_ENTRY),
+        (BUS_HARDWARE_ENV_ID, _BUS_HARDWARE_ENTRY),
+    ):
+        if env_id not in gymnasium.registry:
+            gymnasium.register(
+                id=env_id,
+                entry_point=entry,
+                max_episode_steps=_HARDWARE_STEPS,
+                nondeterministic=True,  # real measurements: the checkers skip determinism tests
+            )
 
 
 def __getattr__(name: str) -> Any:

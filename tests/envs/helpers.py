@@ -5,7 +5,11 @@ import numpy as np
 SERVO = "gripper_env/GripperServo-v0"
 PID_TUNE = "gripper_env/GripperPIDTune-v0"
 GAIN_SCHEDULE = "gripper_env/GripperGainSchedule-v0"
+# The hobby-servo gripper's ids (plant, disturbance, randomisation, ...), which the parametrised
+# tests share; the bus servo's id takes other arguments and has its own tests
+# (test_bus_servo_env.py). gripper_env.ENV_IDS holds all four.
 ENV_IDS = (SERVO, PID_TUNE, GAIN_SCHEDULE)
+BUS_SERVO = "gripper_env/GripperBusServo-v0"
 
 # Everything random at once: plants drawn, actual-gripper parameters drawn, random references.
 RANDOMIZED = {

@@ -7,7 +7,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import ENV_IDS, GAIN_SCHEDULE, PID_TUNE, SERVO
+from helpers import BUS_SERVO, ENV_IDS, GAIN_SCHEDULE, PID_TUNE, SERVO
 
 import gripper_env
 
@@ -15,12 +15,13 @@ WORKTREE = Path(__file__).resolve().parents[2]
 
 
 def test_ids_registered_with_time_limits():
-    assert set(gripper_env.ENV_IDS) == set(ENV_IDS)
-    limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000}
+    assert set(gripper_env.ENV_IDS) == {*ENV_IDS, BUS_SERVO}
+    limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 1000}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == limit
-        assert spec.vector_entry_point is not None
+        # the bus servo has no native vector form (gym.make_vec makes a SyncVectorEnv)
+        assert (spec.vector_entry_point is None) == (env_id == BUS_SERVO)
         env = gym.make(env_id)
         assert isinstance(env, gym.wrappers.TimeLimit) == (limit is not None)
         env.close()
@@ -41,7 +42,8 @@ def test_pid_tune_episode_ends_terminated_not_truncated():
 def test_make_without_prior_import_in_fresh_interpreter():
     code = (
         "import gymnasium as gym\n"
-        "for i in ('GripperServo-v0', 'GripperPIDTune-v0', 'GripperGainSchedule-v0'):\n"
+        "for i in ('GripperServo-v0', 'GripperPIDTune-v0', 'GripperGainSchedule-v0',\n"
+        "          'GripperBusServo-v0'):\n"
         "    env = gym.make(f'gripper_env:gripper_env/{i}')\n"
         "    env.reset(seed=0)\n"
         "    print(env.spec.id, env.spec.max_episode_steps)\n"
@@ -54,6 +56,7 @@ def test_make_without_prior_import_in_fresh_interpreter():
     )
     assert "gripper_env/GripperServo-v0 1000" in out.stdout
     assert "gripper_env/GripperPIDTune-v0 None" in out.stdout
+    assert "gripper_env/GripperBusServo-v0 1000" in out.stdout
     assert "GripperServoVectorEnv" in out.stdout
 
 
@@ -72,7 +75,7 @@ def test_spaces(env_id, n_act, n_obs, n_obs_ctx):
         assert ctx.observation_space.shape == (n_obs_ctx,)
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", [*ENV_IDS, BUS_SERVO])
 def test_docstring_has_gymnasium_sections(env_id):
     doc = type(gym.make(env_id).unwrapped).__doc__
     for section in (
