@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gripper_env.evaluation.bus_servo import loop_margins
+from gripper_env.evaluation.bus_servo import loop_margins, tracking_goal
+from gripper_env.hardware.bus.link import BusCommError
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, simulate_bus
 from gripper_env.sysid.bus_servo import BusRecord
@@ -48,6 +49,7 @@ __all__ = [
     "record_plan",
     "settings_registers",
     "simulate_record",
+    "tracking_plan",
 ]
 
 #: Register settings (P, I, D) recorded per family: three P values an octave apart around the
@@ -99,6 +101,13 @@ def record_plan(model: BusServoModel) -> GoalPlan:
         goals.append(open_deg + k * tick)
         t += CREEP_PERIOD_S
     return GoalPlan(np.array(times), np.array(goals), t + _TAIL_S)
+
+
+def tracking_plan(model: BusServoModel) -> GoalPlan:
+    """The tuner's tracking scenario as a goal plan (steps of 4 to 44 deg, both ways): what a
+    deploy verifies."""
+    goal, starts = tracking_goal(model)
+    return GoalPlan(starts * DT, goal[starts], goal.size * DT)
 
 
 def settings_registers(
@@ -155,13 +164,41 @@ class BusRecorder:
         self.gripper = gripper
         self.sample_s = float(sample_s)
         self.clock = clock
+        #: Replies lost (readings skipped, goals sent again) over every record so far.
+        self.lost = 0
+        self._run = 0
+
+    #: Consecutive readings that may be lost before a record fails.
+    MAX_LOST_IN_A_ROW = 20
+
+    def _lost(self, exc: BusCommError) -> None:
+        self.lost += 1
+        self._run += 1
+        if self._run > self.MAX_LOST_IN_A_ROW:
+            raise BusCommError(f"{self._run} readings lost in a row: {exc}") from exc
+
+    def _retry(self, send: Callable[[float], float], value: float) -> float:
+        """Send a goal, again on a lost reply (a goal is idempotent), at most three times."""
+        for attempt in range(3):
+            try:
+                return send(value)
+            except BusCommError:
+                self.lost += 1
+                if attempt == 2:
+                    raise
+        raise AssertionError("unreachable")
 
     def settle(self, angle_deg: float, seconds: float = _SETTLE_S) -> None:
         """Send ``angle_deg`` and wait ``seconds``, reading the position (a live link)."""
-        self.gripper.goal_deg(angle_deg)
+        self._retry(self.gripper.goal_deg, angle_deg)
         end = self.clock() + seconds
         while self.clock() < end:
-            self.gripper.position_deg()
+            try:
+                self.gripper.position_deg()
+            except BusCommError as exc:
+                self._lost(exc)
+            else:
+                self._run = 0
             time.sleep(0.01)
 
     def record(self, registers: RegisterSet, plan: GoalPlan | None = None) -> BusRecord:
@@ -188,15 +225,20 @@ class BusRecorder:
                 break
             if k < plan.times_s.size and now >= plan.times_s[k]:
                 t_goal.append(self.clock() - t0)  # sent just after: the fit finds the delay
-                y_goal.append(g.goal_deg(float(plan.goals_deg[k])))
+                y_goal.append(self._retry(g.goal_deg, float(plan.goals_deg[k])))
                 k += 1
                 continue
             if now >= next_read:
                 before = self.clock()
-                y = g.position_deg()
-                after = self.clock()
-                t_read.append(0.5 * (before + after) - t0)  # the reading's middle
-                y_read.append(y)
+                try:
+                    y = g.position_deg()
+                except BusCommError as exc:  # a lost reply: a missing reading, not a failure
+                    self._lost(exc)
+                else:
+                    after = self.clock()
+                    t_read.append(0.5 * (before + after) - t0)  # the reading's middle
+                    y_read.append(y)
+                    self._run = 0
                 next_read += self.sample_s
                 if next_read < now:  # fell behind: no burst to catch up
                     next_read = now + self.sample_s

@@ -44,6 +44,7 @@ __all__ = [
     "BusEstimate",
     "BusRecord",
     "identify_bus_servo",
+    "predict_record",
     "read_bus_record",
     "write_bus_record",
 ]
@@ -276,6 +277,15 @@ class _Problem:
         )
 
 
+def predict_record(model: BusServoModel, record: BusRecord) -> np.ndarray:
+    """What ``model`` predicts for ``record``: the jaw's angle (deg) at each of its readings,
+    from its first reading, under its registers and goal writes, with the model's delays."""
+    problem = _Problem(model, [record], [])
+    delay = round(model.physics.delay_s / DT)
+    loop = min(round(model.physics.loop_delay_s / DT), core.MAX_LAG)
+    return problem.simulate(np.zeros((1, 0)), delay, loop)[0][0]
+
+
 def _fit_pct(y: np.ndarray, yhat: np.ndarray) -> float:
     den = np.linalg.norm(y - np.mean(y))
     return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den)) if den > 0 else math.nan
@@ -393,15 +403,15 @@ def identify_bus_servo(
                 break
     # The friction levels move the cost in steps (a sticking event comes or goes), where the
     # polish stalls: scan each over +-25 % in one batch (others held), polish from a better one.
-    for name in ("static", "coulomb"):
-        j = fit.index(name)
+    for friction in ("static", "coulomb"):
+        j = fit.index(friction)
         grid = x[j] * np.linspace(0.75, 1.25, 51)
         thetas = np.repeat(x[None], grid.size, axis=0)
         thetas[:, j] = np.clip(grid, lo[j], hi[j])
         costs = np.sum(problem.residuals(thetas, delay, loop) ** 2, axis=1)
-        k = int(np.argmin(costs))
-        if costs[k] < cost * (1 - 1e-6):
-            x_n, cost_n = solve(thetas[k], delay, loop)
+        best_row = int(np.argmin(costs))
+        if costs[best_row] < cost * (1 - 1e-6):
+            x_n, cost_n = solve(thetas[best_row], delay, loop)
             if cost_n < cost:
                 x, cost = x_n, cost_n
     # Jacobian in one batch: central differences
@@ -445,11 +455,11 @@ def identify_bus_servo(
         )
     # The friction levels move the cost by sticking events that come or go: a secant over them
     # overstates the curvature. Their profile range (others held) is the honest width when wider.
-    for name in ("static", "coulomb"):
-        j = fit.index(name)
+    for friction in ("static", "coulomb"):
+        j = fit.index(friction)
         if seen[j]:
             lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
-            stds[name] = max(stds[name], (hi_j - lo_j) / 3.92)
+            stds[friction] = max(stds[friction], (hi_j - lo_j) / 3.92)
     for k in FIT_NAMES:
         if k not in values:
             values[k] = _prior_value(prior, k)

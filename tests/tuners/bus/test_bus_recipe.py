@@ -1,0 +1,101 @@
+"""The README's bus-servo recipe end to end against virtual servos: record -> identify -> tune ->
+deploy, for an STS3215 and an XL330, through the commands' own entry points and the vendors' SDKs
+(the commands talk to the servo through ``BusLink``).
+
+The virtual servo is not the family's shipped model but a perturbed one (the truth the
+identification must find); it has an object in its jaws for the deploy's hold.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from gripper_env.hardware.bus.server import VirtualBus
+from gripper_env.hardware.bus.unit import ServoUnit
+from gripper_env.model.bus_servo import load_bus_servo
+from tuners.bus import deploy, identify, record, tune
+
+SETTINGS = {
+    "sts3215": ["16,0,32", "32,0,32", "64,0,32"],
+    "xl330": ["200,0,0", "400,0,0", "800,0,800"],
+}
+
+
+def _truth(family):
+    prior = load_bus_servo(family)
+    sc, ph = prior.scale, prior.physics
+    return prior.with_updates(
+        name=f"true-{family}",
+        scale=sc.model_copy(update={"kp": sc.kp * 1.15, "kd": sc.kd * 0.85}),
+        physics=ph.model_copy(update={"static": ph.static * 1.2, "tau_m_s": ph.tau_m_s * 1.1}),
+    )
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_record_identify_tune_deploy(family, tmp_path, capsys):
+    truth = _truth(family)
+    out = tmp_path / family
+    with VirtualBus(family, physics=ServoUnit(truth, object_deg=truth.jaw.object_deg)) as bus:
+        port = bus.path
+        assert record.main(["--port", port, "--model", family, "--out", str(out),
+                            "--settings", *SETTINGS[family]]) == 0  # fmt: skip
+        records = sorted(out.glob("record_*.csv"))
+        assert len(records) == 3
+        assert identify.main([*map(str, records), "--model", family, "--name", f"my-{family}",
+                              "--generations", "20", "--no-plot"]) == 0  # fmt: skip
+        model_file = out / f"my-{family}_model.json"
+        est = json.loads(model_file.read_text())
+        # the identification found the truth's gain scale, with a stated uncertainty
+        assert est["values"]["kp"] == pytest.approx(truth.scale.kp, rel=0.15)
+        assert 0 < est["uncertainty"]["kp"] < 0.2
+        assert est["fit_pct"] > 90
+        assert tune.main(["--model", str(model_file), "--trials", "150", "--out", str(out),
+                          "--no-plot", "--no-progress"]) == 0  # fmt: skip
+        tuned = json.loads((out / f"my-{family}_registers.json").read_text())
+        score = tuned["score"]
+        assert score["feasible"]
+        # on the identified model, the tuned registers beat the factory's on tracking and hold
+        factory = tuned["baselines"]["factory"]
+        assert score["tracking"]["iae_per_deg_s"] < factory["tracking"]["iae_per_deg_s"]
+        assert not score["hold"]["overload"] and factory["hold"]["overload"]
+        capsys.readouterr()
+        assert deploy.main(["--registers", str(out / f"my-{family}_registers.json"),
+                            "--port", port, "--hold", "2", "--no-plot"]) == 0  # fmt: skip
+        printed = capsys.readouterr().out
+        # what the servo holds now is what was tuned
+        table = bus.table(1)
+        regs = tuned["registers"]
+        assert table.get_role("p_gain") == regs["p"]
+        assert table.get_role("d_gain") == regs["d"]
+        assert table.get_role("torque_limit") == regs["torque_limit"]
+    report = json.loads((out / f"deploy_my-{family}" / "report.json").read_text())
+    assert report["read_back"] == regs
+    assert report["fit_pct"] > 90, printed
+    assert report["hold"]["tripped"] is False
+    assert report["hold"]["position_deg"] > truth.jaw.object_deg - 3  # stopped by the object
+
+
+def test_deploy_refuses_an_unstable_set_before_touching_the_servo(tmp_path, capsys):
+    model = load_bus_servo("sts3215")
+    bad = model.factory.model_copy(update={"p": 254, "d": 0})
+    path = tmp_path / "bad_registers.json"
+    path.write_text(json.dumps({"model": model.model_dump(), "registers": bad.model_dump()}))
+    with VirtualBus("sts3215", physics=ServoUnit(model)) as bus:
+        before = bus.packets_received
+        code = deploy.main(["--registers", str(path), "--port", bus.path])
+        assert code == 2
+        assert bus.packets_received == before  # nothing was sent
+        assert bus.table(1).get_role("p_gain") == model.factory.p
+    err = capsys.readouterr().err
+    assert "refusing to deploy P=254" in err and "unstable" in err
+
+
+def test_record_refuses_an_unstable_setting_before_touching_the_servo(tmp_path, capsys):
+    with VirtualBus("sts3215") as bus:
+        code = record.main(["--port", bus.path, "--settings", "254,0,0", "32,0,32",
+                            "--out", str(tmp_path)])  # fmt: skip
+        assert code == 2
+        assert bus.packets_received == 0
+    assert "refusing to record P=254" in capsys.readouterr().err

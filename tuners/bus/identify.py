@@ -1,0 +1,145 @@
+"""``python -m tuners.bus.identify``: identify a bus servo's loop from its records.
+
+Reads the records of ``python -m tuners.bus.record`` (two or more P settings), fits the servo's
+model (:func:`gripper_env.sysid.bus_servo.identify_bus_servo`: the register-to-duty scales, the
+motor's time constant and speed, Coulomb and static friction, the goal's and the loop's delays),
+prints each value with its standard error and 95 % range, and writes ``OUT/NAME_model.json``
+(the model that ``python -m tuners.bus.tune --model`` and ``python -m tuners.bus.virtual
+--model`` take, with its uncertainties, which the tuner's robustness corners use) and
+``OUT/NAME_fit.png`` (each record against the model).
+
+Examples
+--------
+``python -m tuners.bus.identify runs/bus/sts3215/record_*.csv --model sts3215 --name my-sts3215``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gripper_env.io.files import save_figure, write_json
+from gripper_env.model.bus_servo import load_bus_servo
+from gripper_env.sysid.bus_servo import (
+    FIT_NAMES,
+    BusEstimate,
+    BusRecord,
+    identify_bus_servo,
+    predict_record,
+    read_bus_record,
+)
+from tuners.bus.cli import run_cli
+
+__all__ = ["main"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m tuners.bus.identify",
+        description="Fit a bus servo's loop (gain scales, motor, friction, delays) to records "
+        "at several P settings, with uncertainties; writes the model file the tuner takes.",
+    )
+    parser.add_argument("records", nargs="+", type=Path, help="record files (tuners.bus.record)")
+    parser.add_argument(
+        "--model",
+        default="sts3215",
+        help="the family's model the fit starts from: sts3215, xl330, xl430 or a model file "
+        "(default sts3215)",
+    )
+    parser.add_argument(
+        "--name", default="identified", help="the model's name (default identified)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the global search")
+    parser.add_argument(
+        "--generations",
+        type=int,
+        default=80,
+        help="generations of the global search, 16 candidates each (default 80)",
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default: the records' folder)"
+    )
+    parser.add_argument("--no-plot", action="store_true", help="do not draw NAME_fit.png")
+    return parser
+
+
+def format_estimate(est: BusEstimate) -> str:
+    """A markdown table of the estimate: value, standard error, 95 % range."""
+    lines = ["| parameter | value | std | 95 % range |", "|---|---|---|---|"]
+    for k in FIT_NAMES:
+        v, s = est.values[k], est.std[k]
+        if math.isfinite(s):
+            rng = f"{v - 1.96 * s:.4g} to {v + 1.96 * s:.4g}"
+            lines.append(f"| {k} | {v:.4g} | {s:.2g} ({100 * s / abs(v):.1f} %) | {rng} |")
+        else:
+            lines.append(f"| {k} | {v:.4g} | not identified | kept at the prior |")
+    lines.append(f"| goal delay | {est.delay_s * 1e3:.0f} ms | whole ticks | |")
+    lines.append(f"| loop delay | {est.loop_delay_s * 1e3:.0f} ms | whole ticks | |")
+    return "\n".join(lines)
+
+
+def _plot(est: BusEstimate, records: list[BusRecord], names: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(records)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n), squeeze=False)
+    for ax, rec, name, fit in zip(axes[:, 0], records, names, est.per_record_fit, strict=True):
+        ax.plot(rec.t_s, rec.goal_deg, "k--", lw=0.8, label="goal")
+        ax.plot(rec.t_s, predict_record(est.model, rec), lw=1.2, label="identified model")
+        ax.plot(rec.t_s, rec.position_deg, ".", ms=1.5, label="record")
+        ax.set_title(f"{name}: {rec.registers.label()}, fit {fit:.1f} %", fontsize=9)
+        ax.set_ylabel("deg")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not 1 <= args.generations <= 10_000:
+        raise ValueError(f"--generations must be 1..10000, got {args.generations}")
+    prior = load_bus_servo(args.model)
+    records = [read_bus_record(p) for p in args.records]
+    est = identify_bus_servo(records, prior, name=args.name, seed=args.seed,
+                             generations=args.generations)  # fmt: skip
+    out = args.out or args.records[0].parent
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"{args.name}_model"
+    doc = est.as_dict()
+    doc["records"] = [str(p) for p in args.records]
+    write_json(stem.with_suffix(".json"), doc)
+    print(f"{args.name} ({prior.family}) from {len(records)} records: fit {est.fit_pct:.1f} %, "
+          f"RMS error {est.rmse_deg:.3f} deg")  # fmt: skip
+    print(format_estimate(est))
+    for p in (16, 32, 64) if prior.family == "sts3215" else (200, 400, 800):
+        print(f"dead band at P = {p}: {est.dead_band_deg(p):.2f} deg")
+    for note in est.notes:
+        print(f"note: {note}")
+    worst = int(np.argmin(est.per_record_fit))
+    if est.per_record_fit[worst] < 90:
+        print(f"warning: {args.records[worst]} fits only {est.per_record_fit[worst]:.1f} %: "
+              "look at the figure before trusting the model", file=sys.stderr)  # fmt: skip
+    if not args.no_plot:
+        _plot(est, records, [p.name for p in args.records], stem.with_name(f"{args.name}_fit.png"))
+    print(f"wrote {stem.with_suffix('.json')}; next: python -m tuners.bus.tune --model "
+          f"{stem.with_suffix('.json')}")  # fmt: skip
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.bus.identify``."""
+    return run_cli(_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
