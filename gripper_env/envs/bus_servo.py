@@ -20,7 +20,7 @@ from gripper_env.envs.bus_settings import (
     trip_reward,
     write_observation,
 )
-from gripper_env.envs.rendering import RENDER_MODES, EpisodePlot, EpisodeRecorder, ylim_deg
+from gripper_env.envs.rendering import RENDER_MODES, EpisodeRenderer, ylim_deg
 from gripper_env.envs.spaces import OBS_BOUND
 from gripper_env.sim import bus_servo as core
 
@@ -323,46 +323,19 @@ class GripperBusServoEnv(gym.Env[np.ndarray, np.ndarray]):
         return math.floor(self._state[0, core.SB_TH] / self._dpt + 0.5) * self._dpt
 
 
-class _Renderer:
+class _Renderer(EpisodeRenderer):
     """The episode's reference, jaw angle and goal against time (:class:`EpisodePlot`)."""
 
     def __init__(self, s: BusSettings, mode: str) -> None:
-        self.s, self.mode = s, mode
-        self.recorder = EpisodeRecorder(core.DT)
-        self.plot: EpisodePlot | None = None
-        self.started = False
+        super().__init__(_NAME, mode, core.DT)
+        self.s = s
 
     def start(self, name: str, ref: np.ndarray, n_ticks: int, y0: float, goal0: float) -> None:
         s = self.s
-        n_periods = n_ticks // s.n_sub
-        self.recorder.start(n_periods, float(ref[0]), y0, goal0)
-        if self.plot is None:
-            self.plot = EpisodePlot(human=self.mode == "human")
+        self.recorder.start(n_ticks // s.n_sub, float(ref[0]), y0, goal0)
         title = f"{_NAME}: {s.model.name}, {name} reference, {s.registers.label()}"
-        self.plot.start(title, n_ticks * core.DT, ylim_deg(s.jaw_range_deg, ref[:n_ticks]),
-                        s.jaw_range_deg)  # fmt: skip
-        self.started = True
+        self._start_plot(title, n_ticks * core.DT, ylim_deg(s.jaw_range_deg, ref[:n_ticks]),
+                         s.jaw_range_deg)  # fmt: skip
 
     def record(self, ref: np.ndarray, y: np.ndarray, goal: np.ndarray) -> None:
         self.recorder.record(ref, y, goal)
-
-    def render(self) -> np.ndarray | None:
-        if not self.started:
-            raise RuntimeError(f"{_NAME}: call reset() before render()")
-        assert self.plot is not None
-        t_s, series = self.recorder.series()
-        if self.mode == "rgb_array":
-            return self.plot.rgb(t_s, series)
-        self.plot.show(t_s, series)
-        return None
-
-    def close(self) -> None:
-        if self.plot is not None:
-            self.plot.close()
-            self.plot = None
-            self.started = False
-
-    def __getstate__(self) -> dict[str, Any]:  # a copy starts without a figure
-        state = self.__dict__.copy()
-        state["plot"], state["started"] = None, False
-        return state

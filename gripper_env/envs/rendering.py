@@ -29,6 +29,7 @@ __all__ = [
     "RENDER_MODES",
     "EpisodePlot",
     "EpisodeRecorder",
+    "EpisodeRenderer",
     "RowRenderer",
     "command_ylim_deg",
     "envelope",
@@ -302,43 +303,35 @@ def command_ylim_deg(
     return lo - pad, hi + pad
 
 
-class RowRenderer:
-    """Rendering of one row of a :class:`~gripper_env.envs.control_batch.ControlBatch`: records
-    each period of the row's episode and draws it on an :class:`EpisodePlot` made on first use.
+class EpisodeRenderer:
+    """An episode recorded period by period and drawn on an :class:`EpisodePlot` made on first
+    use: what every environment's renderer shares (subclasses start episodes and record).
 
     Parameters
     ----------
-    batch : ControlBatch
-        The batch (its :meth:`episode_start` and :meth:`period_series`).
-    row : int
-        The row to render.
     name : str
-        Environment name, for the title.
+        Environment name, for the titles and errors.
     mode : {"rgb_array", "human"}
         The render mode.
+    dt_s : float
+        Time step of the recorded series (s).
     """
 
-    def __init__(self, batch: Any, row: int, name: str, mode: str) -> None:
-        self.batch, self.row, self.name, self.mode = batch, row, name, mode
-        self.recorder = EpisodeRecorder(batch.settings.dt_s)
+    def __init__(self, name: str, mode: str, dt_s: float) -> None:
+        self.name, self.mode = name, mode
+        self.recorder = EpisodeRecorder(dt_s)
         self.plot: EpisodePlot | None = None
         self.started = False
 
-    def start(self) -> None:
-        """The row was reset: a new episode, a new background."""
-        n_periods, r0, y0, u0, title, values = self.batch.episode_start(self.row)
-        self.recorder.start(n_periods, r0, y0, u0)
+    def _start_plot(
+        self, title: str, duration_s: float, ylim: tuple[float, float],
+        command_range_deg: tuple[float, float],
+    ) -> None:  # fmt: skip
+        """A new episode's background (the figure made on first use)."""
         if self.plot is None:
             self.plot = EpisodePlot(human=self.mode == "human")
-        s = self.batch.settings
-        duration = n_periods * s.n_sub * s.dt_s
-        self.plot.start(f"{self.name}: {title}", duration, ylim_deg(s.jaw_range_deg, values),
-                        s.command_range_deg)  # fmt: skip
+        self.plot.start(title, duration_s, ylim, command_range_deg)
         self.started = True
-
-    def record(self) -> None:
-        """The row stepped one period."""
-        self.recorder.record(*self.batch.period_series(self.row))
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: the frame; ``human``: draw it in the window."""
@@ -361,3 +354,37 @@ class RowRenderer:
         state = self.__dict__.copy()
         state["plot"], state["started"] = None, False
         return state
+
+
+class RowRenderer(EpisodeRenderer):
+    """Rendering of one row of a :class:`~gripper_env.envs.control_batch.ControlBatch`: records
+    each period of the row's episode and draws it on an :class:`EpisodePlot` made on first use.
+
+    Parameters
+    ----------
+    batch : ControlBatch
+        The batch (its :meth:`episode_start` and :meth:`period_series`).
+    row : int
+        The row to render.
+    name : str
+        Environment name, for the title.
+    mode : {"rgb_array", "human"}
+        The render mode.
+    """
+
+    def __init__(self, batch: Any, row: int, name: str, mode: str) -> None:
+        super().__init__(name, mode, batch.settings.dt_s)
+        self.batch, self.row = batch, row
+
+    def start(self) -> None:
+        """The row was reset: a new episode, a new background."""
+        n_periods, r0, y0, u0, title, values = self.batch.episode_start(self.row)
+        self.recorder.start(n_periods, r0, y0, u0)
+        s = self.batch.settings
+        duration = n_periods * s.n_sub * s.dt_s
+        self._start_plot(f"{self.name}: {title}", duration, ylim_deg(s.jaw_range_deg, values),
+                         s.command_range_deg)  # fmt: skip
+
+    def record(self) -> None:
+        """The row stepped one period."""
+        self.recorder.record(*self.batch.period_series(self.row))
