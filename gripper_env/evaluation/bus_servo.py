@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -71,7 +72,7 @@ _GRASP_AT_S = 0.2  # when the grasp's goal jumps to the closed stop
 #: Cost weights: per deg s of IAE, deg of overshoot, deg of settled error, unit of chatter.
 #: The tracking term is the IAE of each step over its size, summed (s): a 4 deg step counts as much
 #: as a 40 deg one, so the dead band of small moves weighs as much as the slew of large ones.
-WEIGHTS = {"iae_per_deg": 5.0, "overshoot": 0.5, "settled": 2.0, "chatter": 0.002, "grasp": 1.0}
+WEIGHTS = {"iae_per_deg": 5.0, "overshoot": 0.5, "settled": 2.0, "chatter": 0.05, "grasp": 1.0}
 
 
 def tracking_goal(model: BusServoModel) -> tuple[np.ndarray, np.ndarray]:
@@ -202,6 +203,21 @@ def _lag(model: BusServoModel) -> int:
     return min(round(model.physics.loop_delay_s / DT), MAX_LAG)
 
 
+@lru_cache(maxsize=256)
+def _plant_z(
+    tau_m_s: float, omega0_deg_s: float, k_contact: float, deg_per_tick: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The motor and jaw's ZOH discretisation, duty to encoder ticks (numerator, denominator in
+    ``z``); cached, as a search judges many register sets on the same few models."""
+    num, den = cont2discrete(
+        ([1.0], [tau_m_s / omega0_deg_s, 1 / omega0_deg_s, k_contact]), DT, method="zoh"
+    )[:2]
+    gn, gd = np.atleast_1d(np.squeeze(num)) / deg_per_tick, np.atleast_1d(den)
+    gn.setflags(write=False)
+    gd.setflags(write=False)
+    return gn, gd
+
+
 def _open_loop(
     model: BusServoModel, regs: RegisterSet, k_contact: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -214,10 +230,7 @@ def _open_loop(
     and over ``z`` without (no cancelled pole at ``z = 1``).
     """
     ph, sc = model.physics, model.scale
-    num, den = cont2discrete(
-        ([1.0], [ph.tau_m_s / ph.omega0_deg_s, 1 / ph.omega0_deg_s, k_contact]), DT, method="zoh"
-    )[:2]
-    gn, gd = np.atleast_1d(np.squeeze(num)) / model.deg_per_tick, np.atleast_1d(den)
+    gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k_contact, model.deg_per_tick)
     kp, kd, ki = sc.kp * regs.p, sc.kd * regs.d, sc.ki * regs.i * DT
     if ki > 0.0:
         p_part = kp * np.array([1.0, -1.0, 0.0])
@@ -227,7 +240,7 @@ def _open_loop(
     else:
         cn, cd = np.array([kp + kd, -kd]), np.array([1.0, 0.0])
     delay = np.eye(1, 2 + _lag(model)).ravel()  # z^(1 + lag)
-    return np.polymul(cn, gn), np.polymul(np.polymul(cd, gd), delay)
+    return np.convolve(cn, gn), np.convolve(np.convolve(cd, gd), delay)
 
 
 def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
@@ -318,7 +331,7 @@ def judge(
 ) -> list[BusScore]:
     """Score register sets on ``model``: one batch per scenario through the simulation core.
 
-    Cost (lower is better): ``5 sum(IAE / step size) + 0.5 overshoot + 2 settled error + 0.002
+    Cost (lower is better): ``5 sum(IAE / step size) + 0.5 overshoot + 2 settled error + 0.05
     chatter + time to grasp`` (s, deg, deg, 1/s, s). Constraints: the loop's margins
     (``Ms <= 1.6``, gain margin
     ``>= 6 dB``) on the model and on its uncertainty corners (:func:`corner_models`), and the

@@ -12,32 +12,9 @@ from gripper_env.model.bus_servo import load_bus_servo, load_registers_file
 from tuners.bus.tune import SEARCH_SPACE, main, tune_registers
 
 
-@pytest.mark.parametrize("family", ["sts3215", "xl330"])
-def test_tuned_registers_beat_the_shipped_ones(family):
-    model = load_bus_servo(family)
-    best, _study = tune_registers(model, trials=60, seed=1, progress=False)
-    regs = best.registers
-    assert all(isinstance(getattr(regs, k), int) for k in SEARCH_SPACE[family])
-    # margins recomputed on the model and checked against the constraints
-    m = loop_margins(model, regs)
-    assert m.stable and m.ms <= MS_MAX and m.gm_db >= GM_MIN_DB
-    assert best.feasible and best.hold.held and not best.hold.overload
-    shipped = judge(model, list(model.baselines().values()))
-    for name, base in zip(model.baselines(), shipped, strict=True):
-        assert best.cost < base.cost, name
-        assert best.tracking.iae_per_deg_s < base.tracking.iae_per_deg_s, name
-        assert best.tracking.settled_error_deg <= base.tracking.settled_error_deg + 1e-9, name
-        # the hold: no trip where the shipped registers trip, and at least the force of any
-        # shipped set that holds
-        if base.hold.held:
-            assert best.hold.min_force_n >= base.hold.min_force_n * 0.9, name
-        else:
-            assert base.hold.overload or base.hold.min_force_n < base.hold.required_force_n
-
-
 def test_the_command_writes_a_registers_file(tmp_path, capsys):
-    assert main(["--model", "xl330", "--trials", "30", "--out", str(tmp_path), "--no-progress",
-                 "--no-plot"]) == 0  # fmt: skip
+    assert main(["--model", "xl330", "--trials", "30", "--polish", "30", "--out", str(tmp_path),
+                 "--no-progress", "--no-plot"]) == 0  # fmt: skip
     model, _regs, doc = load_registers_file(tmp_path / "xl330_registers.json")
     assert model.family == "xl330" and doc["score"]["feasible"]
     assert "factory" in doc["baselines"] and "| tuned:" in capsys.readouterr().out
@@ -49,3 +26,47 @@ def test_bad_arguments_are_one_line_errors(capsys):
     err = capsys.readouterr().err
     assert "unknown bus_servo 'nope'" in err and "sts3215" in err
     assert main(["--trials", "0"]) == 2
+    assert main(["--polish", "-1"]) == 2
+    assert "--polish must be 0..100000, got -1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_the_search_beats_the_shipped_registers_from_any_seed(family):
+    """The tuned registers beat the factory and community sets on the cost, on tracking and on
+    the dead band, hold where they trip, meet the margins recomputed on the model, and land in
+    the same place from any seed. (TPE alone ended in a hunting high-integrator basin for some
+    seeds, at about twice the cost; the log-scale registers and the local search fixed that.)"""
+    model = load_bus_servo(family)
+    runs = [tune_registers(model, trials=150, seed=s, progress=False) for s in (0, 1, 2)]
+    results = [best for best, _study in runs]
+    assert all(study.user_attrs["local_optimum"] for _best, study in runs)
+    costs = [r.cost for r in results]
+    assert max(costs) - min(costs) < 0.05 * min(costs), costs
+    shipped = dict(zip(model.baselines(), judge(model, list(model.baselines().values())),
+                       strict=True))  # fmt: skip
+    for best in results:
+        regs = best.registers
+        assert all(isinstance(getattr(regs, k), int) for k in SEARCH_SPACE[family])
+        assert regs.i <= 0.01 * SEARCH_SPACE[family]["i"][1]  # the integrator only hunts here
+        m = loop_margins(model, regs)
+        assert m.stable and m.ms <= MS_MAX and m.gm_db >= GM_MIN_DB
+        assert best.feasible and best.hold.held and not best.hold.overload
+        for name, base in shipped.items():
+            assert best.cost < base.cost, name
+            assert best.tracking.iae_per_deg_s < base.tracking.iae_per_deg_s, name
+            assert best.tracking.settled_error_deg <= base.tracking.settled_error_deg + 1e-9
+            # the hold: no trip where the shipped registers trip, and at least the force of
+            # any shipped set that holds
+            if base.hold.held:
+                assert best.hold.min_force_n >= base.hold.min_force_n * 0.9, name
+            else:
+                assert base.hold.overload or base.hold.min_force_n < base.hold.required_force_n
+        # a local optimum on the integer grid: no single-register step of 1 is a feasible set
+        # better by more than the search's sufficient decrease
+        near = [
+            regs.model_copy(update={k: v})
+            for k, (lo, hi) in SEARCH_SPACE[family].items()
+            for v in (getattr(regs, k) - 1, getattr(regs, k) + 1)
+            if lo <= v <= hi
+        ]
+        assert not [n for n in judge(model, near) if n.feasible and n.cost < best.cost * (1 - 1e-3)]
