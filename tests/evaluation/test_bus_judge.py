@@ -84,3 +84,17 @@ def test_hold_metrics_without_object_contact():
                        with_object=True, start_deg=m.jaw.open_deg)  # fmt: skip
     h = hold_metrics(m, run)
     assert h.holding_force_n == 0 and math.isnan(h.time_to_grasp_s) and not h.held
+
+
+def test_the_robust_margins_hold_with_a_tick_more_loop_delay():
+    """The delay is identified in whole ticks; the constraints must hold a tick later too, or a
+    set tuned on a model one tick short breaks Ms on the servo (found on the README recipe)."""
+    model = load_bus_servo("sts3215")
+    regs = RegisterSet(p=150, i=0, d=160, torque_limit=790, deadband=1)
+    later = model.model_copy(
+        update={"physics": model.physics.model_copy(update={"loop_delay_s": 0.005})}
+    )
+    assert loop_margins(later, regs).ms > loop_margins(model, regs).ms  # a tick more costs margin
+    score = judge(model, [regs])[0]
+    assert score.robust_margins.ms >= loop_margins(later, regs).ms - 1e-12
+    assert score.robust_margins.gm_db <= loop_margins(later, regs).gm_db + 1e-12

@@ -12,9 +12,10 @@ import json
 
 import pytest
 
+from gripper_env.evaluation.bus_servo import loop_margins
 from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.unit import ServoUnit
-from gripper_env.model.bus_servo import load_bus_servo
+from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
 from tuners.bus import deploy, identify, record, tune
 
 SETTINGS = {
@@ -63,6 +64,9 @@ def test_record_identify_tune_deploy(family, tmp_path, capsys):
             assert score["tracking"]["iae_per_deg_s"] < base["tracking"]["iae_per_deg_s"], name
             assert score["tracking"]["settled_error_deg"] <= base["tracking"][
                 "settled_error_deg"] + 1e-9, name  # fmt: skip
+        # ... and on the servo as it really is (the truth the fit only estimates): the margins
+        regs_set = RegisterSet(**tuned["registers"])
+        assert loop_margins(truth, regs_set).feasible(), loop_margins(truth, regs_set)
         factory = tuned["baselines"]["factory"]
         assert not score["hold"]["overload"] and factory["hold"]["overload"]
         capsys.readouterr()
