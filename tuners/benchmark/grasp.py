@@ -11,6 +11,9 @@ Writes ``<out>/grasp.md`` (the table), ``<out>/grasp.json`` (the scenario, the s
 overload criterion and every row), ``<out>/figures/grasp.png`` (jaw angle and force against
 time per controller) and the run's provenance sidecar ``<out>/grasp.provenance.json``.
 
+The bus servos (``--bus``, default STS3215 and XL330) add their rows on their shipped models
+(:func:`bus_rows`): the tuned registers of ``<gains-from>/bus/<servo>_registers.json``, the
+factory's and the community's, held against the servo's own overload and thermal protection.
 Other grippers add their rows through ``extra`` (:func:`grasp_rows`, :func:`main`): callables
 that return lists of :class:`~gripper_env.evaluation.grasp.GraspResult`.
 """
@@ -28,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.evaluation.bus_servo import GRASP_MAX_S, HOLD_S
 from gripper_env.evaluation.grasp import (
     CONTINUOUS_CURRENT_FRACTION,
     FULL_STALL_LIMIT_S,
@@ -51,6 +55,7 @@ from tuners import cli
 from tuners.settings import EvaluationSettings, load_settings
 
 __all__ = [
+    "BUS_FAMILIES",
     "COMMITTED_ROWS",
     "GainSet",
     "RowProvider",
@@ -58,6 +63,8 @@ __all__ = [
     "benchmark_grasp",
     "benchmark_section",
     "build_parser",
+    "bus_context",
+    "bus_rows",
     "gain_sets",
     "grasp_rows",
     "main",
@@ -179,6 +186,80 @@ def grasp_rows(
     for provider in extra:
         rows += provider()
     return rows
+
+
+#: The bus servos whose rows the command adds by default (``--bus``).
+BUS_FAMILIES = ("sts3215", "xl330")
+
+
+def bus_rows(family: str, gains_from: Path | None = Path("results")) -> list[GraspResult]:
+    """The bus servo ``family``'s grasp-and-hold rows on its shipped model: the tuned registers
+    of ``<gains_from>/bus/<family>_registers.json`` when that file exists, then the factory and
+    community registers, through :func:`gripper_env.evaluation.bus_servo.hold_goal` (the goal
+    jumps to the closed stop with an object in the jaws; held 10 s; the servo's own overload
+    and thermal protection)."""
+    from gripper_env.evaluation.bus_servo import hold_goal, hold_metrics
+    from gripper_env.model.bus_servo import load_bus_servo, load_registers_file
+    from gripper_env.sim.bus_servo import simulate_bus
+
+    model = load_bus_servo(family)
+    sets = dict(model.baselines())
+    if gains_from is not None:
+        path = Path(gains_from) / "bus" / f"{family}_registers.json"
+        if path.is_file():
+            tuned_model, regs, _doc = load_registers_file(path)
+            if tuned_model.family != family:
+                raise ValueError(f"{path}: registers of a {tuned_model.family}, not a {family}")
+            sets = {"tuned": regs, **sets}
+    goal = hold_goal(model)
+    run = simulate_bus(model, list(sets.values()), goal, with_object=True)
+    stall = model.stall_force_n()
+    gripper = f"{family} bus servo (model {model.name})"
+    rows = []
+    for i, (name, regs) in enumerate(sets.items()):
+        h = hold_metrics(model, run, i)
+        rows.append(
+            GraspResult(
+                gripper=gripper,
+                controller=f"{name} {regs.label()}",
+                time_to_grasp_s=h.time_to_grasp_s,
+                holding_force_n=h.holding_force_n,
+                holding_force_pct=100.0 * h.holding_force_n / stall,
+                min_force_n=h.min_force_n,
+                overload=h.overload,
+                overload_at_s=h.trip_at_s,
+                held=h.held,
+                hold_s=HOLD_S - GRASP_MAX_S,
+            )
+        )
+    return rows
+
+
+def bus_context(families: Sequence[str]) -> str:
+    """The report's paragraph on the bus servos' scenario (their models' own numbers)."""
+    from gripper_env.evaluation.bus_servo import HOLD_FORCE_FRAC
+    from gripper_env.model.bus_servo import load_bus_servo
+
+    parts = []
+    for family in families:
+        m = load_bus_servo(family)
+        pr = m.protection
+        parts.append(
+            f"{family}: object at {m.jaw.object_deg:g} deg, goal the closed stop "
+            f"{m.jaw.limits_deg[0]:g} deg, stall force {m.stall_force_n():.1f} N, overload after "
+            f"{pr.overload_time_s:g} s at or above {100 * pr.overload_duty:g} % duty, overheat at "
+            f"{pr.max_temp_c:g} C"
+        )
+    return (
+        "**Bus servos** (`tuners.bus`): the servo's own register PID at 1 kHz on its "
+        f"model; the goal jumps to the closed stop and is held {HOLD_S:g} s; held means at "
+        f"least {100 * HOLD_FORCE_FRAC:g} % of the servo's stall force from {GRASP_MAX_S:g} s "
+        "to the end, grasped within it, and no trip of the servo's own protection (the overload "
+        "timer, the thermal cut-out). One run each (the model is deterministic). "
+        + "; ".join(parts)
+        + ". The tuned rows are `results/bus/<servo>_registers.json` "
+        "(`python -m tuners.bus.tune --model <servo> --out results/bus`)."
+    )
 
 
 def _trip_s(fraction: float) -> float:
@@ -402,6 +483,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="the first N held-out seeds (default: all of the evaluation settings')",
     )
     parser.add_argument(
+        "--bus",
+        nargs="*",
+        default=list(BUS_FAMILIES),
+        metavar="SERVO",
+        help="bus servos whose rows to add (sts3215, xl330, xl430; none: --bus with no names)",
+    )
+    parser.add_argument(
         "--eval-config",
         type=Path,
         default=None,
@@ -434,6 +522,8 @@ def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
                         disturbance=dist, settings=settings)  # fmt: skip
     gripper = _gripper(plant.name, dist.name)
     rows = _rows(runs, gripper)
+    for family in args.bus:
+        rows += bus_rows(family, args.gains_from)
     for provider in extra:
         rows += provider()
     context = (
@@ -442,6 +532,8 @@ def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
         f"seed{'s' if len(seeds) > 1 else ''} (friction, noise and stops drawn per seed); the "
         f"PID at 1 kHz, its output limited to the servo's 0-180 deg with clamping anti-windup."
     )
+    if args.bus:
+        context += "\n\n" + bus_context(args.bus)
     with collect_provenance(args.out, "grasp", command=args.command, started=start):
         content = result_json(rows, scenario=scenario, plant=plant.name, disturbance=dist.name,
                               seeds=[int(s) for s in seeds])  # fmt: skip

@@ -93,7 +93,8 @@ def _run(args: argparse.Namespace) -> int:
             print(
                 f"[{k}/{len(registers)}] {regs.label()}: {rec.t_s.size} readings "
                 f"(every {dt * 1e3:.2f} ms), {rec.goal_times_s.size} goals, "
-                f"{recorder.lost} replies lost so far -> {path}",
+                f"{recorder.lost} replies lost and {recorder.slow} slow readings dropped so far "
+                f"-> {path}",
                 flush=True,
             )
         recorder.settle(model.jaw.open_deg, 0.2)

@@ -23,7 +23,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -32,7 +34,7 @@ from tqdm.auto import tqdm
 
 from gripper_env.evaluation.bus_servo import GM_MIN_DB, MS_MAX, BusScore, judge
 from gripper_env.io.config import ConfigError
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_bus_servo
 
 __all__ = ["SEARCH_SPACE", "constraint_value", "main", "tune_registers"]
@@ -348,6 +350,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    started = time.perf_counter()
+    command = shlex.join(
+        ["python", "-m", "tuners.bus.tune", *(sys.argv[1:] if argv is None else argv)]
+    )
     if not 1 <= args.trials <= 100_000:
         print(f"error: --trials must be 1..100000, got {args.trials}", file=sys.stderr)
         return 2
@@ -403,12 +409,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "local_optimum": local,
         "model": model.model_dump(),
     }
-    write_atomic(stem.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
-    write_atomic(stem.with_suffix(".md"), f"# {model.name}: tuned registers\n\n{table}\n")
-    if not args.no_plot:
-        from tuners.bus.plots import plot_registers
+    with collect_provenance(args.out, stem.name, command=command, started=started):
+        write_atomic(stem.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
+        write_atomic(stem.with_suffix(".md"), f"# {model.name}: tuned registers\n\n{table}\n")
+        if not args.no_plot:
+            from tuners.bus.plots import plot_registers
 
-        plot_registers(model, rows, stem.with_suffix(".png"))
+            plot_registers(model, rows, stem.with_suffix(".png"))
     print(f"wrote {stem.with_suffix('.json')}")
     return 0
 

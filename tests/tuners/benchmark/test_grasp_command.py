@@ -26,13 +26,18 @@ def test_the_command_writes_the_table_the_json_and_the_figure(tmp_path, capsys):
     for name in ("grasp.md", "grasp.json", "grasp.provenance.json", "figures/grasp.png"):
         assert (out / name).is_file(), name
     content = json.loads((out / "grasp.json").read_text())
-    rows = [GraspResult.from_dict(r) for r in content["rows"]]
+    every = [GraspResult.from_dict(r) for r in content["rows"]]
+    rows = [r for r in every if r.gripper.startswith("arduino")]
     assert len(rows) == CONTROLLERS  # one row per controller, each named once
     assert len({r.controller for r in rows}) == CONTROLLERS
     assert rows[0].controller == "servo alone (no host loop)"
     assert rows[1].controller.startswith("paper-tuned P=1 I=9 D=-0.001")
     assert any(r.controller.startswith("optuna P=") for r in rows)
     assert {r.gripper for r in rows} == {"arduino test2 (actual)"}
+    # then the bus servos' rows: the committed tuned registers, the factory's, the community's
+    bus = [r.controller.split(" P=")[0] for r in every[len(rows) :]]
+    assert bus == ["tuned", "factory", "lerobot", "tuned", "factory"]
+    assert "**Bus servos**" in (out / "grasp.md").read_text()
     assert content["gripper"]["seeds"] == [100000, 100001]
     assert content["scenario"] == GraspScenario().as_dict()
     md = (out / "grasp.md").read_text()
@@ -66,10 +71,43 @@ def test_other_grippers_add_their_rows(tmp_path):
 
 def test_missing_gains_files_are_left_out_and_said(tmp_path, capsys):
     assert grasp.main(["--out", str(tmp_path), "--seeds", "1", "--gains-from",
-                       str(tmp_path / "none")]) == 0  # fmt: skip
+                       str(tmp_path / "none"), "--bus"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert "optuna.json: not found, its row left out" in out
     assert len(json.loads((tmp_path / "grasp.json").read_text())["rows"]) == 3
+
+
+def test_the_bus_servos_rows_judge_their_registers_on_the_hold(tmp_path):
+    """The tuned registers file's set holds where the factory set trips its overload; the rows
+    are the hold metrics of the bus-servo evaluation, recomputed here from the simulation."""
+    from gripper_env.evaluation.bus_servo import hold_goal, hold_metrics
+    from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
+    from gripper_env.sim.bus_servo import simulate_bus
+
+    model = load_bus_servo("sts3215")
+    tuned = RegisterSet(p=90, i=0, d=105, torque_limit=790, deadband=1)
+    (tmp_path / "bus").mkdir()
+    (tmp_path / "bus" / "sts3215_registers.json").write_text(
+        json.dumps({"model": model.model_dump(), "registers": tuned.model_dump()})
+    )
+    rows = grasp.bus_rows("sts3215", tmp_path)
+    assert [r.controller.split(" P=")[0] for r in rows] == ["tuned", "factory", "lerobot"]
+    t, factory, _lerobot = rows
+    assert t.held and not t.overload
+    assert factory.overload and factory.overload_at_s == pytest.approx(
+        model.protection.overload_time_s, abs=0.05
+    )
+    run = simulate_bus(model, [tuned], hold_goal(model), with_object=True)
+    truth = hold_metrics(model, run)
+    assert t.holding_force_n == pytest.approx(truth.holding_force_n)
+    assert t.holding_force_pct == pytest.approx(100 * truth.holding_force_n / model.stall_force_n())
+    # without a registers file: the shipped sets only; a registers file of another servo refused
+    assert len(grasp.bus_rows("sts3215", tmp_path / "none")) == 2
+    (tmp_path / "bus" / "xl330_registers.json").write_text(
+        (tmp_path / "bus" / "sts3215_registers.json").read_text()
+    )
+    with pytest.raises(ValueError, match="registers of a sts3215, not a xl330"):
+        grasp.bus_rows("xl330", tmp_path)
 
 
 def test_bad_input_is_refused_with_one_line(tmp_path, capsys):
@@ -77,6 +115,9 @@ def test_bad_input_is_refused_with_one_line(tmp_path, capsys):
     assert "--seeds must be 1 to 10" in capsys.readouterr().err
     assert grasp.main(["--out", str(tmp_path), "--plant", "nosuch"]) == 2
     assert "nosuch" in capsys.readouterr().err
+    assert grasp.main(["--out", str(tmp_path), "--seeds", "1", "--bus", "nosuch"]) == 2
+    err = capsys.readouterr().err
+    assert "nosuch" in err and "sts3215" in err and len(err.strip().splitlines()) == 1
 
 
 def test_a_grasp_that_never_happens_reads_never():
