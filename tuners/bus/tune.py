@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -36,6 +35,7 @@ from gripper_env.evaluation.bus_servo import GM_MIN_DB, MS_MAX, BusScore, judge
 from gripper_env.io.config import ConfigError
 from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_bus_servo
+from tuners import cli
 
 __all__ = ["SEARCH_SPACE", "constraint_value", "main", "tune_registers"]
 
@@ -94,12 +94,13 @@ def tune_registers(
     2. **local**, each until it converges or has judged ``polish`` sets: an integer pattern search
        (Hooke-Jeeves) from each of the best
        :data:`POLISH_STARTS` feasible sets that differ by at least 1/8 of a range. Each round
-       judges every register moved by ``+-step`` alone and P and D moved together, takes the best
-       feasible improvement, and halves the steps when none improves, down to 1. The cost is
-       not smooth (the static friction makes the dead band jump between ticks), and TPE alone
-       stops short of the optimum erratically from seed to seed (one seed settled on a hunting
-       integrator at I = 53 where the others found I = 0); the local stage makes the result a
-       local optimum on the integer grid, and the distinct starts keep one basin from deciding.
+       judges the neighbours of :func:`_pattern_moves` (and the last successful move repeated),
+       takes the best feasible improvement, and halves the steps when none improves, down to 1.
+       The cost is not smooth (the static friction makes the dead band jump between ticks), and
+       TPE alone stops short of the optimum erratically from seed to seed (one seed settled on
+       a hunting integrator at I = 53 where the others found I = 0); the local stage makes the
+       result a local optimum on the integer grid, and the distinct starts keep one basin from
+       deciding.
 
     Raises
     ------
@@ -272,15 +273,15 @@ def _pattern_moves(
         dirs += [{k: 1}, {k: -1}, {k: 4}, {k: -4}]
     if "p" in space and "d" in space:
         dirs += [{"p": sp, "d": sd} for sp in (1, -1) for sd in (1, -1)]
-    out, keys_out = [], set(seen)
+    out, taken = [], set()
     for d in dirs:
         cand = dict(x)
         for k, sign in d.items():
             lo, hi = space[k]
             cand[k] = min(max(x[k] + sign * step[k], lo), hi)
         key = tuple(cand[k] for k in keys)
-        if key not in keys_out:
-            keys_out.add(key)
+        if key not in seen and key not in taken:
+            taken.add(key)
             out.append(cand)
     return out
 
@@ -349,11 +350,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
     started = time.perf_counter()
-    command = shlex.join(
-        ["python", "-m", "tuners.bus.tune", *(sys.argv[1:] if argv is None else argv)]
-    )
+    try:
+        args = cli.parse(build_parser(), None if argv is None else list(argv))
+    except ValueError as exc:  # --out names a file
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if not 1 <= args.trials <= 100_000:
         print(f"error: --trials must be 1..100000, got {args.trials}", file=sys.stderr)
         return 2
@@ -409,7 +411,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "local_optimum": local,
         "model": model.model_dump(),
     }
-    with collect_provenance(args.out, stem.name, command=command, started=started):
+    with collect_provenance(args.out, stem.name, command=args.command, started=started):
         write_atomic(stem.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
         write_atomic(stem.with_suffix(".md"), f"# {model.name}: tuned registers\n\n{table}\n")
         if not args.no_plot:
