@@ -54,6 +54,7 @@ __all__ = [
     "Protection",
     "RegisterSet",
     "ServoPhysics",
+    "alternative_models",
     "load_bus_servo",
     "load_registers_file",
 ]
@@ -355,3 +356,19 @@ def load_registers_file(
     model = validate(BusServoModel, doc["model"], f"{path}: model")
     regs = validate(RegisterSet, doc["registers"], f"{path}: registers")
     return model, regs, doc
+
+
+def alternative_models(doc: dict[str, Any], key: str, source: str) -> list[BusServoModel]:
+    """The models listed under ``doc[key]`` (an identified model file's ``"alternatives"``, a
+    registers file's ``"alternative_models"``: fits at later loop delays the margins must also
+    hold on); none when the key is absent.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        If the entry is not a list of valid models, naming ``source``, the entry and the field.
+    """
+    entries = doc.get(key) or []
+    if not isinstance(entries, list):
+        raise ConfigError(f"{source}: '{key}' must be a list of models")
+    return [validate(BusServoModel, m, f"{source}: {key}[{k}]") for k, m in enumerate(entries)]

@@ -98,3 +98,22 @@ def test_the_robust_margins_hold_with_a_tick_more_loop_delay():
     score = judge(model, [regs])[0]
     assert score.robust_margins.ms >= loop_margins(later, regs).ms - 1e-12
     assert score.robust_margins.gm_db <= loop_margins(later, regs).gm_db + 1e-12
+
+
+def test_the_robust_margins_hold_on_the_alternative_models():
+    """An identification's alternatives (fits at later loop delays, with their own damping and
+    time constant) are constraints too: the judged margins are no better than on any of them,
+    and a set that breaks Ms on one is infeasible."""
+    model = load_bus_servo("sts3215")
+    regs = RegisterSet(p=80, i=0, d=100, torque_limit=790, deadband=1)
+    alt = model.with_updates(
+        name="alt",
+        physics=model.physics.model_copy(update={"loop_delay_s": 0.006, "tau_m_s": 0.03}),
+        scale=model.scale.model_copy(update={"kd": model.scale.kd * 1.3}),
+    )
+    on_alt = loop_margins(alt, regs)
+    plain, with_alt = judge(model, [regs]), judge(model, [regs], alternatives=[alt])
+    assert with_alt[0].robust_margins.ms == pytest.approx(
+        max(plain[0].robust_margins.ms, on_alt.ms), rel=1e-12
+    )
+    assert on_alt.ms > 1.6 and not with_alt[0].feasible and plain[0].feasible

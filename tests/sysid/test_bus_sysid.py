@@ -13,6 +13,7 @@ from gripper_env.sysid.bus_experiments import settings_registers, simulate_recor
 from gripper_env.sysid.bus_servo import (
     BusRecord,
     identify_bus_servo,
+    predict_record,
     read_bus_record,
     write_bus_record,
 )
@@ -31,6 +32,10 @@ def _records(truth, prior, settings, seed=0):
         y = run.position[0][k] * prior.deg_per_tick
         out.append(BusRecord(prior.family, regs, t, goal[k], y, starts * DT, goal[starts]))
     return out
+
+
+def _fit(y, yhat):
+    return 100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - y.mean()))
 
 
 def test_a_perturbed_sts3215_is_recovered_with_uncertainties_that_cover_it(tmp_path):
@@ -67,7 +72,15 @@ def test_a_perturbed_sts3215_is_recovered_with_uncertainties_that_cover_it(tmp_p
     for k, v in want.items():
         assert est.values[k] == pytest.approx(v, rel=0.08), k
         assert abs(est.values[k] - v) <= 3.5 * est.std[k], (k, est.values[k], v, est.std[k])
-    assert not est.notes  # I and D were recorded: nothing left at the prior
+    # I and D were recorded: nothing left at the prior (the notes say only what the delay
+    # profile found)
+    assert all(n.startswith("loop delay") for n in est.notes), est.notes
+    # the alternatives are fits at later loop delays, each nearly as good as the estimate
+    for alt in est.alternatives:
+        assert est.loop_delay_s < alt.physics.loop_delay_s <= est.loop_delay_s + 2 * DT + 1e-9
+        fits = [_fit(r.position_deg, predict_record(alt, r)) for r in records]
+        assert min(fits) > 90, fits
+    assert est.as_dict()["alternatives"] == [m.model_dump() for m in est.alternatives]
 
 
 def test_one_p_setting_is_refused():

@@ -37,7 +37,12 @@ from gripper_env.evaluation.bus_servo import BusScore, judge
 from gripper_env.evaluation.metrics import fit_percent
 from gripper_env.hardware.bus.gripper import BusGripper
 from gripper_env.io.files import write_json
-from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_registers_file
+from gripper_env.model.bus_servo import (
+    BusServoModel,
+    RegisterSet,
+    alternative_models,
+    load_registers_file,
+)
 from gripper_env.sysid.bus_experiments import BusRecorder, tracking_plan
 from gripper_env.sysid.bus_servo import BusRecord, predict_record, write_bus_record
 from tuners.bus.cli import add_servo_arguments, run_cli
@@ -50,10 +55,12 @@ def gate(
     regs: RegisterSet,
     rel_std: dict[str, float] | None,
     allow_infeasible: bool = False,
+    alternatives: Sequence[BusServoModel] = (),
 ) -> BusScore:
-    """Judge ``regs`` on ``model``; refuse (ValueError) an unstable loop, and registers that miss
-    the constraints unless ``allow_infeasible`` (then warn)."""
-    score = judge(model, [regs], rel_std=rel_std)[0]
+    """Judge ``regs`` on ``model`` (and its ``alternatives``, the identification's fits at later
+    loop delays); refuse (ValueError) an unstable loop, and registers that miss the constraints
+    unless ``allow_infeasible`` (then warn)."""
+    score = judge(model, [regs], rel_std=rel_std, alternatives=alternatives)[0]
     if not score.robust_margins.stable:
         raise ValueError(
             f"refusing to deploy {regs.label()}: the loop is unstable on the {model.name} model "
@@ -146,7 +153,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--hold must be 0..600 s, got {args.hold}")
     model, regs, doc = load_registers_file(args.registers)
     rel_std = doc.get("uncertainty_rel_std") or None
-    score = gate(model, regs, rel_std, args.allow_infeasible)
+    alternatives = alternative_models(doc, "alternative_models", str(args.registers))
+    score = gate(model, regs, rel_std, args.allow_infeasible, alternatives)
     out = args.out or Path(args.registers).parent / f"deploy_{model.name}"
     out.mkdir(parents=True, exist_ok=True)
     with BusGripper(args.port, model, args.id, baudrate=args.baudrate) as jaw:

@@ -34,7 +34,12 @@ from tqdm.auto import tqdm
 from gripper_env.evaluation.bus_servo import GM_MIN_DB, MS_MAX, BusScore, judge
 from gripper_env.io.config import ConfigError
 from gripper_env.io.files import collect_provenance, write_atomic
-from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_bus_servo
+from gripper_env.model.bus_servo import (
+    BusServoModel,
+    RegisterSet,
+    alternative_models,
+    load_bus_servo,
+)
 from tuners import cli
 
 __all__ = ["SEARCH_SPACE", "constraint_value", "main", "tune_registers"]
@@ -75,6 +80,7 @@ def tune_registers(
     trials: int = 300,
     seed: int = 0,
     rel_std: dict[str, float] | None = None,
+    alternatives: Sequence[BusServoModel] = (),
     progress: bool = True,
     batch: int = 16,
     polish: int = 600,
@@ -133,7 +139,7 @@ def tune_registers(
                 for key, (lo, hi) in space.items()
             }
             asked.append((trial, base.model_copy(update=values)))
-        scores = judge(model, [r for _t, r in asked], rel_std=rel_std)
+        scores = judge(model, [r for _t, r in asked], rel_std=rel_std, alternatives=alternatives)
         for (trial, _r), score in zip(asked, scores, strict=True):
             violation = constraint_value(score)
             trial.set_constraint("margins_and_hold", violation)
@@ -174,7 +180,7 @@ def tune_registers(
     finally:
         bar.close()
     regs = base.model_copy(update=x)
-    return judge(model, [regs], rel_std=rel_std)[0], study
+    return judge(model, [regs], rel_std=rel_std, alternatives=alternatives)[0], study
 
 
 def _param(key: str) -> str:
@@ -369,15 +375,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     rel_std = _model_uncertainty(args.model)
     try:
+        alternatives = model_alternatives(args.model)
+    except ConfigError as exc:
+        print(f"error: --model: {exc}", file=sys.stderr)
+        return 2
+    try:
         best, study = tune_registers(
             model, trials=args.trials, seed=args.seed, rel_std=rel_std, polish=args.polish,
-            progress=not args.no_progress and sys.stderr.isatty(),
+            alternatives=alternatives, progress=not args.no_progress and sys.stderr.isatty(),
         )  # fmt: skip
     except RuntimeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     baselines = dict(zip(model.baselines(), judge(model, list(model.baselines().values()),
-                                                   rel_std=rel_std), strict=False))  # fmt: skip
+                                                   rel_std=rel_std, alternatives=alternatives),
+                         strict=False))  # fmt: skip
     rows = {"tuned": best, **baselines}
     table = format_table(rows)
     bounds = _on_bounds(best.registers, model.family)
@@ -407,6 +419,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "judged": len(study.trials),
         "seed": args.seed,
         "uncertainty_rel_std": rel_std or {},
+        "alternative_models": [m.model_dump() for m in alternatives],
         "on_bounds": bounds,
         "local_optimum": local,
         "model": model.model_dump(),
@@ -420,6 +433,24 @@ def main(argv: Sequence[str] | None = None) -> int:
             plot_registers(model, rows, stem.with_suffix(".png"))
     print(f"wrote {stem.with_suffix('.json')}")
     return 0
+
+
+def model_alternatives(model_arg: str | Path) -> list[BusServoModel]:
+    """The alternative models of an identified model file (``"alternatives"``: the fits at later
+    loop delays, :class:`~gripper_env.sysid.bus_servo.BusEstimate`); none for a family name.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        If an alternative is not a valid model (naming the file, the entry and the field).
+    """
+    if not str(model_arg).endswith(".json"):
+        return []
+    try:
+        doc = json.loads(Path(model_arg).read_text())
+    except (OSError, ValueError):
+        return []
+    return alternative_models(doc, "alternatives", str(model_arg)) if isinstance(doc, dict) else []
 
 
 def _model_uncertainty(model_arg: str) -> dict[str, float] | None:
