@@ -422,6 +422,19 @@ def identify_bus_servo(
     # then walk from the best pair: each neighbouring pair searched again from the best fit (a
     # short local CMA-ES and the polish), moving while one is better
     walked: set[tuple[int, int]] = set()
+
+    def search_from(pair: tuple[int, int], x_start: np.ndarray) -> float:
+        """A short local CMA-ES at ``pair`` from ``x_start``, then the polish; its cost."""
+        walked.add(pair)
+        polished.add(pair)
+        mean = np.concatenate([np.log(x_start), pair])
+        _c, v = _cma(problem, mean, lo, hi, seed=seed, generations=max(generations // 4, 10),
+                     sigma=0.05, fixed_delays=pair)  # fmt: skip
+        x_n, cost_n = solve(np.exp(v[: x_start.size]), *pair)
+        if cost_n < profile.get(pair, (math.inf,))[0]:
+            profile[pair] = (cost_n, x_n)
+        return cost_n
+
     moved = True
     while moved:
         moved = False
@@ -430,15 +443,7 @@ def identify_bus_servo(
             pair = (delay + dd, loop + dl)
             if pair in walked or not all(0 <= v <= _MAX_DELAY_TICKS for v in pair):
                 continue
-            walked.add(pair)
-            mean = np.concatenate([np.log(x), pair])
-            _c, v = _cma(problem, mean, lo, hi, seed=seed, generations=max(generations // 4, 10),
-                         sigma=0.05, fixed_delays=pair)  # fmt: skip
-            x_n, cost_n = solve(np.exp(v[: x.size]), *pair)
-            polished.add(pair)
-            if cost_n < profile.get(pair, (math.inf,))[0]:
-                profile[pair] = (cost_n, x_n)
-            if cost_n < cost * (1 - 1e-6):
+            if search_from(pair, x) < cost * (1 - 1e-6):
                 moved = True
                 break
     # The later loop delays the records cannot rule out: a fit short of the servo's delay makes
@@ -448,6 +453,9 @@ def identify_bus_servo(
     # and two ticks later are kept as alternatives the tuner's margins must also hold on.
     while True:
         (delay, loop), (cost, x) = min(profile.items(), key=lambda kv: kv[1][0])
+        for ahead in range(1, _LATER_TICKS + 1):  # a later tick the profile's window left out
+            if loop + ahead <= _MAX_DELAY_TICKS and not any(p[1] == loop + ahead for p in profile):
+                search_from((delay, loop + ahead), x)
         later = [
             min((p for p in profile if p[1] == loop + k), key=lambda p: profile[p][0])
             for k in range(1, _LATER_TICKS + 1)
