@@ -187,9 +187,6 @@ class BusEstimate:
         Estimates and standard errors of :data:`FIT_NAMES` (``std`` inf: not determined).
     delay_s, loop_delay_s : float
         The goal's delay and the loop's own delay (s, whole ticks).
-    loop_delay_range_s : tuple of float
-        The loop delays (s) whose best fit stays within the 95 % threshold of the optimum's
-        cost (the delay profile; ``(loop_delay_s, loop_delay_s)`` when no other tick does).
     fit_pct : float
         NRMSE fit of the model to all records (100 = perfect),
         ``100 (1 - |y - yhat| / |y - mean|)``.
@@ -210,7 +207,6 @@ class BusEstimate:
     std: dict[str, float]
     delay_s: float
     loop_delay_s: float
-    loop_delay_range_s: tuple[float, float]
     fit_pct: float
     rmse_deg: float
     per_record_fit: list[float]
@@ -240,7 +236,6 @@ class BusEstimate:
             },
             "delay_s": self.delay_s,
             "loop_delay_s": self.loop_delay_s,
-            "loop_delay_range_s": list(self.loop_delay_range_s),
             "fit_pct": self.fit_pct,
             "rmse_deg": self.rmse_deg,
             "per_record_fit": self.per_record_fit,
@@ -405,8 +400,8 @@ def identify_bus_servo(
     # ``kd`` 17 % high and ``tau_m`` 10 % long fits the STS3215's records nearly as well), and a
     # local polish stalls on the sticking events' steps. So the fit is profiled over the delay
     # pairs around the global search's: a short CMA-ES at every pair (all in one batch per
-    # generation), then a polish of the best few. The profile's costs also give the loop
-    # delay's uncertainty (below).
+    # generation), then a polish of the best few; its fits at later loop delays are the
+    # alternatives (below).
     profile = _delay_profile(problem, x, delay, loop, lo, hi, seed=seed,
                              generations=max(generations // 2, 15))  # fmt: skip
     polished: set[tuple[int, int]] = set()
@@ -511,20 +506,6 @@ def identify_bus_servo(
     values = {k: float(v) for k, v in zip(fit, x, strict=False)}
     stds = {k: float(s) for k, s in zip(fit, std, strict=False)}
     sigma2 = float(r0 @ r0) / max(r0.size - len(fit), 1) * corr
-    # the loop delays whose best fit (over the goal delay and the parameters) stays within the
-    # 95 % threshold of the optimum's cost; an unconverged pair only narrows this, so the
-    # range is at least the fitted tick +-1
-    loop_costs: dict[int, float] = {}
-    for (_d, lp), (c, _x) in profile.items():
-        loop_costs[lp] = min(loop_costs.get(lp, math.inf), c)
-    inside = [lp for lp, c in loop_costs.items() if c <= cost + 3.84 * sigma2]
-    loop_range = (min([*inside, loop]), max([*inside, loop]))
-    if loop_range != (loop, loop):
-        notes.append(
-            f"loop delay {loop} ms: the records are consistent with {loop_range[0]} to "
-            f"{loop_range[1]} ms (95 %, the delay profile); the tuner's margins cover "
-            f"{loop_range[1]} ms"
-        )
     for j in np.flatnonzero(~seen).tolist():
         lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
         stds[fit[j]] = (hi_j - lo_j) / 3.92
@@ -576,7 +557,6 @@ def identify_bus_servo(
         std=stds,
         delay_s=delay * DT,
         loop_delay_s=loop * DT,
-        loop_delay_range_s=(loop_range[0] * DT, loop_range[1] * DT),
         fit_pct=_fit_pct(y, sims),
         rmse_deg=float(np.sqrt(np.mean(r0**2))),
         per_record_fit=per,

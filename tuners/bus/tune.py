@@ -373,9 +373,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: --model: {exc}", file=sys.stderr)
         return 2
-    rel_std = _model_uncertainty(args.model)
     try:
-        alternatives = model_alternatives(args.model)
+        rel_std, alternatives = identified_extras(args.model)
     except ConfigError as exc:
         print(f"error: --model: {exc}", file=sys.stderr)
         return 2
@@ -435,9 +434,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def model_alternatives(model_arg: str | Path) -> list[BusServoModel]:
-    """The alternative models of an identified model file (``"alternatives"``: the fits at later
-    loop delays, :class:`~gripper_env.sysid.bus_servo.BusEstimate`); none for a family name.
+def identified_extras(
+    model_arg: str | Path,
+) -> tuple[dict[str, float] | None, list[BusServoModel]]:
+    """What an identified model file adds to its model: the relative standard errors
+    (``"uncertainty"``) and the alternative models (``"alternatives"``: the fits at later loop
+    delays, :class:`~gripper_env.sysid.bus_servo.BusEstimate`); neither for a family name.
 
     Raises
     ------
@@ -445,24 +447,16 @@ def model_alternatives(model_arg: str | Path) -> list[BusServoModel]:
         If an alternative is not a valid model (naming the file, the entry and the field).
     """
     if not str(model_arg).endswith(".json"):
-        return []
+        return None, []
     try:
         doc = json.loads(Path(model_arg).read_text())
     except (OSError, ValueError):
-        return []
-    return alternative_models(doc, "alternatives", str(model_arg)) if isinstance(doc, dict) else []
-
-
-def _model_uncertainty(model_arg: str) -> dict[str, float] | None:
-    """Relative standard errors from an identified model file (``"uncertainty"`` key)."""
-    if not str(model_arg).endswith(".json"):
-        return None
-    try:
-        doc = json.loads(Path(model_arg).read_text())
-    except (OSError, ValueError):
-        return None
-    unc = doc.get("uncertainty", {}) if isinstance(doc, dict) else {}
-    return {k: float(v) for k, v in unc.items() if isinstance(v, int | float)} or None
+        return None, []
+    if not isinstance(doc, dict):
+        return None, []
+    unc = doc.get("uncertainty", {})
+    rel_std = {k: float(v) for k, v in unc.items() if isinstance(v, int | float)} or None
+    return rel_std, alternative_models(doc, "alternatives", str(model_arg))
 
 
 if __name__ == "__main__":
