@@ -15,7 +15,9 @@ holds what the simulation core (:mod:`gripper_env.sim.bus_servo`) needs to run o
 * :class:`Protection`: the overload timer and the thermal cut-out;
 * :class:`Jaw`: the stops, the object, the finger lever that turns torque into grip force;
 * :class:`BusServoModel`: all of them, loaded from ``configs/bus_servos/<family>.yaml``
-  (:func:`load_bus_servo`) or from an identified model file.
+  (:func:`load_bus_servo`) or from an identified model file; with a real servo's jaw
+  (:meth:`BusServoModel.calibrated`, a :class:`~gripper_env.model.bus_calibration.JawCalibration`
+  of ``python -m tuners.bus.calibrate``) in place of the shipped, simulated one.
 
 The controller (per 1 ms tick, register units)::
 
@@ -31,6 +33,7 @@ static and Coulomb friction, the stops and the object (a stiff spring).
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Literal
@@ -45,6 +48,7 @@ from gripper_env.io.config import (
     read_bounded,
     validate,
 )
+from gripper_env.model.bus_calibration import JawCalibration
 
 __all__ = [
     "FAMILIES",
@@ -57,9 +61,11 @@ __all__ = [
     "alternative_models",
     "load_bus_servo",
     "load_registers_file",
+    "relative_uncertainties",
 ]
 
-_STRICT = ConfigDict(extra="forbid", frozen=True)
+# every number finite: a model file with kp = inf or NaN is refused naming the key
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 #: The servo families with a shipped model, ``configs/bus_servos/<family>.yaml``.
 FAMILIES: tuple[str, ...] = ("sts3215", "xl330", "xl430")
@@ -211,10 +217,14 @@ class Protection(BaseModel):
 class Jaw(BaseModel):
     """The gripper built on the servo: stops, object, finger lever.
 
+    The shipped models' angles are the virtual servo's simulated jaw; a real servo's come from
+    its owner's calibration (:meth:`BusServoModel.calibrated`).
+
     Attributes
     ----------
     limits_deg : (float, float)
-        Mechanical stops, closed and open (deg of the servo shaft).
+        Mechanical stops, closed and open (deg of the servo shaft, or of the calibration's model
+        frame).
     open_deg : float
         The open position the scenarios start from (deg).
     object_deg : float
@@ -257,6 +267,9 @@ class BusServoModel(BaseModel):
     community : dict of str to RegisterSet
         Register sets a community ships (LeRobot's P = 16 on the SO-100 / SO-101, ...), the
         baselines a tuning result must beat.
+    calibration : JawCalibration or None
+        A real servo's jaw as its owner calibrated it (then ``jaw`` holds its angles in the
+        calibration's model frame); None for the shipped, simulated jaw.
     """
 
     model_config = _STRICT
@@ -269,6 +282,53 @@ class BusServoModel(BaseModel):
     jaw: Jaw
     factory: RegisterSet
     community: dict[str, RegisterSet] = Field(default_factory=dict)
+    calibration: JawCalibration | None = None
+
+    @model_validator(mode="after")
+    def _jaw_of_the_calibration(self) -> BusServoModel:
+        cal = self.calibration
+        if cal is None:
+            return self
+        if cal.family != self.family:
+            raise ValueError(
+                f"the jaw calibration is of a {cal.family}, the model of a {self.family}"
+            )
+        limits, _, _ = cal.jaw_angles()
+        if any(abs(a - b) > 1e-6 for a, b in zip(self.jaw.limits_deg, limits, strict=True)):
+            raise ValueError(
+                f"jaw.limits_deg {list(self.jaw.limits_deg)} are not the calibration's "
+                f"{[round(v, 4) for v in limits]} (closed and open ticks {cal.closed_ticks}, "
+                f"{cal.open_ticks})"
+            )
+        lo, hi = limits
+        for name in ("open_deg", "object_deg"):
+            if not lo <= getattr(self.jaw, name) <= hi:
+                raise ValueError(f"jaw.{name} lies outside the calibrated jaw [{lo:g}, {hi:g}]")
+        return self
+
+    def calibrated(self, calibration: JawCalibration | None) -> BusServoModel:
+        """This model with a real servo's jaw: the stops at the calibration's closed and open
+        positions, the open position and the object at their fractions
+        (:meth:`~gripper_env.model.bus_calibration.JawCalibration.jaw_angles`); ``None`` returns
+        the model unchanged.
+
+        Raises
+        ------
+        ValueError
+            A calibration of another family.
+        """
+        if calibration is None or calibration == self.calibration:
+            return self
+        if calibration.family != self.family:
+            raise ValueError(
+                f"the jaw calibration is of a {calibration.family}, the model {self.name!r} of a "
+                f"{self.family}"
+            )
+        limits, open_deg, object_deg = calibration.jaw_angles()
+        jaw = self.jaw.model_copy(
+            update={"limits_deg": limits, "open_deg": open_deg, "object_deg": object_deg}
+        )
+        return self.with_updates(jaw=jaw, calibration=calibration)
 
     @property
     def deg_per_tick(self) -> float:
@@ -372,3 +432,29 @@ def alternative_models(doc: dict[str, Any], key: str, source: str) -> list[BusSe
     if not isinstance(entries, list):
         raise ConfigError(f"{source}: '{key}' must be a list of models")
     return [validate(BusServoModel, m, f"{source}: {key}[{k}]") for k, m in enumerate(entries)]
+
+
+def relative_uncertainties(doc: dict[str, Any], key: str, source: str) -> dict[str, float] | None:
+    """The relative standard errors under ``doc[key]`` (an identified model file's
+    ``"uncertainty"``, a registers file's ``"uncertainty_rel_std"``); None when absent or empty.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        If it is not an object of finite numbers >= 0 (naming ``source``, the key and the value).
+    """
+    entries = doc.get(key)
+    if entries is None:
+        return None
+    if not isinstance(entries, dict):
+        raise ConfigError(f"{source}: '{key}' must be an object of relative standard errors")
+    out = {}
+    for name, value in entries.items():
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (ok and math.isfinite(value) and value >= 0):
+            raise ConfigError(
+                f"{source}: key '{key}.{name}': expected a finite number >= 0 (a relative "
+                f"standard error), got {value!r}"
+            )
+        out[str(name)] = float(value)
+    return out or None

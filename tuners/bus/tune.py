@@ -39,10 +39,11 @@ from gripper_env.model.bus_servo import (
     RegisterSet,
     alternative_models,
     load_bus_servo,
+    relative_uncertainties,
 )
 from tuners import cli
 
-__all__ = ["SEARCH_SPACE", "constraint_value", "main", "tune_registers"]
+__all__ = ["SEARCH_SPACE", "constraint_value", "main", "search_space", "tune_registers"]
 
 #: Integer search ranges per family: (low, high) of P, I, D and the torque limit register. The
 #: STS3215's gains are one-byte registers (0-254); the XL's position gains go to 16383, searched
@@ -53,6 +54,21 @@ SEARCH_SPACE: dict[str, dict[str, tuple[int, int]]] = {
     "xl330": {"p": (10, 6000), "i": (0, 4000), "d": (0, 12000), "torque_limit": (90, 885)},
     "xl430": {"p": (10, 6000), "i": (0, 4000), "d": (0, 12000), "torque_limit": (90, 885)},
 }
+
+
+def search_space(model: BusServoModel) -> dict[str, tuple[int, int]]:
+    """:data:`SEARCH_SPACE` of the model's family, the torque limit capped at the servo's own
+    maximum torque limit when the model carries a real servo's calibration (LeRobot's SO
+    gripper: ``Max_Torque_Limit`` 500): a tuned set never asks more than the owner allows."""
+    space = dict(SEARCH_SPACE[model.family])
+    cal = model.calibration
+    if cal is not None and cal.servo is not None:
+        lo, hi = space["torque_limit"]
+        space["torque_limit"] = (
+            min(lo, cal.servo.max_torque_limit),
+            min(hi, cal.servo.max_torque_limit),
+        )
+    return space
 
 
 def constraint_value(score: BusScore) -> float:
@@ -113,7 +129,7 @@ def tune_registers(
     RuntimeError
         If no trial is feasible (the constraints cannot be met on this model).
     """
-    space = SEARCH_SPACE[model.family]
+    space = search_space(model)
     base = model.factory
     keys = list(space)
     n_global = max(trials, len(model.baselines()))
@@ -292,9 +308,9 @@ def _pattern_moves(
     return out
 
 
-def _on_bounds(regs: RegisterSet, family: str) -> list[str]:
+def _on_bounds(regs: RegisterSet, model: BusServoModel) -> list[str]:
     out = []
-    for k, (lo, hi) in SEARCH_SPACE[family].items():
+    for k, (lo, hi) in search_space(model).items():
         v = getattr(regs, k)
         if v in (lo, hi) and not (k == "i" and v == 0):
             out.append(f"{k}={v} on its search bound [{lo}, {hi}]")
@@ -391,7 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                          strict=False))  # fmt: skip
     rows = {"tuned": best, **baselines}
     table = format_table(rows)
-    bounds = _on_bounds(best.registers, model.family)
+    bounds = _on_bounds(best.registers, model)
     local = bool(study.user_attrs.get("local_optimum", False))
     if not local:
         bounds.append(
@@ -413,7 +429,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "registers": best.registers.model_dump(),
         "score": best.as_dict(),
         "baselines": {k: v.as_dict() for k, v in baselines.items()},
-        "search_space": SEARCH_SPACE[model.family],
+        "search_space": search_space(model),
         "trials": args.trials,
         "judged": len(study.trials),
         "seed": args.seed,
@@ -444,7 +460,8 @@ def identified_extras(
     Raises
     ------
     gripper_env.io.config.ConfigError
-        If an alternative is not a valid model (naming the file, the entry and the field).
+        If an alternative is not a valid model (naming the file, the entry and the field), or
+        an uncertainty is not a finite number >= 0 (naming the key).
     """
     if not str(model_arg).endswith(".json"):
         return None, []
@@ -454,8 +471,7 @@ def identified_extras(
         return None, []
     if not isinstance(doc, dict):
         return None, []
-    unc = doc.get("uncertainty", {})
-    rel_std = {k: float(v) for k, v in unc.items() if isinstance(v, int | float)} or None
+    rel_std = relative_uncertainties(doc, "uncertainty", str(model_arg))
     return rel_std, alternative_models(doc, "alternatives", str(model_arg))
 
 

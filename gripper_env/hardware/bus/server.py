@@ -49,6 +49,7 @@ import os
 import select
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -97,6 +98,9 @@ class VirtualBus(PtyDevice):
     ----------
     packets_received : int
         Instruction packets decoded (addressed to anyone).
+    packets_to : collections.Counter of int
+        Instruction packets by the ID they address: a packet to one ID counts for it, a SYNC or
+        BULK instruction for each ID it lists, any other broadcast for the broadcast ID (254).
     replies_sent : int
     bytes_received, bytes_sent : int
     error : BaseException or None
@@ -150,6 +154,7 @@ class VirtualBus(PtyDevice):
         self._garbage = bytearray()
         self._corrupt = self._truncate = self._drop = 0
         self.packets_received = self.replies_sent = 0
+        self.packets_to: Counter[int] = Counter()
         self.bytes_received = self.bytes_sent = 0
 
     # ---- lifecycle -------------------------------------------------------------------------------
@@ -287,6 +292,7 @@ class VirtualBus(PtyDevice):
     def _handle(self, master: int, packet: scs.Packet | dxl.Packet) -> None:
         with self.lock:
             self.packets_received += 1
+            self.packets_to.update(_addressed(packet))
             now = self.device_time()
             for s in self._servos:
                 with s.table.lock:
@@ -492,6 +498,31 @@ class VirtualBus(PtyDevice):
             elif not broadcast:
                 status(s, dxl.ERR_INSTRUCTION)
         return replies
+
+
+def _addressed(packet: scs.Packet | dxl.Packet) -> list[int]:
+    """The IDs an instruction packet addresses (see :attr:`VirtualBus.packets_to`)."""
+    params = packet.params
+    if isinstance(packet, scs.Packet):
+        if packet.code == scs.INST_SYNC_READ:
+            return list(params[2:])
+        if packet.code == scs.INST_SYNC_WRITE and len(params) >= 2:
+            return list(params[2 :: params[1] + 1])
+        return [packet.id]
+    inst = packet.instruction
+    if inst == dxl.INST_SYNC_READ:
+        return list(params[4:])
+    if inst == dxl.INST_SYNC_WRITE and len(params) >= 4:
+        return list(params[4 :: _u16(params, 2) + 1])
+    if inst == dxl.INST_BULK_READ:
+        return list(params[0::5])
+    if inst == dxl.INST_BULK_WRITE:
+        ids, k = [], 0
+        while k + 5 <= len(params):
+            ids.append(params[k])
+            k += 5 + _u16(params, k + 3)
+        return ids
+    return [packet.id]
 
 
 def _id_and_level(table: ControlTable) -> tuple[int, int]:

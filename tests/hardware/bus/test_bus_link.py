@@ -139,8 +139,11 @@ def test_servo_refusals_and_hardware_alerts():
             "not available to target address!)"
         )
         bus.table(1).set_role("error_status", bus.spec.error_bits["overheat"])
-        with pytest.raises(BusAlertError, match=r"hardware alert \(read hardware_error_status\)"):
-            link.read(1, "present_position")
+        with pytest.raises(
+            BusAlertError, match=r"hardware alert \(overheat\) reading present_"
+        ) as a:
+            link.read(1, "present_position")  # the bits read from hardware_error_status
+        assert a.value.bits == ["overheat"] and a.value.servo_id == 1
         link.raise_on_alert = False
         assert link.read(1, "hardware_error_status") == 4
         assert link.alerts[1] == 0x80
@@ -166,7 +169,7 @@ def test_sts_alerts_name_the_status_bits():
 
 
 def test_corrupt_replies():
-    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430") as link:
+    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430", retries=0) as link:
         bus.corrupt_replies(1)
         with pytest.raises(BusCorruptError) as caught:
             link.read(1, "present_position")
@@ -176,6 +179,20 @@ def test_corrupt_replies():
         )
         bus.inject_garbage(b"\xff\xff\xfd\x00\x01\x07")
         assert link.read(1, "present_position") == 2048
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_a_lost_or_garbled_reply_is_sent_again_and_counted(family):
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        bus.drop_replies(1)
+        link.write(1, "p_gain", 20)  # the write is sent again (idempotent), then read back
+        assert bus.table(1).get_role("p_gain") == 20 and link.retried == 1
+        bus.corrupt_replies(1)
+        assert link.read(1, "p_gain") == 20 and link.retried == 2
+        bus.drop_replies(link.retries + 1)  # every attempt lost: an error, counted
+        with pytest.raises(BusTimeoutError, match="no reply reading"):
+            link.read(1, "p_gain")
+        assert link.retried == 2 + link.retries
 
 
 def test_opening_the_port():
