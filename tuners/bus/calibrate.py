@@ -50,6 +50,7 @@ from gripper_env.hardware.bus.link import BusError, BusLink
 from gripper_env.io.files import write_json
 from gripper_env.model.bus_calibration import (
     JawCalibration,
+    LeRobotMotor,
     ServoRegisters,
     read_lerobot_motor,
 )
@@ -180,11 +181,12 @@ def _by_hand(link: BusLink, servo_id: int) -> tuple[int, int, str]:
     return closed, opened, restore()
 
 
-def _from_lerobot(args: argparse.Namespace, regs: ServoRegisters, family: str) -> tuple[int, int]:
-    motor = read_lerobot_motor(args.lerobot, args.motor)
+def _from_lerobot(
+    args: argparse.Namespace, motor: LeRobotMotor, regs: ServoRegisters, family: str
+) -> tuple[int, int]:
+    """The closed and open positions of LeRobot's motor entry, once it is checked to be the
+    servo as it is."""
     where = f"--lerobot {args.lerobot} ({args.motor})"
-    if motor.id != args.id:
-        raise ValueError(f"{where}: the motor's id is {motor.id}, not --id {args.id}")
     differ = []
     if motor.homing_offset != regs.homing_offset:
         differ.append(f"homing_offset {motor.homing_offset} (the servo holds {regs.homing_offset})")
@@ -208,6 +210,14 @@ def _from_lerobot(args: argparse.Namespace, regs: ServoRegisters, family: str) -
 def _run(args: argparse.Namespace) -> int:
     how = _check_options(args)
     family = load_bus_servo(args.model).family
+    motor = None
+    if how == "lerobot":  # read before the port is opened: bad input is refused first
+        motor = read_lerobot_motor(args.lerobot, args.motor)
+        if args.id is not None and motor.id != args.id:
+            raise ValueError(
+                f"--lerobot {args.lerobot} ({args.motor}): the motor's id is {motor.id}, not "
+                f"--id {args.id}"
+            )
     link = BusLink(args.port, family, args.baudrate or FACTORY_BAUD[family])
     with link:
         others = select_servo(link, args.id)
@@ -225,8 +235,8 @@ def _run(args: argparse.Namespace) -> int:
         torque_note = "nothing was written to the servo"
         if how == "hand":
             closed, opened, torque_note = _by_hand(link, args.id)
-        elif how == "lerobot":
-            closed, opened = _from_lerobot(args, regs, family)
+        elif motor is not None:
+            closed, opened = _from_lerobot(args, motor, regs, family)
         else:
             closed, opened = args.closed_ticks, args.open_ticks
         notes = []

@@ -208,7 +208,7 @@ def run_cli(
             say(f"interrupted; {_last_word(args, exc)}")
             return 130
         except BusSelectError as exc:
-            say(f"error: --id: {exc}")
+            say(f"error: --id: {exc}; {_last_word(args, exc)}")
             return EXIT_ERROR
         except BusPortLostError as exc:
             say(f"error: {exc}; {_last_word(args, exc)}")

@@ -162,8 +162,8 @@ def find_servos(link: BusLink) -> list[FoundServo]:
         position = None
         try:
             if model is None:
-                model = link.read(servo_id, link.spec.role("model_number").name, retries=1)
-            position = link.read(servo_id, link.spec.role("present_position").name, retries=1)
+                model = link.read(servo_id, link.spec.role("model_number").name)
+            position = link.read(servo_id, link.spec.role("present_position").name)
         except (BusError, ValueError):
             pass
         found.append(FoundServo(servo_id, model, position))
@@ -255,7 +255,7 @@ class Restored:
     error : str or None
         Why the restore stopped short (the port gone, no reply).
     left_changed : list of str
-        Registers the session changed and could not restore (with ``error``).
+        Registers the session wrote and could not restore (with ``error``).
     held_signals : list of str
         Signals that came during the restore (deferred, not raised).
     """
@@ -274,8 +274,8 @@ class Restored:
         """One line for the user, from what was read back."""
         who = f"servo {self.servo_id}"
         if self.error is not None:
-            left = ", ".join(self.left_changed) or "nothing"
-            return f"{who} could not be restored ({self.error}); left changed: {left}"
+            left = ", ".join(self.left_changed) or "none"
+            return f"{who} could not be restored ({self.error}); written and not restored: {left}"
         torque = {True: "on", False: "off", None: "unknown"}[self.torque_on]
         found = "as found" if self.torque_as_found else "not as found"
         if not self.ok:
@@ -283,8 +283,11 @@ class Restored:
                 f"{who} restored except {', '.join(self.mismatches)} (read back); torque reads "
                 f"{torque} ({found})"
             )
-        what = "registers restored" if self.written else "registers as found"
-        return f"{who}: {what} and read back; torque reads {torque} ({found})"
+        if self.written:
+            what = f"restored and read back (written back: {', '.join(self.written)})"
+        else:
+            what = "as found and read back (nothing to write back)"
+        return f"{who} {what}; torque reads {torque} ({found})"
 
 
 class BusGripper:

@@ -503,20 +503,38 @@ class BusLink:
         except (serial.SerialException, *_PORT_ERRORS) as exc:
             raise BusPortLostError(
                 f"the port {self.port} is gone (the adapter unplugged, or the virtual servo "
-                f"stopped): {exc}"
+                f"stopped): {_os_text(exc)}"
             ) from None
 
     def _retrying(self, once: Callable[[], T], retries: int | None) -> T:
-        """``once()``, again after a lost or garbled reply, at most ``retries`` more times."""
+        """``once()``, again after a lost or garbled reply, at most ``retries`` more times; after
+        each such reply the line is drained (:meth:`_drain`)."""
         n = self.retries if retries is None else retries
         for attempt in range(n + 1):
             try:
                 return once()
             except BusCommError:
+                self._drain()
                 if attempt == n:
                     raise
                 self.retried += 1
         raise AssertionError("unreachable")
+
+    #: After a lost or garbled reply, how long the line is left to settle before its input is
+    #: discarded (s): a reply that comes after the SDK gave up on it must not be taken for the
+    #: reply to the next instruction (the SDKs match a status packet by the servo's ID only).
+    DRAIN_S = 0.05
+
+    def _drain(self) -> None:
+        time.sleep(self.DRAIN_S)
+        try:
+            with transaction():
+                self._clear()
+        except (serial.SerialException, *_PORT_ERRORS) as exc:
+            raise BusPortLostError(
+                f"the port {self.port} is gone (the adapter unplugged, or the virtual servo "
+                f"stopped): {_os_text(exc)}"
+            ) from None
 
     def _allowed(self, servo_id: int) -> None:
         if self.allowed_ids is not None and servo_id not in self.allowed_ids:
@@ -594,6 +612,14 @@ class BusLink:
             return "(read hardware_error_status)"
         names = [name for name, bit in self.spec.error_bits.items() if alert & bit]
         return "(" + ", ".join(names or [f"status 0x{alert:02x}"]) + ")"
+
+
+def _os_text(exc: BaseException) -> str:
+    """``[Errno 5] Input/output error`` for an OSError or a termios.error alike."""
+    args = exc.args
+    if len(args) == 2 and isinstance(args[0], int) and isinstance(args[1], str):
+        return f"[Errno {args[0]}] {args[1]}"
+    return str(exc) or type(exc).__name__
 
 
 def _hint(number: int, action: str) -> str:
