@@ -157,6 +157,10 @@ class BusLink:
         in :attr:`alerts`).
     retries : int
         How many times a read, write or ping is sent again after a lost or garbled reply.
+    timeout_ms : float
+        How long a reply is waited for beyond its transmission time (ms). Both SDKs wait twice
+        a USB adapter's 16 ms latency timer and 2 ms; LeRobot found the scservo SDK's wait
+        too short for its servos and waits 50 ms (its ``patch_setPacketTimeout``), as here.
 
     Attributes
     ----------
@@ -186,6 +190,7 @@ class BusLink:
         *,
         raise_on_alert: bool = False,
         retries: int = 3,
+        timeout_ms: float = 50.0,
     ) -> None:
         self.spec = get_spec(family)
         self.port = str(port)
@@ -203,6 +208,7 @@ class BusLink:
         self._sdk = sdk
         self._ph = sdk.PacketHandler(0) if self._feetech else sdk.PacketHandler(2.0)
         self._port = sdk.PortHandler(self.port)
+        _set_reply_timeout(self._port, float(timeout_ms))
         if self._port.getCFlagBaud(self.baudrate) <= 0:
             vendor = "scservo" if self._feetech else "dynamixel"
             raise ValueError(
@@ -612,6 +618,19 @@ class BusLink:
             return "(read hardware_error_status)"
         names = [name for name, bit in self.spec.error_bits.items() if alert & bit]
         return "(" + ", ".join(names or [f"status 0x{alert:02x}"]) + ")"
+
+
+def _set_reply_timeout(port: Any, timeout_ms: float) -> None:
+    """Make the SDK's port handler wait ``timeout_ms`` for a reply beyond its transmission."""
+    if not 0.0 < timeout_ms <= 1000.0:
+        raise ValueError(f"timeout_ms must be in (0, 1000] ms, got {timeout_ms}")
+
+    def set_packet_timeout(packet_length: int) -> None:
+        port.packet_start_time = port.getCurrentTime()
+        byte_ms = port.tx_time_per_byte
+        port.packet_timeout = byte_ms * packet_length + byte_ms * 3.0 + timeout_ms
+
+    port.setPacketTimeout = set_packet_timeout
 
 
 def _os_text(exc: BaseException) -> str:
