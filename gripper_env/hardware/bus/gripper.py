@@ -586,9 +586,11 @@ class BusGripper:
 
     def save(self, regs: RegisterSet) -> list[str]:
         """Keep ``regs`` in the servo: on an STS, its EEPROM-area registers (P, D, I, dead zones)
-        are saved to flash with ``Lock`` = 0, each adjacent group in one write (one save), and
-        ``Lock`` = 1 again; :meth:`restore` then leaves the whole set (the RAM ones until
-        power-off). A Dynamixel's gains are RAM registers: kept until power-off.
+        are saved to flash with ``Lock`` = 0, each adjacent group that differs from what was
+        found in one write (one save), and ``Lock`` = 1 again; :meth:`restore` then leaves the
+        whole set (the RAM ones until power-off). A group equal to what was found is not
+        written when the servo was found unlocked (its flash holds it already). A Dynamixel's
+        gains are RAM registers: kept until power-off.
 
         Returns the names of the registers saved to flash (none on a Dynamixel).
         """
@@ -596,15 +598,17 @@ class BusGripper:
         spec = self.link.spec
         saved: list[str] = []
         eeprom = {r: v for r, v in values.items() if spec.role(r).area == "EEPROM"}
-        if eeprom and spec.has_role("lock"):
-            self.torque(False)
-            groups: list[dict[str, int]] = []
+        groups: list[dict[str, int]] = []  # adjacent EEPROM registers, one write (save) each
+        if spec.has_role("lock"):
             for role in sorted(eeprom, key=lambda r: spec.role(r).address):
-                f = spec.role(role)
-                if groups and spec.role(next(reversed(groups[-1]))).end == f.address:
+                if groups and spec.role(next(reversed(groups[-1]))).end == spec.role(role).address:
                     groups[-1][role] = eeprom[role]
                 else:
                     groups.append({role: eeprom[role]})
+            if self.found.get("lock") == 0:  # found unlocked: its flash holds what was found
+                groups = [g for g in groups if any(v != self.found[r] for r, v in g.items())]
+        if groups:
+            self.torque(False)
             self._write("lock", 0)
             self._written.add("lock")
             try:

@@ -215,3 +215,22 @@ def test_signals_wait_for_the_end_of_a_transaction():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(60)  # interrupted by the handler, never waited out
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_keep_torque_holds_where_it_is_and_an_unchanged_group_is_not_saved_again():
+    table = _table("sts3215")  # found: torque off, unlocked (the factory's Lock 0)
+    with VirtualBus("sts3215", ids=[table]) as bus:
+        saves = table.eeprom_saves
+        tuned = RegisterSet(p=90, i=0, d=100, torque_limit=700, deadband=1)  # dead zones as found
+        with BusGripper(bus.path, "sts3215", 6, calibration=_jaw("sts3215")) as jaw:
+            jaw.write_registers(tuned)
+            jaw.torque(True)
+            sent = jaw.goal_deg(jaw.model.jaw.open_deg)
+            assert jaw.save(tuned) == ["p_coefficient", "d_coefficient", "i_coefficient"]
+            jaw.keep_torque = True
+        assert table.eeprom_saves - saves == 1  # the gains' group, once
+        assert table.torque_on and table.get_role("goal_position") == jaw.calibration.ticks(sent)
+        restored = jaw.restored
+        assert restored is not None and restored.ok and restored.torque_on
+        assert not restored.torque_as_found and "torque reads on (not as found)" in (
+            restored.describe())  # fmt: skip
