@@ -6,15 +6,15 @@ checked to lie inside the jaw calibration's goal range (``--jaw``, from ``python
 tuners.bus.calibrate``), the servo of ``--id`` is found on the bus (a broadcast ping lists the
 others; nothing is sent to them), and its calibration registers are read and compared with the
 jaw file's. Then, for each setting (P, I, D; default
-:data:`gripper_env.sysid.bus_experiments.RECORD_SETTINGS` of the family, the torque limit at
-most what the servo was found with), the registers are written (on an STS3215 with ``Lock`` =
-1: nothing is saved to its flash) and read back, the torque goes on, the jaw settles open, and
-the plan runs: steps of 30, 10 and 4 deg closing from the open position, then a creep of one
-tick every 20 ms (see :mod:`gripper_env.sysid.bus_experiments`). The position is read every
-``--sample-ms`` and each record (with the jaw calibration) is written to
-``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. At the end, on an error, on Ctrl-C or
-SIGTERM, every register written is restored and read back, the torque as it was found (unless
-``--keep-torque``). Keep the jaws empty.
+:data:`gripper_env.sysid.bus_experiments.RECORD_SETTINGS` of the family; the torque limit at
+most what the servo was found with and its maximum torque limit), the registers are written (on
+an STS3215 with ``Lock`` = 1: nothing is saved to its flash) and read back, the torque goes on,
+the jaw settles open, and the plan runs: steps of 30, 10 and 4 deg closing from the open
+position, then a creep of one tick every 20 ms (see :mod:`gripper_env.sysid.bus_experiments`).
+The position is read every ``--sample-ms`` and each record (with the jaw calibration) is written
+to ``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. At the end, on an error, on Ctrl-C
+or SIGTERM, every register written is restored and read back, the torque as it was found
+(unless ``--keep-torque``). Keep the jaws empty.
 
 Examples
 --------
@@ -114,11 +114,12 @@ def _run(args: argparse.Namespace) -> int:
     check_plan(plan, calibration.goal_range_deg(), "record's plan (steps of 30, 10, 4 deg)")
     out = output_folder(args.out)
     with open_gripper(args, model, calibration) as jaw:
-        limit = jaw.found["torque_limit"]
+        limit = min(jaw.found["torque_limit"], jaw.servo_registers.max_torque_limit)
         capped = [r.model_copy(update={"torque_limit": min(r.torque_limit, limit)})
                   for r in registers]  # fmt: skip
         if any(c != r for c, r in zip(capped, registers, strict=True)):
-            print(f"note: torque limit held at {limit}, the servo's own (as found)", flush=True)
+            print(f"note: torque limit held at {limit}, the servo's own (as found, within its "
+                  "maximum)", flush=True)  # fmt: skip
         for regs in capped:
             jaw.register_values(regs)  # every setting checked before the first is written
         recorder = BusRecorder(jaw, sample_s=args.sample_ms / 1e3)
