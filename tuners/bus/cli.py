@@ -45,6 +45,7 @@ __all__ = [
     "EXIT_FAILURE",
     "BusArgumentParser",
     "add_servo_arguments",
+    "load_jaw",
     "open_gripper",
     "output_folder",
     "run_cli",
