@@ -34,7 +34,7 @@ import numpy as np
 from scipy.signal import cont2discrete
 
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
-from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NONE, BusRun, simulate_bus
+from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NAMES, TRIP_NONE, BusRun, simulate_bus
 
 __all__ = [
     "GM_MIN_DB",
@@ -168,7 +168,7 @@ def hold_metrics(model: BusServoModel, run: BusRun, row: int = 0) -> HoldMetrics
     t_grasp = float(reached[0] * DT) if reached.size else math.nan
     trips = np.flatnonzero(run.trip[row] > TRIP_NONE)
     trip_at = float(trips[0] * DT - _GRASP_AT_S) if trips.size else None
-    kind = {0: "none", 1: "overload", 2: "overheat"}[int(run.trip[row, -1])]
+    kind = TRIP_NAMES[int(run.trip[row, -1])]
     required = HOLD_FORCE_FRAC * stall
     held = bool(trip_at is None and window.size and np.min(window) >= required)
     held = held and t_grasp <= GRASP_MAX_S
