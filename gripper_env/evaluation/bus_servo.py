@@ -210,12 +210,18 @@ def _lag(model: BusServoModel) -> int:
 
 @lru_cache(maxsize=256)
 def _plant_z(
-    tau_m_s: float, omega0_deg_s: float, k_contact: float, deg_per_tick: float
+    tau_m_s: float,
+    omega0_deg_s: float,
+    k_contact: float,
+    deg_per_tick: float,
+    current: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The motor and jaw's ZOH discretisation, duty to encoder ticks (numerator, denominator in
-    ``z``); cached, as a search judges many register sets on the same few models."""
+    """The motor and jaw's ZOH discretisation, duty (or, with ``current``, the torque a current
+    loop holds: no back-EMF damping) to encoder ticks (numerator, denominator in ``z``); cached,
+    as a search judges many register sets on the same few models."""
+    damping = 0.0 if current else 1 / omega0_deg_s
     num, den = cont2discrete(
-        ([1.0], [tau_m_s / omega0_deg_s, 1 / omega0_deg_s, k_contact]), DT, method="zoh"
+        ([1.0], [tau_m_s / omega0_deg_s, damping, k_contact]), DT, method="zoh"
     )[:2]
     gn, gd = np.atleast_1d(np.squeeze(num)) / deg_per_tick, np.atleast_1d(den)
     gn.setflags(write=False)
@@ -232,11 +238,16 @@ def _open_loop(
     ``G`` is the exact ZOH discretisation of the motor and jaw, ``tau_m/w0 th'' + th'/w0 + k th
     = u`` (fractions of stall, deg; ``k`` the object's spring when pressed on it); ``C`` the
     register PID, ``kp + kd (1 - 1/z) + ki T / (1 - 1/z)``, over ``z (z - 1)`` with an integrator
-    and over ``z`` without (no cancelled pole at ``z = 1``).
+    and over ``z`` without (no cancelled pole at ``z = 1``). In current-based position mode the
+    loop's output is a current that an (ideal, fast) current loop holds: ``u`` is the torque,
+    the back-EMF term ``th'/w0`` drops out, and ``C`` scales by the torque per unit of output
+    (``duty_full x current_unit_a / stall_current_a``).
     """
     ph, sc = model.physics, model.scale
-    gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k_contact, model.deg_per_tick)
-    kp, kd, ki = sc.kp * regs.p, sc.kd * regs.d, sc.ki * regs.i * DT
+    cur = model.current_mode
+    gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k_contact, model.deg_per_tick, cur)
+    g = sc.duty_full * sc.current_unit_a / ph.stall_current_a if cur else 1.0
+    kp, kd, ki = g * sc.kp * regs.p, g * sc.kd * regs.d, g * sc.ki * regs.i * DT
     if ki > 0.0:
         p_part = kp * np.array([1.0, -1.0, 0.0])
         d_part = kd * np.array([1.0, -2.0, 1.0])

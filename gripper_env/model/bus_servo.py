@@ -48,6 +48,7 @@ from gripper_env.io.config import (
 
 __all__ = [
     "FAMILIES",
+    "PROTECTION_REGISTERS",
     "BusServoModel",
     "Jaw",
     "LoopScale",
@@ -55,7 +56,6 @@ __all__ = [
     "RegisterSet",
     "ServoPhysics",
     "alternative_models",
-    "PROTECTION_REGISTERS",
     "load_bus_servo",
     "load_registers_file",
     "protection_from_registers",
@@ -416,7 +416,9 @@ class BusServoModel(BaseModel):
         """The goal current as a fraction of the stall current (current-based position mode)."""
         if not self.current_mode:
             return 1.0
-        return min(regs.goal_current * self.scale.current_unit_a / self.physics.stall_current_a, 1.0)
+        return min(
+            regs.goal_current * self.scale.current_unit_a / self.physics.stall_current_a, 1.0
+        )
 
     @property
     def deg_per_tick(self) -> float:

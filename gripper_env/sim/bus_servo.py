@@ -323,7 +323,15 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp, torque):
 def _run_impl(params, regs, state, goal, pos, duty, force, trip, temp, torque):
     for b in prange(params.shape[0]):
         _run_row(
-            params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b],
+            params[b],
+            regs[b],
+            state[b],
+            goal[b],
+            pos[b],
+            duty[b],
+            force[b],
+            trip[b],
+            temp[b],
             torque[b],
         )
 

@@ -135,6 +135,8 @@ class BusGripper:
         values["velocity"] = abs(values["velocity"])
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             values["deadband"] = max(self._read(r) for r in _DEADBAND_ROLES)
+        if self.model.current_mode and spec.has_role("goal_current"):
+            values["goal_current"] = abs(self._read("goal_current"))
         return RegisterSet(**values)
 
     def write_registers(self, regs: RegisterSet) -> RegisterSet:
@@ -150,7 +152,12 @@ class BusGripper:
             A register did not read back what was written.
         """
         spec = self.link.spec
-        writes = [(REGISTER_ROLES[k], v) for k, v in regs.model_dump().items() if k != "deadband"]
+        skip = ("deadband", "goal_current")
+        writes = [(REGISTER_ROLES[k], v) for k, v in regs.model_dump().items() if k not in skip]
+        if regs.goal_current or self.model.current_mode:  # current-based position mode
+            if not spec.has_role("goal_current"):
+                raise ValueError(f"the {spec.family} has no goal-current register")
+            writes.append(("goal_current", regs.goal_current))
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             writes += [(r, regs.deadband) for r in _DEADBAND_ROLES]
         elif regs.deadband:

@@ -34,7 +34,10 @@ class DeafToGains(ControlTable):
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330", "xl430"])
 def test_read_write_by_name_and_role(family):
-    with VirtualBus(family, ids=(1, 2)) as bus, BusLink(bus.path, family, ids=(1, 2)) as link:
+    with (
+        VirtualBus(family, ids=(1, 2), baudrate=1_000_000) as bus,
+        BusLink(bus.path, family, ids=(1, 2)) as link,
+    ):
         assert link.ping_all() == {1: bus.spec.model_number, 2: bus.spec.model_number}
         link.write(1, "p_gain", 20)  # a role ...
         assert bus.table(1).get_role("p_gain") == 20
@@ -72,7 +75,10 @@ def test_sts_values_are_immune_to_the_sdks_global_byte_order():
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
 def test_a_write_that_does_not_stick_fails_verification(family):
     table = DeafToGains(family, servo_id=1)
-    with VirtualBus(family, ids=[table]) as bus, BusLink(bus.path, family) as link:
+    with (
+        VirtualBus(family, ids=[table], baudrate=1_000_000) as bus,
+        BusLink(bus.path, family) as link,
+    ):
         gain = bus.spec.roles["p_gain"]
         default = bus.spec.field(gain).default
         with pytest.raises(BusVerifyError) as caught:
@@ -94,7 +100,10 @@ def test_a_write_that_does_not_stick_fails_verification(family):
     ],
 )
 def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
-    with VirtualBus(family, ids=(1, 3)) as bus, BusLink(bus.path, family) as link:
+    with (
+        VirtualBus(family, ids=(1, 3), baudrate=1_000_000) as bus,
+        BusLink(bus.path, family) as link,
+    ):
         with pytest.raises(BusTimeoutError) as caught:
             link.read(2, "goal_position")
         assert str(caught.value) == (
@@ -107,7 +116,7 @@ def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
 
 
 def test_model_mismatch_on_a_shared_protocol():
-    with VirtualBus("xl330", ids=[ControlTable("xl430", 1)]) as bus:
+    with VirtualBus("xl330", ids=[ControlTable("xl430", 1)], baudrate=1_000_000) as bus:
         with BusLink(bus.path, "xl330") as link, pytest.raises(BusModelError) as caught:
             link.ping_all()
         assert "model number 1060, not the xl330's 1200" in str(caught.value)
@@ -129,7 +138,10 @@ def test_values_out_of_range_are_refused_before_sending():
 
 
 def test_servo_refusals_and_hardware_alerts():
-    with VirtualBus("xl330") as bus, BusLink(bus.path, "xl330", raise_on_alert=True) as link:
+    with (
+        VirtualBus("xl330", baudrate=1_000_000) as bus,
+        BusLink(bus.path, "xl330", raise_on_alert=True) as link,
+    ):
         link.torque(1, True)
         with pytest.raises(BusServoError) as caught:
             link.write(1, "id", 4)
@@ -166,7 +178,7 @@ def test_sts_alerts_name_the_status_bits():
 
 
 def test_corrupt_replies():
-    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430") as link:
+    with VirtualBus("xl430", baudrate=1_000_000) as bus, BusLink(bus.path, "xl430") as link:
         bus.corrupt_replies(1)
         with pytest.raises(BusCorruptError) as caught:
             link.read(1, "present_position")
