@@ -14,9 +14,12 @@ from gripper_env.sim.bus_servo import DT, simulate_bus
 
 def _frictionless(family: str = "sts3215", lag_s: float = 0.0):
     m = load_bus_servo(family)
-    physics = m.physics.model_copy(
-        update={"coulomb": 0.0, "static": 0.0, "delay_s": 0.0, "loop_delay_s": lag_s}
-    )
+    physics = m.physics.model_copy(  # and no gear play: the loop is linear
+        update={
+            "coulomb": 0.0, "static": 0.0, "delay_s": 0.0, "loop_delay_s": lag_s,
+            "backlash_deg": 0.0,
+        }
+    )  # fmt: skip
     return m.with_updates(physics=physics)
 
 

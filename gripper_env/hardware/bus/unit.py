@@ -179,7 +179,7 @@ class ServoUnit:
         parameter row is rebuilt only when they change)."""
         values = {name: table.get(name) for name in PROTECTION_REGISTERS[self.model.family]}
         mode = "position"
-        if table.has_role("goal_current") and table.get_role("operating_mode") == 5:
+        if table.has_role("goal_current") and table.get_role("operating_mode") == _CURRENT_POSITION_MODE:
             mode = "current_position"
         key = (tuple(sorted(values.items())), mode)
         if key == self._key:
