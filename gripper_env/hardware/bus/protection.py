@@ -65,6 +65,9 @@ def configured_model(link: BusLink, servo_id: int, model: BusServoModel) -> BusS
         raise ValueError(f"the link speaks to {spec.family} servos, the model is a {model.family}")
     protection = protection_from_registers(model, read_protection_registers(link, servo_id))
     mode = "position"
-    if spec.has_role("goal_current") and link.read(servo_id, "operating_mode") == CURRENT_POSITION_MODE:
+    if (
+        spec.has_role("goal_current")
+        and link.read(servo_id, "operating_mode") == CURRENT_POSITION_MODE
+    ):
         mode = "current_position"
     return model.with_updates(protection=protection, operating_mode=mode)

@@ -179,7 +179,10 @@ class ServoUnit:
         parameter row is rebuilt only when they change)."""
         values = {name: table.get(name) for name in PROTECTION_REGISTERS[self.model.family]}
         mode = "position"
-        if table.has_role("goal_current") and table.get_role("operating_mode") == _CURRENT_POSITION_MODE:
+        if (
+            table.has_role("goal_current")
+            and table.get_role("operating_mode") == _CURRENT_POSITION_MODE
+        ):
             mode = "current_position"
         key = (tuple(sorted(values.items())), mode)
         if key == self._key:
@@ -249,7 +252,7 @@ class ServoUnit:
                 goal = float(self._goal_ticks(table, actual))
                 self._run(regs[None], goal, n)
                 self._tick += n
-                self._report(table)
+            self._report(table)  # a new homing offset shows at once, ticks or not
 
     def _run(self, regs: np.ndarray, goal: float, n: int) -> None:
         """``n`` ticks at a constant goal: in chunks through the core, skipping rests."""
