@@ -31,6 +31,7 @@ static and Coulomb friction, the stops and the object (a stiff spring).
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Literal
@@ -426,8 +427,21 @@ class BusServoModel(BaseModel):
         return DEG_PER_TICK
 
     def baselines(self) -> dict[str, RegisterSet]:
-        """The factory registers and the community's, by name (``factory`` first)."""
-        return {"factory": self.factory, **self.community}
+        """The factory registers and the community's, by name (``factory`` first). In
+        current-based position mode a set without a goal current gets the factory's (the
+        power-on Goal Current is the Current Limit, beyond the stall current: full torque)."""
+        out = {"factory": self.factory, **self.community}
+        if self.current_mode:
+            full = self.full_goal_current()
+            out = {
+                k: r if r.goal_current else r.model_copy(update={"goal_current": full})
+                for k, r in out.items()
+            }
+        return out
+
+    def full_goal_current(self) -> int:
+        """The goal current (register units) of the stall current: full torque."""
+        return math.ceil(self.physics.stall_current_a / self.scale.current_unit_a - 1e-9)
 
     def limit_fraction(self, regs: RegisterSet) -> float:
         """The torque-limit register as a fraction of full output (0 to 1)."""

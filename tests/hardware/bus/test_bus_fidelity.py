@@ -210,10 +210,10 @@ def test_protection_is_read_from_the_servo_over_a_link():
 
 
 def test_current_based_position_tracks_and_holds_its_goal_current():
-    """Mode 5, Goal Current 300 mA, P 600 D 3000: the free jaw reaches its goal; pressed on an object the
-    motor holds 300 mA, a force of 300 / 1470 of the stall force (hand-worked: the current loop
-    holds the torque, the torque is the current's fraction of the stall current; the jaw
-    without friction, so that the object alone balances it)."""
+    """Mode 5, Goal Current 300 mA, P 600 D 3000: the free jaw reaches its goal; pressed on an
+    object the motor holds 300 mA, a force of 300 / 1470 of the stall force (hand-worked: the
+    current loop holds the torque, the torque is the current's fraction of the stall current;
+    the jaw without friction, so that the object alone balances it)."""
     clock = Clock()
     shipped = load_bus_servo("xl330")  # without friction, the force balance is exact
     m = shipped.with_updates(
