@@ -381,6 +381,12 @@ class TableSpec:
             )
         return self.baud_rates[index]
 
+    @property
+    def factory_baudrate(self) -> int:
+        """The line rate (baud) the family ships at: its ``baud_rate`` register's factory value
+        (STS3215 1 Mbaud, XL330 and XL430 57600)."""
+        return self.baud(self.role("baud_rate").default)
+
     def baud_index(self, baudrate: int) -> int:
         """The ``baud_rate`` register's value for ``baudrate`` (baud).
 

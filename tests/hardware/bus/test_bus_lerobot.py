@@ -38,6 +38,19 @@ import json, sys, time
 from lerobot.motors import Motor, MotorCalibration, MotorNormMode
 
 port, family, goal = sys.argv[1], sys.argv[2], float(sys.argv[3])
+# The reply window is the host's choice, not the servo's. LeRobot 0.6 waits 50 ms (Feetech: its
+# patch_setPacketTimeout) or the SDK's 34 ms (Dynamixel). The virtual servo is a thread of the
+# test's process, which a loaded test machine leaves unscheduled for longer at times
+# (tests/hardware/bus/conftest.py): this session waits 500 ms for a reply.
+import dynamixel_sdk.port_handler
+import lerobot.motors.feetech.feetech as feetech_module
+
+def patient_packet_timeout(self, packet_length):
+    self.packet_start_time = self.getCurrentTime()
+    self.packet_timeout = self.tx_time_per_byte * packet_length + 500.0
+
+dynamixel_sdk.port_handler.LATENCY_TIMER = 249
+feetech_module.patch_setPacketTimeout = patient_packet_timeout
 if family == "sts3215":
     from lerobot.motors.feetech import FeetechMotorsBus as Bus
     model = "sts3215"

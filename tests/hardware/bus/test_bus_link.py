@@ -21,6 +21,7 @@ from gripper_env.hardware.bus import (
     ControlTable,
     VirtualBus,
 )
+from gripper_env.hardware.bus.gripper import FACTORY_BAUD
 
 
 class DeafToGains(ControlTable):
@@ -34,10 +35,7 @@ class DeafToGains(ControlTable):
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330", "xl430"])
 def test_read_write_by_name_and_role(family):
-    with (
-        VirtualBus(family, ids=(1, 2), baudrate=1_000_000) as bus,
-        BusLink(bus.path, family, ids=(1, 2)) as link,
-    ):
+    with VirtualBus(family, ids=(1, 2)) as bus, BusLink(bus.path, family, ids=(1, 2)) as link:
         assert link.ping_all() == {1: bus.spec.model_number, 2: bus.spec.model_number}
         link.write(1, "p_gain", 20)  # a role ...
         assert bus.table(1).get_role("p_gain") == 20
@@ -75,10 +73,7 @@ def test_sts_values_are_immune_to_the_sdks_global_byte_order():
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
 def test_a_write_that_does_not_stick_fails_verification(family):
     table = DeafToGains(family, servo_id=1)
-    with (
-        VirtualBus(family, ids=[table], baudrate=1_000_000) as bus,
-        BusLink(bus.path, family) as link,
-    ):
+    with VirtualBus(family, ids=[table]) as bus, BusLink(bus.path, family) as link:
         gain = bus.spec.roles["p_gain"]
         default = bus.spec.field(gain).default
         with pytest.raises(BusVerifyError) as caught:
@@ -100,10 +95,7 @@ def test_a_write_that_does_not_stick_fails_verification(family):
     ],
 )
 def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
-    with (
-        VirtualBus(family, ids=(1, 3), baudrate=1_000_000) as bus,
-        BusLink(bus.path, family) as link,
-    ):
+    with VirtualBus(family, ids=(1, 3)) as bus, BusLink(bus.path, family) as link:
         with pytest.raises(BusTimeoutError) as caught:
             link.read(2, "goal_position")
         assert str(caught.value) == (
@@ -116,7 +108,7 @@ def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
 
 
 def test_model_mismatch_on_a_shared_protocol():
-    with VirtualBus("xl330", ids=[ControlTable("xl430", 1)], baudrate=1_000_000) as bus:
+    with VirtualBus("xl330", ids=[ControlTable("xl430", 1)]) as bus:
         with BusLink(bus.path, "xl330") as link, pytest.raises(BusModelError) as caught:
             link.ping_all()
         assert "model number 1060, not the xl330's 1200" in str(caught.value)
@@ -138,10 +130,7 @@ def test_values_out_of_range_are_refused_before_sending():
 
 
 def test_servo_refusals_and_hardware_alerts():
-    with (
-        VirtualBus("xl330", baudrate=1_000_000) as bus,
-        BusLink(bus.path, "xl330", raise_on_alert=True) as link,
-    ):
+    with VirtualBus("xl330") as bus, BusLink(bus.path, "xl330", raise_on_alert=True) as link:
         link.torque(1, True)
         with pytest.raises(BusServoError) as caught:
             link.write(1, "id", 4)
@@ -178,7 +167,7 @@ def test_sts_alerts_name_the_status_bits():
 
 
 def test_corrupt_replies():
-    with VirtualBus("xl430", baudrate=1_000_000) as bus, BusLink(bus.path, "xl430") as link:
+    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430") as link:
         bus.corrupt_replies(1)
         with pytest.raises(BusCorruptError) as caught:
             link.read(1, "present_position")
@@ -197,3 +186,22 @@ def test_opening_the_port():
         BusLink("/dev/null", "xl330", baudrate=12345)
     with pytest.raises(BusPortError, match="cannot open /nonexistent/tty at 57600 baud"):
         BusLink("/nonexistent/tty", "xl330", baudrate=57600)
+
+
+@pytest.mark.parametrize(
+    ("family", "factory", "other"),
+    [("sts3215", 1_000_000, 115_200), ("xl330", 57_600, 1_000_000), ("xl430", 57_600, 1_000_000)],
+)
+def test_the_link_opens_at_the_factory_rate_unless_told(family, factory, other):
+    """A servo fresh from its box answers a link opened with the defaults (the rates are the
+    vendors': STS3215 1 Mbaud, XL330 / XL430 57600, as BusGripper's ``FACTORY_BAUD``); one set
+    to another rate (as LeRobot sets its buses to 1 Mbaud) needs that rate given."""
+    assert FACTORY_BAUD[family] == factory
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        assert link.baudrate == factory
+        assert link.ping(1) == bus.spec.model_number
+    with VirtualBus(family, baudrate=other) as bus:
+        with BusLink(bus.path, family) as link, pytest.raises(BusTimeoutError):
+            link.ping(1)  # its bytes are noise at the factory rate
+        with BusLink(bus.path, family, baudrate=other) as link:
+            assert link.ping(1) == bus.spec.model_number
