@@ -41,7 +41,7 @@ port, family, goal = sys.argv[1], sys.argv[2], float(sys.argv[3])
 # The reply window is the host's choice, not the servo's. LeRobot 0.6 waits 50 ms (Feetech: its
 # patch_setPacketTimeout) or the SDK's 34 ms (Dynamixel). The virtual servo is a thread of the
 # test's process, which a loaded test machine leaves unscheduled for longer at times
-# (tests/hardware/bus/conftest.py): this session waits 500 ms for a reply.
+# (tests/conftest.py): this session waits 500 ms for a reply.
 import dynamixel_sdk.port_handler
 import lerobot.motors.feetech.feetech as feetech_module
 
