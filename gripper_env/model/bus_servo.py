@@ -52,6 +52,7 @@ from gripper_env.model.bus_calibration import JawCalibration
 
 __all__ = [
     "FAMILIES",
+    "PROTECTION_REGISTERS",
     "BusServoModel",
     "Jaw",
     "LoopScale",
@@ -61,6 +62,7 @@ __all__ = [
     "alternative_models",
     "load_bus_servo",
     "load_registers_file",
+    "protection_from_registers",
     "relative_uncertainties",
 ]
 
@@ -94,6 +96,9 @@ class RegisterSet(BaseModel):
     deadband : int
         Dead zone (ticks) in which the error counts as zero (STS3215 ``CW/CCW_Dead_Zone``;
         Dynamixel: none, 0).
+    goal_current : int
+        Current limit of current-based position mode (Dynamixel ``Goal Current``, register
+        units; :attr:`BusServoModel.operating_mode` ``"current_position"``); 0 elsewhere.
     """
 
     model_config = _STRICT
@@ -105,13 +110,16 @@ class RegisterSet(BaseModel):
     acceleration: int = Field(0, ge=0)
     velocity: int = Field(0, ge=0)
     deadband: int = Field(0, ge=0)
+    goal_current: int = Field(0, ge=0)
 
     def label(self) -> str:
-        """``P=32 I=0 D=32 limit=1000`` (and acceleration, velocity, deadband when set)."""
+        """``P=32 I=0 D=32 limit=1000`` (and acceleration, velocity, deadband, goal current when
+        set)."""
         text = f"P={self.p} I={self.i} D={self.d} limit={self.torque_limit}"
-        for name in ("acceleration", "velocity", "deadband"):
+        short = {"acceleration": "acc", "velocity": "vel", "deadband": "db", "goal_current": "cur"}
+        for name, tag in short.items():
             if getattr(self, name):
-                text += f" {name[:3] if name != 'deadband' else 'db'}={getattr(self, name)}"
+                text += f" {tag}={getattr(self, name)}"
         return text
 
 
@@ -132,6 +140,10 @@ class LoopScale(BaseModel):
         deg/s^2 per acceleration register unit.
     velocity_unit : float
         deg/s per velocity register unit.
+    current_unit_a : float
+        A per unit of the current registers (Dynamixel ``Goal Current``, and the position loop's
+        output in current-based position mode: 0.001 on the XL330); 0 when the family has no
+        current-based position mode.
     """
 
     model_config = _STRICT
@@ -142,6 +154,7 @@ class LoopScale(BaseModel):
     duty_full: int = Field(gt=0)
     acceleration_unit: float = Field(gt=0.0)
     velocity_unit: float = Field(gt=0.0)
+    current_unit_a: float = Field(0.0, ge=0.0)
 
 
 class ServoPhysics(BaseModel):
@@ -166,6 +179,13 @@ class ServoPhysics(BaseModel):
         Delay inside the position loop, from the encoder reading to the duty reaching the motor
         (s; sensing, computation, PWM update), whole 1 ms ticks: the phase lag that limits the
         gain.
+    backlash_deg : float
+        Free play of the gear train at the output (deg): the motor turns this far before it
+        drives the jaw the other way (the encoder reads the output shaft). An object or a stop
+        pressing on the jaw keeps the gap closed on its side.
+    stall_current_a : float
+        Motor current at stall torque (A; datasheet): the present current and the over-current
+        protection scale with the motor's torque; 0 when unknown (then no current is reported).
     """
 
     model_config = _STRICT
@@ -177,6 +197,8 @@ class ServoPhysics(BaseModel):
     static: float = Field(ge=0.0, lt=1.0)
     delay_s: float = Field(0.0, ge=0.0, le=0.1)
     loop_delay_s: float = Field(0.0, ge=0.0, le=0.015)
+    backlash_deg: float = Field(0.0, ge=0.0, le=5.0)
+    stall_current_a: float = Field(0.0, ge=0.0)
 
     @model_validator(mode="after")
     def _static_at_least_coulomb(self) -> ServoPhysics:
@@ -186,18 +208,39 @@ class ServoPhysics(BaseModel):
 
 
 class Protection(BaseModel):
-    """The servo's protections: an overload timer and a thermal cut-out.
+    """The servo's protections: an overload timer, an over-current timer and a thermal cut-out,
+    and what each does when it trips.
+
+    On a Feetech STS these are registers (:func:`protection_from_registers` maps them;
+    :func:`gripper_env.hardware.bus.protection.read_protection` reads them from a servo):
+    ``Overload_Torque`` (%) and ``Protection_Time`` (10 ms) set the overload, ``Protective_Torque``
+    (%) the output after a trip, ``Protection_Current`` (6.5 mA) and
+    ``Over_Current_Protection_Time`` (10 ms) the over-current, ``Unloading_Condition`` which
+    trips act on the output, ``Max_Temperature_Limit`` the cut-out. A Dynamixel's ``Shutdown``
+    bits say which errors it detects; a detected error turns its torque off until a REBOOT
+    (``tripped_duty`` 0). ROBOTIS does not publish the Dynamixel's overload criterion: its
+    threshold and time here are assumptions.
 
     Attributes
     ----------
     overload_duty : float
-        Duty (fraction) at or above which the overload timer runs.
+        Output (duty, or the current command's fraction of stall in current-based position
+        mode) at or above which the overload timer runs; 0 turns the overload protection off.
     overload_time_s : float
         Time above ``overload_duty`` that trips the overload protection (s); the timer runs down
         at the same rate below it.
     tripped_duty : float
         Output limit after a trip (fraction): STS3215 keeps a protective torque, Dynamixel turns
         the torque off (0).
+    overcurrent_a : float
+        Motor current (A) at or above which the over-current timer runs; 0: no over-current
+        protection (the Dynamixels, an STS with ``Protection_Current`` 0).
+    overcurrent_time_s : float
+        Time above ``overcurrent_a`` that trips it (s).
+    acts_on : tuple of str
+        The trips that limit the output (``"overload"``, ``"overcurrent"``, ``"overheat"``): an
+        STS reports a trip outside its ``Unloading_Condition`` in its status byte and drives on;
+        a Dynamixel neither detects nor acts on an error outside ``Shutdown``.
     ambient_c, rise_c, tau_thermal_s, max_temp_c : float
         Thermal model: the winding heats towards ``ambient + rise * duty^2`` with time constant
         ``tau_thermal_s``; at ``max_temp_c`` the servo trips (overheat).
@@ -205,13 +248,90 @@ class Protection(BaseModel):
 
     model_config = _STRICT
 
-    overload_duty: float = Field(gt=0.0, le=1.0)
-    overload_time_s: float = Field(gt=0.0)
+    overload_duty: float = Field(ge=0.0, le=1.0)
+    overload_time_s: float = Field(ge=0.0)
     tripped_duty: float = Field(ge=0.0, le=1.0)
+    overcurrent_a: float = Field(0.0, ge=0.0)
+    overcurrent_time_s: float = Field(2.0, ge=0.0)
+    acts_on: tuple[Literal["overload", "overcurrent", "overheat"], ...] = (
+        "overload",
+        "overcurrent",
+        "overheat",
+    )
     ambient_c: float = 25.0
     rise_c: float = Field(gt=0.0)
     tau_thermal_s: float = Field(gt=0.0)
     max_temp_c: float = 70.0
+
+
+#: The control-table fields each family's :class:`Protection` comes from
+#: (:func:`protection_from_registers`).
+PROTECTION_REGISTERS: dict[str, tuple[str, ...]] = {
+    "sts3215": (
+        "overload_torque",
+        "protection_time",
+        "protective_torque",
+        "protection_current",
+        "over_current_protection_time",
+        "unloading_condition",
+        "max_temperature_limit",
+    ),
+    "xl330": ("shutdown", "temperature_limit"),
+    "xl430": ("shutdown", "temperature_limit"),
+}
+#: Error bits by cause: the STS ``Unloading_Condition`` / status byte and the Dynamixel
+#: ``Shutdown`` / ``Hardware Error Status`` share them (overload 5, current 3, temperature 2).
+TRIP_BITS = {"overload": 32, "overcurrent": 8, "overheat": 4}
+_STS_CURRENT_UNIT_A = 0.0065  # Protection_Current and Present_Current: 6.5 mA per unit
+
+
+def protection_from_registers(model: BusServoModel, values: dict[str, int]) -> Protection:
+    """The protection a servo of ``model``'s family runs with the register ``values`` (field
+    name -> decoded value, the fields of :data:`PROTECTION_REGISTERS`).
+
+    STS3215: ``Overload_Torque`` % -> ``overload_duty``, ``Protection_Time`` x 10 ms ->
+    ``overload_time_s``, ``Protective_Torque`` % -> ``tripped_duty``, ``Protection_Current`` x
+    6.5 mA -> ``overcurrent_a``, ``Over_Current_Protection_Time`` x 10 ms ->
+    ``overcurrent_time_s``, the ``Unloading_Condition`` bits -> ``acts_on``,
+    ``Max_Temperature_Limit`` -> ``max_temp_c``. Dynamixel: the ``Shutdown`` bits -> ``acts_on``
+    (the XL330 cuts its torque on an overload even with the bit clear, as reported on the issue
+    tracker; ROBOTIS's e-manual says nothing of it), ``Temperature Limit`` -> ``max_temp_c``; the
+    overload threshold and time stay the model's. The thermal model's other constants stay the
+    model's.
+
+    Raises
+    ------
+    KeyError
+        Naming a register ``values`` lacks.
+    """
+    need = PROTECTION_REGISTERS[model.family]
+    missing = [k for k in need if k not in values]
+    if missing:
+        raise KeyError(f"{model.family} protection needs the registers {missing}")
+    pr = model.protection
+    if model.family == "sts3215":
+        unloading = int(values["unloading_condition"])
+        update: dict[str, Any] = {
+            "overload_duty": values["overload_torque"] / 100.0,
+            "overload_time_s": values["protection_time"] * 0.01,
+            "tripped_duty": values["protective_torque"] / 100.0,
+            "overcurrent_a": values["protection_current"] * _STS_CURRENT_UNIT_A,
+            "overcurrent_time_s": values["over_current_protection_time"] * 0.01,
+            "acts_on": tuple(k for k, bit in TRIP_BITS.items() if unloading & bit),
+            "max_temp_c": float(values["max_temperature_limit"]),
+        }
+    else:
+        shutdown = int(values["shutdown"])
+        acts = [k for k in ("overload", "overheat") if shutdown & TRIP_BITS[k]]
+        if model.family == "xl330" and "overload" not in acts:
+            acts.insert(0, "overload")
+        update = {
+            "tripped_duty": 0.0,
+            "overcurrent_a": 0.0,
+            "acts_on": tuple(acts),
+            "max_temp_c": float(values["temperature_limit"]),
+        }
+    return Protection.model_validate({**pr.model_dump(), **update})
 
 
 class Jaw(BaseModel):
@@ -270,6 +390,11 @@ class BusServoModel(BaseModel):
     calibration : JawCalibration or None
         A real servo's jaw as its owner calibrated it (then ``jaw`` holds its angles in the
         calibration's model frame); None for the shipped, simulated jaw.
+    operating_mode : {"position", "current_position"}
+        The loop the servo runs: position control (STS mode 0, Dynamixel mode 3: the loop's
+        output is a PWM duty), or the Dynamixel's current-based position control (mode 5, the
+        Koch gripper's: the loop's output is a current, limited by ``goal_current``, that a
+        current loop drives within the PWM limit).
     """
 
     model_config = _STRICT
@@ -283,6 +408,7 @@ class BusServoModel(BaseModel):
     factory: RegisterSet
     community: dict[str, RegisterSet] = Field(default_factory=dict)
     calibration: JawCalibration | None = None
+    operating_mode: Literal["position", "current_position"] = "position"
 
     @model_validator(mode="after")
     def _jaw_of_the_calibration(self) -> BusServoModel:
@@ -330,14 +456,51 @@ class BusServoModel(BaseModel):
         )
         return self.with_updates(jaw=jaw, calibration=calibration)
 
+    @model_validator(mode="after")
+    def _current_mode_needs_units(self) -> BusServoModel:
+        if self.operating_mode == "current_position" and not (
+            self.scale.current_unit_a > 0 and self.physics.stall_current_a > 0
+        ):
+            raise ValueError(
+                "operating_mode 'current_position' needs scale.current_unit_a and "
+                "physics.stall_current_a (the current registers' unit and the stall current)"
+            )
+        return self
+
+    @property
+    def current_mode(self) -> bool:
+        """The servo runs current-based position control."""
+        return self.operating_mode == "current_position"
+
+    def current_fraction(self, regs: RegisterSet) -> float:
+        """The goal current as a fraction of the stall current (current-based position mode)."""
+        if not self.current_mode:
+            return 1.0
+        return min(
+            regs.goal_current * self.scale.current_unit_a / self.physics.stall_current_a, 1.0
+        )
+
     @property
     def deg_per_tick(self) -> float:
         """Encoder resolution (deg per tick)."""
         return DEG_PER_TICK
 
     def baselines(self) -> dict[str, RegisterSet]:
-        """The factory registers and the community's, by name (``factory`` first)."""
-        return {"factory": self.factory, **self.community}
+        """The factory registers and the community's, by name (``factory`` first). In
+        current-based position mode a set without a goal current gets the factory's (the
+        power-on Goal Current is the Current Limit, beyond the stall current: full torque)."""
+        out = {"factory": self.factory, **self.community}
+        if self.current_mode:
+            full = self.full_goal_current()
+            out = {
+                k: r if r.goal_current else r.model_copy(update={"goal_current": full})
+                for k, r in out.items()
+            }
+        return out
+
+    def full_goal_current(self) -> int:
+        """The goal current (register units) of the stall current: full torque."""
+        return math.ceil(self.physics.stall_current_a / self.scale.current_unit_a - 1e-9)
 
     def limit_fraction(self, regs: RegisterSet) -> float:
         """The torque-limit register as a fraction of full output (0 to 1)."""

@@ -75,10 +75,11 @@ FACTORY_BAUD = {"sts3215": 1_000_000, "xl330": 57_600, "xl430": 57_600}
 #: The names of the model numbers a bus may answer with.
 MODEL_NAMES = {777: "STS3215", 1200: "XL330-M288", 1060: "XL430-W250"}
 
-#: The operating modes the loop's model describes: position control (STS 0, Dynamixel 3). A
-#: Dynamixel in current-based position control (5, the Koch gripper's) limits its output by its
-#: goal current, which the model does not hold.
+#: The operating modes the loop's model describes: position control (STS 0, Dynamixel 3).
 POSITION_MODES = {"sts3215": (0,), "xl330": (3,), "xl430": (3,)}
+#: A Dynamixel in current-based position control (5, the Koch gripper's), which a model with
+#: ``operating_mode: current_position`` describes: its output limited by its goal current.
+CURRENT_POSITION_MODES = {"xl330": (5,), "xl430": (5,)}
 
 #: The table role of each :class:`RegisterSet` field (the dead zone is two registers on an STS,
 #: none on a Dynamixel).
@@ -101,6 +102,7 @@ _SNAPSHOT_ROLES = (
     "torque_limit",
     "acceleration",
     "velocity_limit",
+    "goal_current",
     "goal_position",
 )
 #: Short names for messages.
@@ -113,6 +115,7 @@ _LABELS = {
     "torque_limit": "torque limit",
     "acceleration": "acceleration",
     "velocity_limit": "velocity",
+    "goal_current": "goal current",
     "goal_position": "goal position",
     "torque_enable": "torque",
     "lock": "lock",
@@ -401,12 +404,16 @@ class BusGripper:
             raise BusCalibrationError(
                 f"the jaw calibration was taken on servo {cal.servo_id}, not {self.servo_id}"
             )
-        modes = POSITION_MODES[cal.family]
+        current = self.model.current_mode
+        modes = (CURRENT_POSITION_MODES if current else POSITION_MODES).get(cal.family, ())
         if regs.operating_mode not in modes:
+            kind = "current-based position control" if current else "position control"
             raise BusCalibrationError(
-                f"{where} is in operating mode {regs.operating_mode}, not position control "
-                f"({', '.join(map(str, modes))}): its loop is not the one modelled (the mode is "
-                "the owner's: nothing was changed)"
+                f"{where} is in operating mode {regs.operating_mode}, not {kind} "
+                f"({', '.join(map(str, modes)) or 'none on this family'}) as the model "
+                f"{self.model.name!r} describes: its loop is not the one modelled (the mode is "
+                "the owner's: nothing was changed; a current-based model is tuned with "
+                "python -m tuners.bus.tune --operating-mode current_position)"
             )
         if cal.servo is not None:
             diff = cal.servo.differences(regs)
@@ -539,13 +546,20 @@ class BusGripper:
         values["velocity"] = abs(values["velocity"])
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             values["deadband"] = max(self._read(r) for r in _DEADBAND_ROLES)
+        if self.model.current_mode and spec.has_role("goal_current"):
+            values["goal_current"] = abs(self._read("goal_current"))
         return RegisterSet(**values)
 
     def register_values(self, regs: RegisterSet) -> dict[str, int]:
         """``regs`` as register values by role, every one checked against its range and the
         servo's maximum torque limit (ValueError, nothing sent)."""
         spec = self.link.spec
-        values = {REGISTER_ROLES[k]: v for k, v in regs.model_dump().items() if k != "deadband"}
+        skip = ("deadband", "goal_current")
+        values = {REGISTER_ROLES[k]: v for k, v in regs.model_dump().items() if k not in skip}
+        if regs.goal_current or self.model.current_mode:  # current-based position mode
+            if not spec.has_role("goal_current"):
+                raise ValueError(f"the {spec.family} has no goal-current register")
+            values["goal_current"] = regs.goal_current
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             values.update(dict.fromkeys(_DEADBAND_ROLES, regs.deadband))
         elif regs.deadband:

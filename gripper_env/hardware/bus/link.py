@@ -148,8 +148,10 @@ class BusLink:
         Serial port (``/dev/ttyUSB0``, ``COM3``, a virtual bus's ``/dev/pts/N``).
     family : str
         ``"sts3215"``, ``"xl330"`` or ``"xl430"``.
-    baudrate : int
-        Baud rate the port opens at (the STS3215's factory rate is 1 Mbaud, the XLs' 57600).
+    baudrate : int, optional
+        Baud rate the port opens at; default the family's factory rate
+        (:attr:`~gripper_env.hardware.bus.tables.TableSpec.factory_baudrate`: the STS3215's
+        1 Mbaud, the XLs' 57600). A bus that LeRobot set up runs at 1 Mbaud: pass it.
     ids : iterable of int
         The servos' IDs: the default of :meth:`sync_read` and :meth:`ping_all`.
     raise_on_alert : bool
@@ -185,7 +187,7 @@ class BusLink:
         self,
         port: str,
         family: str,
-        baudrate: int = 1_000_000,
+        baudrate: int | None = None,
         ids: Iterable[int] = (1,),
         *,
         raise_on_alert: bool = False,
@@ -194,7 +196,7 @@ class BusLink:
     ) -> None:
         self.spec = get_spec(family)
         self.port = str(port)
-        self.baudrate = int(baudrate)
+        self.baudrate = self.spec.factory_baudrate if baudrate is None else int(baudrate)
         self.ids = tuple(int(i) for i in ids)
         self.raise_on_alert = raise_on_alert
         if not 0 <= retries <= 20:

@@ -21,6 +21,7 @@ from gripper_env.hardware.bus import (
     ControlTable,
     VirtualBus,
 )
+from gripper_env.hardware.bus.gripper import FACTORY_BAUD
 
 
 class DeafToGains(ControlTable):
@@ -202,3 +203,22 @@ def test_opening_the_port():
         BusLink("/dev/null", "xl330", baudrate=12345)
     with pytest.raises(BusPortError, match="cannot open /nonexistent/tty at 57600 baud"):
         BusLink("/nonexistent/tty", "xl330", baudrate=57600)
+
+
+@pytest.mark.parametrize(
+    ("family", "factory", "other"),
+    [("sts3215", 1_000_000, 115_200), ("xl330", 57_600, 1_000_000), ("xl430", 57_600, 1_000_000)],
+)
+def test_the_link_opens_at_the_factory_rate_unless_told(family, factory, other):
+    """A servo fresh from its box answers a link opened with the defaults (the rates are the
+    vendors': STS3215 1 Mbaud, XL330 / XL430 57600, as BusGripper's ``FACTORY_BAUD``); one set
+    to another rate (as LeRobot sets its buses to 1 Mbaud) needs that rate given."""
+    assert FACTORY_BAUD[family] == factory
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        assert link.baudrate == factory
+        assert link.ping(1) == bus.spec.model_number
+    with VirtualBus(family, baudrate=other) as bus:
+        with BusLink(bus.path, family) as link, pytest.raises(BusTimeoutError):
+            link.ping(1)  # its bytes are noise at the factory rate
+        with BusLink(bus.path, family, baudrate=other) as link:
+            assert link.ping(1) == bus.spec.model_number
