@@ -388,7 +388,7 @@ class BusGripper:
             self.link.restrict(self.servo_id)
             self.link.raise_on_alert = raise_on_alert
             self.servo_registers = read_servo_registers(self.link, self.servo_id)
-            self.calibration = self._check_calibration(cal, self.servo_registers)
+            self.calibration = self._check_calibration(cal, self.servo_registers, base)
             self.model = base.calibrated(self.calibration)
             self.found = self._read_roles()
             self.target = dict(self.found)
@@ -398,20 +398,22 @@ class BusGripper:
 
     # ---- opening ---------------------------------------------------------------------------------
 
-    def _check_calibration(self, cal: JawCalibration, regs: ServoRegisters) -> JawCalibration:
+    def _check_calibration(
+        self, cal: JawCalibration, regs: ServoRegisters, model: BusServoModel
+    ) -> JawCalibration:
         where = f"servo {self.servo_id} on {self.link.port}"
         if cal.servo_id is not None and cal.servo_id != self.servo_id:
             raise BusCalibrationError(
                 f"the jaw calibration was taken on servo {cal.servo_id}, not {self.servo_id}"
             )
-        current = self.model.current_mode
+        current = model.current_mode
         modes = (CURRENT_POSITION_MODES if current else POSITION_MODES).get(cal.family, ())
         if regs.operating_mode not in modes:
             kind = "current-based position control" if current else "position control"
             raise BusCalibrationError(
                 f"{where} is in operating mode {regs.operating_mode}, not {kind} "
                 f"({', '.join(map(str, modes)) or 'none on this family'}) as the model "
-                f"{self.model.name!r} describes: its loop is not the one modelled (the mode is "
+                f"{model.name!r} describes: its loop is not the one modelled (the mode is "
                 "the owner's: nothing was changed; a current-based model is tuned with "
                 "python -m tuners.bus.tune --operating-mode current_position)"
             )

@@ -166,11 +166,12 @@ def test_an_overload_during_the_hold_stops_the_deploy_with_the_torque_off(tmp_pa
                                                                           capsys):  # fmt: skip
     """The servo trips sooner than its model says (its overload protection at 30 % for 1 s):
     TRIPPED is an error, the torque goes off, the registers come back, the report is kept."""
-    shipped = load_bus_servo(FAMILY)
-    touchy = shipped.with_updates(protection=shipped.protection.model_copy(
-        update={"overload_duty": 0.3, "overload_time_s": 1.0}))  # fmt: skip
     out = tmp_path / "d"
-    with arm_bus(FAMILY, truth=touchy, object_deg=190.0) as bus:
+    with arm_bus(FAMILY, object_deg=190.0) as bus:
+        # the servo's own protection registers (the virtual servo runs what they say): an
+        # overload above 30 % duty for 1 s trips it
+        bus.table(GRIPPER).set("overload_torque", 30)
+        bus.table(GRIPPER).set("protection_time", 100)
         jaw = jaw_file(bus, FAMILY)
         found = sdk_registers(bus.path, FAMILY)
         code = deploy.main(["--registers", "results/bus/sts3215_registers.json", "--port",
@@ -192,11 +193,12 @@ def test_an_overload_during_the_hold_stops_the_deploy_with_the_torque_off(tmp_pa
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
 def test_an_error_bit_during_the_record_stops_it(family, tmp_path, jaw_file, capsys):
-    """A servo that overheats at once (its limit at 25.05 degC): the first reply with the bit set
-    ends the record (exit 1, one line naming the bit), the torque off, the registers back."""
+    """A servo that overheats at once (in a 69.95 degC room, its limit register at 70 degC):
+    the first reply with the bit set ends the record (exit 1, one line naming the bit), the
+    torque off, the registers back."""
     shipped = load_bus_servo(family)
     hot = shipped.with_updates(protection=shipped.protection.model_copy(
-        update={"max_temp_c": 25.05}))  # fmt: skip
+        update={"ambient_c": 69.95}))  # fmt: skip
     with arm_bus(family, truth=hot) as bus:
         jaw = jaw_file(bus, family)
         found = sdk_registers(bus.path, family)
