@@ -3,6 +3,8 @@
 import os
 import shutil
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import matplotlib
@@ -70,3 +72,62 @@ def fill_disk(folder: Path, leave_bytes: int = 0) -> Path:
 def filled():
     """``fill_disk`` as a fixture (test modules do not import conftest)."""
     return fill_disk
+
+
+def pytest_configure(config):
+    """Before parallel workers start (``-n N``, the default: pyproject's addopts), compile
+    every simulation kernel once into numba's on-disk cache (``python -m tuners.compile``), so
+    that the workers load them instead of compiling the same kernels side by side (minutes each
+    on 2 cores). A warm cache makes this a few seconds; a serial run (``-n 0``) skips it."""
+    if hasattr(config, "workerinput") or config.option.collectonly:
+        return
+    workers = getattr(config.option, "numprocesses", None)
+    if not workers or getattr(config.option, "dist", "no") == "no":
+        return
+    started = time.perf_counter()
+    result = subprocess.run(
+        [sys.executable, "-m", "tuners.compile", "--quiet"],
+        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    if result.returncode != 0:
+        raise pytest.UsageError(f"python -m tuners.compile failed:\n{result.stderr[-3000:]}")
+    took = time.perf_counter() - started
+    config.stash[_WARMED] = took
+
+
+_WARMED = pytest.StashKey[float]()
+
+
+def pytest_report_header(config):
+    took = config.stash.get(_WARMED, None)
+    if took is not None:
+        return f"simulation kernels compiled or loaded before the workers: {took:.0f} s"
+    return None
+
+
+def shared_once(tmp_path_factory, name, compute):
+    """``compute(folder)`` run once per test run, whichever worker asks first (pytest-xdist's
+    workers share their base temporary folder's parent); the others wait for it and get the
+    same folder. For an expensive session fixture that several test files use (with
+    ``--dist loadfile`` they may land on different workers)."""
+    import fcntl
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    folder = root / f"shared-{name}"
+    with open(root / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        done = folder / ".done"
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            compute(folder)
+            done.write_text("")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def run_once(tmp_path_factory):
+    """:func:`shared_once` as a fixture: ``run_once(name, compute) -> folder``."""
+    return lambda name, compute: shared_once(tmp_path_factory, name, compute)

@@ -56,7 +56,7 @@ COMMANDS: tuple[Command, ...] = (
             "list, check or regenerate the committed results/", script=False),
     Command("sysid", "tuners.sysid", "tuners.sysid:main",
             "identification from logs; the paper's Table-1 experiments"),
-    Command("reproduce", "tuners.paper", "tuners.paper.reproduce:main",
+    Command("reproduce", "tuners.paper", "tuners.paper.command:main",
             "reproduce the paper's tables and figures"),
     Command("calibrate", "tuners.rig.calibrate", "tuners.rig.calibrate:main",
             "two-point potentiometer calibration of the board"),

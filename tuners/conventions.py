@@ -4,6 +4,8 @@
   when run as that console script, ``gripper optuna`` through the umbrella command
   (:mod:`tuners.commands`), ``python -m tuners.optuna`` otherwise (:func:`program_name`).
 * **``--version``** prints the package's version and exits (:func:`add_version`).
+* **One-line usage errors.** A bad option is refused in one line naming it, exit status 2
+  (:class:`Parser`), like every other refusal of bad input.
 * **Defaults said once.** :class:`HelpFormatter` appends ``(default: X)`` only to an option
   whose help does not already give its default, and never ``(default: None)``; a default that
   is a path is shown as given, never made absolute.
@@ -20,14 +22,16 @@ or :func:`conform` (a parser built elsewhere, sub-commands included).
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 __all__ = [
     "HelpFormatter",
+    "Parser",
     "add_version",
     "check_config_names",
     "command_parser",
@@ -80,6 +84,14 @@ def add_version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action="version", version=_version())
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line: ``prog: error: what (see prog
+    --help)`` and exit status 2, like every other refusal of bad input."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 class HelpFormatter(argparse.HelpFormatter):
     """Help with each option's default said once: appended as ``(default: X)`` only when the
     help text does not mention a default already and there is one to say (not ``None``, not a
@@ -103,11 +115,8 @@ class HelpFormatter(argparse.HelpFormatter):
 
     def _expand_help(self, action: argparse.Action) -> str:
         if isinstance(action.default, os.PathLike):  # as given: never an absolute path
-            action = argparse.Action(
-                action.option_strings, action.dest, default=os.fspath(action.default),
-                help=action.help, choices=action.choices, metavar=action.metavar,
-                type=action.type, nargs=action.nargs,
-            )  # fmt: skip
+            action = copy.copy(action)
+            action.default = os.fspath(action.default)
         return super()._expand_help(action)
 
 
@@ -118,6 +127,8 @@ def conform(parser: argparse.ArgumentParser, module: str | None = None) -> argpa
     old_prog = parser.prog
     if module is not None:
         parser.prog = program_name(module)
+    if type(parser) is argparse.ArgumentParser:  # one-line usage errors
+        parser.__class__ = Parser
     parser.formatter_class = HelpFormatter
     add_version(parser)
     for action in parser._actions:
@@ -136,7 +147,7 @@ def command_parser(module: str, description: str, **kwargs: Any) -> argparse.Arg
     """A new parser that follows the conventions: named as the user ran ``module``, with
     ``--version`` and :class:`HelpFormatter` (``kwargs`` go to :class:`argparse.ArgumentParser`)."""
     kwargs.setdefault("formatter_class", HelpFormatter)
-    parser = argparse.ArgumentParser(prog=program_name(module), description=description, **kwargs)
+    parser = Parser(prog=program_name(module), description=description, **kwargs)
     add_version(parser)
     return parser
 

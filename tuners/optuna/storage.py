@@ -136,13 +136,14 @@ class JournalFile(JournalFileBackend):
 
     def __init__(self, file_path: str, lock_obj: FileLock, notify: Any = None) -> None:
         super().__init__(file_path, lock_obj=lock_obj)
+        self._file_lock = lock_obj  # typed: Optuna's attribute is its abstract lock
         self._notify = notify or (lambda line: print(line, file=sys.stderr, flush=True))
         with lock_obj:
             self.repair()
 
     def append_logs(self, logs: list[dict[str, Any]]) -> None:
         """Append ``logs`` whole, or leave the journal as it was."""
-        with self._lock:  # re-entrant: Optuna's append takes it again
+        with self._file_lock:  # re-entrant: Optuna's append takes it again
             self._set_aside_torn_tail()
             size = os.path.getsize(self._file_path)
             try:
