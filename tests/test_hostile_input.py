@@ -111,7 +111,8 @@ CASES = [
     Case("--tf-records 1e9", "tuners.sysid",
          ("coverage", "--tf-records", "1000000000"), ("--tf-records",)),
     # checked before the work, named as given
-    Case("--engine junk", "tuners.benchmark", ("--quick", "--engine", "junk"), ("--engine", "junk")),
+    Case("--engine junk", "tuners.benchmark",
+         ("--quick", "--engine", "junk"), ("--engine", "junk")),
     Case("a folder as --config", "tuners.optuna",
          ("--plant", "test2", "--config", "{a_folder}"), ("a_folder", "folder")),
     Case("a folder as --plant", "tuners.manual",
