@@ -24,8 +24,9 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
-garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, host frames lost on
-the way to the board, a reset mid-run and a vanishing port. Its command line is
+garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, answers delivered late
+(a board slower than the host waits), host frames lost on the way to the board, a reset mid-run
+and a vanishing port. Its command line is
 :mod:`tuners.rig.virtual`.
 
 Examples
@@ -37,6 +38,7 @@ Examples
 
 from __future__ import annotations
 
+import collections
 import os
 import select
 import threading
@@ -132,6 +134,8 @@ class VirtualDevice(PtyDevice):
         self._frame = bytearray()  # a device frame being assembled while faults are armed
         self._drop = self._corrupt = self._truncate = 0
         self._silent = False
+        self._delays: collections.deque[float] = collections.deque()
+        self._late: collections.deque[tuple[float, bytes]] = collections.deque()
         self._paced_since = 0.0
         self._garbage = bytearray()
         self._reset_before: int | None = None
@@ -199,6 +203,13 @@ class VirtualDevice(PtyDevice):
         """Stop (or resume) transmitting: the board runs and listens, the host hears nothing."""
         with self.lock:
             self._silent = silent
+
+    def delay_frames(self, *seconds: float) -> None:
+        """Deliver the board's next frames late, the k-th by ``seconds[k]`` of wall time (the
+        line stays first in, first out: a frame never overtakes a delayed one). A board or a
+        USB bridge that answers after the host's timeout, as on a busy machine."""
+        with self.lock:
+            self._delays.extend(max(0.0, float(s)) for s in seconds)
 
     def reset(self) -> None:
         """Reset the board mid-run: the firmware restarts (no session, servo limp)."""
@@ -325,6 +336,14 @@ class VirtualDevice(PtyDevice):
         """Pass bytes the UART sent through the armed faults to the line."""
         if self._silent:
             return
+        if self._delays or self._late:  # delayed frames, and whatever follows them
+            release = time.perf_counter() + (self._delays[0] if self._delays else 0.0)
+            if self._late:
+                release = max(release, self._late[-1][0])
+            for _ in range(min(data.count(0), len(self._delays))):
+                self._delays.popleft()
+            self._late.append((release, bytes(data)))
+            return
         if self._garbage:
             self._out += self._garbage
             self._garbage.clear()
@@ -362,6 +381,9 @@ class VirtualDevice(PtyDevice):
                 if not self._silent:
                     self._out += self._garbage
                 self._garbage.clear()
+            now = time.perf_counter()
+            while self._late and self._late[0][0] <= now:
+                self._out += self._late.popleft()[1]
             self.bytes_sent += write_pending(master, self._out)
 
     # ---- introspection for tests ---------------------------------------------------------------

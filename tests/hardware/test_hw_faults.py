@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from virtual_support import SPEED, open_device
+from virtual_support import SPEED, open_device, short_step
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.host.errors import (
@@ -116,3 +116,19 @@ def test_a_vanished_port_is_reported_and_the_partial_log_kept(virtual, tmp_path)
     assert not dev.is_open
     rows = (tmp_path / "run.partial.csv").read_text().splitlines()
     assert len(rows) > 400
+
+
+def test_a_board_slower_than_the_timeout_is_no_reset(virtual) -> None:
+    """The board answers the handshake after the host's timeout (a busy machine, a slow USB
+    bridge): the host sends HELLO again, and the INFO that answers it arrives after the session
+    has started. That is the late answer to its own HELLO, not a reset ("sent INFO unasked"):
+    the session goes on and a run completes."""
+    # INFO 0.7 s late (after the 0.5 s timeout: HELLO is sent again), the INFO answering that
+    # HELLO later still: it comes after the session has started, behind the next answers
+    virtual.delay_frames(0.7, 0.9)
+    with open_device(virtual) as dev:
+        assert dev._hellos_sent >= 2
+        dev.configure()
+        rec = run_profile(dev, short_step(), Mode.OPEN_LOOP)
+        assert rec.complete
+        assert dev._late_infos == 0  # every late INFO arrived and was recognised
