@@ -129,7 +129,7 @@ def _strip_comment(line: str) -> str:
 
 def block_commands(text: str) -> list[str]:
     """The commands of a bash block: continuation lines joined, comments and blanks dropped."""
-    joined = re.sub(r"\\\n\s*", " ", text)
+    joined = re.sub(r"\s*\\\n\s*", " ", text)
     return [c for c in (_strip_comment(line) for line in joined.splitlines()) if c.strip()]
 
 
