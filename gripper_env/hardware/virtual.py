@@ -278,12 +278,16 @@ class VirtualDevice(PtyDevice):
             self._write_output(master)
 
     def _read_input(self, master: int, wake: int, timeout_s: float) -> None:
+        # A board whose line is full takes nothing more: the host's bytes wait in the pty, and
+        # its writes block once that is full too (flow control, as a USB bridge does), instead
+        # of the emulated line overflowing; the ticks drain it meanwhile.
+        room = self.board.rx_room() if hasattr(self.board, "rx_room") else 4096
         # the wake pipe ends the wait when stop() or vanish() is called
-        readable, _, _ = select.select([master, wake], [], [], timeout_s)
+        readable, _, _ = select.select([master, wake] if room > 0 else [wake], [], [], timeout_s)
         if master not in readable:
             return
         try:
-            data = os.read(master, 4096)
+            data = os.read(master, min(4096, room))
         except BlockingIOError:
             return
         except OSError:  # EIO: no process holds the slave side (cannot happen while we do)
