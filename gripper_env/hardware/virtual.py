@@ -25,7 +25,7 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
 garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, answers delivered late
-(a board slower than the host waits), host frames lost on the way to the board, a reset mid-run
+(a board slower than the host waits), the board's thread left waiting by a busy machine, host frames lost on the way to the board, a reset mid-run
 and a vanishing port. Its command line is
 :mod:`tuners.rig.virtual`.
 
@@ -59,6 +59,10 @@ __all__ = ["VirtualDevice"]
 _OUT_HIGH_WATER = 4096  # bytes waiting for the pty before the UART stops draining the queue
 _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20 ticks
 _MAX_AHEAD_US = 200_000  # at speed 0, device time runs at most this far past the last host frame
+#: At a real-time speed, a board thread that the machine left waiting (a busy machine) runs at
+#: most this much device time late, in a burst, to catch up; beyond it, device time slips
+#: behind the wall clock instead (:meth:`VirtualDevice.due_ticks`).
+MAX_CATCH_UP_S = 0.1
 
 
 class VirtualDevice(PtyDevice):
@@ -128,6 +132,11 @@ class VirtualDevice(PtyDevice):
             self.board = EmulatedBoard(self.rig, image=image, harness=harness, device_id=device_id)
         self.firmware = self.board.firmware
         self.ticks = 0
+        #: Wall time (s) by which device time fell behind the wall clock, the board's thread
+        #: having waited longer than :data:`MAX_CATCH_UP_S` for the machine (:meth:`due_ticks`).
+        self.slipped_s = 0.0
+        self._t0 = time.perf_counter()
+        self._stall_s = 0.0
         self.lock = threading.Lock()
         self._pty = PtyEndpoint("virtual device")
         self._out = bytearray()
@@ -204,6 +213,12 @@ class VirtualDevice(PtyDevice):
         with self.lock:
             self._silent = silent
 
+    def stall(self, seconds: float) -> None:
+        """Leave the board's thread waiting ``seconds`` of wall time, once, as a busy machine
+        does to any process (the host's bytes wait in the pty meanwhile)."""
+        with self.lock:
+            self._stall_s = float(seconds)
+
     def delay_frames(self, *seconds: float) -> None:
         """Deliver the board's next frames late, the k-th by ``seconds[k]`` of wall time (the
         line stays first in, first out: a frame never overtakes a delayed one). A board or a
@@ -242,10 +257,13 @@ class VirtualDevice(PtyDevice):
         """Run the board until stopped (the thread's body; see :class:`PtyEndpoint`)."""
         board = self.board
         ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
-        t0 = time.perf_counter()
+        self._t0 = time.perf_counter()
         while not self._pty.stopping.is_set():
+            if self._stall_s:
+                stall, self._stall_s = self._stall_s, 0.0
+                time.sleep(stall)
             if ticks_per_s > 0:
-                behind = (time.perf_counter() - t0) * ticks_per_s - self.ticks
+                behind = self.due_ticks(time.perf_counter())
                 if behind < 1.0:
                     wait = (1.0 - behind) / ticks_per_s
                     self._read_input(master, wake, min(wait, 0.05))
@@ -276,6 +294,27 @@ class VirtualDevice(PtyDevice):
                     if data:
                         self._emit(data)
             self._write_output(master)
+
+    def due_ticks(self, now_s: float) -> float:
+        """Ticks the board is behind the wall clock at ``now_s`` (``time.perf_counter``), at a
+        real-time speed: at most :data:`MAX_CATCH_UP_S` of them.
+
+        A real board runs its ticks when they are due whatever the host's machine does. This one
+        runs on that machine: when the machine leaves its thread waiting, it runs the ticks it
+        missed in a burst, faster than real time, and a burst of seconds would squeeze the
+        host's replies out of seconds of device time: the board's watchdog fired on a host that
+        was keeping up (``tuners.rig.record`` on a busy machine). So a longer wait makes device
+        time slip behind the wall clock (:attr:`slipped_s`) rather than race to catch up.
+        """
+        ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
+        behind = (now_s - self._t0) * ticks_per_s - self.ticks
+        most = MAX_CATCH_UP_S * ticks_per_s
+        if behind > most:
+            slip = (behind - most) / ticks_per_s
+            self._t0 += slip
+            self.slipped_s += slip
+            behind = most
+        return behind
 
     def _read_input(self, master: int, wake: int, timeout_s: float) -> None:
         # A board whose line is full takes nothing more: the host's bytes wait in the pty, and
