@@ -24,10 +24,10 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
-garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, answers delivered late
-(a board slower than the host waits), the board's thread left waiting by a busy machine, host frames lost on the way to the board, a reset mid-run
-and a vanishing port. Its command line is
-:mod:`tuners.rig.virtual`.
+garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, answers delivered
+late (a board slower than the host waits), the board's thread left waiting by a busy machine,
+host frames lost on the way to the board, a reset mid-run and a vanishing port. Its command line
+is :mod:`tuners.rig.virtual`.
 
 Examples
 --------
