@@ -69,7 +69,7 @@ SKIPPED = {
 SETUP_PREFIX = re.compile(r"^bash scripts/setup\.sh\s*&&\s*")
 #: What gives a block its ``PORT`` when it starts no board itself (the README's own advice).
 DEFAULT_BOARD = "python -m tuners.rig.virtual --speed max"
-LINE_TIMEOUT_S = 1800
+LINE_TIMEOUT_S = 900
 BOARD_START_S = 600
 
 
