@@ -204,5 +204,6 @@ def _check_profile(text: str) -> None:
             raise ConfigError(f"--profile: reference CSV {text!r} does not exist")
         return
     raise ConfigError(
-        f"--profile: unknown profile {text!r}; available: {', '.join(PROFILES)}, or a .csv file"
+        f"--profile: unknown reference profile {text!r}; available: {', '.join(PROFILES)}, "
+        "or a .csv file"
     )

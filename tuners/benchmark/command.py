@@ -22,7 +22,7 @@ from tuners import cli
 from tuners.conventions import command_parser
 from tuners.engine import ENGINE_HELP, engine_spec
 
-__all__ = ["build_parser", "main"]
+__all__ = ["QUICK_OUT", "build_parser", "main", "output_folder"]
 
 #: Where a ``--quick`` run writes without ``--out``: apart from the full runs in ``runs/``.
 QUICK_OUT = cli.DEFAULT_OUT / "quick"
@@ -67,6 +67,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def output_folder(args: argparse.Namespace) -> Path:
+    """``--out``, or without it ``runs`` (``runs/quick`` for a ``--quick`` run)."""
+    if args.out is not None:
+        return Path(args.out)
+    return QUICK_OUT if args.quick else cli.DEFAULT_OUT
+
+
 def _quick_conflicts(out: Path, names: list[tuple[str, str]]) -> None:
     """Refuse a ``--quick`` run, before any work, into a folder that holds full-run results it
     would have to replace: ``benchmark.json`` or a row's gains file from a run without
@@ -101,8 +108,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
-    if args.out is None:
-        args.out = QUICK_OUT if args.quick else cli.DEFAULT_OUT
+    args.out = output_folder(args)
     start = time.perf_counter()
     from gripper_env.evaluation.objective import load_objective
     from tuners.benchmark import leaderboard

@@ -465,10 +465,3 @@ def reproduce(out: Path, n_seeds: int = 10, command: str | None = None) -> tuple
         _sign_section(lines)
         path = write_atomic(out / "paper_reproduction.md", "\n".join(lines))
     return path, fig_dir
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The command line (:mod:`tuners.paper.command`)."""
-    from tuners.paper.command import main as command_main
-
-    return command_main(argv)
