@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from kernel_cache_support import share_compiled_kernels
 
 pytestmark = [pytest.mark.readme, pytest.mark.slow]
 
@@ -267,24 +268,6 @@ def run_python(walk: Walk, block: Block) -> None:
     assert out.strip(), f"the Python block at README line {block.line} prints nothing:\n{code}"
 
 
-def _share_compiled_kernels(clone: Path) -> None:
-    """Copy this checkout's numba cache into the clone, with the sources' time stamps (numba
-    keys its cache on a source's modification time and size)."""
-    for cache in ROOT.rglob("__pycache__"):
-        if ".venv" in cache.parts or not any(cache.glob("*.nbi")):
-            continue
-        rel = cache.parent.relative_to(ROOT)
-        for py in cache.parent.glob("*.py"):
-            twin = clone / rel / py.name
-            if twin.is_file() and twin.read_bytes() == py.read_bytes():
-                st = py.stat()
-                os.utime(twin, ns=(st.st_atime_ns, st.st_mtime_ns))
-        target = clone / rel / "__pycache__"
-        target.mkdir(parents=True, exist_ok=True)
-        for f in (*cache.glob("*.nbi"), *cache.glob("*.nbc")):
-            shutil.copy2(f, target / f.name)
-
-
 def _make_env(clone: Path) -> Path:
     """The clone's ``.venv``: this environment's packages, the clone's code."""
     venv = clone / ".venv"
@@ -306,7 +289,7 @@ def walk(tmp_path_factory):
     clone = tmp / "clone"
     subprocess.run(["git", "clone", "--quiet", str(ROOT), str(clone)], check=True)
     venv = _make_env(clone)
-    _share_compiled_kernels(clone)
+    share_compiled_kernels(clone)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTEST", "GRIPPER_"))}
     env.update(
         PATH=f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
