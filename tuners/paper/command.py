@@ -41,7 +41,12 @@ def _main(argv: list[str] | None) -> int:
         parser.error(f"--seeds must be 2 to {MAX_SEEDS}, got {args.seeds}")
     from tuners.paper.reproduce import reproduce
 
-    path, fig_dir = reproduce(args.out, args.seeds, command=args.command)
+    path, fig_dir = reproduce(
+        args.out,
+        args.seeds,
+        command=args.command,
+        log=lambda line: print(line, file=sys.stderr, flush=True),
+    )
     print(f"wrote {path} and figures in {fig_dir}")
     return 0
 
