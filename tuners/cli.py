@@ -15,6 +15,7 @@ import argparse
 import functools
 import json
 import math
+import os
 import shlex
 import sys
 from collections.abc import Callable
@@ -149,8 +150,6 @@ def check_output_folder(path: str | Path, option: str) -> None:
     ValueError
         One line naming ``option`` and the path.
     """
-    import os
-
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise ValueError(f"{option} {str(p)!r} is a file; give a folder")
@@ -172,8 +171,6 @@ def check_output_file(path: str | Path | None, option: str, suffix: str | None =
     ValueError
         One line naming ``option`` and the path.
     """
-    import os
-
     if path is None:
         return
     p = Path(path)

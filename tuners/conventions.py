@@ -153,7 +153,7 @@ def command_parser(module: str, description: str, **kwargs: Any) -> argparse.Arg
 
 
 #: Which kind of configuration each option names (an option absent from a command is skipped).
-CONFIG_OPTIONS = {"plant": "plants", "disturbance": "disturbances", "base": "disturbances"}
+CONFIG_OPTIONS = {"plant": "plants", "disturbance": "disturbances"}
 
 
 def check_config_names(args: argparse.Namespace, options: Iterable[str] = ()) -> None:
