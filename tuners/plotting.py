@@ -37,6 +37,7 @@ __all__ = [
     "pareto_plot",
     "response_figure",
     "response_plot",
+    "spread_labels",
     "step_zooms",
 ]
 
@@ -621,6 +622,46 @@ _KIND_STYLE = {
 }
 
 
+def spread_labels(ax: Any, labels: Sequence[Any], margin_px: float = 1.5) -> None:
+    """Move annotations (``ax.annotate`` with ``textcoords="offset points"``) apart so that no
+    two of their boxes overlap: from the lowest up, each label goes just above every label
+    already placed that it overlaps sideways; one that moved from its point is joined to it by
+    a thin line (its ``arrowprops``), the others' lines are hidden.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        The axes the labels are on (its figure's renderer measures them), laid out already.
+    labels : sequence of matplotlib.text.Annotation
+        The labels, made with an ``arrowprops`` so that they can draw a leader line.
+    margin_px : float
+        Gap left between two labels (display pixels).
+    """
+    from matplotlib.text import Text
+
+    if not labels:
+        return
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    points_per_px = 72.0 / fig.dpi
+    # the text alone (an annotation's own extent includes its arrow), in display pixels
+    boxes = [Text.get_window_extent(t, renderer).extents for t in labels]
+    placed: list[tuple[float, float, float, float]] = []
+    for k in sorted(range(len(labels)), key=lambda k: (boxes[k][1], boxes[k][0])):
+        x0, y0, x1, y1 = boxes[k]
+        lift = 0.0
+        for a0, b0, a1, b1 in sorted(placed, key=lambda b: b[1]):
+            if a1 <= x0 or x1 <= a0:  # apart sideways
+                continue
+            if y0 + lift < b1 + margin_px and b0 < y1 + lift + margin_px:
+                lift = b1 + margin_px - y0
+        placed.append((x0, y0 + lift, x1, y1 + lift))
+        x, y = labels[k].xyann
+        labels[k].xyann = (x, y + lift * points_per_px)
+        if labels[k].arrow_patch is not None:
+            labels[k].arrow_patch.set_visible(lift * points_per_px > 4.0)
+
+
 def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     """Tracking against robustness, one panel per feasible plant: every PID row's actual-model
     IAE against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI),
@@ -630,6 +671,7 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     plants = [p for p, d in data["plants"].items() if d.get("feasible")]
     n = max(1, len(plants))
     fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 5.0), squeeze=False)
+    placed: list[tuple[Any, list[Any]]] = []
     for ax, plant in zip(axes[0], plants, strict=False):
         pdata = data["plants"][plant]
         refs = pdata.get("references", {})
@@ -668,6 +710,8 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             ax.axvspan(0.9, ms_max, color="tab:green", alpha=0.06, lw=0)
             ax.axvline(ms_max, color="tab:red", ls=":", lw=1, label=f"Ms limit {ms_max:g}")
         seen = set()
+        labels = []
+        leader = {"arrowstyle": "-", "lw": 0.4, "color": "0.55", "shrinkA": 0, "shrinkB": 2}
         for name, kind, ms, iae in points:
             color, marker = _KIND_STYLE.get(kind, ("tab:olive", "x"))
             label = kind if kind not in seen else None
@@ -675,14 +719,17 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             short = name.replace("classical-", "").replace("manual-", "")
             if iae > top:  # off the chart: an arrow at the top edge, with its IAE
                 ax.scatter([ms], [top], c=color, marker="^", s=30, label=label, zorder=3)
-                ax.annotate(f"{short} ({iae:.0f})", (ms, top), fontsize=6, xytext=(3, -9),
-                            textcoords="offset points", color="0.3")  # fmt: skip
+                labels.append(ax.annotate(f"{short} ({iae:.0f})", (ms, top), fontsize=6,
+                                          xytext=(3, -9), textcoords="offset points",
+                                          color="0.3", arrowprops=leader))  # fmt: skip
                 continue
             ax.scatter([ms], [iae], c=color, marker=marker, s=40, label=label, zorder=3)
-            ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2), textcoords="offset points")
+            labels.append(ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2),
+                                      textcoords="offset points", arrowprops=leader))  # fmt: skip
         ax.set_xlim(0.9, 4.15)
         ax.set_ylim(0.9 * floor, top * 1.04)
         ax.set_xlabel("Ms with the 20 ms servo hold (capped at 4; shaded: feasible)")
+        placed.append((ax, labels))
         ax.set_ylabel("IAE on the actual model (deg s)")
         ax.set_title(f"{plant}: tracking against robustness", fontsize=10)
         ax.grid(alpha=0.3)
@@ -693,6 +740,8 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
+    for ax, labels in placed:  # once the layout is final: a cluster's labels apart
+        spread_labels(ax, labels)
     return save_figure(fig, path, bbox_inches="tight")
 
 

@@ -31,7 +31,6 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NAMES, TRIP_NONE, BusRun, simulate_bus
@@ -219,6 +218,8 @@ def _plant_z(
     """The motor and jaw's ZOH discretisation, duty (or, with ``current``, the torque a current
     loop holds: no back-EMF damping) to encoder ticks (numerator, denominator in ``z``); cached,
     as a search judges many register sets on the same few models."""
+    from scipy.signal import cont2discrete  # scipy.signal loads in 1-5 s: only when used
+
     damping = 0.0 if current else 1 / omega0_deg_s
     num, den = cont2discrete(
         ([1.0], [tau_m_s / omega0_deg_s, damping, k_contact]), DT, method="zoh"

@@ -55,7 +55,6 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.signal import lfilter
 
 from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
@@ -315,6 +314,8 @@ def thermal_overload_at(
     tau = limit_s / math.log(1.0 / (1.0 - trip))
     a = math.exp(-dt / tau)
     # x_k = a x_{k-1} + (1 - a) i_k^2, from x = 0: i^2 through a first-order filter
+    from scipy.signal import lfilter  # scipy.signal loads in 1-5 s: only when used
+
     x = lfilter([1.0 - a], [1.0, -a], i * i)
     hit = np.flatnonzero(x >= trip * (1.0 - 1e-12))  # the tolerance: rounding of a^k
     return float(t[hit[0]] + dt) if len(hit) else None

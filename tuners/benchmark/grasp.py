@@ -52,6 +52,7 @@ from gripper_env.model.gains_file import load_gains_file
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import Plant, load_plant
 from tuners import cli
+from tuners.conventions import command_parser
 from tuners.settings import EvaluationSettings, load_settings
 
 __all__ = [
@@ -108,12 +109,12 @@ def gain_sets(
 ) -> tuple[list[GainSet], list[str]]:
     """The servo alone, the paper's presets and the committed gains files of ``plant`` found
     under ``gains_from``; and the files not found (``gains_from`` ``None``: none looked for)."""
-    from tuners.manual import PAPER_GAINS
+    from tuners.manual import paper_gains
 
     _, actual = settings.options(1)
     sets = [GainSet(SERVO_ALONE, None, actual)]
     for name in PAPER_PRESETS:
-        preset = PAPER_GAINS[name]
+        preset = paper_gains()[name]
         sets.append(GainSet(name, preset.gains, settings.options(preset.sign)[1]))
     missing: list[str] = []
     if gains_from is None:
@@ -460,10 +461,9 @@ def benchmark_section(grasp: dict[str, Any]) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m tuners.benchmark.grasp",
-        description="The grasp-and-hold scenario: time to grasp, holding force, overload.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = command_parser(
+        "tuners.benchmark.grasp",
+        "The grasp-and-hold scenario: time to grasp, holding force, overload.",
     )
     parser.add_argument("--plant", default="test2", help="the Arduino gripper's plant")
     parser.add_argument("--disturbance", default="actual", help="actual-gripper preset")
@@ -473,8 +473,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--gains-from",
         type=Path,
-        default=Path("results"),
-        help="folder of the committed gains files (<folder>/<plant>/<row>.json)",
+        default=None,
+        help="folder of the gains files (<folder>/<plant>/<row>.json, <folder>/bus/"
+        "<servo>_registers.json; a missing one is left out and said); default: --out, where "
+        "your own tuning commands wrote them (results: the committed ones)",
     )
     parser.add_argument(
         "--seeds",
@@ -508,6 +510,8 @@ def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
     from tuners.plotting import grasp_plot
 
     args = cli.parse(build_parser(), argv)
+    if args.gains_from is None:
+        args.gains_from = args.out
     start = time.perf_counter()
     settings = load_settings(EvaluationSettings, args.eval_config)
     seeds = settings.seeds.seeds()
