@@ -58,7 +58,7 @@ def test_with_the_mode_the_jaw_squeezes_and_reopens_at_once():
             disturbance=ON_OBJECT,
             seeds=0,
             pid_options=dataclasses.replace(OPTIONS, grasp=grasp),
-        )  # fmt: skip
+        )
         for name, grasp in (("plain", None), ("grasp", GraspOptions()))
     }
     hold = slice(3000, 10_000)
@@ -86,7 +86,7 @@ def test_nothing_changes_while_the_jaw_moves_freely():
                 seeds=seeds,
                 randomize=True,
                 pid_options=dataclasses.replace(OPTIONS, grasp=grasp),
-            )  # fmt: skip
+            )
             for grasp in (None, GraspOptions())
         )
         np.testing.assert_array_equal(a.u, b.u)
