@@ -125,42 +125,36 @@ inline Real pid_update(Real r, Real y, const PidGains<Real>& g, Real dt, Real* s
     Real yf = state[PID_YF] + Real(GRASP_FILTER) * (y - state[PID_YF]);
     state[PID_YF] = yf;
     Real held = state[PID_HELD];
-    Real at = state[PID_AT];
-    if (held != Real(0)) {
-        if (held * (r - at) <= Real(0) || held * (yf - at) > g.still) {
-            // let go: opening, or the object gave way; the integrator resumes from the command
-            state[PID_XI] = grasp_hold<Real>(at, held, r, g);
-            state[PID_HELD] = Real(0);
-            state[PID_COUNT] = Real(0);
-            state[PID_AT] = yf;
-        } else {
-            // holding: the integrator frozen, the derivative filter running on
-            Real xi = state[PID_XI];
-            pid_step<Real>(r, y, g, dt, state, 0);
-            state[PID_XI] = xi;
-            Real u = grasp_hold<Real>(at, held, r, g);
-            if (v_out) *v_out = u;
-            return u;
-        }
+    if (held != Real(0) &&
+        (held * (r - state[PID_AT]) <= Real(0) || held * (yf - state[PID_AT]) > g.still)) {
+        // let go: opening, or the object gave way; the integrator resumes from the command
+        state[PID_XI] = grasp_hold<Real>(state[PID_AT], held, r, g);
+        held = Real(0);
+        state[PID_HELD] = held;
+        state[PID_COUNT] = Real(0);
+        state[PID_AT] = yf;
     }
     Real xi_frozen = state[PID_XI];
     Real u = pid_step<Real>(r, y, g, dt, state, v_out);
-    Real direction = u > yf ? Real(1) : Real(-1);
-    if (direction * (u - yf) >= g.push && direction * (r - yf) >= g.shortfall &&
-        fabs_real(yf - state[PID_AT]) <= g.still) {
-        state[PID_COUNT] += Real(1);
-    } else {
-        state[PID_COUNT] = Real(0);
+    if (held == Real(0)) {
+        Real direction = u > yf ? Real(1) : Real(-1);
+        if (direction * (u - yf) >= g.push && direction * (r - yf) >= g.shortfall &&
+            fabs_real(yf - state[PID_AT]) <= g.still) {
+            state[PID_COUNT] += Real(1);
+        } else {
+            state[PID_COUNT] = Real(0);
+            state[PID_AT] = yf;
+        }
+        if (state[PID_COUNT] < Real(g.dwell)) return u;
+        held = direction; // blocked for the dwell: hold from this tick
+        state[PID_HELD] = held;
         state[PID_AT] = yf;
-    }
-    if (state[PID_COUNT] >= Real(g.dwell)) {
-        state[PID_HELD] = direction;
-        state[PID_AT] = yf;
         state[PID_COUNT] = Real(0);
-        state[PID_XI] = xi_frozen;
-        u = grasp_hold<Real>(yf, direction, r, g);
-        if (v_out) *v_out = u;
     }
+    // holding: the integrator frozen, the derivative filter running on
+    state[PID_XI] = xi_frozen;
+    u = grasp_hold<Real>(state[PID_AT], held, r, g);
+    if (v_out) *v_out = u;
     return u;
 }
 

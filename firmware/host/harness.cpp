@@ -119,6 +119,8 @@ void dump(const Configure& m, Fields& o) {
     o.f(m.jaw_min), o.f(m.jaw_max);
     o.i(m.adc_at_lo), o.i(m.adc_at_hi), o.i(m.servo_us_at_0), o.i(m.servo_us_at_180);
     o.i(m.decimation), o.i(m.anti_windup), o.i(m.sign), o.i(m.d_on_meas), o.i(m.telemetry_batch);
+    o.i(m.grasp), o.f(m.grasp_squeeze_deg), o.f(m.grasp_push_deg), o.f(m.grasp_short_deg);
+    o.f(m.grasp_still_deg), o.i(m.grasp_dwell_ticks);
 }
 void load(Configure& m, Fields& o) {
     m.p = o.gf(), m.i = o.gf(), m.d = o.gf(), m.n = o.gf(), m.u_min = o.gf(), m.u_max = o.gf();
@@ -127,6 +129,9 @@ void load(Configure& m, Fields& o) {
     m.servo_us_at_0 = (uint16_t)o.gi(), m.servo_us_at_180 = (uint16_t)o.gi();
     m.decimation = (uint16_t)o.gi(), m.anti_windup = (uint8_t)o.gi(), m.sign = (int8_t)o.gi();
     m.d_on_meas = (uint8_t)o.gi(), m.telemetry_batch = (uint8_t)o.gi();
+    m.grasp = (uint8_t)o.gi(), m.grasp_squeeze_deg = o.gf(), m.grasp_push_deg = o.gf();
+    m.grasp_short_deg = o.gf(), m.grasp_still_deg = o.gf();
+    m.grasp_dwell_ticks = (uint16_t)o.gi();
 }
 
 void dump(const SetMode& m, Fields& o) { o.i(m.mode); }
