@@ -49,6 +49,7 @@ struct PidGains {
     // multiplications and two by +-1 per tick on the AVR (~500 cycles).
     Real dn, dt_n;
     bool negate;
+    Real dwell_real; // dwell as a Real, for the count's comparison
 };
 
 // Fill the derived coefficients of g for the sample time dt (s).
@@ -57,6 +58,7 @@ inline void pid_prepare(PidGains<Real>& g, Real dt) {
     g.dn = g.d * g.n;
     g.dt_n = dt * g.n;
     g.negate = g.sign < Real(0);
+    g.dwell_real = Real(g.dwell);
 }
 
 // Index of each value in a PID state vector: the integral term, the filtered derivative input,
@@ -137,16 +139,21 @@ inline Real pid_update(Real r, Real y, const PidGains<Real>& g, Real dt, Real* s
     Real xi_frozen = state[PID_XI];
     Real u = pid_step<Real>(r, y, g, dt, state, v_out);
     if (held == Real(0)) {
-        Real direction = u > yf ? Real(1) : Real(-1);
-        if (direction * (u - yf) >= g.push && direction * (r - yf) >= g.shortfall &&
+        // Python's direction * (u - yf) and direction * (r - yf), as branches (a product by +-1
+        // is exact, and a soft-float multiplication on the AVR costs more than a sign flip).
+        // While the jaw moves freely the first test fails and the rest is skipped.
+        Real d = u - yf;
+        bool up = d > Real(0);
+        if ((up ? d : -d) >= g.push && (up ? r - yf : yf - r) >= g.shortfall &&
             fabs_real(yf - state[PID_AT]) <= g.still) {
             state[PID_COUNT] += Real(1);
+            if (state[PID_COUNT] < g.dwell_real) return u;
         } else {
             state[PID_COUNT] = Real(0);
             state[PID_AT] = yf;
+            return u;
         }
-        if (state[PID_COUNT] < Real(g.dwell)) return u;
-        held = direction; // blocked for the dwell: hold from this tick
+        held = up ? Real(1) : Real(-1); // blocked for the dwell: hold from this tick
         state[PID_HELD] = held;
         state[PID_AT] = yf;
         state[PID_COUNT] = Real(0);

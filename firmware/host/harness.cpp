@@ -298,6 +298,8 @@ std::string pid_run(std::istringstream& in) {
     g.u_min = (real_t)a[5], g.u_max = (real_t)a[6], g.anti_windup = (uint8_t)a[7];
     g.kb = (real_t)a[8], g.sign = (real_t)a[9], g.d_on_meas = a[10] != 0;
     g.grasp = false;
+    g.squeeze = g.push = g.shortfall = g.still = 0;
+    g.dwell = 1;
     pid_prepare<real_t>(g, dt);
     real_t state[PID_STATE_SIZE] = {(real_t)a[11], (real_t)a[12], 0, 0, 0, 0};
     size_t n = (size_t)a[13];

@@ -430,6 +430,11 @@ def _span(values: Sequence[float], fmt: str) -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
+def _pct(push_deg: float, stall_band_deg: float = 5.0) -> str:
+    """A push (deg) as a percentage of stall on the stall band."""
+    return f"{100 * min(max(push_deg, 0.0) / stall_band_deg, 1.0):g}"
+
+
 def _mode_paragraph(mode: GraspOptions | None = None) -> str:
     """The grasp mode and its settings, for the report."""
     g = mode or GraspOptions()
@@ -442,7 +447,11 @@ def _mode_paragraph(mode: GraspOptions | None = None) -> str:
         "(dwell), it freezes the integrator and holds the command "
         f"{g.squeeze_deg:g} deg (squeeze) past the contact, never past the reference: "
         f"{100 * min(g.squeeze_deg / 5.0, 1.0):g} % of stall on the 5-deg stall band, a force "
-        "and current limit the servo carries indefinitely. It lets go when the reference comes "
+        f"and current limit under the {100 * CONTINUOUS_CURRENT_FRACTION:g} % the servo carries "
+        "indefinitely (with whole-degree servo commands the push lands within half a degree of "
+        f"the squeeze: {_pct(g.squeeze_deg - 0.5)}-{_pct(g.squeeze_deg + 0.5)} % of stall; "
+        f"{_pct(g.squeeze_deg + 0.5)} % would trip after "
+        f"{_trip_s((g.squeeze_deg + 0.5) / 5.0):.0f} s). It lets go when the reference comes "
         "back to or over the contact (opening) or the jaw moves on past it, and the PID resumes "
         "from the held command. Each PID row below runs plain (the mode off) and with it "
         f"(`{WITH_MODE.strip()}`)."
