@@ -818,7 +818,7 @@ def grasp_admission(
     with np.errstate(invalid="ignore"):
         slowest = np.where(np.isnan(ttg).any(axis=1), np.nan, np.nanmax(ttg, axis=1))
     return GraspAdmission(
-        held=held.all(axis=1), heat_margin=heat_margin, force_margin=force_margin,
+        held=np.all(held, axis=1), heat_margin=heat_margin, force_margin=force_margin,
         time_to_grasp_s=slowest, reason=tuple(reasons), steady_heat=steady.max(axis=1),
         held_runs=held, peak_heat=heat,
         min_force_n=least, seeds=tuple(int(s) for s in seed_arr), scenario=sc,
