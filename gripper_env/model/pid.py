@@ -261,12 +261,12 @@ def pid_update(
     sign: float,
     d_on_meas: int,
     state: np.ndarray,
-    grasp: int = 0,
-    squeeze: float = 1.0,
-    push: float = 5.0,
-    short: float = 0.5,
-    still: float = 1.0,
-    dwell: float = 100.0,
+    grasp: int,
+    squeeze: float,
+    push: float,
+    short: float,
+    still: float,
+    dwell: float,
 ) -> tuple[float, float]:
     """Advance the PID by one sample.
 
@@ -292,7 +292,9 @@ def pid_update(
         ``[xi, xf]`` (then the grasp mode's ``held, at, count, yf``: length
         :data:`STATE_SIZE` with ``grasp``), updated in place.
     grasp : int
-        1 for the grasp mode (module docstring), 0 (default) for the plain PID.
+        1 for the grasp mode (module docstring), 0 for the plain PID (the grasp arguments then
+        unused; :meth:`PIDOptions.grasp_row` gives all six). No defaults: numba dispatches a call
+        with omitted arguments about 100 times slower.
     squeeze, push, short, still : float
         The grasp mode's squeeze past the contact, command past the jaw and jaw short of the
         reference that read as blocked, and motion that still counts as still (deg).

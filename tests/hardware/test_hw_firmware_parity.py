@@ -72,6 +72,8 @@ def test_cpp_stream_decoder_rejects_like_python(harness) -> None:
 # ---- PID parity -------------------------------------------------------------------------------
 
 DT = 1e-3
+# the grasp mode's (squeeze, push, short, still, dwell ticks)
+GRASP = (1.0, 5.0, 0.5, 1.0, 100.0)
 
 # (P, I, D, N, u_min, u_max, aw_mode, kb, sign, d_on_meas)
 GAIN_SETS = {
@@ -107,8 +109,9 @@ def _run_python(gains: tuple, r: np.ndarray, y: np.ndarray, state0: tuple[float,
     out = []
     for rk, yk in zip(r, y, strict=True):
         u, v = pid_update(
-            float(rk), float(yk), p, i, d, n, DT, u_min, u_max, aw, kb, sign, dmeas, state
-        )
+            float(rk), float(yk), p, i, d, n, DT, u_min, u_max, aw, kb, sign, dmeas, state, 0,
+            *GRASP,
+        )  # fmt: skip
         out += [u, v]
     return np.array(out), state
 
@@ -162,9 +165,6 @@ def test_board_float_pid_stays_close_to_double(harness, harness_f32, name: str) 
 
 
 # ---- the grasp mode --------------------------------------------------------------------------
-
-# (squeeze, push, short, still, dwell ticks)
-GRASP = (1.0, 5.0, 0.5, 1.0, 100.0)
 
 
 def _grasp_inputs(seed: int, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
