@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env.io.files import save_figure, write_json
+from gripper_env.io.files import safe_name, save_figure, write_json
 from gripper_env.model.bus_servo import load_bus_servo
 from gripper_env.sysid.bus_servo import (
     FIT_NAMES,
@@ -34,6 +34,7 @@ from gripper_env.sysid.bus_servo import (
     read_bus_record,
 )
 from tuners.bus.cli import run_cli
+from tuners.cli import check_output_folder
 
 __all__ = ["main"]
 
@@ -108,6 +109,9 @@ def _plot(est: BusEstimate, records: list[BusRecord], names: list[str], path: Pa
 def _run(args: argparse.Namespace) -> int:
     if not 1 <= args.generations <= 10_000:
         raise ValueError(f"--generations must be 1..10000, got {args.generations}")
+    safe_name(args.name, "--name")  # it names the files: never a path
+    out = args.out or args.records[0].parent
+    check_output_folder(out, "--out" if args.out else "the records' folder")
     prior = load_bus_servo(args.model)
     records = [read_bus_record(p) for p in args.records]
     # the records' jaw calibration (the owner's jaw, their angles' frame) goes into the model
@@ -121,7 +125,6 @@ def _run(args: argparse.Namespace) -> int:
     prior = prior.calibrated(calibration)
     est = identify_bus_servo(records, prior, name=args.name, seed=args.seed,
                              generations=args.generations)  # fmt: skip
-    out = args.out or args.records[0].parent
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{args.name}_model"
     doc = est.as_dict()

@@ -122,8 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         lo, hi = model.jaw.limits_deg
         if args.object is not None and not lo <= args.object <= hi:
             raise ValueError(f"--object must lie in the jaw's range [{lo:g}, {hi:g}] deg")
-        unit = ServoUnit(model, object_deg=args.object)
-        gripper = _gripper_table(model.family, args.id, args.limits)
+        gripper = _gripper_table(model.family, args.id, args.limits)  # checked before the
+        unit = ServoUnit(model, object_deg=args.object)  # physics (which compiles its kernels)
         ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
         bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
     except (ConfigError, ValueError, OSError) as exc:
