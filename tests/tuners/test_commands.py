@@ -20,8 +20,11 @@ from tuners.conventions import HelpFormatter, command_parser, program_name
 
 REPO = Path(__file__).resolve().parents[2]
 #: What --help and a refused name must not load: the core's compiler, python-control, plots,
-#: the search and the learning libraries (seconds of imports on a busy machine).
-HEAVY = ("numba", "control", "matplotlib", "scipy", "optuna", "torch", "stable_baselines3")
+#: the search and the learning libraries, the simulation core and the environments' classes
+#: (seconds of imports on a busy machine; gymnasium's registry alone is light and allowed).
+HEAVY = ("numba", "control", "matplotlib", "scipy", "optuna", "torch", "stable_baselines3",
+         "gripper_env.sim", "gripper_env.envs.control_env", "gripper_env.envs.servo",
+         "gripper_env.envs.pid_tune")  # fmt: skip
 #: The commands whose --help and bad-name refusal are light (the bus servos' commands take
 #: these conventions when they adopt tuners.conventions).
 LIGHT = ("manual", "classical", "optuna", "rl", "benchmark", "reproduce")
