@@ -128,12 +128,20 @@ def test_non_finite_action_is_refused_before_anything_is_sent(virtual) -> None:
     assert idle_and_open(virtual)
 
 
+def _counted(info: dict) -> bool:
+    """A first step's count says whether it was late (on a loaded machine a step taken at once
+    may still arrive after its 10 ms of wall time: that is what the count is for)."""
+    return info["missed_deadlines"] == (1 if info["late_ms"] > 0 else 0)
+
+
 def test_missed_deadlines_are_counted_and_warned(virtual) -> None:
     env = make(virtual, warn_every=3)
     env.reset(seed=0)
     a = action_for(70.0)
-    _, _, _, _, info = env.step(a)
-    assert info["missed_deadlines"] == 0 and info["late_ms"] == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
+        _, _, _, _, info = env.step(a)
+    assert _counted(info), info
     with pytest.warns(MissedDeadlineWarning, match="after the end of its 20 ms control period"):
         for _ in range(6):
             time.sleep(0.060)  # a slow agent: 120 ms of device time between steps
@@ -144,8 +152,10 @@ def test_missed_deadlines_are_counted_and_warned(virtual) -> None:
     assert env.unwrapped.missed_deadlines_total == info["missed_deadlines"]
     # a new episode counts afresh
     env.reset()
-    _, _, _, _, info = env.step(a)
-    assert info["missed_deadlines"] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
+        _, _, _, _, info = env.step(a)
+    assert _counted(info), info
     env.close()
 
 
@@ -198,8 +208,11 @@ def test_gymnasium_env_checker(virtual) -> None:
     env = make(virtual)
     with warnings.catch_warnings():
         # No warning is inherent to real time: the spec is registered nondeterministic, so the
-        # checker skips its same-seed-same-observation tests; it declares no render modes.
+        # checker skips its same-seed-same-observation tests; it declares no render modes. A
+        # missed deadline is the host's doing (a loaded machine, the checker's own work between
+        # steps), counted and warned by design (test_missed_deadlines_are_counted_and_warned).
         warnings.simplefilter("error")
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
         check_env(env.unwrapped)
     env.close()
     assert idle_and_open(virtual)
