@@ -56,6 +56,7 @@ from gripper_env.model.bus_calibration import (
 )
 from gripper_env.model.bus_servo import load_bus_servo
 from tuners.bus.cli import BusArgumentParser, add_servo_arguments, output_folder, run_cli
+from tuners.conventions import conform
 
 __all__ = ["main"]
 
@@ -106,7 +107,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="the calibration file (default runs/bus/jaw_<family>_id<ID>.json)",
     )
-    return parser
+    return conform(parser, "tuners.bus.calibrate")
 
 
 def _check_options(args: argparse.Namespace) -> str:

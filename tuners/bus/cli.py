@@ -62,7 +62,7 @@ class BusArgumentParser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line (naming the option) and exit 2."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see --help)\n")
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def servo_id(text: str) -> int:

@@ -44,6 +44,7 @@ from gripper_env.model.bus_servo import (
     relative_uncertainties,
 )
 from tuners import cli
+from tuners.conventions import conform
 
 __all__ = ["SEARCH_SPACE", "constraint_value", "main", "search_space", "tune_registers"]
 
@@ -404,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-plot", action="store_true", help="do not draw the figure")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return parser
+    return conform(parser, "tuners.bus.tune")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

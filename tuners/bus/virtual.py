@@ -31,6 +31,7 @@ from gripper_env.hardware.bus.unit import ServoUnit
 from gripper_env.io.config import ConfigError
 from gripper_env.model.bus_servo import load_bus_servo
 from tuners.bus.cli import BusArgumentParser, servo_id
+from tuners.conventions import conform
 
 __all__ = ["main"]
 
@@ -76,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="also make a symbolic link to the pty at this path (removed on exit)",
     )
-    return parser
+    return conform(parser, "tuners.bus.virtual")
 
 
 def _check_link(path: str | None) -> str | None:
