@@ -26,8 +26,9 @@ HEAVY = ("numba", "control", "matplotlib", "scipy", "optuna", "torch", "stable_b
          "gripper_env.sim", "gripper_env.envs.control_env", "gripper_env.envs.servo",
          "gripper_env.envs.pid_tune")  # fmt: skip
 #: The commands whose --help and --version are light (and the tuners' refusal of a bad name).
-LIGHT = ("manual", "classical", "optuna", "rl", "benchmark", "reproduce", "calibrate", "record",
-         "deploy", "bus-calibrate", "bus-record", "bus-identify", "bus-deploy")  # fmt: skip
+LIGHT = ("manual", "classical", "optuna", "rl", "benchmark", "leaderboard", "results", "sysid",
+         "reproduce", "calibrate", "record", "deploy", "bus-calibrate", "bus-record",
+         "bus-identify", "bus-deploy")  # fmt: skip
 
 PROBE = """
 import json, runpy, sys
