@@ -11,6 +11,7 @@ import pytest
 from virtual_support import SPEED, open_device, short_step
 
 from gripper_env.hardware import protocol as proto
+from gripper_env.hardware.host.device import HANDSHAKE_PATIENCE_S
 from gripper_env.hardware.host.errors import (
     DeviceReset,
     DeviceTimeout,
@@ -139,6 +140,20 @@ def test_a_board_slower_than_the_timeout_is_no_reset(virtual) -> None:
         rec = run_profile(dev, short_step(), Mode.OPEN_LOOP)
         assert rec.complete
         assert dev._late_infos == 0  # every late INFO arrived and was recognised
+
+
+def test_a_board_silent_for_two_seconds_after_the_port_opens_is_waited_for(virtual) -> None:
+    """The first answers after the port opens come 2 s late (a virtual board on a loaded
+    machine once took longer than 3 HELLOs of 0.5 s): the handshake keeps sending HELLO for
+    HANDSHAKE_PATIENCE_S, takes the first INFO, recognises the late ones, and a run completes."""
+    assert HANDSHAKE_PATIENCE_S > 2.5
+    virtual.delay_frames(2.0, 2.0, 2.0, 2.0)
+    with open_device(virtual) as dev:  # 0.5 s tries, 2 retries: 1.5 s before this patience
+        assert dev._hellos_sent >= 4
+        dev.configure()
+        rec = run_profile(dev, short_step(), Mode.OPEN_LOOP)
+        assert rec.complete
+        assert dev._late_infos == 0
 
 
 def test_a_board_thread_left_waiting_catches_up_at_most_a_tenth_of_a_second() -> None:
