@@ -14,6 +14,8 @@ Command line: ``python -m tuners.sysid [tf|greybox|experiments] ...``
 """
 
 import importlib
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # imported on first use (below): a submodule alone loads only what it needs
@@ -48,6 +50,22 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """This package, whose public function ``tfest`` shares its name with the submodule that
+    defines it: importing the submodule binds the package's attribute to the module (Python's
+    import system does, after the submodule ran), which would make ``from gripper_env.sysid
+    import tfest`` give the module. The function keeps the name (the submodule stays in
+    ``sys.modules``), as when this package imported everything at once."""
+
+    def __setattr__(self, name: str, value: object) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 
 __all__ = [
