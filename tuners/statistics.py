@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 __all__ = ["paired_test"]
 
@@ -17,4 +16,6 @@ def paired_test(a: list[float], b: list[float]) -> tuple[float, float]:
         return math.inf, 0.0
     if np.allclose(d, 0.0):
         return 0.0, 1.0
+    from scipy import stats  # here: the commands that import this answer --help without scipy
+
     return float(d.mean()), float(stats.wilcoxon(d, zero_method="zsplit").pvalue)
