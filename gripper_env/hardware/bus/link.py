@@ -514,6 +514,11 @@ class BusLink:
                 f"the port {self.port} is gone (the adapter unplugged, or the virtual servo "
                 f"stopped): {_os_text(exc)}"
             ) from None
+        except IndexError:
+            # the scservo SDK indexes a status packet it took whole before checking its
+            # length: a short reply (a busy line, another caller's bytes) is a garbled one
+            name = getattr(fn, "__name__", "a transaction")
+            raise BusCorruptError(f"a short status packet on {self.port} ({name})") from None
 
     #: The reply window doubles with each attempt after a lost reply, up to this (ms): a servo
     #: that went quiet for a moment (a virtual one on a loaded host went silent for more than
