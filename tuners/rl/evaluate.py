@@ -15,7 +15,6 @@ the evaluation (commit, library versions, date): what :mod:`tuners.rl.leaderboar
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from collections.abc import Callable
@@ -67,12 +66,8 @@ def _check_spaces(t: Task, agent: LoadedAgent, iface: dict[str, Any]) -> None:
 
 
 def _subset(t: Task, anchors: dict[str, Any], episodes: int | None) -> tuple[Task, dict]:
-    if episodes is None:
-        return t, anchors
-    if not 2 <= episodes <= t.episodes:
-        raise ValueError(f"--episodes must be 2 to {t.episodes} (the task's set), got {episodes}")
-    return dataclasses.replace(t, episodes=episodes), {
-        k: list(v[:episodes]) for k, v in anchors.items()}  # fmt: skip
+    short = t.first(episodes)
+    return short, {k: list(v[: short.episodes]) for k, v in anchors.items()}
 
 
 def evaluate_agent(

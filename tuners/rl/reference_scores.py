@@ -119,6 +119,7 @@ class _Job:
     timesteps: int | None
     anchors: dict[str, list[float]] | None  # None: train (and keep) the agent only
     folder: str
+    episodes: int | None = None  # the first episodes of the evaluation set only
 
 
 def _recipe_key(t: Task, algo: str, timesteps: int | None) -> str:
@@ -160,7 +161,7 @@ def _run_job(job: _Job) -> dict[str, Any] | None:
     """Train (or reuse) one seed's agent and judge it; its row (kept in the job's folder)."""
     from tuners.rl.judge import judge_policy
 
-    t = task(job.task)
+    t = task(job.task).first(job.episodes)
     agent, wall, key = _agent(job, t)
     if job.anchors is None:
         return None
@@ -265,6 +266,7 @@ def reference_scores(
     timesteps: int | None = None,
     engine_spec: str | None = None,
     train_only: bool = False,
+    episodes: int | None = None,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Every named task's anchors, best PID and reference rows (module docstring);
@@ -284,7 +286,7 @@ def reference_scores(
                 log(f"  {job.task} {job.algo} seed {job.seed}: kept")
         return table
     for name in names:
-        t = task(name)
+        t = task(name).first(episodes)
         log(f"{name}: anchors and the best PID")
         entry = task_anchors(t, cache, root, log=log)
         entry.update(about=t.about, env_id=t.env_id, hard=t.hard, train_kwargs=t.train_kwargs,
@@ -294,7 +296,7 @@ def reference_scores(
         for algo in ALGOS:
             n = seeds or t.seeds[algo]
             jobs += [_Job(name, algo, k, timesteps, entry["anchors"],
-                          str(cache / "reference" / name / algo / f"seed-{k}"))
+                          str(cache / "reference" / name / algo / f"seed-{k}"), episodes)
                      for k in range(n)]  # fmt: skip
         pid = entry["pid"]
         log(f"  best PID {pid['pid']}: score {pid['score']:.1f} (return {pid['return_mean']:.4g}"
@@ -533,6 +535,9 @@ def _main(argv: list[str] | None = None) -> int:
         help="training budget per seed (default: each recipe's n_timesteps)",
     )
     parser.add_argument("--engine", default=None, help=ENGINE_HELP)
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="only the first N episodes of each evaluation set (a quick look; "
+                             "the published scores use the whole set)")  # fmt: skip
     parser.add_argument(
         "--train-only",
         action="store_true",
@@ -560,7 +565,8 @@ def _main(argv: list[str] | None = None) -> int:
         return 0
     with collect_provenance(args.out, "reference_scores", command=args.command):
         table = reference_scores(names, cache=args.cache, seeds=args.seeds,
-                                 timesteps=args.timesteps, engine_spec=args.engine)  # fmt: skip
+                                 timesteps=args.timesteps, engine_spec=args.engine,
+                                 episodes=args.episodes)  # fmt: skip
         agg = aggregate(table)
         write_result_json(args.out / "reference_scores.json",
                           {"format": "gripper-rl-reference-scores", "version": 2,

@@ -101,8 +101,20 @@ class Task:
 
     @property
     def selection_seeds(self) -> list[int]:
-        """The best PID's selection episodes (training arguments)."""
-        return [SELECTION_SEED + i for i in range(SELECTION_EPISODES)]
+        """The best PID's selection episodes (training arguments; fewer for a set cut short)."""
+        return [SELECTION_SEED + i for i in range(min(SELECTION_EPISODES, self.episodes))]
+
+    def first(self, episodes: int | None) -> Task:
+        """The task on the first ``episodes`` of its evaluation set (a quick look; ``None``: the
+        whole set)."""
+        import dataclasses
+
+        if episodes is None:
+            return self
+        if not 2 <= episodes <= self.episodes:
+            raise ValueError(f"--episodes must be 2 to {self.episodes} (task {self.name}'s "
+                             f"set), got {episodes}")  # fmt: skip
+        return dataclasses.replace(self, episodes=episodes)
 
     @property
     def family(self) -> str:
