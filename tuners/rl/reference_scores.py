@@ -172,7 +172,10 @@ def _run_job(job: _Job) -> dict[str, Any] | None:
         if row.get("key") == row_key:
             row["cached"] = True
             return row
-    row = judge_policy(t, agent, job.anchors)
+    # the environment arguments the agent brings (its action map: a residual on the reference)
+    iface = {k: v for k, v in agent.env_kwargs.items() if k in t.interface}
+    row = judge_policy(t, agent, job.anchors, iface)
+    row.update(interface={k: list(v) if isinstance(v, tuple) else v for k, v in iface.items()})
     row.update(seed=job.seed, algo=job.algo, train_wall_time_s=wall, key=row_key,
                timesteps=int(job.timesteps or t.timesteps[job.algo]))  # fmt: skip
     write_json(cached, row)

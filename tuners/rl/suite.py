@@ -173,11 +173,14 @@ def load_tasks() -> dict[str, Task]:
             raise ConfigError(f"{where}: limit must be one of {_LIMITS}, verdict one of "
                               f"{_VERDICTS}")  # fmt: skip
         recipes = {algo: recipe(name, algo) for algo in ALGOS}
-        kwargs = [dict(r.get("env_kwargs") or {}) for r in recipes.values()]
+        interface = tuple(entry["interface"])
+        # the recipes' env_kwargs: the task's training arguments, plus the agent's interface
+        kwargs = [{k: v for k, v in (r.get("env_kwargs") or {}).items() if k not in interface}
+                  for r in recipes.values()]  # fmt: skip
         ids = {r["env_id"] for r in recipes.values()}
         if ids != {entry["env_id"]} or any(k != kwargs[0] for k in kwargs):
             raise ConfigError(f"{where}: its recipes must name {entry['env_id']} with the same "
-                              "env_kwargs")  # fmt: skip
+                              "training arguments (env_kwargs beyond the interface)")  # fmt: skip
         if not (isinstance(entry["episodes"], int) and entry["episodes"] >= 2):
             raise ConfigError(f"{where}: episodes must be an int >= 2")
         tasks[name] = Task(
@@ -185,7 +188,7 @@ def load_tasks() -> dict[str, Task]:
             train_kwargs=kwargs[0], eval_overrides=dict(entry["evaluate"] or {}),
             hard=bool(entry["hard"]), episodes=int(entry["episodes"]), limit=entry["limit"],
             trivial=str(entry["trivial"]), verdict=entry["verdict"], pid=dict(entry["pid"]),
-            interface=tuple(entry["interface"]),
+            interface=interface,
             timesteps={a: int(r["n_timesteps"]) for a, r in recipes.items()},
             seeds={a: int(v) for a, v in entry["seeds"].items()},
         )  # fmt: skip
