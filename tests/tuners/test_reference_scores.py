@@ -64,7 +64,8 @@ def test_aggregate_and_render_on_a_hand_made_table():
                                             for i, s in enumerate(scores)],
                 "return_mean": -10.0, "admitted_seeds": len(scores), "max_eval_se": 0.5,
                 "timesteps": 10, "train_wall_time_s": 1.0, "objective_cost": None,
-                "constraint_cost": None, "held_fraction": None, "worst_margin_db": None}  # fmt: skip
+                "constraint_cost": None, "held_fraction": None,
+                "worst_margin_db": None}  # fmt: skip
 
     pid = {"pid": "x", "score": 40.0, "score_se": 0.3, "return_mean": -12.0, "return_sd": 1.0,
            "admitted": True, "verdict": "ok", "score_interval_episodes": [39.0, 41.0]}  # fmt: skip
@@ -89,7 +90,7 @@ def test_aggregate_and_render_on_a_hand_made_table():
 
 
 def test_a_missing_or_old_reference_file_is_one_line_naming_the_command(tmp_path):
-    with pytest.raises(ValueError, match="python -m tuners.rl.reference_scores"):
+    with pytest.raises(ValueError, match=r"python -m tuners\.rl\.reference_scores"):
         load_reference(tmp_path / "none.json")
     old = tmp_path / "old.json"
     old.write_text(json.dumps({"pid_source": "x", "table": {}}))

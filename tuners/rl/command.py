@@ -492,7 +492,7 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str])
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from gripper_env.io.files import write_json
+    from gripper_env.io.files import collect_provenance, write_result_json
     from tuners.rl.envs import require_rl
     from tuners.rl.evaluate import evaluate_agent, print_row, row_path
 
@@ -503,7 +503,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         log=(lambda m: None) if args.json else print,
     )  # fmt: skip
     path = row_path(row, args.out)
-    write_json(path, row)
+    # the row's provenance (commit, library versions, date, machine) is its sidecar
+    with collect_provenance(path.parent, path.stem, command=args.command):
+        write_result_json(path, row)
     if args.json:
         print(json.dumps(row, indent=2))
     else:

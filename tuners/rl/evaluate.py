@@ -9,8 +9,11 @@ episodes; several runs (an rl-zoo3 experiment folder, one run per seed) give the
 scores with the stratified-bootstrap interval over the runs, as the reference rows have.
 
 The result is one JSON row (:data:`ROW_FORMAT`) with the agent, the task, the score, every run's
-returns, objective's cost, constraint cost, measured margins and verdict, and the provenance of
-the evaluation (commit, library versions, date): what :mod:`tuners.rl.leaderboard` ranks.
+returns, objective's cost, constraint cost, measured margins and verdict: what
+:mod:`tuners.rl.leaderboard` ranks. Its provenance (the commit, whether the tree had changes, the
+library versions, Python, the machine, the date, the command) is the row's sidecar,
+``<name>.provenance.json`` beside it (:func:`gripper_env.io.files.collect_provenance`), so a
+rerun with the same numbers leaves the row unchanged.
 """
 
 from __future__ import annotations
@@ -101,7 +104,6 @@ def evaluate_agent(
     margins : bool
         Measure the controller's margins (the ``margin`` verdict needs them).
     """
-    from gripper_env.io.files import run_facts
     from tuners.rl.judge import judge_policy
 
     t = task(task_name)
@@ -162,7 +164,6 @@ def evaluate_agent(
             "best_pid": entry["pid"]["score"],
         },
         "runs": runs,
-        "provenance": {k: v for k, v in run_facts().items() if k != "argv"},
     }
 
 

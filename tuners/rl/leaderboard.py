@@ -3,8 +3,9 @@
 ``python -m tuners.rl.leaderboard ROWS [--out results/rl_leaderboard.md]`` reads every row that
 ``python -m tuners.rl evaluate`` wrote under the folder ``ROWS`` (``*.json`` at any depth, of
 format ``gripper-rl-row``) and writes one table per task: the agent, its score with its interval,
-its runs, the objective's cost, the constraint cost, the measured margin, its verdict and the
-commit it was scored at. Each table starts with the task's reference rows from the reference
+its runs, the objective's cost, the constraint cost, the measured margin and its verdict (the
+commit and library versions it was scored with are in each row's sidecar,
+``<name>.provenance.json``). Each table starts with the task's reference rows from the reference
 scores (``--reference``): the trivial policy (0), the best PID, the PPO and SAC cells, the limit
 (100). A row scored on a subset of the evaluation set (``--episodes``) is listed apart, unranked.
 """
@@ -18,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gripper_env.io.files import write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic
 from tuners import cli
 
 __all__ = ["leaderboard", "load_rows", "main"]
@@ -71,15 +72,15 @@ def _cost(row: dict[str, Any], key: str) -> str:
 def _reference_lines(entry: dict[str, Any]) -> list[str]:
     a = entry["anchor_stats"]
     pid = entry["pid"]
-    lines = ["| - | *trivial (command = reference)* | 0 | | | | | | | |",
+    lines = ["| - | *trivial (command = reference)* | 0 | | | | | | |",
              f"| - | *best PID ({pid['pid']})* | {pid['score']:.1f} | "
              f"[{pid['score_interval_episodes'][0]:.1f}, {pid['score_interval_episodes'][1]:.1f}]"
-             f" | 1 | | | | {'admitted' if pid['admitted'] else 'not admitted'} | |"]  # fmt: skip
+             f" | 1 | | | | {'admitted' if pid['admitted'] else 'not admitted'} |"]  # fmt: skip
     for algo, c in entry["cells"].items():
         lines.append(f"| - | *{algo} (reference recipe, {c['timesteps']} steps)* | "
                      f"{c['iqm']:.1f} | [{c['ci95'][0]:.1f}, {c['ci95'][1]:.1f}] | {c['seeds']} | "
-                     f"| | | {c['admitted_seeds']}/{c['seeds']} admitted | |")  # fmt: skip
-    lines.append(f"| - | *limit ({a['limit']['kind']})* | 100 | | | | | | | |")
+                     f"| | | {c['admitted_seeds']}/{c['seeds']} admitted |")  # fmt: skip
+    lines.append(f"| - | *limit ({a['limit']['kind']})* | 100 | | | | | | |")
     return lines
 
 
@@ -106,8 +107,8 @@ def leaderboard(rows: list[dict[str, Any]], reference: dict[str, Any] | None, so
         partial = [r for r in group if not r.get("complete", True)]
         lines += ["", f"## {name} (`{group[0]['env_id']}`)", "",
                   "| rank | agent | score | 95 % interval | runs | objective's cost | "
-                  "constraint cost | worst measured GM dB | verdict | commit |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "constraint cost | worst measured GM dB | verdict |",
+                  "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         if reference and name in reference.get("tasks", {}):
             lines += _reference_lines(reference["tasks"][name])
         for rank, r in enumerate(full, 1):
@@ -119,11 +120,10 @@ def leaderboard(rows: list[dict[str, Any]], reference: dict[str, Any] | None, so
 
 def _row_line(rank: str, r: dict[str, Any]) -> str:
     lo, hi = r["interval"]
-    commit = (r.get("provenance") or {}).get("git_commit") or "-"
     verdict = ("admitted" if r["admitted"] else "not admitted") + f": {r['verdict']}"
     return (f"| {rank} | {r['name']} ({r['kind']}) | {r['score']:.1f} | [{lo:.1f}, {hi:.1f}] | "
             f"{len(r['runs'])} | {_cost(r, 'objective_cost')} | {_cost(r, 'constraint_cost')} | "
-            f"{_worst_gm(r)} | {verdict} | {str(commit)[:10]} |")  # fmt: skip
+            f"{_worst_gm(r)} | {verdict} |")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -158,7 +158,8 @@ def _main(argv: list[str] | None = None) -> int:
         from tuners.rl.reference_scores import load_reference
 
         reference = load_reference(args.reference)
-    write_atomic(args.out, leaderboard(rows, reference, str(args.rows)))
+    with collect_provenance(args.out.parent, args.out.stem, command=args.command):
+        write_atomic(args.out, leaderboard(rows, reference, str(args.rows)))
     print(f"wrote {args.out} ({len(rows)} rows, {len({r['task'] for r in rows})} tasks)")
     return 0
 

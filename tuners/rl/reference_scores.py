@@ -374,7 +374,7 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         "# Reference scores of the RL benchmark",
         "",
         "Written by `python -m tuners.rl.reference_scores --out results` (commit, date, library "
-        "versions and wall times: `reference_scores.provenance.json`). Tasks: "
+        "versions and each seed's training wall time: `reference_scores.provenance.json`). Tasks: "
         "`configs/rl_zoo/tasks.yaml`; scoring: `tuners/rl/scores.py`, `anchors.py`, `judge.py`.",
         "",
         "**The scale.** Score = 100 (R - R_0) / (R_100 - R_0), R the mean return over the task's "
@@ -435,8 +435,7 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         ]  # fmt: skip
         for algo, c in e["cells"].items():
             lines.append(
-                f"| {algo} ({c['seeds']} seeds x {c['timesteps']} steps, "
-                f"{c['train_wall_time_s']:.0f} s/seed) | {c['iqm']:.1f} "
+                f"| {algo} ({c['seeds']} seeds x {c['timesteps']} steps) | {c['iqm']:.1f} "
                 f"[{c['ci95'][0]:.1f}, {c['ci95'][1]:.1f}] (median "
                 f"{c['median']:.1f}) | {c['max_eval_se']:.2f} | {c['return_mean']:.4g} | "
                 f"{_costs(c['objective_cost'])} | {_costs(c['constraint_cost'])} | "
