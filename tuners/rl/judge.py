@@ -215,16 +215,17 @@ def _options(options: Any) -> dict[str, Any]:
             "derivative_on": options.derivative_on, "sign": int(options.sign)}  # fmt: skip
 
 
-def _candidates(task: Task, root: Path) -> list[tuple[str, dict[str, Any], Policy]]:
-    """``(label, interface, policy)`` of every PID the task's ``pid`` names."""
+def _candidates(task: Task, root: Path) -> list[tuple[str, dict[str, Any], Policy, Any]]:
+    """``(label, interface, policy, (gains, options) or None)`` of every PID the task's ``pid``
+    names."""
     from gripper_env.model.gains_file import load_gains_file
 
-    out: list[tuple[str, dict[str, Any], Policy]] = []
+    out: list[tuple[str, dict[str, Any], Policy, Any]] = []
     if "registers" in task.pid:  # a bus servo: its tuned registers, the goal = the reference
         for path in task.pid["registers"]:
             out.append((f"tuned registers ({Path(path).name})",
                         {"registers": str(root / path), "residual": "reference"},
-                        constant_policy([0.0])))  # fmt: skip
+                        constant_policy([0.0]), None))  # fmt: skip
         return out
     seen = set()
     for plant in task.pid.get("plants", []):
@@ -241,7 +242,7 @@ def _candidates(task: Task, root: Path) -> list[tuple[str, dict[str, Any], Polic
             if made is None:
                 continue
             seen.add(key)
-            out.append((f"{plant}/{path.stem}", made[0], made[1]))
+            out.append((f"{plant}/{path.stem}", made[0], made[1], (g, loaded.options)))
     return out
 
 
@@ -258,17 +259,15 @@ def best_pid(
         raise ValueError(f"task {task.name}: no PID candidates under {root}/results")
     train_plants = _plants(task.train_kwargs)
     picked = []
-    for label, iface, policy in candidates:
+    for label, iface, policy, pid in candidates:
         kwargs = task.kwargs_with(iface, evaluate=False)
         stats = run_episodes(task.env_id, kwargs, policy, task.selection_seeds,
                              grasp=task.family == "grasp")  # fmt: skip
         entry: dict[str, Any] = {"label": label, "selection_return": float(stats.returns.mean())}
         if task.verdict == "margin":
-            m = measured_margins(policy, task.env_id, kwargs, train_plants)
-            worst = min(math.inf if v["gain_margin_db"] is None else v["gain_margin_db"]
-                        for v in m.values())  # fmt: skip
             from gripper_env.envs.robust import margin_floor_db
 
+            worst = _pid_margin(pid, kwargs, train_plants)
             entry["admitted_on_training"] = bool(worst >= margin_floor_db())
         elif task.verdict == "feasible":
             entry["admitted_on_training"] = all(bool(i.get("feasible")) for i in stats.infos)
@@ -287,6 +286,24 @@ def best_pid(
                         "among_admitted": any(p[0]["admitted_on_training"] for p in picked),
                         "episodes": len(task.selection_seeds)}  # fmt: skip
     return row
+
+
+def _pid_margin(pid: Any, kwargs: dict[str, Any], plants: list[str]) -> float:
+    """The worst measured gain margin (dB) of a PID over ``plants``: the probe run through the
+    simulation core (:func:`tuners.probe.pid_runner`, the same loop as the environment's
+    residual PID, a batch per sweep), on the preset's loop."""
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.plants import load_plant
+    from tuners.probe import measure_margins, pid_runner
+
+    gains, options = pid
+    dist = load_disturbance(kwargs.get("disturbance", "actual"))
+    ideal = load_disturbance("ideal")
+    worst = math.inf
+    for p in plants:
+        m = measure_margins(pid_runner(gains, options), load_plant(p), dist, ideal)
+        worst = min(worst, math.inf if m.gain_margin_db is None else m.gain_margin_db)
+    return worst
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
