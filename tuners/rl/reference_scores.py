@@ -186,10 +186,65 @@ def _run_job(job: _Job) -> dict[str, Any] | None:
 # ---- one task ------------------------------------------------------------------------------
 
 
+#: What the anchors and the best PID are computed from, besides the task: a change to any of these
+#: files computes them again (:func:`task_anchors`' cache).
+_SOURCES = (
+    "gripper_env/envs",
+    "gripper_env/sim",
+    "gripper_env/evaluation",
+    "gripper_env/model",
+    "tuners/probe.py",
+    "tuners/rl/anchors.py",
+    "tuners/rl/judge.py",
+    "tuners/rl/rollouts.py",
+    "tuners/rl/limits.py",
+    "tuners/rl/scores.py",
+    "configs",
+)
+
+
+def _anchors_key(t: Task, root: Path) -> str:
+    """The task, its PID candidates' files and the code that computes its anchors, hashed."""
+    import tuners
+
+    h = hashlib.sha256(json.dumps([t.name, t.env_id, t.eval_kwargs, t.train_kwargs, t.episodes,
+                                   t.limit, t.trivial, t.verdict, t.pid, list(t.interface)],
+                                  sort_keys=True, default=str).encode())  # fmt: skip
+    code = Path(tuners.__file__).resolve().parent.parent
+    files: list[Path] = []
+    for rel in _SOURCES:
+        p = code / rel
+        files += sorted(p.rglob("*.py")) + sorted(p.rglob("*.y*ml")) if p.is_dir() else [p]
+    for plant in t.pid.get("plants", []):
+        files += sorted((root / "results" / plant).glob("*.json"))
+    files += [root / r for r in t.pid.get("registers", [])]
+    for f in files:
+        if f.is_file():
+            h.update(str(f.name).encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def task_anchors(
     t: Task, cache: Path, root: Path, log: Callable[[str], None] = print
 ) -> dict[str, Any]:
-    """The task's anchors (per episode), their standard errors, and the best-PID row."""
+    """The task's anchors (per episode), their standard errors, and the best-PID row; kept in
+    ``<cache>/anchors/<task>.json`` and reused while the task, its PID candidates and the code
+    that computes them are unchanged."""
+    key = _anchors_key(t, root)
+    kept = cache / "anchors" / f"{t.name}-{t.episodes}.json"
+    if kept.is_file():
+        stored = json.loads(kept.read_text())
+        if stored.get("key") == key:
+            log(f"  {t.name}: anchors and best PID reused ({kept})")
+            return stored["entry"]
+    entry = _task_anchors(t, cache, root, log)
+    write_json(kept, {"key": key, "entry": entry})
+    return entry
+
+
+def _task_anchors(
+    t: Task, cache: Path, root: Path, log: Callable[[str], None] = print
+) -> dict[str, Any]:
     from tuners.rl.anchors import limit_returns, trivial_returns
     from tuners.rl.judge import best_pid
 
