@@ -9,7 +9,7 @@ id                                     the agent ...
 ``gripper_env/GripperBusServo-v0``     is the host of a bus servo (STS3215, XL330, XL430):
                                        sends its goal every 20 ms, the servo's own register
                                        PID runs at 1 ms
-``gripper_env/GripperPIDTune-v1``      ``GripperPIDTune-v0`` with the RL PID tuner's
+``gripper_env/GripperPIDTuneRelative-v0`` ``GripperPIDTune-v0`` with the RL PID tuner's
                                        formulation as its defaults (relative gain map around
                                        a deployable design, ``-log`` exact-penalty reward)
 ``gripper_env/GripperServoRobust-v0``  one controller for test2-test4 (drawn per episode,
@@ -70,9 +70,9 @@ __all__ = [
     "register_envs",
 ]
 
-#: GripperPIDTune-v1's defaults: pid_tune.DEFAULT_V1, kept here as data so that registering
-#: imports no environment module (a test checks the two agree)
-_PID_TUNE_V1: dict[str, Any] = {
+#: GripperPIDTuneRelative-v0's defaults: pid_tune.DEFAULT_RELATIVE, kept here as data so that
+#: registering imports no environment module (a test checks the two agree)
+_PID_TUNE_RELATIVE: dict[str, Any] = {
     "gain_scaling": "relative",
     "gain_center": (0.4731, 5.415, 0.0),
     "gain_decades": 1.5,
@@ -98,13 +98,14 @@ _SPECS: dict[str, tuple[str, str | None, int | None, dict[str, Any]]] = {
         None,
         {},
     ),
-    # the RL PID tuner's formulation as the defaults (pid_tune.DEFAULT_V1): a new version, as
-    # the default reward and action map change
-    "gripper_env/GripperPIDTune-v1": (
+    # a named variant, not a v1: the RL PID tuner's formulation as the defaults
+    # (pid_tune.DEFAULT_RELATIVE); v0's raw map and reward stay what they are (a v1 would make
+    # Gymnasium call every v0 out of date)
+    "gripper_env/GripperPIDTuneRelative-v0": (
         "gripper_env.envs.pid_tune:GripperPIDTuneEnv",
         "gripper_env.envs.vector:GripperPIDTuneVectorEnv",
         None,
-        _PID_TUNE_V1,
+        _PID_TUNE_RELATIVE,
     ),
     "gripper_env/GripperGainSchedule-v0": (
         "gripper_env.envs.gain_schedule:GripperGainScheduleEnv",

@@ -34,7 +34,7 @@ from gripper_env.io.config import ConfigError
 from gripper_env.sim import Trajectory
 
 __all__ = [
-    "DEFAULT_V1",
+    "DEFAULT_RELATIVE",
     "REWARDS",
     "EpisodeRenderer",
     "EpisodeResults",
@@ -45,19 +45,20 @@ __all__ = [
 
 #: Largest number of whole episodes the core advances in one call (memory: 4 x rows x samples).
 MAX_ROWS_PER_CALL = 128
-#: The rewards an episode can return (``reward=``): minus the penalised cost (v0's), or the RL
-#: PID tuner's ``-log`` of the exact penalty (:func:`exact_log_reward`, v1's).
+#: The rewards an episode can return (``reward=``): minus the penalised cost (the default), or
+#: the RL PID tuner's ``-log`` of the exact penalty (:func:`exact_log_reward`, the default of
+#: ``GripperPIDTuneRelative-v0``).
 REWARDS = ("penalised", "log-exact-penalty")
-#: ``GripperPIDTune-v1``'s defaults: the RL PID tuner's working formulation
+#: ``GripperPIDTuneRelative-v0``'s defaults: the RL PID tuner's working formulation
 #: (:mod:`tuners.rl.tune`): log-gains one and a half decades around a deployable design, the
 #: PID's output limited to the servo's 0-180 deg with clamping anti-windup (the benchmark's
 #: evaluation settings) and the ``-log`` exact-penalty reward. The design is the AMIGO PI rule
 #: with its robustness knob set under the constraints on test2, test3 and test4 at once
 #: (``results/test2/classical-amigo-pi-robust.json``): the one gain set the benchmark admits on
-#: every identification, so the zero action is deployable on each. 1.5 decades and 0.02 s of D reach
-#: the benchmark's per-plant Optuna optima (test2's P 3.43, I 67.5, D -0.0087: 0.86 and 1.10
+#: every identification, so the zero action is deployable on each. 1.5 decades and 0.02 s of D
+#: reach the benchmark's per-plant Optuna optima (test2's P 3.43, I 67.5, D -0.0087: 0.86 and 1.10
 #: decades, -0.43 of the D span).
-DEFAULT_V1: dict[str, Any] = {
+DEFAULT_RELATIVE: dict[str, Any] = {
     "gain_scaling": "relative",
     "gain_center": (0.4731, 5.415, 0.0),
     "gain_decades": 1.5,
@@ -355,7 +356,7 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     ``stable``), ``cost``, ``penalised_cost``, ``feasible``, ``robustness`` (margins),
     ``cost_terms`` and ``gains``.
 
-    ``reward="log-exact-penalty"`` (``GripperPIDTune-v1``'s default) returns instead
+    ``reward="log-exact-penalty"`` (``GripperPIDTuneRelative-v0``'s default) returns instead
     ``-log(cost + infeasible_penalty * violation)`` (:func:`exact_log_reward`): the RL PID
     tuner's training reward, the constraints as an exact penalty without the cliff at their
     boundary, in log scale (about -2.3 to -3.4 for good gains, -9.2 for a diverged run).
@@ -388,17 +389,21 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     ```
 
     Also ``episode_s`` (length of random references, s), ``gain_center`` and ``gain_decades``
-    (the ``relative`` gain map), ``reward`` (``"penalised"``, v0's default, or
+    (the ``relative`` gain map), ``reward`` (``"penalised"``, the default, or
     ``"log-exact-penalty"``).
+
+    ``gripper_env/GripperPIDTuneRelative-v0`` is this environment with the RL PID tuner's
+    working formulation as its defaults (:data:`DEFAULT_RELATIVE`): the ``relative`` gain map,
+    1.5 decades around the AMIGO PI design the benchmark admits on every identification (P
+    0.4731, I 5.415, D 0 +/- 0.02 s), the output limited to 0-180 deg with clamping, and the
+    ``log-exact-penalty`` reward. Every argument works the same.
 
     ## Version History
 
-    * v1: the RL PID tuner's working formulation as the defaults (:data:`DEFAULT_V1`): the
-      ``relative`` gain map, 1.5 decades around the AMIGO PI design the benchmark admits on
-      every identification (P 0.4731, I 5.415, D 0 +/- 0.02 s), the output limited to
-      0-180 deg with clamping, and the ``log-exact-penalty`` reward. Everything else, and every
-      argument, as v0.
-    * v0: initial version: the signed ``log`` gain map and the penalised cost as the reward.
+    * v0: initial version: the signed ``log`` gain map and the penalised cost as the reward;
+      ``reward`` added without changing the default. Its metrics' oscillation check measures the
+      tracking error since the RL benchmark's change (a random profile's ramp still running in
+      the check's window was taken for an oscillation: such episodes cost ``unstable_cost``).
     """
 
     # gymnasium declares metadata per instance (Env.metadata); this is the class default

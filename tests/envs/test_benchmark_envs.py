@@ -1,4 +1,4 @@
-"""The RL benchmark's task ids: GripperPIDTune-v1, GripperServoRobust-v0, GripperGrasp-v0,
+"""The RL benchmark's task ids: GripperPIDTuneRelative-v0, GripperServoRobust-v0, GripperGrasp-v0,
 GripperBusGrasp-v0 (checkers, copies, what each adds to the id it builds on)."""
 
 import copy
@@ -8,16 +8,21 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from helpers import BENCHMARK_IDS, BUS_GRASP, BUS_SERVO, GRASP, PID_TUNE, PID_TUNE_V1, ROBUST
+from helpers import BENCHMARK_IDS, BUS_GRASP, BUS_SERVO, GRASP, PID_TUNE, PID_TUNE_RELATIVE, ROBUST
 
 import gripper_env  # noqa: F401
 from gripper_env.envs.grasp import GripperGraspEnv
-from gripper_env.envs.pid_tune import DEFAULT_V1
+from gripper_env.envs.pid_tune import DEFAULT_RELATIVE
 from gripper_env.envs.robust import SwingCost, margin_floor_db, raised_plant
 from gripper_env.evaluation.grasp import thermal_overload_at
 from gripper_env.model.plants import load_plant
 
-QUICK = {ROBUST: {"episode_s": 2.0}, GRASP: {}, BUS_GRASP: {"episode_s": 1.0}, PID_TUNE_V1: {}}
+QUICK = {
+    ROBUST: {"episode_s": 2.0},
+    GRASP: {},
+    BUS_GRASP: {"episode_s": 1.0},
+    PID_TUNE_RELATIVE: {},
+}
 
 
 @pytest.mark.parametrize("env_id", BENCHMARK_IDS)
@@ -51,29 +56,29 @@ def test_a_copy_plays_the_same_episode(env_id, how):
         assert r1 == r2
 
 
-# ---- GripperPIDTune-v1 ---------------------------------------------------------------------
+# ---- GripperPIDTuneRelative-v0 -------------------------------------------------------------
 
 
-def test_pid_tune_v1_is_v0_with_the_tuners_formulation():
-    """v1's registered defaults are pid_tune.DEFAULT_V1; the zero action is the centre design and
-    the reward the -log of the exact penalty, the same episode's cost as v0's."""
-    spec = gym.spec(PID_TUNE_V1)
-    assert spec.kwargs == {**DEFAULT_V1}
-    v1, v0 = gym.make(PID_TUNE_V1), gym.make(PID_TUNE, **{k: v for k, v in DEFAULT_V1.items()
-                                                        if k != "reward"})  # fmt: skip
+def test_pid_tune_relative_is_v0_with_the_tuners_formulation():
+    """Its registered defaults are pid_tune.DEFAULT_RELATIVE; the zero action is the centre design
+    and the reward the -log of the exact penalty, the same episode's cost as v0's."""
+    spec = gym.spec(PID_TUNE_RELATIVE)
+    assert spec.kwargs == {**DEFAULT_RELATIVE}
+    same = {k: v for k, v in DEFAULT_RELATIVE.items() if k != "reward"}
+    v1, v0 = gym.make(PID_TUNE_RELATIVE), gym.make(PID_TUNE, **same)
     v1.reset(seed=3)
     v0.reset(seed=3)
     _, r1, _, _, i1 = v1.step(np.zeros(3, np.float32))
     _, r0, _, _, i0 = v0.step(np.zeros(3, np.float32))
-    assert [i1["gains"][k] for k in "PID"] == pytest.approx(list(DEFAULT_V1["gain_center"]))
+    assert [i1["gains"][k] for k in "PID"] == pytest.approx(list(DEFAULT_RELATIVE["gain_center"]))
     assert i1["cost"] == i0["cost"] and r0 == -i0["penalised_cost"]
     assert i1["feasible"]  # the design is admitted on every identification
     assert r1 == pytest.approx(-np.log(i1["cost"]))
 
 
-def test_pid_tune_v1_exact_penalty_takes_off_the_cliff():
-    """Infeasible gains: v0 pays cost + 100 (1 + violation), v1 -log(cost + 100 violation)."""
-    env = gym.make(PID_TUNE_V1)
+def test_pid_tune_relative_exact_penalty_takes_off_the_cliff():
+    """Infeasible gains: v0 pays cost + 100 (1 + violation), Relative -log(cost + 100 violation)."""
+    env = gym.make(PID_TUNE_RELATIVE)
     env.reset(seed=0)
     _, r, _, _, info = env.step(np.array([1.0, 1.0, 0.0], np.float32))  # 31x P and I
     assert not info["feasible"]
@@ -81,13 +86,13 @@ def test_pid_tune_v1_exact_penalty_takes_off_the_cliff():
     assert info["penalised_cost"] - 100.0 > info["cost"]
 
 
-def test_pid_tune_v1_vector_env_equals_the_single_env():
-    vec = gym.make_vec(PID_TUNE_V1, num_envs=3, vectorization_mode="vector_entry_point")
+def test_pid_tune_relative_vector_env_equals_the_single_env():
+    vec = gym.make_vec(PID_TUNE_RELATIVE, num_envs=3, vectorization_mode="vector_entry_point")
     vec.reset(seed=[1, 2, 3])
     actions = np.array([[0.1, -0.2, 0.3], [0.0, 0.0, 0.0], [0.9, 0.9, -0.9]], np.float32)
     _, rewards, _, _, _ = vec.step(actions)
     for i, seed in enumerate([1, 2, 3]):
-        env = gym.make(PID_TUNE_V1)
+        env = gym.make(PID_TUNE_RELATIVE)
         env.reset(seed=seed)
         assert env.step(actions[i])[1] == rewards[i]
 

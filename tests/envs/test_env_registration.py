@@ -15,7 +15,7 @@ from helpers import (
     GAIN_SCHEDULE,
     GRASP,
     PID_TUNE,
-    PID_TUNE_V1,
+    PID_TUNE_RELATIVE,
     ROBUST,
     SERVO,
 )
@@ -30,7 +30,7 @@ def test_ids_registered_with_time_limits():
     # each TimeLimit is its default episode's length: 20 s, 10 s (bus: 500; robust: 500), the
     # grasp scenarios' 4.5 s and 4.2 s at the 20 ms control period
     limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 500,
-              PID_TUNE_V1: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210}  # fmt: skip
+              PID_TUNE_RELATIVE: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210}  # fmt: skip
     no_vector = {BUS_SERVO, ROBUST, GRASP, BUS_GRASP}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
@@ -59,7 +59,7 @@ def test_make_without_prior_import_in_fresh_interpreter():
     code = (
         "import gymnasium as gym\n"
         "for i in ('GripperServo-v0', 'GripperPIDTune-v0', 'GripperGainSchedule-v0',\n"
-        "          'GripperBusServo-v0', 'GripperPIDTune-v1', 'GripperServoRobust-v0',\n"
+        "          'GripperBusServo-v0', 'GripperPIDTuneRelative-v0', 'GripperServoRobust-v0',\n"
         "          'GripperGrasp-v0', 'GripperBusGrasp-v0'):\n"
         "    env = gym.make(f'gripper_env:gripper_env/{i}')\n"
         "    env.reset(seed=0)\n"

@@ -108,8 +108,9 @@ def test_a_pid_through_the_servo_task_is_the_pid_of_the_core():
 
 @pytest.mark.parametrize("name", ["pid-tune", "gain-schedule"])
 def test_a_pid_through_the_gain_maps_is_the_pid(name):
-    """The constant action on GripperPIDTune-v1's relative map and GripperGainSchedule-v0's log
-    map (each widened where the gains lie beyond it) sets exactly those gains."""
+    """The constant action on GripperPIDTuneRelative-v0's relative map and
+    GripperGainSchedule-v0's log map (each widened where the gains lie beyond it) sets exactly
+    those gains."""
     t = task(name)
     iface, policy = pid_interface(t, OPTUNA_TEST2, CLAMPED)
     env = gym.make(t.env_id, **t.kwargs_with(iface))

@@ -6,9 +6,9 @@
   environment. ``GripperGainSchedule-v0`` cannot express it; its reward depends only on the
   reference, the jaw and the servo's command, so the trivial return is ``GripperServo-v0``'s on
   the same episodes (the same arguments draw the same episodes from a seed). On
-  ``GripperPIDTune-v1``, whose reward is ``-log`` of the objective's cost, it is ``-log`` of the
-  open loop's cost on the episode (:func:`gripper_env.sim.simulate` without gains, scored by the
-  one scoring path).
+  ``GripperPIDTuneRelative-v0``, whose reward is ``-log`` of the objective's cost, it is ``-log``
+  of the open loop's cost on the episode (:func:`gripper_env.sim.simulate` without gains, scored
+  by the one scoring path).
 * **Limit**, by the task's ``limit``:
 
   - ``reward-lp``: the exact linear program of the reward on the episode's plant, reference,

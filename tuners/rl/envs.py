@@ -57,8 +57,8 @@ def LogExactPenalty(venv: Any, penalty: float) -> Any:
     """``GripperPIDTune-v0`` with the PID tuner's training reward,
     ``-log(cost + penalty * violation)``: the environment's own ``reward="log-exact-penalty"``
     (:func:`gripper_env.envs.pid_tune.exact_log_reward`, the default of
-    ``GripperPIDTune-v1``, which says why), computed from each step's ``info`` so that it wraps a
-    vector environment of either reward."""
+    ``GripperPIDTuneRelative-v0``, which says why), computed from each step's ``info`` so that it
+    wraps a vector environment of either reward."""
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     from gripper_env.envs.pid_tune import exact_log_reward
