@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -80,10 +81,50 @@ CASES = [
          ("--plant", "test2", "--search-seeds", "1000000"), ("--search-seeds",)),
     Case("open-loop-unstable plant", "tuners.classical",
          ("--plant", "{unstable}"), ("'unstable'", "not open-loop stable")),
+    # names from files never become paths (gripper_env.io.files.safe_name)
+    Case("plant named ../results/test2", "tuners.manual",
+         ("--plant", "{climbing}", "--gains", "paper-tuned"), ("plant name", "../results/test2")),
+    Case("plant with an absolute name", "tuners.optuna",
+         ("--plant", "{absolute}", "--trials", "4"), ("plant name", "/tmp/gripper-absolute")),
+    Case("plant name with a NUL", "tuners.classical",
+         ("--plant", "{nul_name}"), ("plant name", "\\x00")),
+    Case("gains file whose tuner climbs folders", "tuners.rig.deploy",
+         ("--gains", "{climbing_gains}", "--port", "/no/such/port", "--boot-wait", "0"),
+         ("tuner", "../../../outside")),
+    Case("--name climbing out of the configurations", "tuners.sysid",
+         ("greybox", "{small_log}", "--name", "../../outside", "--save-plant"), ("--name",)),
+    Case("--plant NUL", "tuners.manual",
+         ("--plant", "te\x01st", "--gains", "paper-tuned"), ("--plant",)),
+    # every input that sizes memory or work is capped before it is read
+    Case("a log that never ends (/dev/zero)", "tuners.sysid",
+         ("tf", "/dev/zero"), ("/dev/zero", "MiB")),
+    Case("a gains file that never ends", "tuners.rig.deploy",
+         ("--gains", "/dev/zero", "--port", "/no/such/port", "--boot-wait", "0"),
+         ("/dev/zero", "MiB")),
+    Case("--gains /dev/zero", "tuners.manual",
+         ("--plant", "test2", "--gains", "/dev/zero"), ("--gains", "/dev/zero")),
+    Case("--seeds 0-1000000000", "tuners.rl",
+         ("train", "--plant", "test2", "--seeds", "0-1000000000"), ("--seeds", "at most")),
+    Case("--seeds 1e8 paper", "tuners.paper", ("--seeds", "100000000"), ("--seeds",)),
+    Case("--timesteps 1e15", "tuners.rl",
+         ("controller", "--plant", "test2", "--timesteps", "1000000000000000"), ("--timesteps",)),
+    Case("--tf-records 1e9", "tuners.sysid",
+         ("coverage", "--tf-records", "1000000000"), ("--tf-records",)),
+    # checked before the work, named as given
+    Case("--engine junk", "tuners.benchmark",
+         ("--quick", "--engine", "junk"), ("--engine", "junk")),
+    Case("a folder as --config", "tuners.optuna",
+         ("--plant", "test2", "--config", "{a_folder}"), ("a_folder", "folder")),
+    Case("a folder as --plant", "tuners.manual",
+         ("--plant", "{a_folder}/", "--gains", "paper-tuned"), ("a_folder", "folder")),
+    Case("--save-trajectory in a file's place", "tuners.manual",
+         ("--plant", "test2", "--gains", "paper-tuned", "--save-trajectory",
+          "{a_file}/run.csv"), ("--save-trajectory", "a_file")),
 ]  # fmt: skip
 
-#: The commands that take ``--out`` (the tuners and the benchmark).
-TUNING = {"tuners.manual", "tuners.classical", "tuners.optuna", "tuners.rl", "tuners.benchmark"}
+#: The commands that take ``--out`` (the tuners, the benchmark, the paper).
+TUNING = {"tuners.manual", "tuners.classical", "tuners.optuna", "tuners.rl", "tuners.benchmark",
+          "tuners.paper"}  # fmt: skip
 
 
 def _files(folder):
@@ -113,6 +154,22 @@ def _files(folder):
         f.truncate(40 << 20)
     write("small_log", "small.csv", "t_s,desired_deg,actual_deg\n0,92,92\n0.001,92,92\n")
     write("a_file", "a_file", "not a folder\n")
+    paths["a_folder"] = folder / "a_folder"
+    paths["a_folder"].mkdir()
+    write("climbing", "climbing.yaml", f"name: ../results/test2\n{tf}")
+    write("absolute", "absolute.yaml", f"name: /tmp/gripper-absolute\n{tf}")
+    write("nul_name", "nul_name.yaml", f'name: "a\\0b"\n{tf}')
+    climbing = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "plant": "test2",
+        "tuner": "../../../outside",
+        "P": 1.0,
+        "I": 9.0,
+        "D": -0.001,
+        "N": 100.0,
+    }
+    write("climbing_gains", "climbing_gains.json", json.dumps(climbing))
     gains = {"format": FORMAT, "format_version": FORMAT_VERSION, "plant": "test2",
              "tuner": "manual", "P": 1e308, "I": 1.0, "D": 0.0, "N": 100.0}  # fmt: skip
     write("gains_1e308", "gains_1e308.json", json.dumps(gains))
@@ -133,6 +190,10 @@ def outcomes(tmp_path_factory):
     folder = tmp_path_factory.mktemp("hostile")
     files = _files(folder)
     out = folder / "runs"
+    cwd = folder / "cwd"  # where a default output would land (runs/...): must stay empty
+    cwd.mkdir()
+    inputs = set(folder.rglob("*"))
+    status = _repo_status()
     env = dict(os.environ, MPLBACKEND="Agg")
     results, queue, running = {}, list(CASES), []
     while queue or running:
@@ -143,7 +204,7 @@ def outcomes(tmp_path_factory):
                 args += ["--out", str(out)]
             err = (folder / f"{len(results) + len(running)}.err").open("w+")
             cmd = [sys.executable, "-c", LAUNCHER, str(MEMORY_LIMIT), case.module, *args]
-            proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=err)
+            proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=err)
             running.append((case, proc, err, time.monotonic()))
         case, proc, err, started = running.pop(0)
         try:
@@ -155,14 +216,26 @@ def outcomes(tmp_path_factory):
         err.seek(0)
         results[case.name] = Outcome(proc.returncode, err.read(), seconds)
         err.close()
-    return results
+    written = {
+        str(p.relative_to(folder)) for p in set(folder.rglob("*")) - inputs
+        if not p.name.endswith(".err") and out not in p.parents and p != out
+    }  # fmt: skip
+    outside = sorted(written) + [str(p) for p in (Path("/tmp/gripper-absolute"),) if p.exists()]
+    if _repo_status() != status:
+        outside.append("the checkout's git status changed")
+    return results, outside
+
+
+def _repo_status() -> str:
+    return subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO,
+                          capture_output=True, text=True, check=False).stdout  # fmt: skip
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_refused_in_one_line_naming_the_input(case, outcomes):
     if case.module == "tuners.rl" and importlib.util.find_spec("stable_baselines3") is None:
         pytest.skip("tuners.rl needs the rl extra: pip install -e '.[rl]'")
-    got = outcomes[case.name]
+    got = outcomes[0][case.name]
     lines = got.stderr.strip().splitlines()
     assert got.returncode == 2, got.stderr[-2000:]
     assert "Traceback" not in got.stderr
@@ -170,6 +243,10 @@ def test_refused_in_one_line_naming_the_input(case, outcomes):
     assert "error" in lines[0]
     for name in case.names:
         assert name in lines[0], lines[0]
+
+
+def test_nothing_is_written_outside_out(outcomes):
+    assert outcomes[1] == [], outcomes[1]
 
 
 @pytest.mark.parametrize("kind", ["not a directory", "file exists", "permission denied"])
@@ -195,3 +272,55 @@ def test_any_os_error_is_one_line_naming_the_path(tmp_path, capsys, kind):
 
     assert cli.run(main, []) == 2
     assert capsys.readouterr().err == f"error: {line}\n"
+
+
+def _run_command(module, *args, cwd):
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run([sys.executable, "-m", module, *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+
+
+def _one_line_no_space(proc):
+    lines = proc.stderr.strip().splitlines()
+    compile_note = [x for x in lines if x.startswith("compiling the simulation kernels")]
+    lines = [x for x in lines if x not in compile_note]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert len(lines) == 1 and "No space left on device" in lines[0], proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp_path):
+    """The gains file and its plot are written together or not at all: a full disk leaves
+    neither (nor a temporary file), and says so in one line."""
+    disk = small_disk(512)
+    filled(disk, leave_bytes=16 * 1024)  # room for the JSON, not for the plot
+    proc = _run_command("tuners.manual", "--plant", "test2", "--gains", "paper-tuned",
+                        "--out", disk, cwd=tmp_path)  # fmt: skip
+    _one_line_no_space(proc)
+    assert sorted(p.name for p in disk.rglob("*") if p.is_file()) == ["filler"]
+
+
+def test_a_full_disk_keeps_the_optuna_journal_readable(small_disk, filled, tmp_path):
+    """The studies' journal on a disk that fills during the search: one line, exit 2, and the
+    journal stays readable by Optuna itself, every record whole; with room again, the same
+    command resumes the study."""
+    import optuna
+    from optuna.storages.journal import JournalFileBackend
+
+    disk = small_disk(512)
+    args = ["--plant", "test2", "--trials", "24", "--search-seeds", "1", "--out", disk,
+            "--no-progress"]  # fmt: skip
+    filler = filled(disk, leave_bytes=12 * 1024)  # a few trials' records, then none
+    proc = _run_command("tuners.optuna", *args, cwd=tmp_path)
+    _one_line_no_space(proc)
+    journal = disk / "optuna.journal"
+    assert journal.read_bytes().endswith(b"\n")
+    storage = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+    (summary,) = optuna.get_all_study_summaries(storage)
+    assert summary.n_trials >= 1
+    filler.unlink()
+    proc = _run_command("tuners.optuna", *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    study = optuna.load_study(storage=storage, study_name=summary.study_name)
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(done) == 24

@@ -20,6 +20,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from kernel_cache_support import share_compiled_kernels
 
 ROOT = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -116,6 +117,9 @@ def test_the_wheel_installs_and_tunes_outside_the_source_tree(tmp_path):
     _run([sys.executable, "-m", "venv", "--without-pip", venv])
     python = venv / "bin" / "python"
     _run([*pip, "--python", python, "install", "-q", "--no-compile", wheel])
+    site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"])
+                .stdout.strip())  # fmt: skip
+    share_compiled_kernels(site)  # the kernels load instead of compiling (minutes)
 
     work = tmp_path / "work"  # outside the source tree: nothing of it on the path
     work.mkdir()
@@ -141,7 +145,8 @@ def test_the_wheel_installs_and_tunes_outside_the_source_tree(tmp_path):
     assert plants == "['test1', 'test2', 'test3', 'test4']"
     assert all((venv / "bin" / name).is_file() for name in PYPROJECT["project"]["scripts"])
 
-    cmd = [python, "-m", "tuners.optuna", "--plant", "test2", "--trials", "16"]
+    cmd = [python, "-m", "tuners.optuna", "--plant", "test2", "--trials", "16", "--search-seeds",
+           "1"]  # fmt: skip
     out = _run(cmd, cwd=work, env=env).stdout
     assert "wrote runs/test2/optuna.json" in out  # users' runs: never the committed results/
     content = json.loads((work / "runs" / "test2" / "optuna.json").read_text())

@@ -15,26 +15,46 @@ import argparse
 import functools
 import json
 import math
+import os
 import shlex
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from gripper_env.evaluation.objective import Objective, load_objective
 from gripper_env.io.config import ConfigError
-from gripper_env.io.files import collect_provenance, write_result_json
-from gripper_env.model.disturbances import Disturbance, load_disturbance
-from gripper_env.model.gains_file import GainsFileError, build_gains_file, provenance
-from gripper_env.model.pid import PIDGains, PIDOptions
-from gripper_env.model.plants import Plant, load_plant
-from gripper_env.model.references import Reference, load_reference
-from tuners.evaluation import PAPER_PLANTS, Evaluation, evaluate, metric_rows
-from tuners.plotting import response_plot
-from tuners.settings import EvaluationSettings, load_settings
+from gripper_env.io.files import (
+    collect_provenance,
+    path_in,
+    safe_name,
+    write_group,
+    write_result_json,
+)
+from tuners.conventions import check_config_names, command_parser
 
-__all__ = ["Inputs", "base_parser", "format_table", "plot_response", "publish", "resolve", "run"]
+# The library is imported where it is used: a command's --help, --version and a usage error or
+# an unknown name answer before the simulation core, python-control and matplotlib load.
+if TYPE_CHECKING:
+    from gripper_env.evaluation.objective import Objective
+    from gripper_env.model.disturbances import Disturbance
+    from gripper_env.model.pid import PIDGains, PIDOptions
+    from gripper_env.model.plants import Plant
+    from gripper_env.model.references import Reference
+    from tuners.evaluation import Evaluation
+    from tuners.settings import EvaluationSettings
+
+__all__ = [
+    "Inputs",
+    "base_parser",
+    "check_output_file",
+    "check_output_folder",
+    "format_table",
+    "plot_response",
+    "publish",
+    "resolve",
+    "run",
+]
 
 #: Where commands write unless told otherwise (``--out``): not committed (``.gitignore``). The
 #: committed ``results/`` are regenerated explicitly (``python -m tuners.results``).
@@ -46,16 +66,14 @@ EXIT_INTERRUPTED = 130
 
 
 def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
-    """A parser with the flags every tuner shares.
+    """A parser with the flags every tuner shares, following :mod:`tuners.conventions`.
 
-    ``--plant``, ``--disturbance``, ``--profile``, ``--seed``, ``--out``, ``--json`` and
-    ``--eval-config``.
+    ``prog`` is the command's module as ``python -m`` takes it (``"python -m tuners.optuna"``
+    or ``"tuners.optuna"``); the parser names itself as the user ran it. Flags: ``--plant``,
+    ``--disturbance``, ``--profile``, ``--seed``, ``--out``, ``--json``, ``--eval-config``,
+    ``--objective``, ``--force`` and ``--version``.
     """
-    parser = argparse.ArgumentParser(
-        prog=prog,
-        description=description,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    parser = command_parser(prog.split()[-1], description)
     parser.add_argument(
         "--plant",
         required=True,
@@ -116,10 +134,57 @@ def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.N
     args_list = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(args_list)
     out = getattr(args, "out", None)
-    if out is not None and Path(out).exists() and not Path(out).is_dir():
-        raise ValueError(f"--out {str(out)!r} is a file; give a folder")
-    args.command = " ".join(["python", "-m", parser.prog.split()[-1], *map(shlex.quote, args_list)])
+    if out is not None:
+        check_output_folder(out, "--out")
+    check_config_names(args, ("plants",))  # before the library loads: an unknown name at once
+    args.command = " ".join([parser.prog, *map(shlex.quote, args_list)])
     return args
+
+
+def check_output_folder(path: str | Path, option: str) -> None:
+    """Refuse, before any work, an output folder that could not be written: a file, under a
+    file, or in a folder without write permission (it is created when missing).
+
+    Raises
+    ------
+    ValueError
+        One line naming ``option`` and the path.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{option} {str(p)!r} is a file; give a folder")
+    existing = p
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{option} {str(p)!r}: {str(existing)!r} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {str(p)!r}: cannot write there (permission denied)")
+
+
+def check_output_file(path: str | Path | None, option: str, suffix: str | None = None) -> None:
+    """Refuse, before any work, an output file that could not be written afterwards: a folder,
+    a file under a file, a folder that cannot be written, or the wrong suffix.
+
+    Raises
+    ------
+    ValueError
+        One line naming ``option`` and the path.
+    """
+    if path is None:
+        return
+    p = Path(path)
+    if suffix is not None and p.suffix.lower() != suffix:
+        raise ValueError(f"{option} must name a {suffix} file, got {str(p)!r}")
+    if p.is_dir():
+        raise ValueError(f"{option} {str(p)!r} is a folder; give a file")
+    parent = p.parent
+    while not parent.exists() and parent != parent.parent:  # created when written
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} {str(p)!r}: {str(parent)!r} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise ValueError(f"{option} {str(p)!r}: cannot write there (permission denied)")
 
 
 @dataclass
@@ -138,6 +203,8 @@ class Inputs:
 
     def for_plant(self, plant: Plant) -> Inputs:
         """The same inputs on another plant (its reference resampled at its step)."""
+        from gripper_env.model.references import load_reference
+
         same = plant.dt_s == self.reference.dt_s
         ref = self.reference if same else load_reference(self.profile_name, plant.dt_s)
         return replace(self, plant=plant, reference=ref)
@@ -168,6 +235,12 @@ def load_inputs(
     gripper_env.io.config.ConfigError, ValueError
         A name, path or file that does not load; the message names it.
     """
+    from gripper_env.evaluation.objective import load_objective
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.plants import load_plant
+    from gripper_env.model.references import load_reference
+    from tuners.settings import EvaluationSettings, load_settings
+
     p = load_plant(plant)
     return Inputs(
         p, load_disturbance(disturbance), load_reference(profile, p.dt_s),
@@ -187,11 +260,16 @@ def resolve(args: argparse.Namespace) -> Inputs:
 @functools.cache
 def paper_plants() -> tuple[Plant, ...]:
     """The paper's four identifications, loaded once per process (the cross-model check)."""
+    from gripper_env.model.plants import load_plant
+    from tuners.evaluation import PAPER_PLANTS
+
     return tuple(load_plant(name) for name in PAPER_PLANTS)
 
 
 def plants_arg(value: str | None) -> list[str]:
     """``--plants``: two or more comma-separated plants, each checked (empty if not given)."""
+    from gripper_env.model.plants import load_plant
+
     if value is None:
         return []
     plants = [p.strip() for p in value.split(",") if p.strip()]
@@ -225,6 +303,8 @@ def evaluate_inputs(
 ) -> Evaluation:
     """Evaluate gains with the inputs' plant, profile, preset and held-out seeds (and on the
     gripper's other identifications with ``cross``)."""
+    from tuners.evaluation import PAPER_PLANTS, evaluate
+
     s = inputs.settings
     others = paper_plants() if cross and inputs.plant.name in PAPER_PLANTS else ()
     return evaluate(
@@ -267,6 +347,8 @@ def make_result(
     evaluation : Evaluation
         The metrics and trajectories behind it.
     """
+    from gripper_env.model.gains_file import build_gains_file, provenance
+
     ideal_opts, actual_opts = inputs.settings.options(sign)
     ev = evaluate_inputs(inputs, gains, actual_opts, ideal_opts)
     content = build_gains_file(
@@ -320,8 +402,8 @@ def write_result(
     sidecar ``<tuner>.provenance.json`` (inside another run, such as the benchmark, that run's
     sidecar holds it); return the JSON path. A result from a larger budget is kept unless
     ``force`` (:func:`guard_overwrite`)."""
-    folder = Path(out) / inputs.plant.name
-    tuner, label = content["tuner"], content.get("label", "")
+    folder = path_in(out, inputs.plant.name, what="plant name")
+    tuner, label = safe_name(content["tuner"], "tuner name"), content.get("label", "")
     guard_overwrite(folder / f"{tuner}.json", int(content.get("budget_episodes", 0)), force)
     title = (
         f"{inputs.plant.name}, {tuner}{f' ({label})' if label and label != tuner else ''}: "
@@ -330,15 +412,19 @@ def write_result(
     )
     # one sidecar for the run (<tuner>.provenance.json), or the enclosing run's (the benchmark's)
     command = (content.get("provenance") or {}).get("command")
-    with collect_provenance(folder, tuner, command=command):
+    with collect_provenance(folder, tuner, command=command), write_group():  # both or neither
         plot_response(inputs, ev, title, folder / f"{tuner}.png")
-        return write_result_json(folder / f"{tuner}.json", content)
+        path = write_result_json(folder / f"{tuner}.json", content)
+    return path
 
 
 def plot_response(inputs: Inputs, ev: Evaluation, title: str, path: Path) -> Path:
     """:func:`tuners.plotting.response_plot` of ``ev`` with the objective's signal and settling
     bands: on the inputs' preset for the actual model, on ``ideal`` for the model (each as
     the evaluation scored it)."""
+    from gripper_env.model.disturbances import load_disturbance
+    from tuners.plotting import response_plot
+
     obj = inputs.objective
     return response_plot(
         ev, title, path, settling_band_deg=obj.settling_band_deg(inputs.disturbance),
@@ -378,6 +464,8 @@ def _fmt(x: float) -> str:
 
 def format_table(content: dict[str, Any], ev: Evaluation) -> str:
     """A plain-text table of the main metrics on both models and the stability check."""
+    from tuners.evaluation import metric_rows
+
     stab = content["robustness"]
     g = content
     n = ev.actual["n_seeds"]
@@ -442,7 +530,7 @@ def run(main: Callable[[list[str] | None], int], argv: list[str] | None = None) 
     ``error: <one line>`` on stderr and exit status 2."""
     try:
         return main(argv)
-    except (ConfigError, GainsFileError, ValueError, FileNotFoundError) as exc:
+    except (ConfigError, ValueError, FileNotFoundError) as exc:  # a GainsFileError too
         print(f"error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:  # a path that cannot be read or written (--out naming a file, ...)

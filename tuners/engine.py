@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["ENGINE_HELP", "Engine", "engine", "gather_files", "write_files"]
+__all__ = ["ENGINE_HELP", "Engine", "engine", "engine_spec", "gather_files", "write_files"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -36,6 +36,32 @@ ENGINE_HELP = (
     "dask-local[:N] (a Dask LocalCluster started for the run) or tcp://HOST:PORT (a Dask "
     "scheduler)"
 )
+
+
+def engine_spec(spec: str) -> str:
+    """``--engine``: check an engine's name when the command line is parsed, before any work
+    (an argparse ``type``); the engine itself starts later (:func:`engine`).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not one of the forms of :data:`ENGINE_HELP`, or a bad worker count.
+    """
+    import argparse
+
+    text = spec.strip()
+    ok = text == "serial" or text in ("local", "dask-local") or text.startswith(
+        ("local:", "dask-local:", "tcp://", "tls://"))  # fmt: skip
+    if not ok:
+        raise argparse.ArgumentTypeError(f"unknown engine {spec!r}; {ENGINE_HELP}")
+    if text.startswith(("local:", "dask-local:")):
+        try:
+            _count(text, 1)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc).removeprefix("--engine ")) from None
+    if text.startswith(("tcp://", "tls://")) and not text.split("://", 1)[1]:
+        raise argparse.ArgumentTypeError(f"engine {spec!r} names no scheduler address")
+    return text
 
 
 def _one_thread() -> None:

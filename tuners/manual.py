@@ -13,19 +13,22 @@ the response plot beside it, and prints the metrics table.
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from gripper_env import paper
-from gripper_env.model.gains_file import load_gains_file
-from gripper_env.model.pid import PIDGains
 from tuners import cli
-from tuners.interface import Budget, Tuned
 
-__all__ = ["PAPER_GAINS", "ManualGains", "ManualTuner", "main", "parse_gains"]
+if TYPE_CHECKING:
+    from gripper_env.model.pid import PIDGains
+    from tuners.interface import Budget, Tuned
+
+__all__ = ["PRESETS", "ManualGains", "ManualTuner", "main", "paper_gains", "parse_gains"]
 
 
 @dataclass(frozen=True)
@@ -40,18 +43,30 @@ class ManualGains:
 
 _HW_NOTE = "note: the paper's hardware gains are unstable with e = r - y; using e = y - r (sign -1)"
 
-#: The paper's Table 3 (:data:`gripper_env.paper.PID_GAINS`). The hardware gains are unstable
-#: with e = r - y and stable with e = y - r.
-PAPER_GAINS: dict[str, ManualGains] = {
-    "paper-untuned": ManualGains(PIDGains(*paper.PID_GAINS["untuned_tf"]), 1, "paper-untuned"),
-    "paper-tuned": ManualGains(PIDGains(*paper.PID_GAINS["tuned_tf"]), 1, "paper-tuned"),
-    "paper-hw-untuned": ManualGains(
-        PIDGains(*paper.PID_GAINS["untuned_hw"]), -1, "paper-hw-untuned", _HW_NOTE
-    ),
-    "paper-hw-tuned": ManualGains(
-        PIDGains(*paper.PID_GAINS["tuned_hw"]), -1, "paper-hw-tuned", _HW_NOTE
-    ),
+#: The paper's Table 3 (:data:`gripper_env.paper.PID_GAINS`) by preset name, with the error sign
+#: each is stable with: the hardware gains are unstable with e = r - y and stable with e = y - r.
+PRESETS: dict[str, tuple[str, int]] = {
+    "paper-untuned": ("untuned_tf", 1),
+    "paper-tuned": ("tuned_tf", 1),
+    "paper-hw-untuned": ("untuned_hw", -1),
+    "paper-hw-tuned": ("tuned_hw", -1),
 }
+
+
+@functools.cache
+def paper_gains() -> dict[str, ManualGains]:
+    from gripper_env.model.pid import PIDGains
+
+    return {
+        name: ManualGains(PIDGains(*paper.PID_GAINS[key]), sign, name, _HW_NOTE if sign < 0 else "")
+        for name, (key, sign) in PRESETS.items()
+    }
+
+
+def __getattr__(name: str) -> Any:
+    if name == "PAPER_GAINS":  # kept for callers: paper_gains(), built on first use (numba)
+        return paper_gains()
+    raise AttributeError(f"module 'tuners.manual' has no attribute {name!r}")
 
 
 def parse_gains(text: str) -> ManualGains:
@@ -63,8 +78,11 @@ def parse_gains(text: str) -> ManualGains:
         Not a preset, not 3 or 4 finite numbers in range (:data:`gripper_env.model.pid.MAX_GAIN`),
         and not a ``.json`` file.
     """
-    if text in PAPER_GAINS:
-        return PAPER_GAINS[text]
+    from gripper_env.model.gains_file import load_gains_file
+    from gripper_env.model.pid import PIDGains
+
+    if text in PRESETS:
+        return paper_gains()[text]
     if text.endswith(".json") or Path(text).is_file():
         f = load_gains_file(text)
         return ManualGains(f.gains, f.options.sign, "", f"gains from {text} ({f.tuner}, {f.plant})")
@@ -75,7 +93,7 @@ def parse_gains(text: str) -> ManualGains:
         values = []
     if len(values) not in (3, 4) or not all(math.isfinite(v) for v in values):
         raise ValueError(
-            f"--gains must be a preset ({', '.join(PAPER_GAINS)}), 3 or 4 finite numbers "
+            f"--gains must be a preset ({', '.join(PRESETS)}), 3 or 4 finite numbers "
             f"'P,I,D[,N]', or a gains .json file; got {text!r}"
         )
     try:
@@ -91,23 +109,25 @@ class ManualTuner:
     plants: tuple[str, ...] = ()
 
     def __init__(self, preset: str) -> None:
-        if preset not in PAPER_GAINS:
+        if preset not in PRESETS:
             raise ValueError(f"unknown manual preset {preset!r}; choose one of "
-                             f"{', '.join(PAPER_GAINS)}")  # fmt: skip
-        self.chosen = PAPER_GAINS[preset]
+                             f"{', '.join(PRESETS)}")  # fmt: skip
+        self.chosen = paper_gains()[preset]
         self.name = f"manual-{preset}"
 
     def tune(self, inputs: cli.Inputs, budget: Budget, seed: int) -> Tuned:
+        from tuners.interface import Tuned
+
         c = self.chosen
         return Tuned(c.gains, c.sign, {"preset": c.label}, label=c.label)
 
 
 def build_parser():
-    parser = cli.base_parser("python -m tuners.manual", "Evaluate given PID gains.")
+    parser = cli.base_parser("tuners.manual", "Evaluate given PID gains.")
     parser.add_argument(
         "--gains",
         required=True,
-        help=f"a preset ({', '.join(PAPER_GAINS)}), 'P,I,D[,N]', or a gains .json file",
+        help=f"a preset ({', '.join(PRESETS)}), 'P,I,D[,N]', or a gains .json file",
     )
     parser.add_argument(
         "--sign",
@@ -137,8 +157,7 @@ def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     # check every input before anything is written
     chosen = parse_gains(args.gains)
-    if args.save_trajectory is not None and args.save_trajectory.suffix != ".csv":
-        raise ValueError(f"--save-trajectory must name a .csv file, got {args.save_trajectory}")
+    cli.check_output_file(args.save_trajectory, "--save-trajectory", ".csv")  # before the work
     inputs = cli.resolve(args)
     sign = chosen.sign if args.sign is None else args.sign
     start = time.perf_counter()

@@ -37,6 +37,7 @@ __all__ = [
     "pareto_plot",
     "response_figure",
     "response_plot",
+    "spread_labels",
     "step_zooms",
 ]
 
@@ -621,6 +622,46 @@ _KIND_STYLE = {
 }
 
 
+def spread_labels(ax: Any, labels: Sequence[Any], margin_px: float = 1.5) -> None:
+    """Move annotations (``ax.annotate`` with ``textcoords="offset points"``) apart so that no
+    two of their boxes overlap: from the lowest up, each label goes just above every label
+    already placed that it overlaps sideways; one that moved from its point is joined to it by
+    a thin line (its ``arrowprops``), the others' lines are hidden.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        The axes the labels are on (its figure's renderer measures them), laid out already.
+    labels : sequence of matplotlib.text.Annotation
+        The labels, made with an ``arrowprops`` so that they can draw a leader line.
+    margin_px : float
+        Gap left between two labels (display pixels).
+    """
+    from matplotlib.text import Text
+
+    if not labels:
+        return
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    points_per_px = 72.0 / fig.dpi
+    # the text alone (an annotation's own extent includes its arrow), in display pixels
+    boxes = [Text.get_window_extent(t, renderer).extents for t in labels]
+    placed: list[tuple[float, float, float, float]] = []
+    for k in sorted(range(len(labels)), key=lambda k: (boxes[k][1], boxes[k][0])):
+        x0, y0, x1, y1 = boxes[k]
+        lift = 0.0
+        for a0, b0, a1, b1 in sorted(placed, key=lambda b: b[1]):
+            if a1 <= x0 or x1 <= a0:  # apart sideways
+                continue
+            if y0 + lift < b1 + margin_px and b0 < y1 + lift + margin_px:
+                lift = b1 + margin_px - y0
+        placed.append((x0, y0 + lift, x1, y1 + lift))
+        x, y = labels[k].xyann
+        labels[k].xyann = (x, y + lift * points_per_px)
+        if labels[k].arrow_patch is not None:
+            labels[k].arrow_patch.set_visible(lift * points_per_px > 4.0)
+
+
 def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     """Tracking against robustness, one panel per feasible plant: every PID row's actual-model
     IAE against its Ms with the servo's hold, the MIGO front (the best IAE each Ms allows a PI),
@@ -630,6 +671,7 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     plants = [p for p, d in data["plants"].items() if d.get("feasible")]
     n = max(1, len(plants))
     fig, axes = plt.subplots(1, n, figsize=(5.4 * n, 5.0), squeeze=False)
+    placed: list[tuple[Any, list[Any]]] = []
     for ax, plant in zip(axes[0], plants, strict=False):
         pdata = data["plants"][plant]
         refs = pdata.get("references", {})
@@ -668,6 +710,8 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             ax.axvspan(0.9, ms_max, color="tab:green", alpha=0.06, lw=0)
             ax.axvline(ms_max, color="tab:red", ls=":", lw=1, label=f"Ms limit {ms_max:g}")
         seen = set()
+        labels = []
+        leader = {"arrowstyle": "-", "lw": 0.4, "color": "0.55", "shrinkA": 0, "shrinkB": 2}
         for name, kind, ms, iae in points:
             color, marker = _KIND_STYLE.get(kind, ("tab:olive", "x"))
             label = kind if kind not in seen else None
@@ -675,14 +719,17 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
             short = name.replace("classical-", "").replace("manual-", "")
             if iae > top:  # off the chart: an arrow at the top edge, with its IAE
                 ax.scatter([ms], [top], c=color, marker="^", s=30, label=label, zorder=3)
-                ax.annotate(f"{short} ({iae:.0f})", (ms, top), fontsize=6, xytext=(3, -9),
-                            textcoords="offset points", color="0.3")  # fmt: skip
+                labels.append(ax.annotate(f"{short} ({iae:.0f})", (ms, top), fontsize=6,
+                                          xytext=(3, -9), textcoords="offset points",
+                                          color="0.3", arrowprops=leader))  # fmt: skip
                 continue
             ax.scatter([ms], [iae], c=color, marker=marker, s=40, label=label, zorder=3)
-            ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2), textcoords="offset points")
+            labels.append(ax.annotate(short, (ms, iae), fontsize=6, xytext=(3, 2),
+                                      textcoords="offset points", arrowprops=leader))  # fmt: skip
         ax.set_xlim(0.9, 4.15)
         ax.set_ylim(0.9 * floor, top * 1.04)
         ax.set_xlabel("Ms with the 20 ms servo hold (capped at 4; shaded: feasible)")
+        placed.append((ax, labels))
         ax.set_ylabel("IAE on the actual model (deg s)")
         ax.set_title(f"{plant}: tracking against robustness", fontsize=10)
         ax.grid(alpha=0.3)
@@ -693,6 +740,8 @@ def pareto_plot(data: Mapping[str, Any], path: str | os.PathLike[str]) -> Path:
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=len(handles),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.06, 1, 1))
+    for ax, labels in placed:  # once the layout is final: a cluster's labels apart
+        spread_labels(ax, labels)
     return save_figure(fig, path, bbox_inches="tight")
 
 
@@ -700,37 +749,64 @@ def grasp_plot(
     runs: Sequence[tuple[str, Any]],
     path: str | os.PathLike[str],
     title: str,
+    *,
+    mode_suffix: str | None = None,
 ) -> Path:
-    """The grasp-and-hold scenario: the true jaw angle (top) and the fingertip force (bottom)
-    against time from the close command, one line per controller (the mean over its runs), the
-    object and the close command, the hold window shaded, the required force and the stall
-    force, and an x where the overload criterion first trips (earliest run).
+    """The grasp-and-hold scenario: the true jaw angle (top), the fingertip force (middle) and
+    the servo's heat relative to its thermal trip (bottom) against time from the close command,
+    one line per controller (the mean over its runs), the object and the close command, the hold
+    window shaded, the required force and the stall force, the trip level, and an x where the
+    overload criterion first trips (earliest run).
 
     Parameters
     ----------
     runs : sequence of (label, GraspRun)
         :class:`gripper_env.evaluation.grasp.GraspRun` of each controller, one scenario.
+    mode_suffix : str, optional
+        Labels ending in it are a controller with the PID's grasp mode: drawn solid in the
+        colour of the label without it (drawn dashed, the plain PID).
     """
+    from gripper_env.evaluation.grasp import thermal_state
+
     if not runs:
         raise ValueError("no grasp runs to draw")
     scenario = runs[0][1].scenario
-    fig, (ax_jaw, ax_force) = plt.subplots(2, 1, figsize=(9.5, 6.4), sharex=True,
-                                           height_ratios=(1.0, 1.2))  # fmt: skip
+    fig, (ax_jaw, ax_force, ax_heat) = plt.subplots(
+        3, 1, figsize=(9.5, 8.2), sharex=True, height_ratios=(1.0, 1.2, 0.8)
+    )
     lo, hi = scenario.hold_window_s
     t = runs[0][1].t_s
+    bases: list[str] = []
+    for label, _ in runs:
+        base = label.removesuffix(mode_suffix) if mode_suffix else label
+        if base not in bases:
+            bases.append(base)
     styles = ("-", "--", "-.", ":")
-    for j, (label, run) in enumerate(runs):
-        color, ls = f"C{j % 10}", styles[(j // 10 + j) % len(styles)]
+    for label, run in runs:
+        mode = bool(mode_suffix) and label.endswith(mode_suffix or "")
+        base = label.removesuffix(mode_suffix) if mode and mode_suffix else label
+        j = bases.index(base)
+        color = f"C{j % 10}"
+        if mode_suffix:
+            has_mode = any(lab == base + mode_suffix for lab, _ in runs)
+            ls, lw = ("-", 1.6) if mode or not has_mode else ("--", 1.0)
+        else:
+            ls, lw = styles[(j // 10 + j) % len(styles)], 1.3
+        after = run.t_s >= -1e-9
         with np.errstate(all="ignore"):
             jaw = np.nanmean(run.jaw_deg, axis=0)
             force = np.nanmean(run.force_n, axis=0)
-        ax_jaw.plot(run.t_s, jaw, color=color, ls=ls, lw=1.3, label=label)
-        ax_force.plot(run.t_s, force, color=color, ls=ls, lw=1.3, label=label)
+            heat = np.mean([thermal_state(run.t_s[after], c[after]) for c in
+                            run.current_fraction], axis=0)  # fmt: skip
+        name = "_" if mode_suffix else label  # with pairs, the legend has a colour per base
+        ax_jaw.plot(run.t_s, jaw, color=color, ls=ls, lw=lw, label=name)
+        ax_force.plot(run.t_s, force, color=color, ls=ls, lw=lw, label=name)
+        ax_heat.plot(run.t_s[after], 100 * heat, color=color, ls=ls, lw=lw, label=name)
         trips = [x for x in run.overload_at_s if x is not None]
         if trips:
             k = min(int(np.searchsorted(run.t_s, min(trips))), len(run.t_s) - 1)
             ax_force.plot([min(trips)], [force[k]], "x", color=color, ms=9, mew=2)
-    for ax in (ax_jaw, ax_force):
+    for ax in (ax_jaw, ax_force, ax_heat):
         ax.axvspan(lo, hi, color="tab:green", alpha=0.08, lw=0)
         ax.axvline(0.0, color="0.5", lw=0.8)
         ax.grid(alpha=0.3)
@@ -749,12 +825,21 @@ def grasp_plot(
     ax_force.plot([], [], color="tab:green", alpha=0.3, lw=6, label="hold window")
     ax_force.set_ylim(-0.05 * stall, 1.12 * stall)
     ax_force.set_ylabel("fingertip force (N)")
-    ax_force.set_xlabel("time from the close command (s); lines: mean over the runs")
-    ax_force.set_xlim(max(float(t[0]), -0.2), float(t[-1]))
+    ax_heat.axhline(100.0, color="tab:red", lw=1.2, ls="--", label="thermal trip")
+    ax_heat.set_ylim(-5.0, 115.0)
+    ax_heat.set_ylabel("servo heat (% of trip)")
+    ax_heat.set_xlabel("time from the close command (s); lines: mean over the runs")
+    ax_heat.set_xlim(max(float(t[0]), -0.2), float(t[-1]))
     handles: dict[str, Any] = {}
-    for ax in (ax_jaw, ax_force):
+    if mode_suffix:
+        for j, base in enumerate(bases):
+            handles[base] = Line2D([], [], color=f"C{j % 10}", lw=1.6)
+    for ax in (ax_jaw, ax_force, ax_heat):
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(lab, h)
+    if mode_suffix:
+        handles["plain PID"] = Line2D([], [], color="0.3", ls="--", lw=1.0)
+        handles[f"with{mode_suffix.replace(' + ', ' the ')}"] = Line2D([], [], color="0.3", lw=1.6)
     fig.legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(0.99, 0.95),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout()

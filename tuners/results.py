@@ -253,7 +253,9 @@ def main(argv: list[str] | None = None) -> int:
     ad = sub.add_parser("adopt", help="record files a command wrote elsewhere (copied here)")
     ad.add_argument("name", help=", ".join(c.name for c in COMMANDS))
     ad.add_argument("paths", nargs="+", help="files or folders under results/")
-    args = parser.parse_args(argv)
+    from tuners.conventions import conform
+
+    args = conform(parser, "tuners.results").parse_args(argv)
     try:
         if args.what == "list":
             for c in COMMANDS:

@@ -58,16 +58,17 @@ static const uint8_t RESYNC_TICKS = 10;         // this far behind: skip ticks i
 static const uint16_t ADC_CONVERSION_US = 104;  // 13 ADC clocks at 125 kHz
 // How long handling a valid frame may take, its answer included (measured under simavr: a
 // SETPOINT ~400 cycles; a STATUS answer ~3,400, ~4,400 with the receive interrupts of a busy
-// line; a CONFIGURE with its derived coefficients and STATUS ~9,000, 560 us; a FRAMES_LOST
-// report ~1,000 more). A valid frame is let in only when the tick after it would start less than
-// LATE_ALLOWED_US late (well inside the 250 us that flag an overrun; a rejected frame costs
-// nothing): in practice a CONFIGURE waits for the tick when it arrives less than ~0.45 ms before
-// one, a frame with an answer when it arrives less than 0.15 ms before, a SETPOINT never. A
+// line; a CONFIGURE with its derived coefficients, the grasp mode's settings and STATUS ~9,800,
+// 610 us; a FRAMES_LOST report ~1,000 more). A valid frame is let in only when the tick after it
+// would start less than LATE_ALLOWED_US late (well inside the 250 us that flag an overrun; a
+// rejected frame costs nothing): in practice a CONFIGURE waits for the tick when it arrives less
+// than ~0.55 ms before one, a frame with an answer when it arrives less than 0.15 ms before, a
+// SETPOINT never. A
 // frame that waited for MAX_DEFERRED_TICKS ticks, or while the receive ring filled past
 // RX_DEFER_LIMIT bytes, goes in anyway: a late tick is flagged, a byte lost would lose a command.
 static const uint16_t SETPOINT_BUDGET_US = 120;
 static const uint16_t FRAME_BUDGET_US = 300;
-static const uint16_t CONFIGURE_BUDGET_US = 600;
+static const uint16_t CONFIGURE_BUDGET_US = 700;
 static const uint16_t LATE_ALLOWED_US = 150;
 static const uint8_t MAX_DEFERRED_TICKS = 2;
 static const uint8_t RX_DEFER_LIMIT = 96;

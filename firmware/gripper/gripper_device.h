@@ -27,7 +27,7 @@
 namespace gripper {
 
 const uint8_t FIRMWARE_VERSION_MAJOR = 0;
-const uint8_t FIRMWARE_VERSION_MINOR = 2;
+const uint8_t FIRMWARE_VERSION_MINOR = 3;
 const uint8_t FIRMWARE_VERSION_PATCH = 0;
 const uint32_t TICK_PERIOD_US = 1000; // control period (1 kHz)
 const uint16_t MAX_DECIMATION = 1000;
@@ -58,6 +58,12 @@ inline DeviceConfig default_config() {
     c.gains.kb = 1;
     c.gains.sign = 1;
     c.gains.d_on_meas = false;
+    c.gains.grasp = true; // a gripper's controller holds an object without stalling its servo
+    c.gains.squeeze = 1;
+    c.gains.push = 5;
+    c.gains.shortfall = 0.5f;
+    c.gains.still = 1;
+    c.gains.dwell = 100;
     c.jaw_min = JAW_CLOSED_DEG;
     c.jaw_max = JAW_OPEN_DEG;
     c.adc.adc_at_lo = 119; // a 0-5 V pot over 0-180 deg; closed loop needs a CONFIGURE anyway
@@ -74,6 +80,17 @@ inline DeviceConfig default_config() {
 }
 
 inline uint16_t abs_diff_u16(uint16_t a, uint16_t b) { return a > b ? a - b : b - a; }
+
+// The grasp mode's settings: CONFIGURE's when it is on, else the defaults (unused, but never
+// unchecked values).
+inline void set_grasp(PidGains<real_t>& g, const Configure& m) {
+    bool on = m.grasp != 0;
+    g.squeeze = on ? m.grasp_squeeze_deg : 1.0f;
+    g.push = on ? m.grasp_push_deg : 5.0f;
+    g.shortfall = on ? m.grasp_short_deg : 0.5f;
+    g.still = on ? m.grasp_still_deg : 1.0f;
+    g.dwell = on ? m.grasp_dwell_ticks : 100;
+}
 
 // Report `field` as the first offending ConfigureField; always false (a rejection).
 inline bool reject(uint16_t field, uint16_t* bad_field) {
@@ -134,6 +151,18 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     if (m.d_on_meas > 1) return reject(CF_D_ON_MEAS, bad_field);
     if (m.telemetry_batch < 1 || m.telemetry_batch > TELEMETRY_MAX_SAMPLES)
         return reject(CF_TELEMETRY_BATCH, bad_field);
+    if (m.grasp > 1) return reject(CF_GRASP, bad_field);
+    if (m.grasp) { // the grasp mode's settings, checked only when it is on
+        if (!finite_f(m.grasp_squeeze_deg) || !(m.grasp_squeeze_deg > 0.0f))
+            return reject(CF_GRASP_SQUEEZE_DEG, bad_field);
+        if (!finite_f(m.grasp_push_deg) || !(m.grasp_push_deg > m.grasp_squeeze_deg))
+            return reject(CF_GRASP_PUSH_DEG, bad_field);
+        if (!finite_f(m.grasp_short_deg) || !(m.grasp_short_deg > 0.0f))
+            return reject(CF_GRASP_SHORT_DEG, bad_field);
+        if (!finite_f(m.grasp_still_deg) || !(m.grasp_still_deg > 0.0f))
+            return reject(CF_GRASP_STILL_DEG, bad_field);
+        if (m.grasp_dwell_ticks < 1) return reject(CF_GRASP_DWELL_TICKS, bad_field);
+    }
     DeviceConfig c;
     c.gains.p = m.p;
     c.gains.i = m.i;
@@ -145,6 +174,8 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     c.gains.kb = m.kb;
     c.gains.sign = m.sign;
     c.gains.d_on_meas = m.d_on_meas != 0;
+    c.gains.grasp = m.grasp != 0;
+    set_grasp(c.gains, m);
     c.jaw_min = m.jaw_min;
     c.jaw_max = m.jaw_max;
     c.adc.adc_at_lo = m.adc_at_lo;
@@ -237,7 +268,7 @@ class Device {
         setpoint_ = JAW_OPEN_DEG;
         reference_ = JAW_OPEN_DEG;
         command_ = JAW_OPEN_DEG;
-        pid_state_[0] = pid_state_[1] = 0;
+        for (uint8_t k = 0; k < PID_STATE_SIZE; ++k) pid_state_[k] = 0;
         last_rx_us_ = now_us;
         now_us_ = now_us;
         echo_ = 0;
@@ -294,10 +325,12 @@ class Device {
             real_t v = 0;
             real_t u = pid_update<real_t>(reference_, y, cfg_.gains,
                                           real_t(TICK_PERIOD_US) / real_t(1000000), pid_state_, &v);
-            if (!is_finite(v) || !is_finite(pid_state_[0]) || !is_finite(pid_state_[1])) {
+            if (!is_finite(v) || !is_finite(pid_state_[PID_XI]) ||
+                !is_finite(pid_state_[PID_XF]) || !is_finite(pid_state_[PID_YF])) {
                 safe_stop(FAULT_NUMERIC);
             } else {
                 if (!same(u, v)) sample_flags |= SAMPLE_SATURATED;
+                if (pid_state_[PID_HELD] != real_t(0)) sample_flags |= SAMPLE_GRASP;
                 command_ = clamp_jaw<real_t>(u, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
             }
         }
@@ -477,7 +510,8 @@ class Device {
 
     void apply_config(const DeviceConfig& c) {
         bool structure_changed = c.gains.sign != cfg_.gains.sign ||
-                                 c.gains.d_on_meas != cfg_.gains.d_on_meas;
+                                 c.gains.d_on_meas != cfg_.gains.d_on_meas ||
+                                 c.gains.grasp != cfg_.gains.grasp;
         bool telemetry_changed = c.decimation != cfg_.decimation || c.batch != cfg_.batch;
         if (telemetry_changed) {
             flush_telemetry();
@@ -485,7 +519,8 @@ class Device {
         }
         cfg_ = c;
         configured_ = true;
-        // A new sign or derivative input changes what xf means: re-enter bumplessly.
+        // A new sign or derivative input changes what xf means, and the grasp mode switched on
+        // or off what the state holds: re-enter bumplessly.
         if (structure_changed && mode_ == MODE_CLOSED_LOOP) entry_pending_ = true;
     }
 
@@ -607,7 +642,7 @@ class Device {
     PendingSample pending_;
     DeviceConfig cfg_;
     PulseWindow window_;
-    real_t pid_state_[2];
+    real_t pid_state_[PID_STATE_SIZE];
     real_t setpoint_, reference_, command_;
     uint32_t device_id_;
     uint32_t last_rx_us_, now_us_, echo_;

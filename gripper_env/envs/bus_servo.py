@@ -27,12 +27,8 @@ from gripper_env.sim import bus_servo as core
 __all__ = ["TRIP_NAMES", "GripperBusServoEnv"]
 
 _NAME = "GripperBusServo-v0"
-#: The servo's trip codes (state column ``SB_TRIP``) by name.
-TRIP_NAMES = {
-    core.TRIP_NONE: "none",
-    core.TRIP_OVERLOAD: "overload",
-    core.TRIP_OVERHEAT: "overheat",
-}
+#: The servo's trip codes (the run's ``trip``: the first protection that fired) by name.
+TRIP_NAMES = core.TRIP_NAMES
 
 
 class GripperBusServoEnv(gym.Env[np.ndarray, np.ndarray]):

@@ -29,9 +29,11 @@ from gripper_env.envs.bus_settings import (
 )
 from gripper_env.envs.servo_hardware import MissedDeadlineWarning, SettleWarning
 from gripper_env.envs.spaces import OBS_BOUND
-from gripper_env.hardware.bus.gripper import BusGripper
+from gripper_env.hardware.bus.gripper import BusGripper, Restored
 from gripper_env.hardware.bus.link import BusError
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import ConfigError, validate
+from gripper_env.model.bus_calibration import JawCalibration, read_jaw_file
+from gripper_env.model.bus_servo import BusServoModel
 
 __all__ = ["GripperBusServoHardwareEnv"]
 
@@ -86,13 +88,17 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Starting State
 
-    ``reset()`` opens the port on first use (or after a bus error), clears a latched trip (a
-    Dynamixel is rebooted; an STS clears it when its torque goes off), writes the registers and
-    reads them back, turns the torque on, sends the reference's first value as the goal and
-    waits until the jaw rests within ``settle_tol_deg`` of it (or ``settle_timeout_s`` passed:
-    then a :class:`~gripper_env.envs.servo_hardware.SettleWarning` and ``info["settled"] =
-    False``). The random reference is drawn from the generator of ``reset(seed=...)``; the
-    measurements are not reproducible (the spec is registered ``nondeterministic``).
+    ``reset()`` opens the port on first use (or after a bus error): the servo of ``servo_id``
+    must answer (a broadcast ping lists the others, nothing is sent to them; a missing one is an
+    error that lists them), its calibration is checked against ``jaw`` and every register the
+    environment writes is snapshot. It clears a latched trip (a Dynamixel is rebooted; an STS
+    clears it when its torque goes off), writes the registers (an STS3215's with ``Lock`` = 1:
+    not saved to its flash) and reads them back, turns the torque on, sends the reference's
+    first value as the goal and waits until the jaw rests within ``settle_tol_deg`` of it (or
+    ``settle_timeout_s`` passed: then a
+    :class:`~gripper_env.envs.servo_hardware.SettleWarning` and ``info["settled"] = False``).
+    The random reference is drawn from the generator of ``reset(seed=...)``; the measurements
+    are not reproducible (the spec is registered ``nondeterministic``).
 
     ## Episode End
 
@@ -105,8 +111,10 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
     the torque turned off first (as far as the servo still listens); the next ``reset()``
     starts afresh.
 
-    ``close()`` (also on leaving a ``with`` block) turns the torque off (the jaw goes limp) and
-    closes the port; so does an exception or a ``KeyboardInterrupt`` in ``reset`` or ``step``.
+    ``close()`` (also on leaving a ``with`` block) restores every register the environment wrote
+    as it was found (the torque too: off if it was off) and reads them back
+    (``env.unwrapped.restored``), then closes the port; an exception or a ``KeyboardInterrupt`` in
+    ``reset`` or ``step`` turns the torque off first.
 
     ## Arguments
 
@@ -119,9 +127,11 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         env = gym.make(
             "gripper_env:gripper_env/GripperBusServoHardware-v0",
             port=bus.path,             # required: "/dev/ttyUSB0", "COM3", or a virtual bus
+            servo_id=1,                # required: the servo's ID on the bus (never guessed)
+            jaw={"closed_ticks": 1707, "open_ticks": 2958},  # the jaw's ends (ticks), or the
+                                       # file of python -m tuners.bus.calibrate
             model="sts3215",           # as GripperBusServo-v0 (family, model file, or model)
             registers=None,            # as GripperBusServo-v0 (factory, a name, a file...)
-            servo_id=1,                # the servo's ID on the bus
             reference="random",        # as GripperBusServo-v0
             control_period_s=0.020,    # agent step (s), a whole number of 1 ms ticks
         )
@@ -130,11 +140,17 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
             obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     ```
 
-    Also ``episode_s``, ``hold_s``, ``residual``, ``residual_deg``, ``overshoot_weight``,
-    ``chatter_weight`` (as ``GripperBusServo-v0``), ``baudrate`` (default the family's factory
-    rate), ``reads_per_period`` (4), ``settle_tol_deg`` (3), ``settle_timeout_s`` (3),
-    ``warn_every`` (50). The port is not touched before the first ``reset()``; a bad argument
-    fails at construction with a message that names it.
+    ``jaw`` is the owner's jaw calibration (a file of ``python -m tuners.bus.calibrate``, a
+    :class:`~gripper_env.model.bus_calibration.JawCalibration`, or a dict of ``closed_ticks`` and
+    ``open_ticks``, the servo's own calibration then read at ``reset()``); it may be left out
+    only when the model (an identified model file, a registers file's) carries one. The goals'
+    range is the calibrated jaw's, inside the servo's own position limits: the shipped models'
+    angles are never a real servo's. Also ``episode_s``, ``hold_s``, ``residual``,
+    ``residual_deg``, ``overshoot_weight``, ``chatter_weight`` (as ``GripperBusServo-v0``),
+    ``baudrate`` (default the family's factory rate), ``reads_per_period`` (4),
+    ``settle_tol_deg`` (3), ``settle_timeout_s`` (3), ``warn_every`` (50). The port is not
+    touched before the first ``reset()``; a bad argument fails at construction with a message
+    that names it.
 
     ## Version History
 
@@ -148,9 +164,10 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         self,
         port: str | os.PathLike[str] | None = None,
         *,
+        servo_id: int | None = None,
+        jaw: Any = None,
         model: Any = None,
         registers: Any = None,
-        servo_id: int = 1,
         baudrate: int | None = None,
         reference: Any = "random",
         episode_s: float = 10.0,
@@ -172,20 +189,28 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"{_NAME}: argument 'render_mode': no rendering on hardware (a plot would cost "
                 f"the real-time loop its deadlines), got {render_mode!r}"
             )
-        self.settings = s = parse_bus_settings(
-            _NAME,
-            model=model,
-            registers=registers,
-            control_period_s=control_period_s,
-            reference=reference,
-            episode_s=episode_s,
-            hold_s=hold_s,
-            residual=residual,
-            residual_deg=residual_deg,
-            overshoot_weight=overshoot_weight,
-            chatter_weight=chatter_weight,
-        )
+        if servo_id is None:
+            raise ConfigError(
+                f"{_NAME}: argument 'servo_id' is required: the gripper servo's ID on the bus "
+                "(never guessed: an SO-101's ID 1 is the shoulder, with the gripper's model)"
+            )
         _check_integer("servo_id", servo_id, 0, 252)
+        episode = {
+            "registers": registers,
+            "control_period_s": control_period_s,
+            "reference": reference,
+            "episode_s": episode_s,
+            "hold_s": hold_s,
+            "residual": residual,
+            "residual_deg": residual_deg,
+            "overshoot_weight": overshoot_weight,
+            "chatter_weight": chatter_weight,
+        }
+        first = parse_bus_settings(_NAME, model=model, **episode)
+        calibration = _parse_jaw(jaw, first.model, int(servo_id))
+        self.settings = s = parse_bus_settings(
+            _NAME, model=first.model.calibrated(calibration), **episode
+        )
         if baudrate is not None:
             _check_integer("baudrate", baudrate, 1, None)
         _check_integer("reads_per_period", reads_per_period, 1, s.n_sub)
@@ -209,6 +234,10 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         # the ticks of the period each read stands for: read j ends at tick edges[j]
         self._edges = np.round(np.linspace(0, s.n_sub, self.reads_per_period + 1)).astype(int)
         self.gripper: BusGripper | None = None
+        self.calibration = calibration
+        #: What the last close() read back (a :class:`~gripper_env.hardware.bus.gripper.
+        #: Restored`), None before.
+        self.restored: Restored | None = None
         self._stale = True  # the next reset writes the registers again
         self._done = True
         self._obs = np.zeros(6, dtype=np.float32)
@@ -247,13 +276,17 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
             raise
 
     def close(self) -> None:
-        """Turn the torque off (the jaw goes limp) and close the port (idempotent)."""
+        """Restore every register the environment wrote as it was found, the torque too (read
+        back into :attr:`restored`), and close the port (idempotent)."""
         self._done = True
         gripper, self.gripper = self.gripper, None
         self._stale = True
         if gripper is not None:
             try:
-                gripper.relax()
+                self.restored = gripper.restore()
+                if not self.restored.ok:
+                    warnings.warn(f"{_NAME}: {self.restored.describe()}", RuntimeWarning,
+                                  stacklevel=2)  # fmt: skip
             finally:
                 gripper.close()
 
@@ -263,7 +296,12 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         gripper = self.gripper
         if gripper is None:
             gripper = self.gripper = BusGripper(
-                self.port, self.settings.model, self.servo_id, baudrate=self.baudrate
+                self.port,
+                self.settings.model,
+                self.servo_id,
+                baudrate=self.baudrate,
+                calibration=self.calibration,
+                raise_on_alert=False,  # an alert ends the episode (step), not the session
             )
             self._stale = True
         return gripper
@@ -406,6 +444,41 @@ class GripperBusServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
                     + ("is off" if relaxed else "could not be turned off (no reply)")
                     + "; reset() starts again, close() turns the torque off and closes the port"
                 )
+
+
+def _parse_jaw(jaw: Any, model: BusServoModel, servo_id: int) -> JawCalibration:
+    """The jaw calibration: ``jaw`` (a file, a calibration, or a dict of ``closed_ticks`` and
+    ``open_ticks``), else the model's own."""
+    if jaw is None:
+        if model.calibration is None:
+            raise ConfigError(
+                f"{_NAME}: argument 'jaw' is required: the jaw's closed and open positions on "
+                "this servo (a file of python -m tuners.bus.calibrate, or {'closed_ticks': N, "
+                "'open_ticks': N}); the shipped model's angles are the virtual servo's"
+            )
+        cal = model.calibration
+    elif isinstance(jaw, JawCalibration):
+        cal = jaw
+    elif isinstance(jaw, dict):
+        data = {"family": model.family, "servo_id": servo_id, "source": "given", **jaw}
+        cal = validate(JawCalibration, data, f"{_NAME}: argument 'jaw'")
+    elif isinstance(jaw, str | os.PathLike):
+        try:
+            cal = read_jaw_file(jaw)
+        except ConfigError as exc:
+            raise ConfigError(f"{_NAME}: argument 'jaw': {exc}") from None
+    else:
+        raise ConfigError(
+            f"{_NAME}: argument 'jaw': expected a calibration file, a JawCalibration or a dict "
+            f"of closed_ticks and open_ticks, got {jaw!r}"
+        )
+    if cal.family != model.family:
+        raise ConfigError(f"{_NAME}: argument 'jaw': a calibration of a {cal.family}, the model "
+                          f"is a {model.family}")  # fmt: skip
+    if cal.servo_id is not None and cal.servo_id != servo_id:
+        raise ConfigError(f"{_NAME}: argument 'jaw': taken on servo {cal.servo_id}, not "
+                          f"servo_id {servo_id}")  # fmt: skip
+    return cal
 
 
 def _check_port(port: Any) -> str:

@@ -31,10 +31,9 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
-from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NONE, BusRun, simulate_bus
+from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NAMES, TRIP_NONE, BusRun, simulate_bus
 
 __all__ = [
     "GM_MIN_DB",
@@ -168,7 +167,7 @@ def hold_metrics(model: BusServoModel, run: BusRun, row: int = 0) -> HoldMetrics
     t_grasp = float(reached[0] * DT) if reached.size else math.nan
     trips = np.flatnonzero(run.trip[row] > TRIP_NONE)
     trip_at = float(trips[0] * DT - _GRASP_AT_S) if trips.size else None
-    kind = {0: "none", 1: "overload", 2: "overheat"}[int(run.trip[row, -1])]
+    kind = TRIP_NAMES[int(run.trip[row, -1])]
     required = HOLD_FORCE_FRAC * stall
     held = bool(trip_at is None and window.size and np.min(window) >= required)
     held = held and t_grasp <= GRASP_MAX_S
@@ -210,12 +209,20 @@ def _lag(model: BusServoModel) -> int:
 
 @lru_cache(maxsize=256)
 def _plant_z(
-    tau_m_s: float, omega0_deg_s: float, k_contact: float, deg_per_tick: float
+    tau_m_s: float,
+    omega0_deg_s: float,
+    k_contact: float,
+    deg_per_tick: float,
+    current: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The motor and jaw's ZOH discretisation, duty to encoder ticks (numerator, denominator in
-    ``z``); cached, as a search judges many register sets on the same few models."""
+    """The motor and jaw's ZOH discretisation, duty (or, with ``current``, the torque a current
+    loop holds: no back-EMF damping) to encoder ticks (numerator, denominator in ``z``); cached,
+    as a search judges many register sets on the same few models."""
+    from scipy.signal import cont2discrete  # scipy.signal loads in 1-5 s: only when used
+
+    damping = 0.0 if current else 1 / omega0_deg_s
     num, den = cont2discrete(
-        ([1.0], [tau_m_s / omega0_deg_s, 1 / omega0_deg_s, k_contact]), DT, method="zoh"
+        ([1.0], [tau_m_s / omega0_deg_s, damping, k_contact]), DT, method="zoh"
     )[:2]
     gn, gd = np.atleast_1d(np.squeeze(num)) / deg_per_tick, np.atleast_1d(den)
     gn.setflags(write=False)
@@ -232,11 +239,16 @@ def _open_loop(
     ``G`` is the exact ZOH discretisation of the motor and jaw, ``tau_m/w0 th'' + th'/w0 + k th
     = u`` (fractions of stall, deg; ``k`` the object's spring when pressed on it); ``C`` the
     register PID, ``kp + kd (1 - 1/z) + ki T / (1 - 1/z)``, over ``z (z - 1)`` with an integrator
-    and over ``z`` without (no cancelled pole at ``z = 1``).
+    and over ``z`` without (no cancelled pole at ``z = 1``). In current-based position mode the
+    loop's output is a current that an (ideal, fast) current loop holds: ``u`` is the torque,
+    the back-EMF term ``th'/w0`` drops out, and ``C`` scales by the torque per unit of output
+    (``duty_full x current_unit_a / stall_current_a``).
     """
     ph, sc = model.physics, model.scale
-    gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k_contact, model.deg_per_tick)
-    kp, kd, ki = sc.kp * regs.p, sc.kd * regs.d, sc.ki * regs.i * DT
+    cur = model.current_mode
+    gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k_contact, model.deg_per_tick, cur)
+    g = sc.duty_full * sc.current_unit_a / ph.stall_current_a if cur else 1.0
+    kp, kd, ki = g * sc.kp * regs.p, g * sc.kd * regs.d, g * sc.ki * regs.i * DT
     if ki > 0.0:
         p_part = kp * np.array([1.0, -1.0, 0.0])
         d_part = kd * np.array([1.0, -2.0, 1.0])
@@ -268,6 +280,10 @@ def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
         # gain margin: where the phase crosses -180 deg (mod 360)
         cross = np.flatnonzero(np.diff(np.floor((ang + math.pi) / (2 * math.pi))) != 0)
         for i in cross:
+            if model.current_mode and mag[i] > 1.0:
+                # a double integrator's phase starts at -180 deg: grazing it at low frequency,
+                # where the gain is large, is no gain margin (lowering the gain keeps it stable)
+                continue
             worst_gm = min(worst_gm, -20 * math.log10(max(mag[i], 1e-300)))
         up = np.flatnonzero((mag[:-1] >= 1.0) & (mag[1:] < 1.0))
         for i in up:

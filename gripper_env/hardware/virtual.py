@@ -24,9 +24,10 @@ not trip the watchdog but a silent one still does. Ticks that start more than
 250 us late in device time are flagged OVERRUN, as on the board.
 
 :class:`VirtualDevice` is usable in-process (tests, notebooks) with fault-injection hooks:
-garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, host frames lost on
-the way to the board, a reset mid-run and a vanishing port. Its command line is
-:mod:`tuners.rig.virtual`.
+garbage bytes, dropped, corrupted or truncated frames, a silent transmit line, answers delivered
+late (a board slower than the host waits), the board's thread left waiting by a busy machine,
+host frames lost on the way to the board, a reset mid-run and a vanishing port. Its command line
+is :mod:`tuners.rig.virtual`.
 
 Examples
 --------
@@ -37,6 +38,7 @@ Examples
 
 from __future__ import annotations
 
+import collections
 import os
 import select
 import threading
@@ -57,6 +59,10 @@ __all__ = ["VirtualDevice"]
 _OUT_HIGH_WATER = 4096  # bytes waiting for the pty before the UART stops draining the queue
 _MAX_TICKS_PER_PASS = 20  # the loop looks at the host's bytes at least every 20 ticks
 _MAX_AHEAD_US = 200_000  # at speed 0, device time runs at most this far past the last host frame
+#: At a real-time speed, a board thread that the machine left waiting (a busy machine) runs at
+#: most this much device time late, in a burst, to catch up; beyond it, device time slips
+#: behind the wall clock instead (:meth:`VirtualDevice.due_ticks`).
+MAX_CATCH_UP_S = 0.1
 
 
 class VirtualDevice(PtyDevice):
@@ -126,12 +132,19 @@ class VirtualDevice(PtyDevice):
             self.board = EmulatedBoard(self.rig, image=image, harness=harness, device_id=device_id)
         self.firmware = self.board.firmware
         self.ticks = 0
+        #: Wall time (s) by which device time fell behind the wall clock, the board's thread
+        #: having waited longer than :data:`MAX_CATCH_UP_S` for the machine (:meth:`due_ticks`).
+        self.slipped_s = 0.0
+        self._t0 = time.perf_counter()
+        self._stall_s = 0.0
         self.lock = threading.Lock()
         self._pty = PtyEndpoint("virtual device")
         self._out = bytearray()
         self._frame = bytearray()  # a device frame being assembled while faults are armed
         self._drop = self._corrupt = self._truncate = 0
         self._silent = False
+        self._delays: collections.deque[float] = collections.deque()
+        self._late: collections.deque[tuple[float, bytes]] = collections.deque()
         self._paced_since = 0.0
         self._garbage = bytearray()
         self._reset_before: int | None = None
@@ -200,6 +213,19 @@ class VirtualDevice(PtyDevice):
         with self.lock:
             self._silent = silent
 
+    def stall(self, seconds: float) -> None:
+        """Leave the board's thread waiting ``seconds`` of wall time, once, as a busy machine
+        does to any process (the host's bytes wait in the pty meanwhile)."""
+        with self.lock:
+            self._stall_s = float(seconds)
+
+    def delay_frames(self, *seconds: float) -> None:
+        """Deliver the board's next frames late, the k-th by ``seconds[k]`` of wall time (the
+        line stays first in, first out: a frame never overtakes a delayed one). A board or a
+        USB bridge that answers after the host's timeout, as on a busy machine."""
+        with self.lock:
+            self._delays.extend(max(0.0, float(s)) for s in seconds)
+
     def reset(self) -> None:
         """Reset the board mid-run: the firmware restarts (no session, servo limp)."""
         with self.lock:
@@ -231,10 +257,13 @@ class VirtualDevice(PtyDevice):
         """Run the board until stopped (the thread's body; see :class:`PtyEndpoint`)."""
         board = self.board
         ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
-        t0 = time.perf_counter()
+        self._t0 = time.perf_counter()
         while not self._pty.stopping.is_set():
+            if self._stall_s:
+                stall, self._stall_s = self._stall_s, 0.0
+                time.sleep(stall)
             if ticks_per_s > 0:
-                behind = (time.perf_counter() - t0) * ticks_per_s - self.ticks
+                behind = self.due_ticks(time.perf_counter())
                 if behind < 1.0:
                     wait = (1.0 - behind) / ticks_per_s
                     self._read_input(master, wake, min(wait, 0.05))
@@ -266,13 +295,38 @@ class VirtualDevice(PtyDevice):
                         self._emit(data)
             self._write_output(master)
 
+    def due_ticks(self, now_s: float) -> float:
+        """Ticks the board is behind the wall clock at ``now_s`` (``time.perf_counter``), at a
+        real-time speed: at most :data:`MAX_CATCH_UP_S` of them.
+
+        A real board runs its ticks when they are due whatever the host's machine does. This one
+        runs on that machine: when the machine leaves its thread waiting, it runs the ticks it
+        missed in a burst, faster than real time, and a burst of seconds would squeeze the
+        host's replies out of seconds of device time: the board's watchdog fired on a host that
+        was keeping up (``tuners.rig.record`` on a busy machine). So a longer wait makes device
+        time slip behind the wall clock (:attr:`slipped_s`) rather than race to catch up.
+        """
+        ticks_per_s = self.speed * 1e6 / TICK_PERIOD_US
+        behind = (now_s - self._t0) * ticks_per_s - self.ticks
+        most = MAX_CATCH_UP_S * ticks_per_s
+        if behind > most:
+            slip = (behind - most) / ticks_per_s
+            self._t0 += slip
+            self.slipped_s += slip
+            behind = most
+        return behind
+
     def _read_input(self, master: int, wake: int, timeout_s: float) -> None:
+        # A board whose line is full takes nothing more: the host's bytes wait in the pty, and
+        # its writes block once that is full too (flow control, as a USB bridge does), instead
+        # of the emulated line overflowing; the ticks drain it meanwhile.
+        room = self.board.rx_room() if hasattr(self.board, "rx_room") else 4096
         # the wake pipe ends the wait when stop() or vanish() is called
-        readable, _, _ = select.select([master, wake], [], [], timeout_s)
+        readable, _, _ = select.select([master, wake] if room > 0 else [wake], [], [], timeout_s)
         if master not in readable:
             return
         try:
-            data = os.read(master, 4096)
+            data = os.read(master, min(4096, room))
         except BlockingIOError:
             return
         except OSError:  # EIO: no process holds the slave side (cannot happen while we do)
@@ -325,6 +379,14 @@ class VirtualDevice(PtyDevice):
         """Pass bytes the UART sent through the armed faults to the line."""
         if self._silent:
             return
+        if self._delays or self._late:  # delayed frames, and whatever follows them
+            release = time.perf_counter() + (self._delays[0] if self._delays else 0.0)
+            if self._late:
+                release = max(release, self._late[-1][0])
+            for _ in range(min(data.count(0), len(self._delays))):
+                self._delays.popleft()
+            self._late.append((release, bytes(data)))
+            return
         if self._garbage:
             self._out += self._garbage
             self._garbage.clear()
@@ -362,6 +424,9 @@ class VirtualDevice(PtyDevice):
                 if not self._silent:
                     self._out += self._garbage
                 self._garbage.clear()
+            now = time.perf_counter()
+            while self._late and self._late[0][0] <= now:
+                self._out += self._late.popleft()[1]
             self.bytes_sent += write_pending(master, self._out)
 
     # ---- introspection for tests ---------------------------------------------------------------

@@ -5,10 +5,12 @@ ship with the project live in the top-level ``configs/`` folder of the source tr
 the package ``gripper_env.configs`` and read through :mod:`importlib.resources`, so a wheel
 finds them wherever it is installed (:data:`SHIPPED`).
 
-A name (``"test2"``, ``"mine"``) is looked up first in the folder the ``GRIPPER_CONFIG_DIR``
-environment variable names, if it is set (same layout: ``plants/``, ``disturbances/``,
-``tuners/``, ``objective.yaml``, ``benchmark.yaml``; any of them may be missing), then in the
-shipped configurations. A path (``my/plant.yaml``) is read as it is. Every file is validated
+A name (``"test2"``, ``"mine"``) is looked up first in the user's folder: the one the
+``GRIPPER_CONFIG_DIR`` environment variable names, if it is set, else ``runs/configs`` of the
+working folder (:data:`USER_CONFIG_DIR`, where identification saves a plant file and a preset by
+default); same layout: ``plants/``, ``disturbances/``, ``tuners/``, ``objective.yaml``,
+``benchmark.yaml``, any of them may be missing. Then in the shipped configurations. A path
+(``my/plant.yaml``) is read as it is. Every file is validated
 once, on load, by a pydantic model; a problem is reported as a :class:`ConfigError` that names
 the file and the offending key. Hostile files are refused before they cost time or memory: a
 file larger than :data:`MAX_CONFIG_BYTES` before it is read, one nested deeper than
@@ -34,12 +36,14 @@ __all__ = [
     "MAX_CONFIG_NODES",
     "MAX_DATA_BYTES",
     "SHIPPED",
+    "USER_CONFIG_DIR",
     "ConfigError",
     "available",
     "config_file",
     "find_config",
     "load_yaml",
     "read_bounded",
+    "user_config_dir",
     "validate",
 ]
 
@@ -59,6 +63,10 @@ SHIPPED: Traversable = _shipped()
 CONFIG_DIR: Traversable = (
     Path(os.environ["GRIPPER_CONFIG_DIR"]) if os.environ.get("GRIPPER_CONFIG_DIR") else SHIPPED
 )
+#: The user's own configurations when ``GRIPPER_CONFIG_DIR`` is not set: ``runs/configs`` of the
+#: working folder, beside the runs (not committed), searched before the shipped files. Where
+#: ``python -m tuners.sysid greybox --save-plant`` and ``--save-disturbance`` write by default.
+USER_CONFIG_DIR = Path("runs") / "configs"
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -163,6 +171,10 @@ def load_yaml(path: str | os.PathLike[str] | Traversable) -> dict[str, Any]:
     """
     p = path if isinstance(path, Traversable) else Path(path)
     if not p.is_file():
+        if p.is_dir():
+            raise ConfigError(f"{p}: is a folder; give a configuration (YAML) file")
+        if isinstance(p, Path) and p.exists():
+            raise ConfigError(f"{p}: not a regular file; give a configuration (YAML) file")
         raise ConfigError(f"{p}: no such configuration file")
     raw = read_bounded(p, MAX_CONFIG_BYTES, "configuration file")
     try:
@@ -206,9 +218,21 @@ def validate(model: type[M], data: dict[str, Any], source: str) -> M:
         raise ConfigError(f"{source}: " + "; ".join(problems)) from None
 
 
+def user_config_dir() -> Path:
+    """Where a user's own configurations go: ``GRIPPER_CONFIG_DIR`` if set, else
+    :data:`USER_CONFIG_DIR` (``runs/configs`` of the working folder); searched for names before
+    the shipped files."""
+    if CONFIG_DIR != SHIPPED and isinstance(CONFIG_DIR, Path):
+        return CONFIG_DIR
+    return USER_CONFIG_DIR
+
+
 def _roots() -> list[Traversable]:
-    """Folders searched for a name, in order (read at call time: tests may move CONFIG_DIR)."""
-    return [CONFIG_DIR] if CONFIG_DIR == SHIPPED else [CONFIG_DIR, SHIPPED]
+    """Folders searched for a name, in order (read at call time: tests may move CONFIG_DIR):
+    ``GRIPPER_CONFIG_DIR`` if set, else ``runs/configs`` if it exists; then the shipped files."""
+    if CONFIG_DIR != SHIPPED:
+        return [CONFIG_DIR, SHIPPED]
+    return [USER_CONFIG_DIR, SHIPPED] if USER_CONFIG_DIR.is_dir() else [SHIPPED]
 
 
 def config_file(*parts: str) -> Traversable:
@@ -244,9 +268,13 @@ def find_config(kind: str, name_or_path: str | os.PathLike[str]) -> Traversable:
     """
     text = os.fspath(name_or_path)
     candidate = Path(text)
+    if "\x00" in text:
+        raise ConfigError(f"{kind[:-1]} {text!r}: a name or path holds no NUL character")
     if candidate.suffix in (".yaml", ".yml") or os.sep in text or "/" in text:
         if candidate.is_file():
             return candidate
+        if candidate.is_dir():
+            raise ConfigError(f"{kind[:-1]} file {text!r} is a folder; give a YAML file in it")
         raise ConfigError(f"{kind[:-1]} file {text!r} does not exist")
     for root in _roots():
         named = root / kind / f"{text}.yaml"

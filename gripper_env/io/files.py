@@ -35,7 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,23 +45,28 @@ import numpy as np
 from gripper_env.io.config import MAX_DATA_BYTES
 
 __all__ = [
+    "MAX_NAME_CHARS",
     "PROVENANCE_FORMAT",
     "VOLATILE_KEYS",
     "ProvenanceRun",
     "collect_provenance",
     "git_commit",
     "json_ready",
+    "path_in",
     "provenance_path",
     "read_format_json",
     "record_provenance",
     "run_facts",
+    "safe_name",
     "save_figure",
     "split_volatile",
     "write_atomic",
     "write_csv",
+    "write_group",
     "write_json",
     "write_provenance",
     "write_result_json",
+    "write_together",
 ]
 
 
@@ -84,8 +89,101 @@ def json_ready(obj: Any) -> Any:
     return obj
 
 
+#: The process's file-creation mask, read once at import (``os.umask`` can only be read by
+#: setting it, which is not thread-safe later): files are created ``0o666 & ~umask``, as
+#: ``open()`` would, not ``0o600`` as :func:`tempfile.mkstemp` makes them.
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+#: Characters a name from a file may not hold when it becomes part of a path: separators,
+#: NUL and the other control characters.
+_UNSAFE = frozenset("/\\" + "".join(map(chr, range(32))) + "\x7f")
+#: Longest name accepted as one path component (file systems allow 255 bytes; a suffix is added).
+MAX_NAME_CHARS = 100
+
+
+def safe_name(name: object, what: str = "name") -> str:
+    """``name`` if it can be one component of a path, else a :class:`ValueError` naming it.
+
+    The one rule for names read from files or typed by a user (a plant's ``name:``, a gains
+    file's ``tuner``, ``--name``) before they become part of a path: a non-empty string of at
+    most :data:`MAX_NAME_CHARS` characters, with no ``/``, ``\\``, NUL or other control
+    character, not ``.`` or ``..``, not starting with ``-`` (it would read as an option) or
+    ``~``. So a name can never climb out of the folder it is joined to, or be absolute.
+
+    Parameters
+    ----------
+    name : object
+        The name.
+    what : str
+        What it names, for the message (``"plant name"``).
+
+    Raises
+    ------
+    ValueError
+        One line that quotes the name and says what is wrong with it.
+    """
+    text = name if isinstance(name, str) else None
+    why = None
+    if text is None:
+        why = f"must be a string, got {type(name).__name__}"
+    elif not text or not text.strip():
+        why = "is empty"
+    elif len(text) > MAX_NAME_CHARS:
+        why = f"is longer than {MAX_NAME_CHARS} characters"
+    elif text in (".", ".."):
+        why = "is not a name"
+    elif any(c in _UNSAFE for c in text):
+        why = "holds a path separator or a control character"
+    elif text[0] in "-~":
+        why = f"starts with {text[0]!r}"
+    if why is not None:
+        shown = repr(name)[: MAX_NAME_CHARS + 20]
+        raise ValueError(
+            f"{what} {shown} {why}: a name becomes a file or folder name, so it must be one "
+            "plain path component (letters, digits, '-', '_', '.', '+')"
+        )
+    assert text is not None
+    return text
+
+
+def path_in(folder: str | os.PathLike[str], *names: str, what: str = "name") -> Path:
+    """``folder/names[0]/names[1]/...``, every name checked by :func:`safe_name` first."""
+    return Path(folder).joinpath(*(safe_name(n, what) for n in names))
+
+
+def _mode_for(p: Path) -> int:
+    """Permission bits of a new file at ``p``: those of the file it replaces, else the umask's."""
+    try:
+        return p.stat().st_mode & 0o7777
+    except OSError:
+        return 0o666 & ~_UMASK
+
+
+def _stage(p: Path, data: bytes) -> str:
+    """Write ``data`` to a temporary file beside ``p``; its path."""
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), _mode_for(p))
+            f.write(data)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def _bytes(data: str | bytes) -> bytes:
+    return data if isinstance(data, bytes) else data.encode("utf-8")
+
+
 def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``.
+
+    The file is written whole or not at all: on a full disk (or any error) the old file, or
+    none, stays, and no temporary file is left. A new file gets the permissions ``open()`` would
+    give it (``0o666`` less the umask); a replaced one keeps its own.
 
     Parameters
     ----------
@@ -99,24 +197,88 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes) -> Path:
     Path
         ``path``.
     """
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    run = _RUN.get()
-    if run is not None:
-        run.wrote(p, data if isinstance(data, bytes) else data.encode("utf-8"))
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    return write_together({path: data})[0]
+
+
+def write_together(files: Mapping[str | os.PathLike[str], str | bytes]) -> list[Path]:
+    """Write several files all or none: each to a temporary file first, then all renamed.
+
+    A renaming needs no space, so a full disk (or a folder that cannot be written) fails while
+    the temporary files are written, before any destination changes: a gains file is never left
+    without its plot, nor a plot without its gains file. Text is written as UTF-8.
+
+    Parameters
+    ----------
+    files : mapping
+        ``{path: str or bytes}``, written in this order.
+
+    Returns
+    -------
+    list of Path
+        The paths, in order.
+    """
+    items = [(Path(path), _bytes(data)) for path, data in dict(files).items()]
+    group = _GROUP.get()
+    staged: list[tuple[str, Path, bytes]] = []
     try:
-        if isinstance(data, bytes):
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-        else:
-            with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-                f.write(data)
-        os.replace(tmp, p)
+        for p, data in items:
+            staged.append((_stage(p, data), p, data))
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        _discard(staged)
         raise
-    return p
+    if group is not None:  # renamed when the group's block ends
+        group.extend(staged)
+    else:
+        _commit(staged)
+    return [p for p, _ in items]
+
+
+def _discard(staged: list[tuple[str, Path, bytes]]) -> None:
+    for tmp, _, _ in staged:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _commit(staged: list[tuple[str, Path, bytes]]) -> None:
+    run = _RUN.get()
+    for i, (tmp, p, data) in enumerate(staged):
+        if run is not None:
+            run.wrote(p, data)
+        try:
+            os.replace(tmp, p)
+        except BaseException:
+            _discard(staged[i:])
+            raise
+
+
+_GROUP: contextvars.ContextVar[list[tuple[str, Path, bytes]] | None] = contextvars.ContextVar(
+    "write_group", default=None
+)
+
+
+@contextlib.contextmanager
+def write_group() -> Iterator[None]:
+    """Every file written in the block (:func:`write_atomic` and what calls it) appears when the
+    block ends, all together, or none does: a result and its plot, a report and its figures.
+
+    Inside the block the files are written beside their destinations under temporary names;
+    when the block ends without an exception they are renamed (renaming needs no space), and
+    on an exception (a full disk, Ctrl-C) they are deleted and every destination keeps what it
+    held. A file written in the block is therefore not readable at its path until the block
+    ends. Groups nest: an inner group's files wait for the outer one.
+    """
+    if _GROUP.get() is not None:
+        yield
+        return
+    staged: list[tuple[str, Path, bytes]] = []
+    token = _GROUP.set(staged)
+    try:
+        yield
+    except BaseException:
+        _discard(staged)
+        raise
+    finally:
+        _GROUP.reset(token)
+    _commit(staged)
 
 
 def write_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -> Path:
@@ -405,9 +567,15 @@ def read_format_json(
     """
     p = Path(path)
     try:
+        if p.is_dir():
+            raise error(f"{p}: is a folder; give a {what}")
         if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:
             raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
-        content = json.loads(p.read_text())
+        with p.open("rb") as f:  # a device or a pipe has no size: read at most the limit
+            raw = f.read(MAX_DATA_BYTES + 1)
+        if len(raw) > MAX_DATA_BYTES:
+            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
+        content = json.loads(raw.decode("utf-8"))
     except OSError as exc:
         raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None
     except json.JSONDecodeError as exc:

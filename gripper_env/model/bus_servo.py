@@ -15,7 +15,9 @@ holds what the simulation core (:mod:`gripper_env.sim.bus_servo`) needs to run o
 * :class:`Protection`: the overload timer and the thermal cut-out;
 * :class:`Jaw`: the stops, the object, the finger lever that turns torque into grip force;
 * :class:`BusServoModel`: all of them, loaded from ``configs/bus_servos/<family>.yaml``
-  (:func:`load_bus_servo`) or from an identified model file.
+  (:func:`load_bus_servo`) or from an identified model file; with a real servo's jaw
+  (:meth:`BusServoModel.calibrated`, a :class:`~gripper_env.model.bus_calibration.JawCalibration`
+  of ``python -m tuners.bus.calibrate``) in place of the shipped, simulated one.
 
 The controller (per 1 ms tick, register units)::
 
@@ -31,6 +33,7 @@ static and Coulomb friction, the stops and the object (a stiff spring).
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, Literal
@@ -45,9 +48,11 @@ from gripper_env.io.config import (
     read_bounded,
     validate,
 )
+from gripper_env.model.bus_calibration import JawCalibration
 
 __all__ = [
     "FAMILIES",
+    "PROTECTION_REGISTERS",
     "BusServoModel",
     "Jaw",
     "LoopScale",
@@ -57,9 +62,12 @@ __all__ = [
     "alternative_models",
     "load_bus_servo",
     "load_registers_file",
+    "protection_from_registers",
+    "relative_uncertainties",
 ]
 
-_STRICT = ConfigDict(extra="forbid", frozen=True)
+# every number finite: a model file with kp = inf or NaN is refused naming the key
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 #: The servo families with a shipped model, ``configs/bus_servos/<family>.yaml``.
 FAMILIES: tuple[str, ...] = ("sts3215", "xl330", "xl430")
@@ -88,6 +96,9 @@ class RegisterSet(BaseModel):
     deadband : int
         Dead zone (ticks) in which the error counts as zero (STS3215 ``CW/CCW_Dead_Zone``;
         Dynamixel: none, 0).
+    goal_current : int
+        Current limit of current-based position mode (Dynamixel ``Goal Current``, register
+        units; :attr:`BusServoModel.operating_mode` ``"current_position"``); 0 elsewhere.
     """
 
     model_config = _STRICT
@@ -99,13 +110,16 @@ class RegisterSet(BaseModel):
     acceleration: int = Field(0, ge=0)
     velocity: int = Field(0, ge=0)
     deadband: int = Field(0, ge=0)
+    goal_current: int = Field(0, ge=0)
 
     def label(self) -> str:
-        """``P=32 I=0 D=32 limit=1000`` (and acceleration, velocity, deadband when set)."""
+        """``P=32 I=0 D=32 limit=1000`` (and acceleration, velocity, deadband, goal current when
+        set)."""
         text = f"P={self.p} I={self.i} D={self.d} limit={self.torque_limit}"
-        for name in ("acceleration", "velocity", "deadband"):
+        short = {"acceleration": "acc", "velocity": "vel", "deadband": "db", "goal_current": "cur"}
+        for name, tag in short.items():
             if getattr(self, name):
-                text += f" {name[:3] if name != 'deadband' else 'db'}={getattr(self, name)}"
+                text += f" {tag}={getattr(self, name)}"
         return text
 
 
@@ -126,6 +140,10 @@ class LoopScale(BaseModel):
         deg/s^2 per acceleration register unit.
     velocity_unit : float
         deg/s per velocity register unit.
+    current_unit_a : float
+        A per unit of the current registers (Dynamixel ``Goal Current``, and the position loop's
+        output in current-based position mode: 0.001 on the XL330); 0 when the family has no
+        current-based position mode.
     """
 
     model_config = _STRICT
@@ -136,6 +154,7 @@ class LoopScale(BaseModel):
     duty_full: int = Field(gt=0)
     acceleration_unit: float = Field(gt=0.0)
     velocity_unit: float = Field(gt=0.0)
+    current_unit_a: float = Field(0.0, ge=0.0)
 
 
 class ServoPhysics(BaseModel):
@@ -160,6 +179,13 @@ class ServoPhysics(BaseModel):
         Delay inside the position loop, from the encoder reading to the duty reaching the motor
         (s; sensing, computation, PWM update), whole 1 ms ticks: the phase lag that limits the
         gain.
+    backlash_deg : float
+        Free play of the gear train at the output (deg): the motor turns this far before it
+        drives the jaw the other way (the encoder reads the output shaft). An object or a stop
+        pressing on the jaw keeps the gap closed on its side.
+    stall_current_a : float
+        Motor current at stall torque (A; datasheet): the present current and the over-current
+        protection scale with the motor's torque; 0 when unknown (then no current is reported).
     """
 
     model_config = _STRICT
@@ -171,6 +197,8 @@ class ServoPhysics(BaseModel):
     static: float = Field(ge=0.0, lt=1.0)
     delay_s: float = Field(0.0, ge=0.0, le=0.1)
     loop_delay_s: float = Field(0.0, ge=0.0, le=0.015)
+    backlash_deg: float = Field(0.0, ge=0.0, le=5.0)
+    stall_current_a: float = Field(0.0, ge=0.0)
 
     @model_validator(mode="after")
     def _static_at_least_coulomb(self) -> ServoPhysics:
@@ -180,18 +208,39 @@ class ServoPhysics(BaseModel):
 
 
 class Protection(BaseModel):
-    """The servo's protections: an overload timer and a thermal cut-out.
+    """The servo's protections: an overload timer, an over-current timer and a thermal cut-out,
+    and what each does when it trips.
+
+    On a Feetech STS these are registers (:func:`protection_from_registers` maps them;
+    :func:`gripper_env.hardware.bus.protection.read_protection` reads them from a servo):
+    ``Overload_Torque`` (%) and ``Protection_Time`` (10 ms) set the overload, ``Protective_Torque``
+    (%) the output after a trip, ``Protection_Current`` (6.5 mA) and
+    ``Over_Current_Protection_Time`` (10 ms) the over-current, ``Unloading_Condition`` which
+    trips act on the output, ``Max_Temperature_Limit`` the cut-out. A Dynamixel's ``Shutdown``
+    bits say which errors it detects; a detected error turns its torque off until a REBOOT
+    (``tripped_duty`` 0). ROBOTIS does not publish the Dynamixel's overload criterion: its
+    threshold and time here are assumptions.
 
     Attributes
     ----------
     overload_duty : float
-        Duty (fraction) at or above which the overload timer runs.
+        Output (duty, or the current command's fraction of stall in current-based position
+        mode) at or above which the overload timer runs; 0 turns the overload protection off.
     overload_time_s : float
         Time above ``overload_duty`` that trips the overload protection (s); the timer runs down
         at the same rate below it.
     tripped_duty : float
         Output limit after a trip (fraction): STS3215 keeps a protective torque, Dynamixel turns
         the torque off (0).
+    overcurrent_a : float
+        Motor current (A) at or above which the over-current timer runs; 0: no over-current
+        protection (the Dynamixels, an STS with ``Protection_Current`` 0).
+    overcurrent_time_s : float
+        Time above ``overcurrent_a`` that trips it (s).
+    acts_on : tuple of str
+        The trips that limit the output (``"overload"``, ``"overcurrent"``, ``"overheat"``): an
+        STS reports a trip outside its ``Unloading_Condition`` in its status byte and drives on;
+        a Dynamixel neither detects nor acts on an error outside ``Shutdown``.
     ambient_c, rise_c, tau_thermal_s, max_temp_c : float
         Thermal model: the winding heats towards ``ambient + rise * duty^2`` with time constant
         ``tau_thermal_s``; at ``max_temp_c`` the servo trips (overheat).
@@ -199,22 +248,103 @@ class Protection(BaseModel):
 
     model_config = _STRICT
 
-    overload_duty: float = Field(gt=0.0, le=1.0)
-    overload_time_s: float = Field(gt=0.0)
+    overload_duty: float = Field(ge=0.0, le=1.0)
+    overload_time_s: float = Field(ge=0.0)
     tripped_duty: float = Field(ge=0.0, le=1.0)
+    overcurrent_a: float = Field(0.0, ge=0.0)
+    overcurrent_time_s: float = Field(2.0, ge=0.0)
+    acts_on: tuple[Literal["overload", "overcurrent", "overheat"], ...] = (
+        "overload",
+        "overcurrent",
+        "overheat",
+    )
     ambient_c: float = 25.0
     rise_c: float = Field(gt=0.0)
     tau_thermal_s: float = Field(gt=0.0)
     max_temp_c: float = 70.0
 
 
+#: The control-table fields each family's :class:`Protection` comes from
+#: (:func:`protection_from_registers`).
+PROTECTION_REGISTERS: dict[str, tuple[str, ...]] = {
+    "sts3215": (
+        "overload_torque",
+        "protection_time",
+        "protective_torque",
+        "protection_current",
+        "over_current_protection_time",
+        "unloading_condition",
+        "max_temperature_limit",
+    ),
+    "xl330": ("shutdown", "temperature_limit"),
+    "xl430": ("shutdown", "temperature_limit"),
+}
+#: Error bits by cause: the STS ``Unloading_Condition`` / status byte and the Dynamixel
+#: ``Shutdown`` / ``Hardware Error Status`` share them (overload 5, current 3, temperature 2).
+TRIP_BITS = {"overload": 32, "overcurrent": 8, "overheat": 4}
+_STS_CURRENT_UNIT_A = 0.0065  # Protection_Current and Present_Current: 6.5 mA per unit
+
+
+def protection_from_registers(model: BusServoModel, values: dict[str, int]) -> Protection:
+    """The protection a servo of ``model``'s family runs with the register ``values`` (field
+    name -> decoded value, the fields of :data:`PROTECTION_REGISTERS`).
+
+    STS3215: ``Overload_Torque`` % -> ``overload_duty``, ``Protection_Time`` x 10 ms ->
+    ``overload_time_s``, ``Protective_Torque`` % -> ``tripped_duty``, ``Protection_Current`` x
+    6.5 mA -> ``overcurrent_a``, ``Over_Current_Protection_Time`` x 10 ms ->
+    ``overcurrent_time_s``, the ``Unloading_Condition`` bits -> ``acts_on``,
+    ``Max_Temperature_Limit`` -> ``max_temp_c``. Dynamixel: the ``Shutdown`` bits -> ``acts_on``
+    (the XL330 cuts its torque on an overload even with the bit clear, as reported on the issue
+    tracker; ROBOTIS's e-manual says nothing of it), ``Temperature Limit`` -> ``max_temp_c``; the
+    overload threshold and time stay the model's. The thermal model's other constants stay the
+    model's.
+
+    Raises
+    ------
+    KeyError
+        Naming a register ``values`` lacks.
+    """
+    need = PROTECTION_REGISTERS[model.family]
+    missing = [k for k in need if k not in values]
+    if missing:
+        raise KeyError(f"{model.family} protection needs the registers {missing}")
+    pr = model.protection
+    if model.family == "sts3215":
+        unloading = int(values["unloading_condition"])
+        update: dict[str, Any] = {
+            "overload_duty": values["overload_torque"] / 100.0,
+            "overload_time_s": values["protection_time"] * 0.01,
+            "tripped_duty": values["protective_torque"] / 100.0,
+            "overcurrent_a": values["protection_current"] * _STS_CURRENT_UNIT_A,
+            "overcurrent_time_s": values["over_current_protection_time"] * 0.01,
+            "acts_on": tuple(k for k, bit in TRIP_BITS.items() if unloading & bit),
+            "max_temp_c": float(values["max_temperature_limit"]),
+        }
+    else:
+        shutdown = int(values["shutdown"])
+        acts = [k for k in ("overload", "overheat") if shutdown & TRIP_BITS[k]]
+        if model.family == "xl330" and "overload" not in acts:
+            acts.insert(0, "overload")
+        update = {
+            "tripped_duty": 0.0,
+            "overcurrent_a": 0.0,
+            "acts_on": tuple(acts),
+            "max_temp_c": float(values["temperature_limit"]),
+        }
+    return Protection.model_validate({**pr.model_dump(), **update})
+
+
 class Jaw(BaseModel):
     """The gripper built on the servo: stops, object, finger lever.
+
+    The shipped models' angles are the virtual servo's simulated jaw; a real servo's come from
+    its owner's calibration (:meth:`BusServoModel.calibrated`).
 
     Attributes
     ----------
     limits_deg : (float, float)
-        Mechanical stops, closed and open (deg of the servo shaft).
+        Mechanical stops, closed and open (deg of the servo shaft, or of the calibration's model
+        frame).
     open_deg : float
         The open position the scenarios start from (deg).
     object_deg : float
@@ -257,6 +387,14 @@ class BusServoModel(BaseModel):
     community : dict of str to RegisterSet
         Register sets a community ships (LeRobot's P = 16 on the SO-100 / SO-101, ...), the
         baselines a tuning result must beat.
+    calibration : JawCalibration or None
+        A real servo's jaw as its owner calibrated it (then ``jaw`` holds its angles in the
+        calibration's model frame); None for the shipped, simulated jaw.
+    operating_mode : {"position", "current_position"}
+        The loop the servo runs: position control (STS mode 0, Dynamixel mode 3: the loop's
+        output is a PWM duty), or the Dynamixel's current-based position control (mode 5, the
+        Koch gripper's: the loop's output is a current, limited by ``goal_current``, that a
+        current loop drives within the PWM limit).
     """
 
     model_config = _STRICT
@@ -269,6 +407,78 @@ class BusServoModel(BaseModel):
     jaw: Jaw
     factory: RegisterSet
     community: dict[str, RegisterSet] = Field(default_factory=dict)
+    calibration: JawCalibration | None = None
+    operating_mode: Literal["position", "current_position"] = "position"
+
+    @model_validator(mode="after")
+    def _jaw_of_the_calibration(self) -> BusServoModel:
+        cal = self.calibration
+        if cal is None:
+            return self
+        if cal.family != self.family:
+            raise ValueError(
+                f"the jaw calibration is of a {cal.family}, the model of a {self.family}"
+            )
+        limits, _, _ = cal.jaw_angles()
+        if any(abs(a - b) > 1e-6 for a, b in zip(self.jaw.limits_deg, limits, strict=True)):
+            raise ValueError(
+                f"jaw.limits_deg {list(self.jaw.limits_deg)} are not the calibration's "
+                f"{[round(v, 4) for v in limits]} (closed and open ticks {cal.closed_ticks}, "
+                f"{cal.open_ticks})"
+            )
+        lo, hi = limits
+        for name in ("open_deg", "object_deg"):
+            if not lo <= getattr(self.jaw, name) <= hi:
+                raise ValueError(f"jaw.{name} lies outside the calibrated jaw [{lo:g}, {hi:g}]")
+        return self
+
+    def calibrated(self, calibration: JawCalibration | None) -> BusServoModel:
+        """This model with a real servo's jaw: the stops at the calibration's closed and open
+        positions, the open position and the object at their fractions
+        (:meth:`~gripper_env.model.bus_calibration.JawCalibration.jaw_angles`); ``None`` returns
+        the model unchanged.
+
+        Raises
+        ------
+        ValueError
+            A calibration of another family.
+        """
+        if calibration is None or calibration == self.calibration:
+            return self
+        if calibration.family != self.family:
+            raise ValueError(
+                f"the jaw calibration is of a {calibration.family}, the model {self.name!r} of a "
+                f"{self.family}"
+            )
+        limits, open_deg, object_deg = calibration.jaw_angles()
+        jaw = self.jaw.model_copy(
+            update={"limits_deg": limits, "open_deg": open_deg, "object_deg": object_deg}
+        )
+        return self.with_updates(jaw=jaw, calibration=calibration)
+
+    @model_validator(mode="after")
+    def _current_mode_needs_units(self) -> BusServoModel:
+        if self.operating_mode == "current_position" and not (
+            self.scale.current_unit_a > 0 and self.physics.stall_current_a > 0
+        ):
+            raise ValueError(
+                "operating_mode 'current_position' needs scale.current_unit_a and "
+                "physics.stall_current_a (the current registers' unit and the stall current)"
+            )
+        return self
+
+    @property
+    def current_mode(self) -> bool:
+        """The servo runs current-based position control."""
+        return self.operating_mode == "current_position"
+
+    def current_fraction(self, regs: RegisterSet) -> float:
+        """The goal current as a fraction of the stall current (current-based position mode)."""
+        if not self.current_mode:
+            return 1.0
+        return min(
+            regs.goal_current * self.scale.current_unit_a / self.physics.stall_current_a, 1.0
+        )
 
     @property
     def deg_per_tick(self) -> float:
@@ -276,8 +486,21 @@ class BusServoModel(BaseModel):
         return DEG_PER_TICK
 
     def baselines(self) -> dict[str, RegisterSet]:
-        """The factory registers and the community's, by name (``factory`` first)."""
-        return {"factory": self.factory, **self.community}
+        """The factory registers and the community's, by name (``factory`` first). In
+        current-based position mode a set without a goal current gets the factory's (the
+        power-on Goal Current is the Current Limit, beyond the stall current: full torque)."""
+        out = {"factory": self.factory, **self.community}
+        if self.current_mode:
+            full = self.full_goal_current()
+            out = {
+                k: r if r.goal_current else r.model_copy(update={"goal_current": full})
+                for k, r in out.items()
+            }
+        return out
+
+    def full_goal_current(self) -> int:
+        """The goal current (register units) of the stall current: full torque."""
+        return math.ceil(self.physics.stall_current_a / self.scale.current_unit_a - 1e-9)
 
     def limit_fraction(self, regs: RegisterSet) -> float:
         """The torque-limit register as a fraction of full output (0 to 1)."""
@@ -372,3 +595,29 @@ def alternative_models(doc: dict[str, Any], key: str, source: str) -> list[BusSe
     if not isinstance(entries, list):
         raise ConfigError(f"{source}: '{key}' must be a list of models")
     return [validate(BusServoModel, m, f"{source}: {key}[{k}]") for k, m in enumerate(entries)]
+
+
+def relative_uncertainties(doc: dict[str, Any], key: str, source: str) -> dict[str, float] | None:
+    """The relative standard errors under ``doc[key]`` (an identified model file's
+    ``"uncertainty"``, a registers file's ``"uncertainty_rel_std"``); None when absent or empty.
+
+    Raises
+    ------
+    gripper_env.io.config.ConfigError
+        If it is not an object of finite numbers >= 0 (naming ``source``, the key and the value).
+    """
+    entries = doc.get(key)
+    if entries is None:
+        return None
+    if not isinstance(entries, dict):
+        raise ConfigError(f"{source}: '{key}' must be an object of relative standard errors")
+    out = {}
+    for name, value in entries.items():
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (ok and math.isfinite(value) and value >= 0):
+            raise ConfigError(
+                f"{source}: key '{key}.{name}': expected a finite number >= 0 (a relative "
+                f"standard error), got {value!r}"
+            )
+        out[str(name)] = float(value)
+    return out or None

@@ -22,13 +22,17 @@ import math
 import os
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gripper_env.io.config import available, find_config, load_yaml, validate
+from gripper_env.io.files import safe_name
 from gripper_env.model.state_space import observer_form, zoh_matrices
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["MIN_DT_S", "Plant", "PlantSpec", "available_plants", "load_plant"]
 
@@ -56,6 +60,11 @@ class PlantSpec(BaseModel):
         "gripper_env.model.references.MAX_STEPS_PER_RUN of them",
     )
     jaw_range_deg: tuple[float, float] = (21.0, 92.0)
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v: str) -> str:
+        return safe_name(v, "plant name")  # it names the folder of the plant's results
 
     @field_validator("num", "den")
     @classmethod
@@ -158,12 +167,16 @@ class Plant:
         return len(self.den) - 1
 
     @cached_property
-    def tf(self) -> control.TransferFunction:
+    def tf(self) -> control.TransferFunction:  # python-control loads on first use (1 s)
         """The python-control continuous-time transfer function (s)."""
+        import control
+
         return control.tf(list(self.num), list(self.den))
 
     def discretize(self, dt_s: float | None = None) -> control.TransferFunction:
         """Exact zero-order-hold discretisation at ``dt_s`` (default: the plant's physics step)."""
+        import control
+
         return control.c2d(self.tf, self.dt_s if dt_s is None else dt_s, method="zoh")
 
     @cached_property

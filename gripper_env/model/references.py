@@ -31,9 +31,11 @@ from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
 __all__ = [
     "MAX_STEPS_PER_RUN",
     "PROFILES",
+    "PROFILE_ABOUT",
     "Reference",
     "Segment",
     "check_steps",
+    "describe_profile",
     "load_reference",
     "ramp_profile",
     "random_profile",
@@ -211,6 +213,20 @@ PROFILES = {
     "ramp3": _ramp3,
 }
 
+#: What each named profile is, in a line (``gripper list profiles``; the module docstring).
+PROFILE_ABOUT = {
+    "step": "hold 92 deg 1 s, grip step to 21, hold 9 s, un-grip step to 92, hold 10 s (20 s)",
+    "slope60": "hold 92 deg 1 s, ramp to 21 over 60 s, hold 5 s, ramp back over 60 s, hold 5 s",
+    "slope40": "the same with 40 s ramps",
+    "slope20": "the same with 20 s ramps",
+    "ramp3": "the paper's Figure 2: hold 92 deg 1 s, ramp to 21 over 3 s, hold 4 s (8 s)",
+}
+
+
+def describe_profile(name: str) -> str:
+    """A named profile in a line (:data:`PROFILE_ABOUT`)."""
+    return PROFILE_ABOUT.get(name, "")
+
 
 def random_profile(
     rng: np.random.Generator | int | None,
@@ -341,6 +357,8 @@ def load_reference(reference: str | os.PathLike[str] | Reference, dt_s: float = 
         return PROFILES[text](dt_s)
     path = Path(text)
     if path.suffix.lower() == ".csv":
+        if path.is_dir():
+            raise ValueError(f"reference CSV {text!r} is a folder; give a CSV file")
         if not path.is_file():
             raise ValueError(f"reference CSV {text!r} does not exist")
         return _from_csv(path, dt_s)

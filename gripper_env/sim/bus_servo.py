@@ -55,23 +55,30 @@ SUBSTEPS = 8
 (
     PB_KP, PB_KI, PB_KD, PB_W0, PB_TAUM, PB_FC, PB_FS, PB_DEGTICK, PB_LO, PB_HI, PB_OBJ, PB_KOBJ,
     PB_OVL_DUTY, PB_OVL_TIME, PB_TRIP_DUTY, PB_TAMB, PB_TRISE, PB_TAUTH, PB_TMAX, PB_LAG,
-    PB_EXACT,
-) = range(21)  # fmt: skip
-BUS_PARAMS = 21
+    PB_EXACT, PB_BACKLASH, PB_CURMODE, PB_CURGAIN, PB_OC_FRAC, PB_OC_TIME, PB_ACT_OVL,
+    PB_ACT_OC, PB_ACT_HEAT, PB_FLAG_ALL,
+) = range(30)  # fmt: skip
+BUS_PARAMS = 30
 #: Longest loop delay (ticks) the duty's delay line holds.
 MAX_LAG = 15
 # register columns (physical units: duty fractions, deg/s^2, deg/s, ticks)
-RB_P, RB_I, RB_D, RB_LIMIT, RB_ACC, RB_VEL, RB_DB, RB_ON = range(8)
-BUS_REGS = 8
+RB_P, RB_I, RB_D, RB_LIMIT, RB_ACC, RB_VEL, RB_DB, RB_ON, RB_CUR = range(9)
+BUS_REGS = 9
 # state columns
 (
     SB_TH, SB_W, SB_STUCK, SB_INT, SB_EPREV, SB_SP, SB_SPV, SB_OVT, SB_TEMP, SB_TRIP, SB_DUTY,
-    SB_FORCE, SB_TICK, SB_BUF,
-) = range(14)  # fmt: skip
+    SB_FORCE, SB_TICK, SB_THM, SB_OCT, SB_FLAGS, SB_FIRST, SB_TORQUE, SB_BUF,
+) = range(19)  # fmt: skip
 BUS_STATE = SB_BUF + MAX_LAG + 1  # the last columns: the duty's delay line
 
-#: Trip codes in the state's ``SB_TRIP`` column and the run's ``trip`` output.
-TRIP_NONE, TRIP_OVERLOAD, TRIP_OVERHEAT = 0, 1, 2
+#: Trip codes in the state's ``SB_TRIP`` (the trip that limits the output) and ``SB_FIRST``
+#: (the first protection that fired) columns and the run's ``trip`` output.
+TRIP_NONE, TRIP_OVERLOAD, TRIP_OVERHEAT, TRIP_OVERCURRENT = 0, 1, 2, 3
+#: The bits of the state's ``SB_FLAGS`` column (every protection that fired), by trip code.
+TRIP_FLAG = {TRIP_OVERLOAD: 1, TRIP_OVERHEAT: 2, TRIP_OVERCURRENT: 4}
+#: Trip codes by name.
+TRIP_NAMES = {TRIP_NONE: "none", TRIP_OVERLOAD: "overload", TRIP_OVERHEAT: "overheat",
+              TRIP_OVERCURRENT: "overcurrent"}  # fmt: skip
 
 
 def bus_params(model: BusServoModel, *, with_object: bool = False) -> np.ndarray:
@@ -90,6 +97,24 @@ def bus_params(model: BusServoModel, *, with_object: bool = False) -> np.ndarray
     row[PB_TAMB], row[PB_TRISE], row[PB_TAUTH] = pr.ambient_c, pr.rise_c, pr.tau_thermal_s
     row[PB_TMAX] = pr.max_temp_c
     row[PB_LAG] = min(round(model.physics.loop_delay_s / DT), MAX_LAG)
+    if pr.overload_duty <= 0.0 or pr.overload_time_s <= 0.0:
+        row[PB_OVL_DUTY] = math.inf  # Overload_Torque 0: no overload protection
+    row[PB_BACKLASH] = ph.backlash_deg
+    if model.current_mode:
+        row[PB_CURMODE] = 1.0
+        # torque (fraction of stall) per unit of the loop's output in duty units: the loop
+        # computes register units of current (kp * duty_full per P unit and tick)
+        row[PB_CURGAIN] = s.duty_full * s.current_unit_a / ph.stall_current_a
+    row[PB_OC_FRAC] = math.inf
+    if pr.overcurrent_a > 0.0 and ph.stall_current_a > 0.0:
+        row[PB_OC_FRAC] = pr.overcurrent_a / ph.stall_current_a
+    row[PB_OC_TIME] = pr.overcurrent_time_s
+    row[PB_ACT_OVL] = 1.0 if "overload" in pr.acts_on else 0.0
+    row[PB_ACT_OC] = 1.0 if "overcurrent" in pr.acts_on else 0.0
+    row[PB_ACT_HEAT] = 1.0 if "overheat" in pr.acts_on else 0.0
+    # an STS reports a trip it does not act on in its status byte; a Dynamixel does not detect
+    # an error outside its Shutdown bits
+    row[PB_FLAG_ALL] = 1.0 if model.family == "sts3215" else 0.0
     return row
 
 
@@ -102,6 +127,7 @@ def bus_registers(model: BusServoModel, regs: RegisterSet, *, torque_on: bool = 
     row[RB_VEL] = regs.velocity * model.scale.velocity_unit
     row[RB_DB] = regs.deadband
     row[RB_ON] = 1.0 if torque_on else 0.0
+    row[RB_CUR] = model.current_fraction(regs)
     return row
 
 
@@ -109,7 +135,7 @@ def bus_state(model: BusServoModel, angle_deg: float | None = None) -> np.ndarra
     """A servo at rest at ``angle_deg`` (default the jaw's open position), cold, not tripped."""
     th = model.jaw.open_deg if angle_deg is None else float(angle_deg)
     row = np.zeros(BUS_STATE)
-    row[SB_TH] = th
+    row[SB_TH] = row[SB_THM] = th
     row[SB_STUCK] = 1.0
     row[SB_SP] = round(th / model.deg_per_tick)
     row[SB_TEMP] = model.protection.ambient_c
@@ -140,8 +166,24 @@ def _profile(sp: float, spv: float, goal: float, acc: float, vel: float) -> tupl
     return nxt, spv
 
 
+@njit(inline="always")
+def _output(thm: float, th: float, bl: float, lo: float, hi: float, obj: float) -> float:
+    """Where the jaw (output shaft) is, the motor side at ``thm`` with the half gap ``bl`` (deg).
+
+    The jaw has no inertia of its own across the gap: it stays where it was (the play operator)
+    unless an object or a stop pushes it, which closes the gap on the pushing side or lets the
+    jaw come free of the contact. With no gap it is ``thm``."""
+    x = min(max(th, thm - bl), thm + bl)
+    free = max(obj, lo)  # below this the object or the closed stop push the jaw open
+    if x < free:
+        return min(thm + bl, free)
+    if x > hi:
+        return max(thm - bl, hi)
+    return x
+
+
 @njit(nogil=True)
-def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
+def _run_row(p, r, s, goal, pos, duty, force, trip, temp, torque):
     kp, ki, kd = p[PB_KP], p[PB_KI], p[PB_KD]
     w0, taum, fc, fs = p[PB_W0], p[PB_TAUM], p[PB_FC], p[PB_FS]
     degtick, lo, hi, obj, kobj = p[PB_DEGTICK], p[PB_LO], p[PB_HI], p[PB_OBJ], p[PB_KOBJ]
@@ -150,10 +192,14 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
     kstop = 4.0 * kobj
     cstop = 2.0 * 0.7 * math.sqrt(kstop * taum / w0)
     h = DT / SUBSTEPS
+    bl = 0.5 * p[PB_BACKLASH]
+    curmode = p[PB_CURMODE] > 0.0
+    curgain = p[PB_CURGAIN]
     acc_t, vel_t = r[RB_ACC] / degtick, r[RB_VEL] / degtick  # ticks/s^2, ticks/s
-    th, w, stuck = s[SB_TH], s[SB_W], s[SB_STUCK]
+    th, w, stuck, thm = s[SB_TH], s[SB_W], s[SB_STUCK], s[SB_THM]
     integ, eprev, sp, spv = s[SB_INT], s[SB_EPREV], s[SB_SP], s[SB_SPV]
     ovt, tmp, tripped, u = s[SB_OVT], s[SB_TEMP], s[SB_TRIP], s[SB_DUTY]
+    oct_, flags, first, tau_m = s[SB_OCT], s[SB_FLAGS], s[SB_FIRST], s[SB_TORQUE]
     f_contact = s[SB_FORCE]
     lag = int(p[PB_LAG])
     nbuf = MAX_LAG + 1
@@ -167,8 +213,12 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
         if abs(e) <= r[RB_DB]:
             e = 0.0
         limit = r[RB_LIMIT]
+        if curmode:  # the loop's output is a current: Goal Current limits it
+            limit = r[RB_CUR]
         if tripped > 0.0:
             limit = min(limit, p[PB_TRIP_DUTY])
+        if curmode:
+            limit = limit / curgain  # in the loop's own (duty) units
         if r[RB_ON] > 0.0 and limit > 0.0:
             if r[RB_I] > 0.0:
                 integ += e * DT
@@ -181,32 +231,60 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
         else:
             u, integ = 0.0, 0.0
         eprev = e
-        # --- protections: overload timer and winding temperature
+        if curmode:
+            u = u * curgain  # the current command, as a fraction of the stall current
+        # --- protections: overload and over-current timers, winding temperature
         if abs(u) >= p[PB_OVL_DUTY] - 1e-12:
             ovt += DT
         else:
             ovt = max(ovt - DT, 0.0)
+        if abs(tau_m) >= p[PB_OC_FRAC] - 1e-12:
+            oct_ += DT
+        else:
+            oct_ = max(oct_ - DT, 0.0)
         tmp += DT / p[PB_TAUTH] * (p[PB_TAMB] + p[PB_TRISE] * u * u - tmp)
-        if tripped == 0.0:
-            if ovt >= p[PB_OVL_TIME] - 1e-9:
-                tripped = 1.0
-            elif tmp >= p[PB_TMAX]:
-                tripped = 2.0
-        # --- the loop's delay (sensing, computation, PWM): the motor gets the duty of lag ticks ago
+        for code in range(1, 4):
+            bit = 1.0 if code == 1 else (2.0 if code == 2 else 4.0)
+            if (flags // bit) % 2.0 >= 1.0:
+                continue  # fired already
+            if code == 1:
+                fired, acts = ovt >= p[PB_OVL_TIME] - 1e-9, p[PB_ACT_OVL] > 0.0
+            elif code == 2:
+                fired, acts = tmp >= p[PB_TMAX], p[PB_ACT_HEAT] > 0.0
+            else:
+                fired, acts = oct_ >= p[PB_OC_TIME] - 1e-9, p[PB_ACT_OC] > 0.0
+            if fired and (acts or p[PB_FLAG_ALL] > 0.0):
+                flags += bit
+                if first == 0.0:
+                    first = code
+                if acts and tripped == 0.0:
+                    tripped = code
+        # --- the loop's delay (sensing, computation, PWM update): the motor gets the command of
+        # lag ticks ago
         s[SB_BUF + (tick % nbuf)] = u
         ua = s[SB_BUF + ((tick - lag) % nbuf)]
         tick += 1
-        # --- mechanics: motor, stops, object, stick-slip friction
+        # --- mechanics: motor, gear play, stops, object, stick-slip friction
         for _ in range(SUBSTEPS):
-            tau = ua - w / w0
+            if curmode:  # the current loop holds the torque, within the PWM limit's voltage
+                tau_m = min(max(ua, -r[RB_LIMIT] - w / w0), r[RB_LIMIT] - w / w0)
+                if r[RB_ON] <= 0.0:
+                    tau_m = 0.0
+            else:
+                tau_m = ua - w / w0
+            tau = tau_m
+            th = _output(thm, th, bl, lo, hi, obj)
+            engaged = bl == 0.0 or th == thm + bl or th == thm - bl
             fobj = 0.0
             if th < obj:
                 fobj = kobj * (obj - th)
-                tau += fobj - cobj * w
-            if th < lo:
-                tau += kstop * (lo - th) - cstop * w
-            elif th > hi:
-                tau -= kstop * (th - hi) + cstop * w
+                if engaged:
+                    tau += fobj - cobj * w
+            if engaged:
+                if th < lo:
+                    tau += kstop * (lo - th) - cstop * w
+                elif th > hi:
+                    tau -= kstop * (th - hi) + cstop * w
             if stuck > 0.0:
                 if abs(tau) <= fs:
                     w = 0.0
@@ -223,25 +301,39 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp):
                     w_new = 0.0
                     stuck = 1.0
             w = w_new
-            th += w * h
+            thm += w * h
+            th = _output(thm, th, bl, lo, hi, obj)
             f_contact = fobj
         # the encoder's reading, or (identification) the shaft's exact angle in ticks: a fit
         # compares quantised readings with it, and its cost is then not flat between ticks
         pos[k] = meas if p[PB_EXACT] == 0.0 else th_read
         duty[k] = u
         force[k] = f_contact
-        trip[k] = tripped
+        trip[k] = first
         temp[k] = tmp
-    s[SB_TH], s[SB_W], s[SB_STUCK] = th, w, stuck
+        torque[k] = tau_m
+    s[SB_TH], s[SB_W], s[SB_STUCK], s[SB_THM] = th, w, stuck, thm
     s[SB_INT], s[SB_EPREV], s[SB_SP], s[SB_SPV] = integ, eprev, sp, spv
     s[SB_OVT], s[SB_TEMP], s[SB_TRIP], s[SB_DUTY] = ovt, tmp, tripped, u
+    s[SB_OCT], s[SB_FLAGS], s[SB_FIRST], s[SB_TORQUE] = oct_, flags, first, tau_m
     s[SB_FORCE] = f_contact
     s[SB_TICK] = tick
 
 
-def _run_impl(params, regs, state, goal, pos, duty, force, trip, temp):
+def _run_impl(params, regs, state, goal, pos, duty, force, trip, temp, torque):
     for b in prange(params.shape[0]):
-        _run_row(params[b], regs[b], state[b], goal[b], pos[b], duty[b], force[b], trip[b], temp[b])
+        _run_row(
+            params[b],
+            regs[b],
+            state[b],
+            goal[b],
+            pos[b],
+            duty[b],
+            force[b],
+            trip[b],
+            temp[b],
+            torque[b],
+        )
 
 
 #: The serial and parallel copies, cached per source version like the core's other kernels.
@@ -257,13 +349,18 @@ class BusRun:
     position : ndarray
         Encoder reading (ticks), as the firmware saw it at the start of the tick.
     duty : ndarray
-        Motor duty (fraction of full output, signed).
+        The loop's output: motor duty (fraction of full output, signed), or in current-based
+        position mode the current command (fraction of the stall current).
     force : ndarray
         Contact force of the object on the jaw (fraction of stall torque).
     trip : ndarray
-        0 before any trip, then 1 (overload) or 2 (overheat).
+        0 before any protection fired, then the first that did (:data:`TRIP_NAMES`: 1
+        overload, 2 overheat, 3 over-current), whether or not it limits the output.
     temperature : ndarray
         Winding temperature (deg C).
+    torque : ndarray
+        The motor's torque (fraction of stall; times the stall current: the motor current) at
+        the end of the tick.
     """
 
     position: np.ndarray
@@ -271,6 +368,7 @@ class BusRun:
     force: np.ndarray
     trip: np.ndarray
     temperature: np.ndarray
+    torque: np.ndarray
 
 
 def run_bus(
@@ -302,7 +400,7 @@ def run_bus(
     if not np.all(np.isfinite(goal)):
         raise ValueError("goal positions must be finite (ticks)")
     t = goal.shape[1]
-    out = [np.empty((n, t)) for _ in range(5)]
+    out = [np.empty((n, t)) for _ in range(6)]
     kernel = _RUN.parallel if n * t >= 200_000 and n > 1 else _RUN.serial
     kernel(params, regs, state, goal, *out)
     return BusRun(*out)

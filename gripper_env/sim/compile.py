@@ -35,14 +35,20 @@ from __future__ import annotations
 
 import hashlib
 import re
+import sys
 import types
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
 from numba import njit
+from numba.core import event as _event
 
-__all__ = ["SOURCES", "Kernel", "compile_kernel", "source_stamp"]
+__all__ = ["COMPILE_ESTIMATE", "SOURCES", "Kernel", "compile_kernel", "source_stamp"]
+
+#: What the first use of the kernels costs, said when numba starts compiling one (once per
+#: process): measured by ``python -m tuners.compile`` from an empty cache.
+COMPILE_ESTIMATE = "about 1-2 minutes on 2 cores"
 
 _LIBRARY = Path(__file__).resolve().parents[1]
 
@@ -136,3 +142,27 @@ def _prune_stale(dispatcher: object, fn: Callable[..., object], variant: str, st
         match = stale.match(entry.name)
         if match is not None and match.group(1) != stamp:
             entry.unlink(missing_ok=True)
+
+
+class _Announce(_event.Listener):
+    """Says, once per process, that the kernels are being compiled (numba's ``numba:compile``
+    event fires on a real compilation only, never on a load from the cache)."""
+
+    said = False
+
+    def on_start(self, event: _event.Event) -> None:
+        if _Announce.said:
+            return
+        _Announce.said = True
+        print(
+            f"compiling the simulation kernels (numba), {COMPILE_ESTIMATE}, once: later runs "
+            "load them from numba's cache (python -m tuners.compile does it ahead)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def on_end(self, event: _event.Event) -> None:
+        pass
+
+
+_event.register("numba:compile", _Announce())

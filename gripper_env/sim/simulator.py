@@ -47,6 +47,9 @@ from gripper_env.sim.layout import (
     S_DIVERGED,
     S_FORCE,
     S_FRIC,
+    S_GRASP,
+    S_GRASP_AT,
+    S_GRASP_YF,
     S_SATURATED,
     S_SERVO_TV,
     S_STALL,
@@ -251,6 +254,7 @@ class BatchSimulator:
             y_start = np.zeros(len(idx))
         st[:, S_XI] = u0 if self.closed_loop else 0.0
         st[:, S_XF] = -sign * y_start if d_meas else 0.0
+        st[:, S_GRASP_AT] = st[:, S_GRASP_YF] = y_start  # the jaw taken as standing at y0
         for col in (S_CMD, S_FRIC + F_OUT, S_FRIC + F_XPREV, S_FRIC + F_XSS, S_BACKLASH,
                     S_VPREV, S_U):  # fmt: skip
             st[:, col] = u0
@@ -341,6 +345,12 @@ class BatchSimulator:
     def diverged(self) -> np.ndarray:
         """Runs whose states left the divergence bound (bool, shape (B,))."""
         return self.state[:, S_DIVERGED] != 0.0
+
+    @property
+    def grasping(self) -> np.ndarray:
+        """The PID's grasp mode per run: 0 not holding, -1 holding a grasp closing, +1 opening
+        (:class:`gripper_env.model.pid.GraspOptions`)."""
+        return self.state[:, S_GRASP].astype(np.int64)
 
     @property
     def position_deg(self) -> np.ndarray:

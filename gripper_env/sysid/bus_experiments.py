@@ -19,7 +19,9 @@ are seen. Every setting is checked stable on the family's model before anything 
 :class:`BusRecorder` runs the plan on a :class:`~gripper_env.hardware.bus.gripper.BusGripper`
 (registers written and read back, torque on, settled at the open position, then the plan, the
 position read every ``sample_s``); :func:`simulate_record` is the same experiment on a model, the
-host's sampling included (a dry run, and the tests' truth).
+host's sampling included (a dry run, and the tests' truth). The plans are relative to the jaw's
+open position; :func:`check_plan` refuses one that leaves the calibrated jaw's goal range
+before anything is sent.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -45,6 +47,7 @@ __all__ = [
     "RECORD_SETTINGS",
     "BusRecorder",
     "GoalPlan",
+    "check_plan",
     "check_settings",
     "record_plan",
     "settings_registers",
@@ -110,6 +113,26 @@ def tracking_plan(model: BusServoModel) -> GoalPlan:
     return GoalPlan(starts * DT, goal[starts], goal.size * DT)
 
 
+def check_plan(plan: GoalPlan, goal_range_deg: tuple[float, float], what: str) -> None:
+    """Refuse ``plan`` if a goal of it lies outside ``goal_range_deg`` (deg, low to high: the
+    calibrated jaw within the servo's limits), half a tick of rounding aside.
+
+    Raises
+    ------
+    ValueError
+        Naming the plan (``what``), the span it needs and the range there is.
+    """
+    lo, hi = goal_range_deg
+    tol = 0.5 * 360.0 / 4096
+    need_lo, need_hi = float(np.min(plan.goals_deg)), float(np.max(plan.goals_deg))
+    if need_lo < lo - tol or need_hi > hi + tol:
+        raise ValueError(
+            f"the {what} needs goals from {need_lo:.1f} to {need_hi:.1f} deg, outside the "
+            f"calibrated jaw's goal range {lo:.1f} to {hi:.1f} deg (the jaw's travel within "
+            "the servo's own position limits): nothing was sent"
+        )
+
+
 def settings_registers(
     model: BusServoModel, settings: Sequence[tuple[int, int, int]] | None = None
 ) -> list[RegisterSet]:
@@ -168,6 +191,8 @@ class BusRecorder:
         self.lost = 0
         #: Readings dropped for a slow round trip (:meth:`record`) over every record so far.
         self.slow = 0
+        #: Readings taken (before the slow ones were dropped) over every record so far.
+        self.readings = 0
         self._run = 0
 
     #: A reading is stamped at the middle of its round trip; one whose round trip took longer
@@ -187,24 +212,14 @@ class BusRecorder:
         if self._run > self.MAX_LOST_IN_A_ROW:
             raise BusCommError(f"{self._run} readings lost in a row: {exc}") from exc
 
-    def _retry(self, send: Callable[[float], float], value: float) -> float:
-        """Send a goal, again on a lost reply (a goal is idempotent), at most three times."""
-        for attempt in range(3):
-            try:
-                return send(value)
-            except BusCommError:
-                self.lost += 1
-                if attempt == 2:
-                    raise
-        raise AssertionError("unreachable")
-
     def settle(self, angle_deg: float, seconds: float = _SETTLE_S) -> None:
-        """Send ``angle_deg`` and wait ``seconds``, reading the position (a live link)."""
-        self._retry(self.gripper.goal_deg, angle_deg)
+        """Send ``angle_deg`` (the link sends it again on a lost reply) and wait ``seconds``,
+        reading the position (a live link)."""
+        self.gripper.goal_deg(angle_deg)
         end = self.clock() + seconds
         while self.clock() < end:
             try:
-                self.gripper.position_deg()
+                self.gripper.position_deg(retries=0)
             except BusCommError as exc:
                 self._lost(exc)
             else:
@@ -214,8 +229,8 @@ class BusRecorder:
     def record(self, registers: RegisterSet, plan: GoalPlan | None = None) -> BusRecord:
         """Write ``registers`` (read back), turn the torque on, settle open, run ``plan``.
 
-        The torque stays on afterwards (the caller's ``with`` block relaxes the servo on an
-        error).
+        The torque stays on afterwards (the caller's ``with`` block restores the servo). The
+        record carries the gripper's jaw calibration.
         """
         g = self.gripper
         plan = plan or record_plan(g.model)
@@ -240,13 +255,13 @@ class BusRecorder:
                 # STS3215's fitted loop delay fell from 3-4 ms to 2 against the truth's 4, and
                 # registers tuned on it had Ms 1.71 on the truth)
                 t_goal.append(self.clock() - t0)
-                y_goal.append(self._retry(g.goal_deg, float(plan.goals_deg[k])))
+                y_goal.append(g.goal_deg(float(plan.goals_deg[k])))  # sent again if lost
                 k += 1
                 continue
             if now >= next_read:
                 before = self.clock()
                 try:
-                    y = g.position_deg()
+                    y = g.position_deg(retries=0)
                 except BusCommError as exc:  # a lost reply: a missing reading, not a failure
                     self._lost(exc)
                 else:
@@ -266,9 +281,11 @@ class BusRecorder:
             bound = max(self.SLOW_FACTOR * float(np.median(rtt)), self.SLOW_FLOOR_S)
             keep = [i for i, r in enumerate(rtt) if r <= bound]
             self.slow += len(rtt) - len(keep)
+            self.readings += len(rtt)
             t_read = [t_read[i] for i in keep]
             y_read = [y_read[i] for i in keep]
-        return _record(g.model, got, t_read, y_read, t_goal, y_goal)
+        rec = _record(g.model, got, t_read, y_read, t_goal, y_goal)
+        return replace(rec, calibration=g.calibration)
 
 
 def simulate_record(

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 from collections.abc import Sequence
@@ -34,7 +35,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from gripper_env.io.config import read_bounded
+from gripper_env.io.config import ConfigError, read_bounded, validate
+from gripper_env.model.bus_calibration import JawCalibration
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim import bus_servo as core
 from gripper_env.sim.bus_servo import DT, bus_params, bus_registers, bus_state, run_bus
@@ -78,6 +80,9 @@ class BusRecord:
         The position read back (deg).
     goal_times_s, goal_values_deg : ndarray
         When each goal was written (s) and its value (deg): the input.
+    calibration : JawCalibration or None
+        The jaw calibration of the servo recorded (its angles are in that calibration's model
+        frame); None for a simulated record.
     """
 
     family: str
@@ -87,6 +92,7 @@ class BusRecord:
     position_deg: np.ndarray
     goal_times_s: np.ndarray
     goal_values_deg: np.ndarray
+    calibration: JawCalibration | None = None
 
     def goal_per_tick(self, delay_ticks: int = 0) -> np.ndarray:
         """The goal per 1 ms tick from the record's start, shifted by ``delay_ticks``."""
@@ -98,7 +104,8 @@ class BusRecord:
 
 
 def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
-    """Write a record as CSV: a ``# family=... p=... i=...`` header line, then
+    """Write a record as CSV: a ``# family=... p=... i=...`` header line, the jaw calibration as
+    a ``# calibration {...}`` line (JSON) when the record has one, then
     ``t_s,goal_deg,position_deg,goal_written`` rows (``goal_written`` 1 where the goal was
     written just before that reading)."""
     from gripper_env.io.files import write_atomic
@@ -109,6 +116,8 @@ def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
         f"# family={record.family} " + " ".join(f"{k}={v}" for k, v in r.model_dump().items())
     )
     buf.write("\n")
+    if record.calibration is not None:
+        buf.write(f"# calibration {record.calibration.model_dump_json()}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["t_s", "goal_deg", "position_deg", "goal_written"])
     written = set(np.searchsorted(record.t_s, record.goal_times_s).tolist())
@@ -144,7 +153,19 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
         raise ValueError(f"{p}: line 1: bad registers ({exc})") from None
     rows, goals = [], []
     in_goals = False
+    calibration = None
     for n, line in enumerate(lines[1:], start=2):
+        if line.startswith("# calibration "):
+            try:
+                data = json.loads(line.removeprefix("# calibration "))
+                if not isinstance(data, dict):
+                    raise ValueError("not a JSON object")
+                calibration = validate(JawCalibration, data, f"{p}: line {n}")
+            except ConfigError:
+                raise
+            except ValueError as exc:
+                raise ValueError(f"{p}: line {n}: bad jaw calibration ({exc})") from None
+            continue
         if line.startswith("# goals"):
             in_goals = True
             continue
@@ -172,7 +193,8 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
         bad = int(np.flatnonzero(np.diff(data[:, 0]) <= 0)[0])
         raise ValueError(f"{p}: time stamps not increasing at reading {bad + 2}")
     writes = np.array(goals)
-    return BusRecord(family, regs, data[:, 0], data[:, 1], data[:, 2], writes[:, 0], writes[:, 1])
+    return BusRecord(family, regs, data[:, 0], data[:, 1], data[:, 2], writes[:, 0], writes[:, 1],
+                     calibration)  # fmt: skip
 
 
 @dataclass(frozen=True)

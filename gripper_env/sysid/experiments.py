@@ -224,6 +224,8 @@ class DeviceRecorder:
         Seconds to let the board boot after opening the port, and to wait for an answer.
     progress : callable, optional
         Called with a line after each run.
+    fraction : callable, optional
+        Called with the fraction of the profile done, as it runs (each host period).
     """
 
     port: str
@@ -231,6 +233,7 @@ class DeviceRecorder:
     boot_wait_s: float = 2.0
     timeout_s: float = 0.5
     progress: Callable[[str], None] | None = None
+    fraction: Callable[[float], None] | None = None
 
     def __call__(self, reference: Reference, path: Path, run: int = 0) -> Path:
         self.record(reference, path)
@@ -257,7 +260,7 @@ class DeviceRecorder:
             timeout_s=self.timeout_s,
         ) as device:
             device.configure()
-            rec = run_profile(device, reference, Mode.OPEN_LOOP, log=log)
+            rec = run_profile(device, reference, Mode.OPEN_LOOP, log=log, progress=self.fraction)
         if self.progress is not None:
             self.progress(
                 f"recorded {reference.name} on {self.port}: {len(rec.samples)} samples, "

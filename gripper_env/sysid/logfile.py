@@ -8,6 +8,7 @@ line and column where it can be pinned down.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from collections.abc import Sequence
@@ -74,8 +75,16 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
                 f"{MAX_DATA_BYTES >> 20} MiB a log may hold (minutes at 1 kHz are enough to "
                 "identify the gripper: cut the log)"
             )
-        with p.open(newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
+        with p.open("rb") as fb:  # a pipe or a device (/dev/zero) has no size: read at most
+            raw = fb.read(MAX_DATA_BYTES + 1)  # the limit, then refuse
+        if len(raw) > MAX_DATA_BYTES:
+            raise ValueError(
+                f"{p}: more than the {MAX_DATA_BYTES >> 20} MiB a log may hold (minutes at "
+                "1 kHz are enough to identify the gripper: cut the log)"
+            )
+        text = raw.decode("utf-8-sig")
+        del raw
+        rows = list(csv.reader(io.StringIO(text, newline="")))
     except FileNotFoundError:
         raise ValueError(f"{p}: no such file") from None
     except IsADirectoryError:

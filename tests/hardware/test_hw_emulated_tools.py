@@ -50,6 +50,31 @@ def emulated(emulator_build):
         yield vd
 
 
+def test_noise_faster_than_the_line_takes_it_is_held_back_not_fatal(emulated) -> None:
+    """192 KiB of noise written at once, three times what the emulated line holds and far
+    faster than its 1 Mbaud carry it: the board takes what the line can carry and the rest
+    waits in the pty (flow control), as with a USB bridge; it used to stop the board."""
+    import fcntl
+
+    noise = np.random.default_rng(11).integers(1, 256, 192 * 1024, dtype=np.uint8).tobytes()
+    fd = os.open(emulated.path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
+        sent, deadline = 0, time.monotonic() + 120
+        while sent < len(noise) and time.monotonic() < deadline:
+            try:
+                sent += os.write(fd, noise[sent : sent + 65536])
+            except BlockingIOError:
+                time.sleep(0.01)  # the line is full: wait, as a writer to a bridge does
+        assert sent == len(noise)
+        os.write(fd, b"\x00")  # end the garbage's frame
+    finally:
+        os.close(fd)
+    assert emulated.running and emulated.error is None
+    with open_device(emulated) as dev:  # the board still answers
+        assert dev.info.device_id == EMULATED_DEVICE_ID
+
+
 def test_random_bytes_mid_run_then_a_normal_deploy(emulated) -> None:
     with open_device(emulated) as dev:
         dev.configure(GAINS, OPTIONS)

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from virtual_support import SPEED, open_device
+from virtual_support import SPEED, open_device, short_step
 
 from gripper_env.hardware import protocol as proto
 from gripper_env.hardware.host.errors import (
@@ -116,3 +116,53 @@ def test_a_vanished_port_is_reported_and_the_partial_log_kept(virtual, tmp_path)
     assert not dev.is_open
     rows = (tmp_path / "run.partial.csv").read_text().splitlines()
     assert len(rows) > 400
+
+
+def test_a_board_slower_than_the_timeout_is_no_reset(virtual) -> None:
+    """The board answers the handshake after the host's timeout (a busy machine, a slow USB
+    bridge): the host sends HELLO again, and the INFO that answers it arrives after the session
+    has started. That is the late answer to its own HELLO, not a reset ("sent INFO unasked"):
+    the session goes on and a run completes."""
+    # INFO 0.7 s late (after the 0.5 s timeout: HELLO is sent again), the INFO answering that
+    # HELLO later still: it comes after the session has started, behind the next answers
+    virtual.delay_frames(0.7, 0.9)
+    with open_device(virtual) as dev:
+        assert dev._hellos_sent >= 2
+        dev.configure()
+        rec = run_profile(dev, short_step(), Mode.OPEN_LOOP)
+        assert rec.complete
+        assert dev._late_infos == 0  # every late INFO arrived and was recognised
+
+
+def test_a_board_thread_left_waiting_catches_up_at_most_a_tenth_of_a_second() -> None:
+    """At real-time speed, the ticks a board's thread missed while the machine left it waiting
+    run in a burst of at most MAX_CATCH_UP_S; a longer wait makes device time slip instead."""
+    from gripper_env.hardware.virtual import MAX_CATCH_UP_S
+
+    vd = VirtualDevice("test2", "ideal", speed=1.0)  # not started: its pacing alone
+    vd._t0, vd.ticks = 100.0, 0
+    assert vd.due_ticks(100.05) == pytest.approx(50)
+    assert vd.due_ticks(103.0) == pytest.approx(1000 * MAX_CATCH_UP_S)  # waited 3 s
+    assert vd.slipped_s == pytest.approx(3.0 - MAX_CATCH_UP_S)
+    vd.ticks = 100
+    assert vd.due_ticks(103.0) == pytest.approx(0, abs=1e-6)
+
+
+def test_a_board_thread_left_waiting_does_not_trip_its_watchdog_on_a_live_host() -> None:
+    """The board's thread waits 2 s (a busy machine) in the middle of a run at real-time
+    speed, while the host keeps sending: the board does not squeeze 2 s of ticks into a
+    burst that the host could not answer (the watchdog's safe stop in tuners.rig.record)."""
+    with VirtualDevice("test2", "actual", speed=1.0, seed=3) as vd:
+        with open_device(vd, timeout_s=3.0) as dev:
+            dev.configure(decimation=10)  # 100 Hz telemetry: a host that keeps up, even here
+            profile = short_step()
+            stalled: list[float] = []
+
+            def stall(fraction: float) -> None:
+                if not stalled and fraction * profile.duration_s >= 1.0:
+                    stalled.append(fraction)
+                    vd.stall(2.0)
+
+            rec = run_profile(dev, profile, Mode.OPEN_LOOP, progress=stall)
+            assert rec.complete and stalled
+        assert vd.slipped_s >= 1.5

@@ -11,10 +11,13 @@ import pytest
 
 from gripper_env.io.files import (
     json_ready,
+    path_in,
     read_format_json,
+    safe_name,
     save_figure,
     write_atomic,
     write_csv,
+    write_group,
     write_json,
 )
 
@@ -202,3 +205,54 @@ def test_a_figure_gives_the_same_bytes_without_version_or_date(tmp_path):
     for suffix in (".svg", ".pdf"):
         first, second = draw(f"c{suffix}"), draw(f"d{suffix}")
         assert first.read_bytes() == second.read_bytes(), suffix
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["..", ".", "../results/test2", "/etc/passwd", "a/b", "a\\b", "nul\x00byte", "", "  ",
+     "tab\tname", "-rf", "~root", "x" * 101, None, 3],
+)  # fmt: skip
+def test_a_name_that_is_not_one_plain_path_component_is_refused(name):
+    with pytest.raises(ValueError) as info:
+        safe_name(name, "plant name")
+    line = str(info.value)
+    assert line.startswith("plant name ") and "\n" not in line
+    with pytest.raises(ValueError):
+        path_in("runs", "ok", name)
+
+
+@pytest.mark.parametrize("name", ["test2", "mine", "test2+test3+test4", "my gripper", "v1.2_a-b"])
+def test_plain_names_pass(name, tmp_path):
+    assert safe_name(name) == name
+    assert path_in(tmp_path, name).parent == tmp_path
+
+
+def test_files_are_written_with_the_users_umask(tmp_path, monkeypatch):
+    import gripper_env.io.files as files
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert files._UMASK == mask  # read at import
+    q = write_atomic(tmp_path / "default.txt", "x")
+    assert q.stat().st_mode & 0o777 == 0o666 & ~mask  # as open() makes it, not mkstemp's 0600
+    monkeypatch.setattr(files, "_UMASK", 0o027)
+    p = write_atomic(tmp_path / "new.txt", "x")
+    assert p.stat().st_mode & 0o777 == 0o640
+    os.chmod(p, 0o604)
+    write_atomic(p, "y")  # a replaced file keeps its own permissions
+    assert p.stat().st_mode & 0o777 == 0o604
+
+
+def test_a_group_of_files_appears_whole_or_not_at_all(tmp_path):
+    keep = write_atomic(tmp_path / "a.json", "old")
+    with pytest.raises(RuntimeError), write_group():
+        write_atomic(tmp_path / "a.json", "new")
+        write_atomic(tmp_path / "b.png", b"png")
+        assert keep.read_text() == "old"  # nothing visible until the block ends
+        raise RuntimeError("disk full while writing the third")
+    assert sorted(os.listdir(tmp_path)) == ["a.json"] and keep.read_text() == "old"
+    with write_group():
+        write_atomic(tmp_path / "a.json", "new")
+        write_atomic(tmp_path / "b.png", b"png")
+    assert sorted(os.listdir(tmp_path)) == ["a.json", "b.png"]
+    assert keep.read_text() == "new"

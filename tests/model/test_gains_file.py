@@ -14,7 +14,7 @@ from gripper_env.model.gains_file import (
     build_gains_file,
     load_gains_file,
 )
-from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.pid import GraspOptions, PIDGains, PIDOptions
 from gripper_env.model.plants import load_plant
 from gripper_env.model.references import load_reference
 from tuners.evaluation import evaluate
@@ -93,6 +93,9 @@ def test_unreachable_values_are_written_as_null(tmp_path):
         ({"P": "one"}, "'P' must be a finite number"),
         ({"P": None}, "'P' must be a finite number"),
         ({"sign": 3}, "sign"),
+        ({"limits": {"grasp": 1.0}}, "limits.grasp must be null or a mapping"),
+        ({"limits": {"grasp": {"squeez_deg": 1.0}}}, r"unknown keys \['squeez_deg'\]"),
+        ({"limits": {"grasp": {"squeeze_deg": -1.0}}}, "squeeze_deg must be finite and > 0"),
     ],
 )
 def test_bad_files_are_refused(tmp_path, patch, message):
@@ -138,3 +141,22 @@ def test_version_1_files_still_load(tmp_path):
         )
     )
     assert load_gains_file(path).gains == PIDGains(1.0, 9.0, -0.001, 100.0)
+
+
+def test_the_grasp_mode_is_written_and_read_back(tmp_path):
+    """``limits.grasp``: the mode's settings, or null for none; a file from before the mode
+    (no key) gets the default mode."""
+    content = _content()
+    assert content["limits"]["grasp"] == GraspOptions().as_dict()
+    assert load_gains_file(write_json(tmp_path / "on.json", content)).options.grasp == (
+        GraspOptions()
+    )
+    content["limits"]["grasp"] = {"squeeze_deg": 0.5, "dwell_s": 0.05}
+    loaded = load_gains_file(write_json(tmp_path / "own.json", content)).options.grasp
+    assert loaded == GraspOptions(squeeze_deg=0.5, dwell_s=0.05)
+    content["limits"]["grasp"] = None
+    assert load_gains_file(write_json(tmp_path / "off.json", content)).options.grasp is None
+    del content["limits"]["grasp"]
+    assert load_gains_file(write_json(tmp_path / "old.json", content)).options.grasp == (
+        GraspOptions()
+    )

@@ -14,9 +14,12 @@ from gripper_env.sim.bus_servo import DT, simulate_bus
 
 def _frictionless(family: str = "sts3215", lag_s: float = 0.0):
     m = load_bus_servo(family)
-    physics = m.physics.model_copy(
-        update={"coulomb": 0.0, "static": 0.0, "delay_s": 0.0, "loop_delay_s": lag_s}
-    )
+    physics = m.physics.model_copy(  # and no gear play: the loop is linear
+        update={
+            "coulomb": 0.0, "static": 0.0, "delay_s": 0.0, "loop_delay_s": lag_s,
+            "backlash_deg": 0.0,
+        }
+    )  # fmt: skip
     return m.with_updates(physics=physics)
 
 
@@ -108,3 +111,29 @@ def test_bad_batches_are_refused():
         core.run_bus(p, r, s, np.array([np.nan, 1.0]))
     with pytest.raises(ValueError, match="batch sizes differ"):
         core.run_bus(np.repeat(p, 2, axis=0), r, s, np.zeros(3))
+
+
+def test_backlash_is_a_play_operator_closed_by_the_object():
+    """Hand-worked: a 1 deg gap (half 0.5). Free of contact, the jaw stays where it is while the
+    motor side moves inside the gap, and is dragged by its far edge beyond it. Pressed on an
+    object at duty u without friction, the jaw settles where the spring balances u, obj - u / k,
+    with or without the gap; the motor side sits half a gap behind it."""
+    free = dict(lo=-1e9, hi=1e9, obj=-np.inf)
+    th = 0.0
+    for thm, expected in [(2.0, 1.5), (1.0, 1.5), (0.9, 1.4), (1.2, 1.4), (3.0, 2.5)]:
+        th = core._output(thm, th, 0.5, free["lo"], free["hi"], free["obj"])
+        assert th == pytest.approx(expected), (thm, th)
+    m = load_bus_servo("sts3215")
+    for gap in (0.0, 1.0):
+        physics = m.physics.model_copy(update={"coulomb": 0.0, "static": 0.0, "backlash_deg": gap})
+        mm = m.with_updates(physics=physics)
+        regs = RegisterSet(p=32, i=0, d=32, torque_limit=300)  # saturated at u = 0.3
+        run = simulate_bus(mm, regs, np.full(3000, mm.jaw.limits_deg[0]), with_object=True)
+        x = mm.jaw.object_deg - 0.3 / mm.jaw.contact_stiffness
+        assert run.force[0, -1] == pytest.approx(0.3, rel=1e-3)
+        assert run.position[0, -1] * mm.deg_per_tick == pytest.approx(x, abs=mm.deg_per_tick)
+    state = core.bus_state(mm)[None].copy()
+    params = core.bus_params(mm, with_object=True)[None]
+    goal = np.full((1, 3000), round(mm.jaw.limits_deg[0] / mm.deg_per_tick))
+    core.run_bus(params, core.bus_registers(mm, regs)[None], state, goal)
+    assert state[0, core.SB_TH] - state[0, core.SB_THM] == pytest.approx(0.5, abs=1e-9)

@@ -25,6 +25,7 @@ class _ScriptedServo:
 
     def __init__(self, clock: _Clock) -> None:
         self.model = load_bus_servo("sts3215")
+        self.calibration = None  # what the record carries: a real servo's jaw calibration
         self.clock = clock
         self.reads = 0
         self.goal_times: list[float] = []
@@ -46,7 +47,7 @@ class _ScriptedServo:
         self.goal_times.append(self._trip(0.0006))
         return angle
 
-    def position_deg(self) -> float:
+    def position_deg(self, retries: int | None = None) -> float:
         self.reads += 1
         slow = self.reads % 25 == 0
         self.log.append((len(self.goal_times), slow))  # goals sent so far, and how it went

@@ -10,13 +10,13 @@ import pytest
 from gripper_env import paper
 from gripper_env.model.plants import load_plant
 from gripper_env.model.references import load_reference
-from tuners.paper import reproduce
+from tuners.paper import command as paper_command
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
-    assert reproduce.main(["--out", str(out), "--seeds", "2"]) == 0
+    assert paper_command.main(["--out", str(out), "--seeds", "2"]) == 0
     return out, (out / "paper_reproduction.md").read_text()
 
 

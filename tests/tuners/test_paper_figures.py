@@ -9,6 +9,7 @@ import pytest
 from matplotlib.collections import PolyCollection
 
 from gripper_env.model.references import load_reference
+from tuners.paper import command as paper_command
 from tuners.paper import reproduce
 
 
@@ -59,6 +60,6 @@ def test_figure11_has_an_inset_on_each_step_and_the_seeds_as_a_band():
 
 
 def test_the_paper_command_writes_small_figures(tmp_path):
-    assert reproduce.main(["--out", str(tmp_path), "--seeds", "2"]) == 0
+    assert paper_command.main(["--out", str(tmp_path), "--seeds", "2"]) == 0
     for name in ("plants_step", "figure9_direct_response", "figure11_pid"):
         assert 10_000 < (tmp_path / "figures" / f"{name}.png").stat().st_size < 150_000

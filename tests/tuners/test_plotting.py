@@ -219,3 +219,35 @@ def test_a_ramps_zoom_is_on_its_end():
     fig = response_figure(ev, "ramp", BAND)
     assert "ramp from t = 1 s to 4 s" in fig.axes[1].get_title()
     plt.close(fig)
+
+
+def test_clustered_labels_are_placed_apart_and_joined_to_their_points():
+    """The Pareto figure's labels (tuners.plotting.spread_labels): twelve points within a few
+    pixels of each other get labels whose boxes do not overlap, each moved one joined to its
+    point by a line."""
+    from matplotlib.text import Text
+
+    from tuners.plotting import spread_labels
+
+    fig, ax = plt.subplots(figsize=(5, 4))
+    ax.set(xlim=(0, 4), ylim=(0, 30))
+    rng = np.random.default_rng(0)
+    xs, ys = 1.5 + 0.05 * rng.random(12), 10 + 0.3 * rng.random(12)
+    leader = {"arrowstyle": "-", "lw": 0.4}
+    labels = [ax.annotate(f"row-{k}", (x, y), fontsize=6, xytext=(3, 2),
+                          textcoords="offset points", arrowprops=leader)
+              for k, (x, y) in enumerate(zip(xs, ys, strict=True))]  # fmt: skip
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+
+    def overlaps():
+        boxes = [Text.get_window_extent(t, renderer) for t in labels]
+        return sum(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+
+    assert overlaps() > 10  # the case: they all sit on each other
+    spread_labels(ax, labels)
+    fig.canvas.draw()
+    assert overlaps() == 0
+    moved = [t for t in labels if t.xyann[1] > 2.0]
+    assert moved and all(t.arrow_patch.get_visible() for t in moved if t.xyann[1] > 6.0)
+    plt.close(fig)

@@ -18,12 +18,15 @@ from tuners.manual import main as manual_main
 
 
 def test_commands_write_to_runs_by_default():
+    from tuners.benchmark.command import QUICK_OUT, output_folder
     from tuners.benchmark.command import build_parser as bench_parser
     from tuners.optuna.command import build_parser as optuna_parser
     from tuners.rl.command import build_parser as rl_parser
 
     assert optuna_parser().parse_args(["--plant", "test2"]).out == cli.DEFAULT_OUT
-    assert bench_parser().parse_args([]).out == cli.DEFAULT_OUT
+    assert output_folder(bench_parser().parse_args([])) == cli.DEFAULT_OUT
+    quick = output_folder(bench_parser().parse_args(["--quick"]))
+    assert quick == QUICK_OUT and quick.parent == cli.DEFAULT_OUT  # apart from the full runs
     assert rl_parser().parse_args(["train", "--plant", "test2"]).out == cli.DEFAULT_OUT
     assert str(cli.DEFAULT_OUT) == "runs"
     ignored = subprocess.run(["git", "check-ignore", "runs/x.json"], cwd=REPO,

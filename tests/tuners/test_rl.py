@@ -54,6 +54,7 @@ def _git_status() -> str:
                           text=True).stdout  # fmt: skip
 
 
+@pytest.mark.readme  # a part of the README walk (tests/test_readme_walk.py): run with it, in CI
 def test_the_readme_rl_commands_run_as_printed(tmp_path):
     """Issue 19: every RL command the README and docs print exits 0 from a fresh directory,
     progress shown, with only its budget shortened (``--timesteps``, documented). Issue 21: the

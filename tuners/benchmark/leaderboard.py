@@ -673,7 +673,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--render", action="store_true",
                         help="first write REPORT and the figures again from the "
                              "benchmark.json beside it (no rows rerun)")  # fmt: skip
-    args = parser.parse_args(argv)
+    from tuners.conventions import conform
+
+    args = conform(parser, "tuners.benchmark.leaderboard").parse_args(argv)
     try:
         if args.render:
             render_again(Path(args.report).parent)

@@ -36,7 +36,7 @@ from tuners.interface import Budget, Tuned, Tuner
 from tuners.registry import make_tuner
 from tuners.settings import EvaluationSettings
 
-__all__ = ["run_benchmark"]
+__all__ = ["planned_rows", "run_benchmark"]
 
 
 def _loaded(bench: BenchmarkSettings, objective: Objective) -> Callable[..., cli.Inputs]:
@@ -67,6 +67,14 @@ def _tuners(bench: BenchmarkSettings, quick: bool, out: Path) -> list[Tuner]:
             continue
         tuners.append(tuner)
     return tuners
+
+
+def planned_rows(bench: BenchmarkSettings, quick: bool, out: Path) -> list[tuple[str, str]]:
+    """``(plant, row)`` of every per-plant row's gains file a run would write (checked before
+    the work: :func:`tuners.benchmark.command`'s refusal to replace a full run's results)."""
+    plants = bench.quick.plants if quick else bench.plants
+    names = [t.name for t in _tuners(bench, quick, out) if not t.plants]
+    return [(plant, name) for plant in plants for name in names]
 
 
 def _tune(
@@ -139,6 +147,7 @@ def run_benchmark(
         inputs = _inputs(plant, ev)
         done: dict[str, Tuned] = {}
         for tuner in (t for t in tuners if not t.plants):
+            log(f"  {plant:6s} {tuner.name}: tuning{' (quick budget)' if quick else ''}...")
             tuned = _tune(tuner, inputs, budget, bench.seed, done, log)
             if tuned is None:
                 continue
@@ -165,6 +174,7 @@ def run_benchmark(
                         )
     robust_done: dict[str, Tuned] = {}
     for tuner in (t for t in tuners if t.plants):
+        log(f"  {'+'.join(robust_plants)} {tuner.name}: tuning...")
         inputs = _inputs(robust_plants[0], ev)
         tuned = _tune(tuner, inputs, budget, bench.seed, robust_done, log)
         if tuned is None:

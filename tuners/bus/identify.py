@@ -110,6 +110,15 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--generations must be 1..10000, got {args.generations}")
     prior = load_bus_servo(args.model)
     records = [read_bus_record(p) for p in args.records]
+    # the records' jaw calibration (the owner's jaw, their angles' frame) goes into the model
+    calibration = records[0].calibration
+    for path, rec in zip(args.records, records, strict=True):
+        if rec.calibration != calibration:
+            raise ValueError(
+                f"{path} was recorded with another jaw calibration than {args.records[0]}: "
+                "identify records of one servo and one calibration together"
+            )
+    prior = prior.calibrated(calibration)
     est = identify_bus_servo(records, prior, name=args.name, seed=args.seed,
                              generations=args.generations)  # fmt: skip
     out = args.out or args.records[0].parent

@@ -1,18 +1,25 @@
 """``python -m tuners.bus.record``: record a bus servo's steps at several register settings, the
 records ``python -m tuners.bus.identify`` reads.
 
-For each setting (P, I, D; default :data:`gripper_env.sysid.bus_experiments.RECORD_SETTINGS` of
-the family) the servo's registers are written and read back, the torque goes on, the jaw settles
-open, and the plan runs: steps of 30, 10 and 4 deg, then a creep of one tick every 20 ms (see
-:mod:`gripper_env.sysid.bus_experiments`). The position is read every ``--sample-ms`` and each
-record is written to ``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. Every setting is
-checked stable on the family's model before anything is sent. Keep the jaws empty: the plan
-moves between the open position and 30 deg closed.
+Before anything is written: every setting is checked stable on the family's model, the plan is
+checked to lie inside the jaw calibration's goal range (``--jaw``, from ``python -m
+tuners.bus.calibrate``), the servo of ``--id`` is found on the bus (a broadcast ping lists the
+others; nothing is sent to them), and its calibration registers are read and compared with the
+jaw file's. Then, for each setting (P, I, D; default
+:data:`gripper_env.sysid.bus_experiments.RECORD_SETTINGS` of the family; the torque limit at
+most what the servo was found with and its maximum torque limit), the registers are written (on
+an STS3215 with ``Lock`` = 1: nothing is saved to its flash) and read back, the torque goes on,
+the jaw settles open, and the plan runs: steps of 30, 10 and 4 deg closing from the open
+position, then a creep of one tick every 20 ms (see :mod:`gripper_env.sysid.bus_experiments`).
+The position is read every ``--sample-ms`` and each record (with the jaw calibration) is written
+to ``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. At the end, on an error, on Ctrl-C
+or SIGTERM, every register written is restored and read back, the torque as it was found
+(unless ``--keep-torque``). Keep the jaws empty.
 
 Examples
 --------
-``python -m tuners.bus.record --port /dev/ttyUSB0 --model sts3215 --out runs/bus/sts3215``
-``python -m tuners.bus.record --port P --model xl330 --settings 200,0,0 400,0,0 --out runs/x``
+``python -m tuners.bus.record --port /dev/ttyUSB0 --id 6 --jaw runs/bus/jaw.json --out runs/bus``
+``python -m tuners.bus.record --port P --id 1 --model xl330 --jaw J --settings 200,0,0 400,0,0``
 """
 
 from __future__ import annotations
@@ -22,18 +29,28 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from gripper_env.hardware.bus.gripper import BusGripper
 from gripper_env.model.bus_servo import load_bus_servo
 from gripper_env.sysid.bus_experiments import (
     BusRecorder,
+    check_plan,
     check_settings,
     record_plan,
     settings_registers,
 )
 from gripper_env.sysid.bus_servo import write_bus_record
-from tuners.bus.cli import add_servo_arguments, run_cli
+from tuners.bus.cli import (
+    BusArgumentParser,
+    add_servo_arguments,
+    load_jaw,
+    open_gripper,
+    output_folder,
+    run_cli,
+)
 
 __all__ = ["main", "parse_setting"]
+
+#: Readings dropped as slow beyond this fraction get a warning (the host is too loaded).
+SLOW_WARNING = 0.10
 
 
 def parse_setting(text: str) -> tuple[int, int, int]:
@@ -50,12 +67,20 @@ def parse_setting(text: str) -> tuple[int, int, int]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = BusArgumentParser(
         prog="python -m tuners.bus.record",
         description="Record a bus servo's steps and creep at several P/I/D settings (the "
-        "records identification reads). Keep the jaws empty.",
+        "records identification reads), inside its calibrated jaw; the servo is left as "
+        "found. Keep the jaws empty.",
     )
     add_servo_arguments(parser)
+    parser.add_argument(
+        "--jaw",
+        default=None,
+        metavar="FILE",
+        help="the jaw calibration (python -m tuners.bus.calibrate); required unless --model "
+        "is an identified model file that carries one",
+    )
     parser.add_argument(
         "--settings",
         nargs="+",
@@ -78,28 +103,52 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if not 0.0 < args.sample_ms <= 100.0:
+        raise ValueError(f"--sample-ms must be in (0, 100] ms, got {args.sample_ms}")
     model = load_bus_servo(args.model)
     registers = settings_registers(model, args.settings)
     check_settings(model, registers)  # before anything is sent
+    calibration = load_jaw(args.jaw, model, args.id)
+    model = model.calibrated(calibration)
     plan = record_plan(model)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with BusGripper(args.port, model, args.id, baudrate=args.baudrate) as jaw:
+    check_plan(plan, calibration.goal_range_deg(), "record's plan (steps of 30, 10, 4 deg)")
+    out = output_folder(args.out)
+    with open_gripper(args, model, calibration) as jaw:
+        limit = min(jaw.found["torque_limit"], jaw.servo_registers.max_torque_limit)
+        capped = [r.model_copy(update={"torque_limit": min(r.torque_limit, limit)})
+                  for r in registers]  # fmt: skip
+        if any(c != r for c, r in zip(capped, registers, strict=True)):
+            print(f"note: torque limit held at {limit}, the servo's own (as found, within its "
+                  "maximum)", flush=True)  # fmt: skip
+        for regs in capped:
+            jaw.register_values(regs)  # every setting checked before the first is written
         recorder = BusRecorder(jaw, sample_s=args.sample_ms / 1e3)
-        for k, regs in enumerate(registers, start=1):
+        for k, regs in enumerate(capped, start=1):
             rec = recorder.record(regs, plan)
-            path = args.out / f"record_p{regs.p}_i{regs.i}_d{regs.d}.csv"
+            path = out / f"record_p{regs.p}_i{regs.i}_d{regs.d}.csv"
             write_bus_record(path, rec)
             dt = (rec.t_s[-1] - rec.t_s[0]) / max(rec.t_s.size - 1, 1)
             print(
-                f"[{k}/{len(registers)}] {regs.label()}: {rec.t_s.size} readings "
+                f"[{k}/{len(capped)}] {rec.registers.label()}: {rec.t_s.size} readings "
                 f"(every {dt * 1e3:.2f} ms), {rec.goal_times_s.size} goals, "
-                f"{recorder.lost} replies lost and {recorder.slow} slow readings dropped so far "
+                f"{recorder.lost} readings lost and {recorder.slow} slow ones dropped so far "
                 f"-> {path}",
                 flush=True,
             )
         recorder.settle(model.jaw.open_deg, 0.2)
-    print(f"recorded {len(registers)} settings on {args.port}; next: python -m "
-          f"tuners.bus.identify {args.out}/record_*.csv --model {args.model}")  # fmt: skip
+    assert jaw.restored is not None
+    print(jaw.restored.describe())
+    slow = recorder.slow / max(recorder.readings, 1)
+    if slow > SLOW_WARNING:
+        print(
+            f"warning: {100 * slow:.0f} % of the readings came back slowly and were dropped: "
+            "the host is loaded (or the adapter's latency timer is long); record again on a "
+            "quieter host for a sharper fit",
+            file=sys.stderr,
+        )
+    print(f"recorded {len(capped)} settings on {args.port} ({jaw.link.retried} replies lost and "
+          f"sent again); next: python -m tuners.bus.identify {out}/record_*.csv --model "
+          f"{args.model}")  # fmt: skip
     return 0
 
 

@@ -16,6 +16,8 @@ Examples
 --------
 ``python -m tuners.bus.tune --model sts3215 --trials 300 --out results/bus``
 ``python -m tuners.bus.tune --model runs/bus/mine_model.json --out runs/bus``
+``python -m tuners.bus.tune --model xl330 --operating-mode current_position`` (the Koch gripper:
+P, I, D and the goal current; ``--goal-current 500`` keeps the goal current given)
 """
 
 from __future__ import annotations
@@ -39,10 +41,11 @@ from gripper_env.model.bus_servo import (
     RegisterSet,
     alternative_models,
     load_bus_servo,
+    relative_uncertainties,
 )
 from tuners import cli
 
-__all__ = ["SEARCH_SPACE", "constraint_value", "main", "tune_registers"]
+__all__ = ["SEARCH_SPACE", "constraint_value", "main", "search_space", "tune_registers"]
 
 #: Integer search ranges per family: (low, high) of P, I, D and the torque limit register. The
 #: STS3215's gains are one-byte registers (0-254); the XL's position gains go to 16383, searched
@@ -53,6 +56,34 @@ SEARCH_SPACE: dict[str, dict[str, tuple[int, int]]] = {
     "xl330": {"p": (10, 6000), "i": (0, 4000), "d": (0, 12000), "torque_limit": (90, 885)},
     "xl430": {"p": (10, 6000), "i": (0, 4000), "d": (0, 12000), "torque_limit": (90, 885)},
 }
+#: Current-based position mode (Dynamixel mode 5, the Koch gripper): the goal current (register
+#: units, mA on the XL330) takes the torque limit's place, which stays the factory's PWM limit.
+#: Without back-EMF damping the loop needs more D.
+CURRENT_SEARCH_SPACE: dict[str, tuple[int, int]] = {
+    "p": (10, 6000), "i": (0, 4000), "d": (0, 16000), "goal_current": (50, 1750),
+}  # fmt: skip
+
+
+def search_space(
+    model: BusServoModel, goal_current: int | None = None
+) -> dict[str, tuple[int, int]]:
+    """The registers searched for ``model`` and their ranges: :data:`SEARCH_SPACE`, or in
+    current-based position mode :data:`CURRENT_SEARCH_SPACE` (without the goal current when it
+    is ``goal_current``, given). The torque limit is capped at the servo's own maximum torque
+    limit when the model carries a real servo's calibration (LeRobot's SO gripper:
+    ``Max_Torque_Limit`` 500): a tuned set never asks more than the owner allows."""
+    if not model.current_mode:
+        space = dict(SEARCH_SPACE[model.family])
+    else:
+        space = dict(CURRENT_SEARCH_SPACE)
+        if goal_current is not None:
+            del space["goal_current"]
+    cal = model.calibration
+    if cal is not None and cal.servo is not None and "torque_limit" in space:
+        lo, hi = space["torque_limit"]
+        top = cal.servo.max_torque_limit
+        space["torque_limit"] = (min(lo, top), min(hi, top))
+    return space
 
 
 def constraint_value(score: BusScore) -> float:
@@ -84,6 +115,7 @@ def tune_registers(
     progress: bool = True,
     batch: int = 16,
     polish: int = 600,
+    goal_current: int | None = None,
 ) -> tuple[BusScore, optuna.Study]:
     """The best feasible registers for ``model``: ``trials`` TPE trials, then local searches of
     at most ``polish`` judged candidates each.
@@ -108,13 +140,18 @@ def tune_registers(
        result a local optimum on the integer grid, and the distinct starts keep one basin from
        deciding.
 
+    In current-based position mode (:attr:`BusServoModel.operating_mode`) the goal current is
+    searched in the torque limit's place, or kept at ``goal_current`` when given.
+
     Raises
     ------
     RuntimeError
         If no trial is feasible (the constraints cannot be met on this model).
     """
-    space = SEARCH_SPACE[model.family]
-    base = model.factory
+    space = search_space(model, goal_current)
+    base = model.baselines()["factory"]
+    if goal_current is not None:
+        base = base.model_copy(update={"goal_current": int(goal_current)})
     keys = list(space)
     n_global = max(trials, len(model.baselines()))
     sampler = optuna.samplers.TPESampler(
@@ -292,9 +329,9 @@ def _pattern_moves(
     return out
 
 
-def _on_bounds(regs: RegisterSet, family: str) -> list[str]:
+def _on_bounds(regs: RegisterSet, space: dict[str, tuple[int, int]]) -> list[str]:
     out = []
-    for k, (lo, hi) in SEARCH_SPACE[family].items():
+    for k, (lo, hi) in space.items():
         v = getattr(regs, k)
         if v in (lo, hi) and not (k == "i" and v == 0):
             out.append(f"{k}={v} on its search bound [{lo}, {hi}]")
@@ -346,6 +383,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="most register sets each local search after TPE judges (default 600; it stops "
         "earlier when no one-step change is better)",
     )
+    parser.add_argument(
+        "--operating-mode",
+        choices=("position", "current_position"),
+        default=None,
+        help="the loop the servo runs: position control, or current-based position control "
+        "(Dynamixel mode 5, the Koch gripper's; XL330 only); default the model's",
+    )
+    parser.add_argument(
+        "--goal-current",
+        type=int,
+        default=None,
+        metavar="UNITS",
+        help="current-based position mode: keep this goal current (register units, mA on the "
+        "XL330) instead of tuning it",
+    )
     parser.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
     parser.add_argument(
         "--out", type=Path, default=Path("runs/bus"), help="folder for <name>_registers.json/.md"
@@ -378,10 +430,40 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: --model: {exc}", file=sys.stderr)
         return 2
+    if args.operating_mode is not None and args.operating_mode != model.operating_mode:
+        try:
+            model = model.with_updates(operating_mode=args.operating_mode)
+            alternatives = [
+                a.with_updates(operating_mode=args.operating_mode) for a in alternatives
+            ]
+        except ValueError:
+            print(
+                f"error: --operating-mode {args.operating_mode}: the {model.family} model has no "
+                "current-based position mode (it needs a goal-current register: xl330)",
+                file=sys.stderr,
+            )
+            return 2
+    if args.goal_current is not None:
+        lo, hi = CURRENT_SEARCH_SPACE["goal_current"]
+        if not model.current_mode:
+            print(
+                "error: --goal-current applies in current-based position mode "
+                "(--operating-mode current_position)",
+                file=sys.stderr,
+            )
+            return 2
+        if not lo <= args.goal_current <= hi:
+            print(
+                f"error: --goal-current must be {lo}..{hi}, got {args.goal_current}",
+                file=sys.stderr,
+            )
+            return 2
+    space = search_space(model, args.goal_current)
     try:
         best, study = tune_registers(
             model, trials=args.trials, seed=args.seed, rel_std=rel_std, polish=args.polish,
             alternatives=alternatives, progress=not args.no_progress and sys.stderr.isatty(),
+            goal_current=args.goal_current,
         )  # fmt: skip
     except RuntimeError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -391,7 +473,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                          strict=False))  # fmt: skip
     rows = {"tuned": best, **baselines}
     table = format_table(rows)
-    bounds = _on_bounds(best.registers, model.family)
+    bounds = _on_bounds(best.registers, space)
     local = bool(study.user_attrs.get("local_optimum", False))
     if not local:
         bounds.append(
@@ -413,7 +495,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "registers": best.registers.model_dump(),
         "score": best.as_dict(),
         "baselines": {k: v.as_dict() for k, v in baselines.items()},
-        "search_space": SEARCH_SPACE[model.family],
+        "search_space": space,
         "trials": args.trials,
         "judged": len(study.trials),
         "seed": args.seed,
@@ -444,7 +526,8 @@ def identified_extras(
     Raises
     ------
     gripper_env.io.config.ConfigError
-        If an alternative is not a valid model (naming the file, the entry and the field).
+        If an alternative is not a valid model (naming the file, the entry and the field), or
+        an uncertainty is not a finite number >= 0 (naming the key).
     """
     if not str(model_arg).endswith(".json"):
         return None, []
@@ -454,8 +537,7 @@ def identified_extras(
         return None, []
     if not isinstance(doc, dict):
         return None, []
-    unc = doc.get("uncertainty", {})
-    rel_std = {k: float(v) for k, v in unc.items() if isinstance(v, int | float)} or None
+    rel_std = relative_uncertainties(doc, "uncertainty", str(model_arg))
     return rel_std, alternative_models(doc, "alternatives", str(model_arg))
 
 

@@ -3,14 +3,17 @@
 The servo speaks its family's protocol byte for byte (Feetech SCS/STS for the STS3215, Dynamixel
 Protocol 2.0 for the XL330 and XL430) and runs the simulation core's model of its position loop
 (:class:`gripper_env.hardware.bus.unit.ServoUnit`). It prints the pty path: pass it as ``--port``
-to ``python -m tuners.bus.record`` and ``python -m tuners.bus.deploy`` (or to the vendors' own
-tools). ``--object DEG`` puts an object in the jaws; ``--truth FILE`` runs another model than
-the family's (a servo whose parameters the identification must find). Stops on Ctrl-C or
-SIGTERM.
+to ``python -m tuners.bus.calibrate``, ``record`` and ``deploy`` (or to the vendors' own tools).
+``--object DEG`` puts an object in the jaws; ``--model FILE`` runs another model than the
+family's (a servo whose parameters the identification must find). ``--others 1 2 3 4 5`` puts
+more servos of the family on the bus (the other joints of an arm; they only mirror their goal),
+and ``--limits MIN MAX`` writes the gripper's position limits as LeRobot's calibration does: the
+bus an SO-101 owner has, with the gripper at ``--id 6``. Stops on Ctrl-C or SIGTERM.
 
 Examples
 --------
 ``python -m tuners.bus.virtual --model sts3215 --link /tmp/sts3215``
+``python -m tuners.bus.virtual --id 6 --others 1 2 3 4 5 --limits 1750 2950 --link /tmp/so101``
 """
 
 from __future__ import annotations
@@ -22,16 +25,18 @@ import sys
 import threading
 from collections.abc import Sequence
 
+from gripper_env.hardware.bus.control_table import ControlTable
 from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.unit import ServoUnit
 from gripper_env.io.config import ConfigError
 from gripper_env.model.bus_servo import load_bus_servo
+from tuners.bus.cli import BusArgumentParser, servo_id
 
 __all__ = ["main"]
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = BusArgumentParser(
         prog="python -m tuners.bus.virtual",
         description="Run a virtual bus servo (STS3215, XL330 or XL430) on a pseudo-terminal; "
         "prints the port to pass as --port to the bus commands.",
@@ -41,7 +46,24 @@ def _parser() -> argparse.ArgumentParser:
         default="sts3215",
         help="the servo: sts3215, xl330, xl430, or a model file (default sts3215)",
     )
-    parser.add_argument("--id", type=int, default=1, help="the servo's ID (default 1)")
+    parser.add_argument("--id", type=servo_id, default=1, help="the servo's ID (default 1)")
+    parser.add_argument(
+        "--others",
+        type=servo_id,
+        nargs="+",
+        default=[],
+        metavar="ID",
+        help="more servos of the family on the bus at these IDs (they mirror their goal)",
+    )
+    parser.add_argument(
+        "--limits",
+        type=int,
+        nargs=2,
+        default=None,
+        metavar=("MIN", "MAX"),
+        help="the servo's min and max position limits (ticks), written as LeRobot's "
+        "calibration does (default: the factory's, the whole turn)",
+    )
     parser.add_argument(
         "--object",
         type=float,
@@ -57,19 +79,53 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_link(path: str | None) -> str | None:
+    """``--link``'s absolute path: its folder must exist, and anything there must be a
+    symbolic link (replaced), never a file."""
+    if path is None:
+        return None
+    link = os.path.abspath(path)
+    folder = os.path.dirname(link)
+    if not os.path.isdir(folder):
+        raise ValueError(f"--link {path}: the folder {folder} does not exist")
+    if os.path.lexists(link) and not os.path.islink(link):
+        raise ValueError(f"--link {path}: a file is there (only a symbolic link is replaced)")
+    return link
+
+
+def _gripper_table(family: str, servo: int, limits: list[int] | None) -> ControlTable:
+    """The gripper servo's table, its position limits written as the host would (saved)."""
+    table = ControlTable(family, servo)
+    if limits is not None:
+        lo, hi = limits
+        spec = table.spec
+        for role, value in (("min_position", lo), ("max_position", hi)):
+            spec.role(role).check(value)  # ValueError naming the register and its range
+        if not lo < hi:
+            raise ValueError(f"--limits: MIN must be below MAX, got {lo} {hi}")
+        for role, value in (("min_position", lo), ("max_position", hi)):
+            f = spec.role(role)
+            if table.write(f.address, f.encode(value)):
+                raise ValueError(f"--limits: the {family} refuses {f.name} {value}")
+    return table
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``python -m tuners.bus.virtual``; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
     try:
+        link = _check_link(args.link)
         model = load_bus_servo(args.model)
-        if not 0 <= args.id <= 252:
-            raise ValueError(f"--id must be 0..252, got {args.id}")
+        if args.id in args.others or len(set(args.others)) != len(args.others):
+            raise ValueError(f"--others {args.others}: each ID once, and not --id {args.id}")
         lo, hi = model.jaw.limits_deg
         if args.object is not None and not lo <= args.object <= hi:
             raise ValueError(f"--object must lie in the jaw's range [{lo:g}, {hi:g}] deg")
         unit = ServoUnit(model, object_deg=args.object)
-        bus = VirtualBus(model.family, ids=(args.id,), physics=unit)
+        gripper = _gripper_table(model.family, args.id, args.limits)
+        ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
+        bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
     except (ConfigError, ValueError, OSError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     stop = threading.Event()
@@ -79,17 +135,20 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, _on_signal)
     signal.signal(signal.SIGINT, _on_signal)
-    link = None
     with bus:
-        if args.link:
-            link = os.path.abspath(args.link)
-            if os.path.islink(link):
-                os.unlink(link)
-            os.symlink(bus.path, link)
+        if link:
+            try:
+                if os.path.islink(link):
+                    os.unlink(link)
+                os.symlink(bus.path, link)
+            except OSError as exc:
+                parser.exit(2, f"{parser.prog}: error: --link {args.link}: {exc}\n")
         try:
             print(bus.path, flush=True)
+            others = f", other servos at IDs {sorted(args.others)}" if args.others else ""
             print(
-                f"virtual {model.family} ({model.name}), ID {args.id}"
+                f"virtual {model.family} ({model.name}), ID {args.id}{others}"
+                + (f", position limits {args.limits}" if args.limits else "")
                 + (f", object at {args.object:g} deg" if args.object is not None else "")
                 + (f", linked at {link}" if link else "")
                 + "; Ctrl-C to stop",

@@ -14,7 +14,28 @@ constraints, as an engineer using the rule would; :mod:`~tuners.classical.comman
 command line.
 """
 
-from tuners.classical.constrained import KNOBS, constrained_design
-from tuners.classical.rules import FOPDT, METHODS, design, fit_fopdt
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tuners.classical.constrained import KNOBS, constrained_design
+    from tuners.classical.rules import FOPDT, METHODS, design, fit_fopdt
 
 __all__ = ["FOPDT", "KNOBS", "METHODS", "constrained_design", "design", "fit_fopdt"]
+
+#: Imported on first use: ``python -m tuners.classical --help`` answers before the core loads.
+_LAZY = {
+    "KNOBS": "tuners.classical.constrained",
+    "constrained_design": "tuners.classical.constrained",
+    "FOPDT": "tuners.classical.rules",
+    "METHODS": "tuners.classical.rules",
+    "design": "tuners.classical.rules",
+    "fit_fopdt": "tuners.classical.rules",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tuners.classical' has no attribute {name!r}")
+    return getattr(importlib.import_module(module), name)

@@ -2,28 +2,29 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 from tuners import cli
-from tuners.classical.constrained import KNOBS
-from tuners.classical.rules import METHODS
-from tuners.classical.tuner import tune_rule, tuner_name
-from tuners.settings import ClassicalSettings, OptunaSettings, check_disjoint, load_settings
 
-__all__ = ["build_parser", "main"]
+__all__ = ["METHOD_NAMES", "build_parser", "main"]
+
+#: The rules ``--method`` takes (:data:`tuners.classical.rules.METHODS`, checked by a test): the
+#: rules themselves load after the command line is checked (tuners.conventions).
+METHOD_NAMES = ("simc", "lambda", "amigo-pi", "amigo-pid", "migo", "pidtune")
 
 
 def build_parser():
     parser = cli.base_parser(
-        "python -m tuners.classical",
+        "tuners.classical",
         "PID gains from the plant's model by a textbook robust design, its robustness knob set "
         "to the best value that meets the objective's constraints (or, with --fixed, at the "
         "rule's fixed setting from the config).",
     )
     parser.add_argument(
         "--method",
-        choices=(*METHODS, "all"),
+        choices=(*METHOD_NAMES, "all"),
         default=None,
         help="design method (default: the config's 'method'); 'all' runs every one",
     )
@@ -61,17 +62,31 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
+    from tuners.classical.constrained import KNOBS
+    from tuners.classical.rules import require_stable
+    from tuners.classical.tuner import tune_rule, tuner_name
+    from tuners.settings import ClassicalSettings, OptunaSettings, check_disjoint, load_settings
+
     inputs = cli.resolve(args)
     settings = load_settings(ClassicalSettings, args.config)
     opt = load_settings(OptunaSettings, args.optuna_config)
     check_disjoint(opt.tuning_seeds, inputs.settings.seeds)
     plants = cli.plants_arg(args.plants)
+    require_stable(inputs.plant)  # refused before any work (and any progress line)
     chosen = args.method or settings.method
-    methods = list(METHODS) if chosen == "all" else [chosen]
+    methods = list(METHOD_NAMES) if chosen == "all" else [chosen]
     if args.json and len(methods) > 1:
         raise ValueError("--json prints one gains file; use it with one --method, not 'all'")
     for method in methods:
         start = time.perf_counter()
+        where = "+".join(plants) or inputs.plant.name
+        how = (
+            "its knob set under the constraints"
+            if method in KNOBS and not args.fixed
+            else ("at its fixed setting")
+        )
+        print(f"{method} on {where}: FOPDT fit, then the rule with {how} "
+              f"(scored on the tuning seeds)...", file=sys.stderr, flush=True)  # fmt: skip
         gains, tuning = tune_rule(
             method, inputs, settings, fixed=args.fixed, plants=plants, optuna_settings=opt
         )
@@ -87,6 +102,12 @@ def _main(argv: list[str] | None = None) -> int:
                 f"[{k['range'][0]:g}, {k['range'][1]:g}] that meets the constraints "
                 f"(tuning cost {tuning['best_value_tuning']:.4g})"
             )
+        print(
+            f"{method}: evaluating P={gains.P:.4g} I={gains.I:.4g} D={gains.D:.4g} on "
+            f"{inputs.settings.seeds.count} held-out seeds...",
+            file=sys.stderr,
+            flush=True,
+        )
         cli.publish(
             args,
             inputs,

@@ -50,10 +50,40 @@ workers on one study), :mod:`~tuners.optuna.sampler` (samplers by name),
 
 from __future__ import annotations
 
-from tuners.optuna.sampler import SAMPLERS, make_sampler
-from tuners.optuna.search import best_of, make_scorer, make_task, search, seed_summary, tuner_name
-from tuners.optuna.storage import open_storage, redact
-from tuners.optuna.study import CONSTRAINTS, StudyResult, knee_point, run_study
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tuners.optuna.sampler import SAMPLERS, make_sampler
+    from tuners.optuna.search import (
+        best_of,
+        make_scorer,
+        make_task,
+        search,
+        seed_summary,
+        tuner_name,
+    )
+    from tuners.optuna.storage import open_storage, redact
+    from tuners.optuna.study import CONSTRAINTS, StudyResult, knee_point, run_study
+
+#: Where each public name lives, imported on first use (``python -m tuners.optuna --help``
+#: then answers before Optuna and the core load).
+_LAZY = {
+    "SAMPLERS": "tuners.optuna.sampler",
+    "make_sampler": "tuners.optuna.sampler",
+    "best_of": "tuners.optuna.search",
+    "make_scorer": "tuners.optuna.search",
+    "make_task": "tuners.optuna.search",
+    "search": "tuners.optuna.search",
+    "seed_summary": "tuners.optuna.search",
+    "tuner_name": "tuners.optuna.search",
+    "open_storage": "tuners.optuna.storage",
+    "redact": "tuners.optuna.storage",
+    "CONSTRAINTS": "tuners.optuna.study",
+    "StudyResult": "tuners.optuna.study",
+    "knee_point": "tuners.optuna.study",
+    "run_study": "tuners.optuna.study",
+}
 
 __all__ = [
     "CONSTRAINTS",
@@ -71,3 +101,12 @@ __all__ = [
     "seed_summary",
     "tuner_name",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tuners.optuna' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

@@ -11,35 +11,28 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import optuna
-
-from gripper_env.evaluation.scoring import GainScorer
-from gripper_env.io.config import ConfigError
 from tuners import cli
-from tuners.optuna.sampler import SAMPLERS, make_sampler
-from tuners.optuna.search import best_of, make_scorer, seed_summary, tuner_name
-from tuners.optuna.storage import StudyStorage, open_storage, redact
-from tuners.optuna.study import StudyResult, check_study_attrs, run_study
-from tuners.optuna.workers import Worker
-from tuners.search_space import SearchSpace, search_space
-from tuners.settings import (
-    MAX_SEARCH_SEEDS,
-    MAX_TRIALS,
-    OptunaSettings,
-    check_disjoint,
-    load_settings,
-)
+
+# The search's libraries (Optuna, the core) load after the command line is checked: --help and
+# a bad argument answer at once (tuners.conventions).
+if TYPE_CHECKING:
+    from gripper_env.evaluation.scoring import GainScorer
+    from tuners.optuna.storage import StudyStorage
+    from tuners.optuna.study import StudyResult
+    from tuners.search_space import SearchSpace
+    from tuners.settings import OptunaSettings
+
+#: The sampler names ``--sampler`` takes (:data:`tuners.optuna.sampler.SAMPLERS`).
+SAMPLER_NAMES = ("tpe", "cmaes", "random")
 
 __all__ = ["build_parser", "main"]
-
-logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
 
 
 def build_parser():
     parser = cli.base_parser(
-        "python -m tuners.optuna",
+        "tuners.optuna",
         "Search PID gains with Optuna on the actual-gripper model, under robustness "
         "constraints (robust over disturbance seeds, and over plants with --plants).",
     )
@@ -79,7 +72,7 @@ def build_parser():
     )
     parser.add_argument(
         "--sampler",
-        choices=SAMPLERS,
+        choices=SAMPLER_NAMES,
         default=None,
         help="search algorithm (default: the config's 'sampler')",
     )
@@ -115,6 +108,15 @@ class _Plan:
 
 def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
     """Check the trials, search seeds and sampler; name the studies and their storage."""
+    from tuners.optuna.sampler import make_sampler
+    from tuners.settings import (
+        MAX_SEARCH_SEEDS,
+        MAX_TRIALS,
+        OptunaSettings,
+        check_disjoint,
+        load_settings,
+    )
+
     settings = load_settings(OptunaSettings, args.config)
     check_disjoint(settings.tuning_seeds, inputs.settings.seeds)
     n_trials = settings.trials if args.trials is None else args.trials
@@ -152,6 +154,13 @@ def _search(
     space: SearchSpace,
 ) -> tuple[list[StudyResult], list[str]]:
     """One study per search seed (stopping at an interruption): their results and names."""
+    import optuna
+
+    from gripper_env.io.config import ConfigError
+    from tuners.optuna.sampler import make_sampler
+    from tuners.optuna.study import check_study_attrs, run_study
+    from tuners.optuna.workers import Worker
+
     n_objectives = len(plan.terms) if plan.multi else 1
     results, names = [], []
     for i in range(plan.n_seeds):
@@ -205,6 +214,9 @@ def _tuning_record(
     wall_s: float,
 ) -> dict[str, Any]:
     """The gains file's ``tuning`` block: the studies, the kept seed's best trial, the spread."""
+    from tuners.optuna.search import seed_summary
+    from tuners.optuna.storage import redact
+
     best = results[chosen]
     return {
         "study_names": names,
@@ -237,6 +249,8 @@ def _notes(
 ) -> list[str]:
     """What the report says beside the gains: seed spread, infeasibility, Pareto knee, and
     (last) an interruption."""
+    from tuners.optuna.storage import redact
+
     best = results[chosen]
     notes = []
     if len(results) > 1:
@@ -276,6 +290,11 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     start = time.perf_counter()
+    logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
+    from tuners.optuna.search import best_of, make_scorer, tuner_name
+    from tuners.optuna.storage import open_storage
+    from tuners.search_space import search_space
+
     # 1. check every input before anything is written
     inputs = cli.resolve(args)
     plants = cli.plants_arg(args.plants)

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING, Any
 
-import optuna
-
-from tuners.settings import OptunaSettings
+if TYPE_CHECKING:
+    from tuners.settings import OptunaSettings
 
 __all__ = ["SAMPLERS", "make_sampler"]
 
@@ -14,8 +14,10 @@ __all__ = ["SAMPLERS", "make_sampler"]
 SAMPLERS = ("tpe", "cmaes", "random")
 
 
-def make_sampler(name: str, seed: int, settings: OptunaSettings, multi: bool):
+def make_sampler(name: str, seed: int, settings: OptunaSettings, multi: bool) -> Any:
     """The sampler: TPE (multivariate, constant liar for batches), CMA-ES, or random."""
+    import optuna
+
     if name == "random":
         return optuna.samplers.RandomSampler(seed=seed)
     if name == "cmaes":

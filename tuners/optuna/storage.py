@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import json
 import os
 import random
+import sys
 import threading
 import time
 import warnings
@@ -36,7 +38,7 @@ from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
 from gripper_env.io.config import ConfigError
 from tuners.settings import OptunaSettings
 
-__all__ = ["FileLock", "StudyStorage", "open_storage", "redact"]
+__all__ = ["FileLock", "JournalFile", "StudyStorage", "open_storage", "redact"]
 
 
 def redact(url: str) -> str:
@@ -101,6 +103,141 @@ class FileLock(JournalFileOpenLock):
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+#: Where a journal's torn records are set aside: ``<journal>.torn`` beside it.
+TORN_SUFFIX = ".torn"
+
+
+class JournalFile(JournalFileBackend):
+    """Optuna's journal file that a full disk or a crash mid-write cannot make unreadable.
+
+    Optuna appends each change as one JSON line. If the disk fills (or the process dies) in the
+    middle of a line, that last line is torn; Optuna skips it when reading, but the next append
+    glues a whole record to it, and from then on every open refuses the file, losing every
+    study in it. Here, under the journal's lock:
+
+    * an append that fails (``ENOSPC``, ``EIO``) is cut back to the file's size before it,
+      so the journal never ends in a torn record (truncating needs no space);
+    * a journal that already ends in a torn record (a crash, an older version) has it set aside
+      in ``<journal>.torn`` and cut off before anything is appended, and a line that an older
+      version glued to a torn one is split back into the record it holds (set aside too, with
+      the rest of the journal rewritten), so the studies before it stay readable.
+
+    Parameters
+    ----------
+    file_path : str
+        The journal file (created if missing).
+    lock_obj : FileLock
+        The journal's lock (:class:`FileLock`, re-entrant within a process).
+    notify : callable
+        Told, in a line, what was repaired (default: printed on stderr).
+    """
+
+    def __init__(self, file_path: str, lock_obj: FileLock, notify: Any = None) -> None:
+        super().__init__(file_path, lock_obj=lock_obj)
+        self._file_lock = lock_obj  # typed: Optuna's attribute is its abstract lock
+        self._notify = notify or (lambda line: print(line, file=sys.stderr, flush=True))
+        with lock_obj:
+            self.repair()
+
+    def append_logs(self, logs: list[dict[str, Any]]) -> None:
+        """Append ``logs`` whole, or leave the journal as it was."""
+        with self._file_lock:  # re-entrant: Optuna's append takes it again
+            self._set_aside_torn_tail()
+            size = os.path.getsize(self._file_path)
+            try:
+                super().append_logs(logs)
+            except OSError as exc:
+                try:
+                    os.truncate(self._file_path, size)
+                except OSError:
+                    pass
+                raise OSError(exc.errno, exc.strerror, self._file_path) from None
+
+    def repair(self) -> None:
+        """Set aside a torn last record, and split records glued to torn ones (see above)."""
+        self._set_aside_torn_tail()
+        with open(self._file_path, "rb") as f:
+            data = f.read()
+        lines = data.splitlines(keepends=True)
+        bad = [i for i, line in enumerate(lines) if not _json_line(line)]
+        if not bad:
+            return
+        torn, kept = [], []
+        for i, line in enumerate(lines):
+            if i not in bad:
+                kept.append(line)
+                continue
+            start = line.rfind(_RECORD_START)
+            if start > 0 and _json_line(line[start:]):  # a torn record, then a whole one
+                torn.append(line[:start] + b"\n")
+                kept.append(line[start:])
+            else:
+                torn.append(line if line.endswith(b"\n") else line + b"\n")
+        self._keep_torn(b"".join(torn))
+        from gripper_env.io.files import write_atomic
+
+        write_atomic(self._file_path, b"".join(kept))
+        self._log_number_offset = {0: 0}
+        self._notify(
+            f"{self._file_path}: {len(bad)} damaged record(s) set aside in "
+            f"{self._file_path}{TORN_SUFFIX}; the studies are readable again"
+        )
+
+    def _set_aside_torn_tail(self) -> None:
+        """Cut off a last line without its newline, keeping it in ``<journal>.torn``."""
+        path = self._file_path
+        size = os.path.getsize(path)
+        if size == 0:
+            return
+        with open(path, "rb") as f:
+            f.seek(size - 1)
+            if f.read(1) == b"\n":
+                return
+            end = size  # find the last newline, reading backwards
+            while end > 0:
+                start = max(0, end - 65536)
+                f.seek(start)
+                chunk = f.read(end - start)
+                k = chunk.rfind(b"\n")
+                if k >= 0:
+                    end = start + k + 1
+                    break
+                end = start
+            f.seek(end)
+            tail = f.read()
+        kept = self._keep_torn(tail + b"\n")
+        os.truncate(path, end)
+        self._log_number_offset = {k: v for k, v in self._log_number_offset.items() if v <= end}
+        where = f"set aside in {path}{TORN_SUFFIX}" if kept else "dropped (no space to keep it)"
+        self._notify(
+            f"{path}: its last record was torn ({len(tail)} bytes: a full disk or a crash while "
+            f"writing); {where}, the studies before it are intact"
+        )
+
+    def _keep_torn(self, data: bytes) -> bool:
+        try:
+            with open(f"{self._file_path}{TORN_SUFFIX}", "ab") as f:
+                f.write(data)
+            return True
+        except OSError:
+            return False
+
+
+#: How every record of Optuna's journal begins (``json.dumps`` of a dict whose first key is
+#: ``op_code``): where a whole record glued to a torn one starts.
+_RECORD_START = b'{"op_code":'
+
+
+def _json_line(line: bytes) -> bool:
+    """``line`` is one whole JSON record ending in a newline."""
+    if not line.endswith(b"\n"):
+        return False
+    try:
+        return isinstance(json.loads(line), dict)
+    except ValueError:
+        return False
 
 
 @dataclass
@@ -185,7 +322,7 @@ def _open_journal(path_text: str) -> StudyStorage:
     try:
         lock = FileLock(Path(f"{path}.flock"))
         with lock:
-            storage = optuna.storages.JournalStorage(JournalFileBackend(str(path), lock_obj=lock))
+            storage = optuna.storages.JournalStorage(JournalFile(str(path), lock_obj=lock))
     except Exception as exc:
         hint = ""
         if isinstance(exc, ValueError):

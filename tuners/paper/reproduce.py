@@ -20,8 +20,6 @@ over seeds. The paper's exact reference profiles are not published; the ones use
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
@@ -353,7 +351,7 @@ def _table34_row(
     hardware = "hardware" in label
     actual_opts = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping", sign=sign)
     model = simulate("test2", ref, gains=[gains], disturbance="ideal",
-                     pid_options=PIDOptions(sign=sign))  # fmt: skip
+                     pid_options=PIDOptions(sign=sign, grasp=None))  # fmt: skip
     mm = compute_metrics(model)
     act = simulate("test2", ref, gains=np.tile(gains, (len(seeds), 1)),
                    disturbance="actual", seeds=seeds, randomize=True,
@@ -438,27 +436,22 @@ def _sign_section(lines: list[str]) -> None:
     ]
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m tuners.paper",
-        description="Reproduce the paper's tables and figures into results/.",
-    )
-    parser.add_argument(
-        "--out", type=Path, default=Path("results"), help="output folder (default: results)"
-    )
-    parser.add_argument(
-        "--seeds", type=int, default=10, help="disturbance seeds of the actual gripper (10)"
-    )
-    args = parser.parse_args(argv)
-    if args.seeds < 2:
-        parser.error("--seeds must be at least 2")
+def reproduce(
+    out: Path,
+    n_seeds: int = 10,
+    command: str | None = None,
+    log: Callable[[str], None] | None = None,
+) -> tuple[Path, Path]:
+    """Write ``out/paper_reproduction.md`` and its figures under ``out/figures``; return both
+    paths (``command``: the command line, for the provenance sidecar; ``log``: told each
+    section as it starts)."""
+    say = log or (lambda _line: None)
     import matplotlib
 
     matplotlib.use("Agg")
-    fig_dir = args.out / "figures"
+    fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
-    seeds = np.arange(1000, 1000 + args.seeds)
-    command = " ".join(["python -m tuners.paper", *(sys.argv[1:] if argv is None else argv)])
+    seeds = np.arange(1000, 1000 + n_seeds)
     lines = [
         "# Reproducing the paper",
         "",
@@ -472,15 +465,14 @@ def main(argv: list[str] | None = None) -> int:
         "```",
         "",
     ]
-    with collect_provenance(args.out, "paper_reproduction", command=command):
+    with collect_provenance(out, "paper_reproduction", command=command):
+        say("the four plants (Table 1, Figure 7)...")
         _plants_section(lines, fig_dir, seeds)
+        say(f"Table 2: the SDs over {n_seeds} seeds of the actual gripper (Figure 9)...")
         _table2_section(lines, fig_dir, seeds)
+        say("Tables 3-4: the paper's gains on TF test2 (Figure 11)...")
         _table34_section(lines, fig_dir, seeds)
+        say("the hardware gains' sign convention...")
         _sign_section(lines)
-        path = write_atomic(args.out / "paper_reproduction.md", "\n".join(lines))
-    print(f"wrote {path} and figures in {fig_dir}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        path = write_atomic(out / "paper_reproduction.md", "\n".join(lines))
+    return path, fig_dir

@@ -26,6 +26,7 @@ from gripper_env.hardware.host.calibration import (
 )
 from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.protocol import Mode
+from tuners.conventions import conform
 from tuners.rig.cli import add_device_arguments, positive_float, run_cli
 
 __all__ = ["main", "measure_counts"]
@@ -81,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="S",
         help="seconds of readings averaged at each end (default: 0.5)",
     )
-    return parser
+    return conform(parser, "tuners.rig.calibrate")
 
 
 def _run(args: argparse.Namespace) -> int:

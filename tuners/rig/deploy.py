@@ -38,13 +38,15 @@ from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.experiment import CsvLog, RecordedTrajectory, run_profile
 from gripper_env.hardware.host.telemetry import TelemetryBlock
 from gripper_env.hardware.protocol import Mode
-from gripper_env.io.files import save_figure, write_json
+from gripper_env.io.files import path_in, safe_name, save_figure, write_json
 from gripper_env.model.disturbances import Disturbance, load_disturbance
 from gripper_env.model.gains_file import GainsFileError, load_gains_file
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import Plant
 from gripper_env.model.references import PROFILES, load_reference
 from gripper_env.sim import Trajectory, simulate
+from tuners.cli import DEFAULT_OUT, check_output_folder
+from tuners.conventions import command_parser
 from tuners.rig.cli import add_device_arguments, run_cli
 
 __all__ = ["DEPLOY_COLUMNS", "main", "prediction"]
@@ -80,10 +82,10 @@ def _plot(path: Path, measured: RecordedTrajectory, predicted: Any, title: str) 
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m tuners.rig.deploy",
-        description="Run tuned gains on the board's PID behind a stability gate, log the "
-        "response, and compare it with the simulation's prediction.",
+    parser = command_parser(
+        "tuners.rig.deploy",
+        "Run tuned gains on the board's PID behind a stability gate, log the response, and "
+        "compare it with the simulation's prediction.",
     )
     parser.add_argument("--gains", required=True, metavar="FILE", help="gains file (JSON)")
     add_device_arguments(parser)
@@ -115,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         metavar="DIR",
         help="where response.csv, report.json and response.png go "
-        "(default: results/hardware/deploy_PLANT_TUNER_PROFILE)",
+        "(default: runs/hardware/deploy_PLANT_TUNER_PROFILE)",
     )
     parser.add_argument("--no-plot", action="store_true", help="skip response.png")
     return parser
@@ -197,8 +199,13 @@ def _run(args: argparse.Namespace) -> int:
         constraints=load_objective(args.objective).constraints,
     )  # fmt: skip
     reference = load_reference(args.profile)
+    if args.output_dir:
+        out_dir = Path(args.output_dir)
+    else:  # names from the gains file: one plain path component each (gripper_env.io.files)
+        name = f"deploy_{safe_name(plant, 'plant name')}_{safe_name(tuner or 'gains', 'tuner')}"
+        out_dir = path_in(DEFAULT_OUT / "hardware", f"{name}_{reference.name}", what="profile")
+    check_output_folder(out_dir, "--output-dir")  # before the board moves
     calibration = load_calibration(args.calibration)
-    out_dir = Path(args.output_dir or f"results/hardware/deploy_{plant}_{tuner}_{reference.name}")
     out_dir.mkdir(parents=True, exist_ok=True)
     log = CsvLog(out_dir / "response.csv", DEPLOY_COLUMNS, deploy_rows)
     with GripperDevice(

@@ -17,21 +17,25 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from gripper_env.io.files import path_in
 from gripper_env.model.references import PROFILES, load_reference
 from gripper_env.sysid.experiments import DeviceRecorder
+from tuners.cli import DEFAULT_OUT, check_output_file
+from tuners.conventions import command_parser
 from tuners.rig.cli import add_device_arguments, run_cli
 
 __all__ = ["main"]
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m tuners.rig.record",
-        description="Run an open-loop experiment on the board and save the CSV that "
-        "identification reads (t_s, desired_deg, actual_deg).",
+    parser = command_parser(
+        "tuners.rig.record",
+        "Run an open-loop experiment on the board and save the CSV that identification reads "
+        "(t_s, desired_deg, actual_deg).",
     )
     add_device_arguments(parser)
     parser.add_argument(
@@ -44,15 +48,35 @@ def _parser() -> argparse.ArgumentParser:
         "--output",
         default=None,
         metavar="FILE",
-        help="CSV log to write (default: results/hardware/record_PROFILE.csv)",
+        help="CSV log to write (default: runs/hardware/record_PROFILE.csv)",
     )
     return parser
 
 
+def every_s(period_s: float, duration_s: float) -> Callable[[float], None]:
+    """A progress callback that prints ``  40 % (24 of 60 s)`` on stderr at most every
+    ``period_s`` of wall time."""
+    last = [time.monotonic()]
+
+    def show(fraction: float) -> None:
+        now = time.monotonic()
+        if now - last[0] >= period_s:
+            last[0] = now
+            print(f"  {100 * fraction:3.0f} % ({fraction * duration_s:.0f} of {duration_s:g} s)",
+                  file=sys.stderr, flush=True)  # fmt: skip
+
+    return show
+
+
 def _run(args: argparse.Namespace) -> int:
     reference = load_reference(args.profile)
-    output = Path(args.output or f"results/hardware/record_{reference.name}.csv")
-    recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout)
+    default = path_in(DEFAULT_OUT / "hardware", f"record_{reference.name}.csv", what="profile")
+    output = Path(args.output) if args.output else default
+    check_output_file(output, "--output", ".csv")  # before the board moves
+    print(f"recording {reference.name} ({reference.duration_s:g} s of device time) on "
+          f"{args.port}...", file=sys.stderr, flush=True)  # fmt: skip
+    recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout,
+                              fraction=every_s(10.0, reference.duration_s))  # fmt: skip
     rec = recorder.record(reference, output)
     print(
         f"recorded {reference.name}: {len(rec.samples)} samples over "

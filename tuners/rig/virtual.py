@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from gripper_env.hardware.emulator.build import ensure_built
 from gripper_env.hardware.virtual import VirtualDevice
+from tuners.conventions import conform
 
 __all__ = ["board_parser", "main", "parse_speed"]
 
@@ -86,7 +87,7 @@ def board_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --emulated: rebuild the default image and the harness before starting",
     )
-    return parser
+    return conform(parser, "tuners.rig.virtual")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

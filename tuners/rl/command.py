@@ -25,17 +25,25 @@ import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gripper_env.io.files import write_result_json
-from gripper_env.model.pid import PIDGains
 from tuners import cli
-from tuners.engine import ENGINE_HELP
+from tuners.conventions import conform
+from tuners.engine import ENGINE_HELP, engine_spec
 from tuners.rl.envs import ENV_IDS, require_rl
 
-__all__ = ["build_parser", "main", "parse_seeds"]
+if TYPE_CHECKING:  # numba loads with it: imported where used, after the command line is checked
+    from gripper_env.model.pid import PIDGains
+
+__all__ = ["MAX_SEEDS", "MAX_TIMESTEPS", "build_parser", "main", "parse_seeds"]
+
+#: Most training seeds one command may run (``--seeds``, as a count, list or range).
+MAX_SEEDS = 100
+#: Most environment steps per seed (``--timesteps``): weeks of training on 2 cores.
+MAX_TIMESTEPS = 10**10
 
 
 def parse_seeds(value: str) -> list[int]:
@@ -44,9 +52,17 @@ def parse_seeds(value: str) -> list[int]:
     try:
         if "-" in value and "," not in value:
             lo, hi = (int(x) for x in value.split("-"))
+            if hi - lo + 1 > MAX_SEEDS:  # before the list is built
+                raise OverflowError
             seeds = list(range(lo, hi + 1))
         else:
+            if value.count(",") >= MAX_SEEDS:
+                raise OverflowError
             seeds = [int(x) for x in value.split(",") if x.strip()]
+    except OverflowError:
+        raise ValueError(
+            f"--seeds: at most {MAX_SEEDS} training seeds, got {value[:40]!r}"
+        ) from None
     except ValueError:
         raise ValueError(
             f"--seeds: expected a count, a list 0,1,2 or a range 0-4, got {value!r}"
@@ -60,8 +76,8 @@ def _seeds(args: argparse.Namespace) -> list[int]:
     value = args.seeds
     if value.isdigit():
         n = int(value)
-        if not 1 <= n <= 100:
-            raise ValueError(f"--seeds: a count must be 1 to 100, got {n}")
+        if not 1 <= n <= MAX_SEEDS:
+            raise ValueError(f"--seeds: a count must be 1 to {MAX_SEEDS}, got {n}")
         return list(range(args.seed, args.seed + n))
     return parse_seeds(value)
 
@@ -81,7 +97,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--config", type=Path, default=None, help="the recipe's settings file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--engine", default=None, help=ENGINE_HELP)
+    p.add_argument("--engine", type=engine_spec, default=None, help=ENGINE_HELP)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m tuners.rl",
         description="Learn PID gains (or a controller) with stable-baselines3.",
     )
-    sub = parser.add_subparsers(dest="command_name", required=True)
+    sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
     tr = sub.add_parser(
         "train",
         help="train the RL PID tuner (default), or a policy on a step-by-step environment",
@@ -189,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="skip the margin probe (a margin task's verdict is then not admitted)",
     )
     ev.add_argument("--json", action="store_true", help="print the row instead of a summary")
-    return parser
+    return conform(parser, "tuners.rl")
 
 
 def _shared(p: argparse.ArgumentParser, plant_required: bool = True) -> None:
@@ -231,8 +247,8 @@ def _main(argv: list[str] | None = None) -> int:
         return _evaluate(args)
     inputs = cli.resolve(args)
     plants = cli.plants_arg(args.plants) if getattr(args, "plants", None) else []
-    if getattr(args, "timesteps", None) is not None and args.timesteps < 1:
-        raise ValueError(f"--timesteps must be at least 1, got {args.timesteps}")
+    if getattr(args, "timesteps", None) is not None and not 1 <= args.timesteps <= MAX_TIMESTEPS:
+        raise ValueError(f"--timesteps must be 1 to {MAX_TIMESTEPS:.0e}, got {args.timesteps}")
     require_rl()
     if args.command_name == "train":
         if args.env == "pid-tune":
@@ -320,6 +336,8 @@ def _held_out(inputs: cli.Inputs, summary: dict[str, Any]) -> None:
         r["held_out_cost"] = r["meets_constraints"] = None
         if r["gains"] is None:
             continue
+        from gripper_env.model.pid import PIDGains
+
         ev = cli.evaluate_inputs(inputs, PIDGains(*r["gains"]), actual_opts, ideal_opts,
                                  cross=False)  # fmt: skip
         r["held_out_cost"] = float(ev.actual["mean"]["cost"])
@@ -366,6 +384,8 @@ def _export(args: argparse.Namespace, inputs: cli.Inputs) -> int:
     chosen = min(good, key=lambda r: r["best_tuning_cost"])
     costs = np.array([r["best_tuning_cost"] for r in good])
     robust = len(summary["plants"]) > 1
+    from gripper_env.model.pid import PIDGains
+
     gains = PIDGains(*chosen["gains"])
     notes = [
         f"from run {run}, seed {chosen['seed']}, evaluated at {chosen['at_episodes']} episodes "
@@ -437,6 +457,7 @@ def _train_policy(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str
 def _base_gains(spec: str | None, out: Path, plant: str, robust: bool) -> PIDGains:
     """The PID a residual controller corrects: ``P,I,D[,N]`` or a gains file (sign +1)."""
     from gripper_env.model.gains_file import load_gains_file
+    from gripper_env.model.pid import PIDGains
 
     if spec is not None and "," in spec and not Path(spec).exists():
         try:

@@ -131,6 +131,28 @@ def _f(x: float | None) -> str:
     return "inf" if x is None or (isinstance(x, float) and math.isinf(x)) else f"{x:.3g}"
 
 
+def base_pid_note(agent: Any, inputs: cli.Inputs) -> str:
+    """A line saying so when the PID an agent corrects is unstable on the inputs' plant with the
+    servo's hold: the policy's bounded correction cannot make up for it, and the metrics show
+    the diverging loop (``""`` otherwise, or for an agent with no base PID)."""
+    from gripper_env.evaluation.stability import stability_report
+
+    base = getattr(agent, "base", None)
+    if base is None:
+        return ""
+    sign = int((agent.env_kwargs.get("pid_options") or {}).get("sign", 1))
+    report = stability_report(inputs.plant, base, sign, disturbance=inputs.disturbance)
+    if report.stable:
+        return ""
+    return (
+        f"note: the agent's base PID (P={base.P:.4g} I={base.I:.4g} D={base.D:.4g}) is unstable "
+        f"on {inputs.plant.name} with the servo's {report.refresh_period_s * 1e3:g} ms hold "
+        f"(largest |z| {report.max_pole_magnitude:.3f}); a correction of at most "
+        f"{agent.env_kwargs.get('residual_deg', '?')} deg cannot stabilise it, so expect "
+        "diverging runs"
+    )
+
+
 def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) -> dict[str, Any]:
     """Run ``agent`` on the inputs' plant, preset and profile over the held-out seeds: print the
     metrics table, write the response plot and a metrics file under ``<out>/play/``."""
@@ -164,6 +186,9 @@ def play(agent: Any, inputs: cli.Inputs, out: Path, command: str | None = None) 
         f"agent on {inputs.plant.name} ({inputs.disturbance_name}, {inputs.profile_name}, "
         f"{len(seeds)} held-out seeds):"
     )
+    note = base_pid_note(agent, inputs)
+    if note:
+        print(note)
     for label, value in (("cost", m["cost"]), ("IAE deg*s", m["iae"]),
                          ("grip overshoot %", m["grip"]["overshoot_pct"]),
                          ("un-grip overshoot %", m["ungrip"]["overshoot_pct"]),

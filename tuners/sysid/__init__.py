@@ -20,6 +20,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+from tuners.conventions import conform
 from tuners.sysid import coverage, experiments, greybox, tf
 from tuners.sysid.common import Parser
 
@@ -46,7 +47,7 @@ def build_parser() -> Parser:
     for module in COMMANDS.values():
         cmd = module.add_parser(sub)
         cmd.set_defaults(parser=cmd)
-    return p
+    return conform(p, "tuners.sysid")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

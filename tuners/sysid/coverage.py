@@ -57,13 +57,18 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--out",
         type=Path,
-        default=Path("results"),
+        default=Path("runs"),
         metavar="DIR",
-        help="folder of identification_coverage.md and .json (default results/)",
+        help="folder of identification_coverage.md and .json (default runs/; the committed "
+        "report: --out results)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(run=run)
     return p
+
+
+#: Most records of either kind one run may fit (``--tf-records``, ``--greybox-records``).
+MAX_RECORDS = 10_000
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,8 +81,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         for flag, value in (("--tf-records", args.tf_records),
                             ("--greybox-records", args.greybox_records)):  # fmt: skip
-            if value < 1:
-                raise ValueError(f"{flag} must be >= 1, got {value}")
+            if not 1 <= value <= MAX_RECORDS:  # each is a fit: capped before any work
+                raise ValueError(f"{flag} must be 1 to {MAX_RECORDS}, got {value}")
         if not 2.0 <= args.duration <= 600.0:
             raise ValueError(f"--duration must be between 2 and 600 s, got {args.duration:g}")
         delays = SWEEP_DELAYS_S[::6] if args.quick else SWEEP_DELAYS_S

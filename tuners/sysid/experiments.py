@@ -37,7 +37,7 @@ from tuners.sysid.common import BAD_INPUT, errors_as_exit_2, safe_print
 __all__ = ["add_parser", "run"]
 
 PROG = "python -m tuners.sysid experiments"
-RESULTS = Path("results")  # of the working directory, like every command's
+RUNS = Path("runs")  # of the working directory, like every command's (results: --out results)
 VALIDATION_HOLD_S = 60.0
 QUICK_VALIDATION_HOLD_S = 10.0
 
@@ -87,9 +87,10 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--no-greybox", action="store_true",
                    help="skip the identification of the actual gripper with the core")  # fmt: skip
-    p.add_argument("--out", type=Path, default=RESULTS, metavar="DIR",
+    p.add_argument("--out", type=Path, default=RUNS, metavar="DIR",
                    help="output folder: DIR/identification.md, logs and figures in "
-                   "DIR/identification/ (default: results/)")  # fmt: skip
+                   "DIR/identification/ (default: runs/; the committed report: --out "
+                   "results)")  # fmt: skip
     p.add_argument("--save-plants", type=Path, default=None, metavar="DIR",
                    help="also write each model as a plant file DIR/ident_<test>_<profile>.yaml, "
                    "and the actual gripper as DIR/actual_<test>_<profile>.yaml plus "

@@ -93,12 +93,18 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     add_time_arguments(p)
     p.add_argument("--name", default=None, help="name of the plant and the preset (default: the "
                    "stem of --save-disturbance, --save-plant or the log)")  # fmt: skip
-    p.add_argument("--save-plant", metavar="OUT.yaml", default=None, help="write the plant file")
+    p.add_argument("--save-plant", metavar="OUT.yaml", nargs="?", const=USER_FOLDER,
+                   default=None, help="write the plant file; without a path, to your own "
+                   "configurations (runs/configs/plants/NAME.yaml, or GRIPPER_CONFIG_DIR's), "
+                   "where --plant NAME finds it")  # fmt: skip
     p.add_argument(
         "--save-disturbance",
         metavar="OUT.yaml",
+        nargs="?",
+        const=USER_FOLDER,
         default=None,
-        help="write the disturbance preset (it extends --base)",
+        help="write the disturbance preset (it extends --base); without a path, to your own "
+        "configurations (runs/configs/disturbances/NAME.yaml), where --disturbance NAME finds it",
     )
     p.add_argument("--plot", metavar="OUT.png", default=None, help="write measured vs model")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -150,6 +156,31 @@ def _base_ref(base: str) -> str:
     return str(Path(str(path)).resolve())
 
 
+#: ``--save-plant`` / ``--save-disturbance`` without a path: the user's configuration folder.
+USER_FOLDER = "<your configurations>"
+
+
+def _save_paths(args: argparse.Namespace) -> tuple[str, str | None, str | None]:
+    """The model's name and where its plant file and preset go, checked before the fit."""
+    from gripper_env.io.config import user_config_dir
+    from gripper_env.io.files import safe_name
+    from tuners.cli import check_output_file
+
+    given = [v for v in (args.save_disturbance, args.save_plant) if v and v != USER_FOLDER]
+    name = safe_name(args.name or Path(given[0] if given else args.log).stem, "--name")
+    paths = []
+    for option, value, kind in (
+        ("--save-plant", args.save_plant, "plants"),
+        ("--save-disturbance", args.save_disturbance, "disturbances"),
+    ):
+        if value == USER_FOLDER:
+            value = str(user_config_dir() / kind / f"{name}.yaml")
+        check_output_file(value, option)
+        paths.append(value)
+    check_output_file(args.plot, "--plot")
+    return name, paths[0], paths[1]
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the ``greybox`` command; returns the exit status."""
     import sys
@@ -162,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         else (lambda m: print(f"  {m}", file=sys.stderr))
     )
     try:
+        name, save_plant, save_disturbance = _save_paths(args)  # before the fit (minutes)
         with collect_warnings() as caught:
             record = read_record(args.log, args, reference=False)
             val = None
@@ -177,10 +209,9 @@ def run(args: argparse.Namespace) -> int:
         print_warnings(caught)
         for note in est.warnings:
             print(f"warning: {note}", file=sys.stderr)
-        name = args.name or Path(args.save_disturbance or args.save_plant or args.log).stem
         command = "python -m tuners.sysid greybox " + " ".join(shlex.quote(a) for a in sys.argv[2:])
         files = save_actual(
-            est, args.save_plant, args.save_disturbance, name=name, base_ref=_base_ref(args.base),
+            est, save_plant, save_disturbance, name=name, base_ref=_base_ref(args.base),
             source=Path(args.log).name, command=command,
         )  # fmt: skip
         if args.plot:
@@ -192,7 +223,13 @@ def run(args: argparse.Namespace) -> int:
         out["files"] = [str(f) for f in files]
         safe_print(json.dumps(out, indent=2))
     else:
-        safe_print(text_report(est) + "".join(f"\nwrote {f}" for f in files))
+        found = [f"--{flag} {name}" for flag, value in (("plant", args.save_plant),
+                 ("disturbance", args.save_disturbance)) if value == USER_FOLDER]  # fmt: skip
+        safe_print(
+            text_report(est)
+            + "".join(f"\nwrote {f}" for f in files)
+            + (f"\n(every command finds them: {' '.join(found)})" if found else "")
+        )
     return 0
 
 

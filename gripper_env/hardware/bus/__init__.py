@@ -11,7 +11,12 @@
 * :mod:`~gripper_env.hardware.bus.server`: :class:`VirtualBus`, virtual servos on a
   pseudo-terminal;
 * :mod:`~gripper_env.hardware.bus.link`: :class:`BusLink`, the host's side through the vendors'
-  SDKs, and its errors (:class:`BusError`...).
+  SDKs (a broadcast scan, one ID only, retries, a vanished port), and its errors
+  (:class:`BusError`...);
+* :mod:`~gripper_env.hardware.bus.gripper`: :class:`~gripper_env.hardware.bus.gripper.
+  BusGripper`, one servo found by its ID on a shared bus, driven inside its calibration and
+  limits, its registers snapshot and restored;
+* :mod:`~gripper_env.hardware.bus.interrupts`: SIGINT and SIGTERM between bus transactions.
 """
 
 from gripper_env.hardware.bus.control_table import ControlTable
@@ -23,6 +28,7 @@ from gripper_env.hardware.bus.link import (
     BusLink,
     BusModelError,
     BusPortError,
+    BusPortLostError,
     BusServoError,
     BusTimeoutError,
     BusUnsupportedError,
@@ -52,6 +58,7 @@ __all__ = [
     "BusLink",
     "BusModelError",
     "BusPortError",
+    "BusPortLostError",
     "BusServoError",
     "BusTimeoutError",
     "BusUnsupportedError",

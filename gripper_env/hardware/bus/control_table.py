@@ -183,6 +183,17 @@ class ControlTable:
         with self.lock:
             self.memory[f.address : f.end] = raw
 
+    def store(self, name: str, value: int) -> None:
+        """Set the field ``name`` and keep it in flash, as a setup done before the bus started
+        would have (not counted in :attr:`eeprom_saves`)."""
+        with self.lock:
+            self.set(name, value)
+            f = self.spec.field(name)
+            if f.area == "EEPROM":
+                saved = bytearray(self._saved)
+                saved[f.address : f.end] = self.memory[f.address : f.end]
+                self._saved = bytes(saved)
+
     def get_role(self, role: str) -> int:
         """The decoded value of the field playing ``role``."""
         return self.get(self.spec.role(role).name)

@@ -1,38 +1,85 @@
-"""A gripper on a bus servo, from the host: the loop's registers as a
-:class:`~gripper_env.model.bus_servo.RegisterSet`, goals and positions in degrees, and a safe
-stop.
+"""A gripper on a bus servo, from the host: found on a shared bus by its ID, driven inside its own
+calibration and limits, and left as it was found.
 
-:class:`BusGripper` is what the bus commands (``python -m tuners.bus.record``, ``deploy``) and the
-hardware environment hold: one servo of a :class:`~gripper_env.hardware.bus.link.BusLink`,
-with the servo's model (:class:`~gripper_env.model.bus_servo.BusServoModel`) for the units and the
-jaw's range. Every goal is clamped to the jaw's stops (``model.jaw.limits_deg``) before it is
-sent and checked to be finite; the registers are written with the torque off (the STS3215's gains
-are EEPROM registers, locked while it drives) and read back; leaving the ``with`` block on an
-error turns the torque off (the jaw goes limp: nothing is driven against a stop or an object by
-a host that has stopped listening).
+:class:`BusGripper` is what the bus commands (``python -m tuners.bus.record``, ``deploy``,
+``calibrate``) and the hardware environment hold: one servo of a
+:class:`~gripper_env.hardware.bus.link.BusLink`, the model of its loop
+(:class:`~gripper_env.model.bus_servo.BusServoModel`) and the owner's jaw calibration
+(:class:`~gripper_env.model.bus_calibration.JawCalibration`). Opening it:
 
-Examples
---------
->>> with BusGripper("/dev/ttyUSB0", "sts3215") as jaw:  # doctest: +SKIP
-...     jaw.write_registers(RegisterSet(p=32, d=32, torque_limit=500))
-...     jaw.torque(True)
-...     jaw.goal_deg(200.0)
-...     jaw.position_deg()
+1. **finds the servo**: one broadcast PING lists the servos on the bus (read-only), and the ID
+   given must be among them with its family's model number. No ID, or one that does not
+   answer, raises :class:`BusSelectError`, which lists what answered (ID, model, present
+   position): a servo on a shared bus is never guessed (an SO-101's ID 1 is the shoulder, with
+   the gripper's model number). From then on the link refuses instructions to any other ID;
+2. **reads the servo's calibration** (homing offset, min/max position limits, operating mode,
+   drive mode, maximum torque limit) and refuses (:class:`BusCalibrationError`) a servo that
+   is not in position control or whose registers differ from the jaw calibration's (it was
+   recalibrated since, or it is another servo);
+3. **takes a snapshot** of every register the session may write (torque enable, the STS's lock,
+   P, I, D, dead zones, torque limit, acceleration, velocity, goal position).
+
+Every goal is clamped to the calibration's goal range (the jaw's closed-to-open range inside
+the servo's own position limits) and checked finite. Registers are written with the torque off
+and read back, on the STS with ``Lock`` = 1 first, so its EEPROM-area gains take effect without
+being saved to flash (Feetech: "1: the value written to EEPROM is not saved after power-off";
+LeRobot and Feetech's own SDK unlock it the same way only to save). A torque limit above the
+servo's maximum torque limit is refused. :meth:`BusGripper.save` writes the gains to the STS's
+EEPROM, once; a Dynamixel's position gains have no EEPROM copy.
+
+Leaving the ``with`` block, on success, error or interrupt alike, :meth:`BusGripper.restore`
+writes back every register that differs from the snapshot (the torque off first; torque as
+found last, unless told otherwise), reads them all back, and keeps the outcome in
+:attr:`BusGripper.restored`; on an exception a note with that outcome is added to it. A port
+that vanished cannot be restored: the note says which registers were left changed.
 """
 
 from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass, field
 from types import TracebackType
 
-from gripper_env.hardware.bus.link import BusError, BusLink
+from gripper_env.hardware.bus.interrupts import signals_held
+from gripper_env.hardware.bus.link import (
+    BusAlertError,
+    BusError,
+    BusLink,
+    BusModelError,
+    BusPortLostError,
+    BusTimeoutError,
+    BusVerifyError,
+)
+from gripper_env.model.bus_calibration import JawCalibration, ServoRegisters
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_bus_servo
 
-__all__ = ["FACTORY_BAUD", "REGISTER_ROLES", "BusGripper"]
+__all__ = [
+    "FACTORY_BAUD",
+    "MODEL_NAMES",
+    "POSITION_MODES",
+    "REGISTER_ROLES",
+    "BusCalibrationError",
+    "BusGripper",
+    "BusSelectError",
+    "FoundServo",
+    "Restored",
+    "find_servos",
+    "read_servo_registers",
+    "select_servo",
+]
 
 #: The baud rate each family ships with.
 FACTORY_BAUD = {"sts3215": 1_000_000, "xl330": 57_600, "xl430": 57_600}
+
+#: The names of the model numbers a bus may answer with.
+MODEL_NAMES = {777: "STS3215", 1200: "XL330-M288", 1060: "XL430-W250"}
+
+#: The operating modes the loop's model describes: position control (STS 0, Dynamixel 3).
+POSITION_MODES = {"sts3215": (0,), "xl330": (3,), "xl430": (3,)}
+#: A Dynamixel in current-based position control (5, the Koch gripper's), which a model with
+#: ``operating_mode: current_position`` describes: its output limited by its goal current.
+CURRENT_POSITION_MODES = {"xl330": (5,), "xl430": (5,)}
 
 #: The table role of each :class:`RegisterSet` field (the dead zone is two registers on an STS,
 #: none on a Dynamixel).
@@ -45,6 +92,205 @@ REGISTER_ROLES = {
     "velocity": "velocity_limit",
 }
 _DEADBAND_ROLES = ("deadband_cw", "deadband_ccw")
+#: Every register a session may write, in the order they are restored (the torque and the lock
+#: are handled around them).
+_SNAPSHOT_ROLES = (
+    "p_gain",
+    "i_gain",
+    "d_gain",
+    *_DEADBAND_ROLES,
+    "torque_limit",
+    "acceleration",
+    "velocity_limit",
+    "goal_current",
+    "goal_position",
+)
+#: Short names for messages.
+_LABELS = {
+    "p_gain": "P",
+    "i_gain": "I",
+    "d_gain": "D",
+    "deadband_cw": "CW dead zone",
+    "deadband_ccw": "CCW dead zone",
+    "torque_limit": "torque limit",
+    "acceleration": "acceleration",
+    "velocity_limit": "velocity",
+    "goal_current": "goal current",
+    "goal_position": "goal position",
+    "torque_enable": "torque",
+    "lock": "lock",
+}
+
+
+class BusSelectError(BusError):
+    """No servo ID was given, or the one given does not answer (the message lists those that
+    do).
+
+    Attributes
+    ----------
+    found : list of FoundServo
+    """
+
+    def __init__(self, message: str, found: list[FoundServo]) -> None:
+        super().__init__(message)
+        self.found = found
+
+
+class BusCalibrationError(BusError):
+    """The servo's calibration is not the jaw calibration's, or its mode is not modelled."""
+
+
+@dataclass(frozen=True)
+class FoundServo:
+    """A servo that answered a scan: its ID, model number and present position (ticks; None
+    when it could not be read)."""
+
+    servo_id: int
+    model_number: int | None
+    position_ticks: int | None
+
+    def describe(self) -> str:
+        """``ID 6 (STS3215, at 2731 ticks)``."""
+        m = self.model_number
+        name = "model ?" if m is None else MODEL_NAMES.get(m, f"model {m}")
+        at = "position ?" if self.position_ticks is None else f"at {self.position_ticks} ticks"
+        return f"ID {self.servo_id} ({name}, {at})"
+
+
+def find_servos(link: BusLink) -> list[FoundServo]:
+    """The servos answering a broadcast PING, each with its model number and present position
+    (read-only reads of each; a read that fails leaves the value unknown)."""
+    found = []
+    for servo_id, model in link.scan().items():
+        position = None
+        try:
+            if model is None:
+                model = link.read(servo_id, link.spec.role("model_number").name)
+            position = link.read(servo_id, link.spec.role("present_position").name)
+        except (BusError, ValueError):
+            pass
+        found.append(FoundServo(servo_id, model, position))
+    return found
+
+
+def select_servo(link: BusLink, servo_id: int | None) -> list[FoundServo]:
+    """Find servo ``servo_id`` on the bus: a broadcast PING (read-only) lists who answers, then
+    the servo's own PING checks its model number. Returns the servos that answered (IDs and the
+    model numbers a Dynamixel's reply carries; nothing more is read of them).
+
+    Raises
+    ------
+    BusSelectError
+        No ID given, or it does not answer (a servo ignoring broadcast pings is pinged by its
+        ID too); the message lists each servo that answers with its model and position.
+    BusModelError
+        The servo is another model than the link's family.
+    """
+    answered = link.scan()
+    where = f"{link.port} at {link.baudrate} baud"
+    if servo_id is not None and servo_id not in answered:
+        try:  # a servo that ignores broadcast pings still answers its own
+            link.ping(servo_id, retries=1)
+            answered[servo_id] = None
+        except BusTimeoutError:
+            pass
+    if servo_id is None or servo_id not in answered:
+        if not answered:
+            asked = "" if servo_id is None else f" and a ping of ID {servo_id}"
+            raise BusSelectError(
+                f"no servo answers on {where} (a broadcast ping{asked}): check the power, the "
+                "cable and the baud rate",
+                [],
+            )
+        found = find_servos(link)
+        listed = "; ".join(s.describe() for s in found)
+        head = "no servo ID given" if servo_id is None else f"servo {servo_id} does not answer"
+        raise BusSelectError(
+            f"{head}; the servos that answer on {where}: {listed} (a servo on a shared bus is "
+            "never guessed: give the gripper's ID)",
+            found,
+        )
+    model = link.ping(servo_id)
+    if model != link.spec.model_number:
+        name = MODEL_NAMES.get(model, f"model {model}")
+        raise BusModelError(
+            f"servo {servo_id} on {link.port} is a {name} (model number {model}), not the "
+            f"{link.spec.family}'s {link.spec.model_number}: is it the gripper?"
+        )
+    return [FoundServo(i, m, None) for i, m in sorted(answered.items())]
+
+
+def read_servo_registers(link: BusLink, servo_id: int) -> ServoRegisters:
+    """The calibration and limits servo ``servo_id`` holds (read, nothing written)."""
+    spec = link.spec
+
+    def role(name: str) -> int:
+        return link.read(servo_id, spec.role(name).name)
+
+    return ServoRegisters(
+        model_number=role("model_number"),
+        homing_offset=role("homing_offset"),
+        min_position=role("min_position"),
+        max_position=role("max_position"),
+        operating_mode=role("operating_mode"),
+        drive_mode=link.read(servo_id, "drive_mode") if spec.has_field("drive_mode") else 0,
+        max_torque_limit=role("max_torque_limit"),
+    )
+
+
+@dataclass
+class Restored:
+    """What :meth:`BusGripper.restore` did, as read back from the servo.
+
+    Attributes
+    ----------
+    servo_id : int
+    ok : bool
+        Every register reads back its target.
+    torque_on : bool or None
+        The torque as read back (None: could not be read).
+    torque_as_found : bool
+        The torque ends as it was found.
+    written : list of str
+        The registers written back.
+    mismatches : list of str
+        ``name: value`` of the registers that do not read back their target.
+    error : str or None
+        Why the restore stopped short (the port gone, no reply).
+    left_changed : list of str
+        Registers the session wrote and could not restore (with ``error``).
+    held_signals : list of str
+        Signals that came during the restore (deferred, not raised).
+    """
+
+    servo_id: int
+    ok: bool = False
+    torque_on: bool | None = None
+    torque_as_found: bool = True
+    written: list[str] = field(default_factory=list)
+    mismatches: list[str] = field(default_factory=list)
+    error: str | None = None
+    left_changed: list[str] = field(default_factory=list)
+    held_signals: list[str] = field(default_factory=list)
+
+    def describe(self) -> str:
+        """One line for the user, from what was read back."""
+        who = f"servo {self.servo_id}"
+        if self.error is not None:
+            left = ", ".join(self.left_changed) or "none"
+            return f"{who} could not be restored ({self.error}); written and not restored: {left}"
+        torque = {True: "on", False: "off", None: "unknown"}[self.torque_on]
+        found = "as found" if self.torque_as_found else "not as found"
+        if not self.ok:
+            return (
+                f"{who} restored except {', '.join(self.mismatches)} (read back); torque reads "
+                f"{torque} ({found})"
+            )
+        if self.written:
+            what = f"restored and read back (written back: {', '.join(self.written)})"
+        else:
+            what = "as found and read back (nothing to write back)"
+        return f"{who} {what}; torque reads {torque} ({found})"
 
 
 class BusGripper:
@@ -57,40 +303,132 @@ class BusGripper:
         prints).
     model : BusServoModel or str or path
         The servo's model: a shipped family (``sts3215``, ``xl330``, ``xl430``), an identified
-        model file, or a model. Its family picks the protocol; its jaw gives the goal range.
-    servo_id : int
-        The servo's ID on the bus.
+        model file, or a model. Its family picks the protocol.
+    servo_id : int or None
+        The servo's ID on the bus. None raises :class:`BusSelectError` listing the servos that
+        answer (nothing is written).
     baudrate : int, optional
         Default: the family's factory rate (:data:`FACTORY_BAUD`).
     link : BusLink, optional
         An open link to use instead of opening ``port`` (not closed by :meth:`close`).
+    calibration : JawCalibration, optional
+        The owner's jaw (default: the model's). Required: a real servo's jaw is never the
+        shipped model's angles. Its servo registers, when it has them, must be the servo's.
+    raise_on_alert : bool
+        An error bit in any reply raises :class:`~gripper_env.hardware.bus.link.BusAlertError`
+        (the commands); False leaves it in ``link.alerts`` (the environment ends its episode).
+
+    Attributes
+    ----------
+    keep_torque : bool
+        Leaving the ``with`` block without an error, leave the torque on (holding the last
+        goal) instead of as found.
+    model : BusServoModel
+        The model with the calibrated jaw (goals and positions in its frame, deg).
+    calibration : JawCalibration
+        The jaw calibration, with the servo's registers as read.
+    servo_registers : ServoRegisters
+        The servo's calibration and limits as read when it was opened.
+    found : dict of str to int
+        The snapshot: every register the session may write (by role), as found.
+    bus_servos : list of FoundServo
+        The servos that answered the scan (their IDs only: nothing else was read of them).
+    restored : Restored or None
+        The outcome of the last :meth:`restore`.
 
     Raises
     ------
+    ValueError
+        No jaw calibration.
+    BusSelectError
+        No ID given, or the ID does not answer.
+    BusModelError
+        The servo is another model than the family's.
+    BusCalibrationError
+        The servo's calibration differs from the jaw calibration's, or its operating mode is
+        not position control.
     BusError
-        The port cannot be opened, the servo does not answer, or it is another model.
+        The port cannot be opened, or a transaction failed.
     """
 
     def __init__(
         self,
         port: str,
         model: BusServoModel | str | os.PathLike[str] = "sts3215",
-        servo_id: int = 1,
+        servo_id: int | None = None,
         *,
         baudrate: int | None = None,
         link: BusLink | None = None,
+        calibration: JawCalibration | None = None,
+        raise_on_alert: bool = True,
     ) -> None:
-        self.model = load_bus_servo(model)
-        self.servo_id = int(servo_id)
+        base = load_bus_servo(model)
+        cal = calibration or base.calibration
+        if cal is None:
+            raise ValueError(
+                f"no jaw calibration for the {base.family} on {port}: a real servo's jaw is "
+                "never the shipped model's angles (python -m tuners.bus.calibrate writes one)"
+            )
+        if cal.family != base.family:
+            raise ValueError(f"the jaw calibration is of a {cal.family}, not a {base.family}")
+        self.servo_id = -1 if servo_id is None else int(servo_id)
+        self.restored: Restored | None = None
+        self.keep_torque = False
         self._own = link is None
+        self._written: set[str] = set()
         self.link = link or BusLink(
-            port, self.model.family, baudrate or FACTORY_BAUD[self.model.family], ids=(servo_id,)
+            port,
+            base.family,
+            baudrate or FACTORY_BAUD[base.family],
+            ids=() if servo_id is None else (servo_id,),
         )
+        self._alerts = raise_on_alert
         try:
-            self.link.ping_all([self.servo_id])
-        except BusError:
+            self.bus_servos = select_servo(self.link, servo_id)
+            self.link.restrict(self.servo_id)
+            self.link.raise_on_alert = raise_on_alert
+            self.servo_registers = read_servo_registers(self.link, self.servo_id)
+            self.calibration = self._check_calibration(cal, self.servo_registers, base)
+            self.model = base.calibrated(self.calibration)
+            self.found = self._read_roles()
+            self.target = dict(self.found)
+        except BaseException:
             self.close()
             raise
+
+    # ---- opening ---------------------------------------------------------------------------------
+
+    def _check_calibration(
+        self, cal: JawCalibration, regs: ServoRegisters, model: BusServoModel
+    ) -> JawCalibration:
+        where = f"servo {self.servo_id} on {self.link.port}"
+        if cal.servo_id is not None and cal.servo_id != self.servo_id:
+            raise BusCalibrationError(
+                f"the jaw calibration was taken on servo {cal.servo_id}, not {self.servo_id}"
+            )
+        current = model.current_mode
+        modes = (CURRENT_POSITION_MODES if current else POSITION_MODES).get(cal.family, ())
+        if regs.operating_mode not in modes:
+            kind = "current-based position control" if current else "position control"
+            raise BusCalibrationError(
+                f"{where} is in operating mode {regs.operating_mode}, not {kind} "
+                f"({', '.join(map(str, modes)) or 'none on this family'}) as the model "
+                f"{model.name!r} describes: its loop is not the one modelled (the mode is "
+                "the owner's: nothing was changed; a current-based model is tuned with "
+                "python -m tuners.bus.tune --operating-mode current_position)"
+            )
+        if cal.servo is not None:
+            diff = cal.servo.differences(regs)
+            if diff:
+                raise BusCalibrationError(
+                    f"{where} holds another calibration than the jaw calibration's: "
+                    f"{'; '.join(diff)}; it was recalibrated, or it is another servo: calibrate "
+                    "the jaw again (python -m tuners.bus.calibrate)"
+                )
+        try:
+            return cal.with_servo(regs, self.servo_id)
+        except ValueError as exc:
+            raise BusCalibrationError(f"{where}: the jaw calibration does not fit: {exc}") from None
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
@@ -113,18 +451,93 @@ class BusGripper:
         tb: TracebackType | None,
     ) -> None:
         try:
-            if exc_type is not None:
-                self.relax()
+            if exc is None:
+                restored = self.restore(torque_on=True if self.keep_torque else None)
+                if not restored.ok:
+                    raise BusVerifyError(restored.describe())
+            else:
+                torque = False if isinstance(exc, BusAlertError) else None
+                restored = self.restore(torque_on=torque)
+                exc.add_note(restored.describe())
         finally:
             self.close()
 
-    def relax(self) -> bool:
-        """Turn the torque off, swallowing bus errors (the safe stop); True if it was sent."""
+    # ---- snapshot and restore --------------------------------------------------------------------
+
+    def _roles(self) -> list[str]:
+        spec = self.link.spec
+        return [r for r in (*_SNAPSHOT_ROLES, "torque_enable", "lock") if spec.has_role(r)]
+
+    def _read_roles(self, roles: list[str] | None = None) -> dict[str, int]:
+        return {r: self._read(r) for r in (roles or self._roles())}
+
+    def keep(self, roles: dict[str, int]) -> None:
+        """Make ``roles`` (role -> value) the values :meth:`restore` leaves (a saved set)."""
+        self.target.update(roles)
+
+    def restore(self, *, torque_on: bool | None = None) -> Restored:
+        """Write back every register that differs from its target (the snapshot, or what
+        :meth:`keep` set), read them all back.
+
+        The torque goes off first when anything else must be written, then the registers (on
+        an STS with ``Lock`` = 1, so nothing is saved to flash), the goal, the torque as found
+        (or ``torque_on``), and the lock as found. Signals are deferred meanwhile; alerts do not
+        stop it.
+
+        Returns
+        -------
+        Restored
+            Also kept in :attr:`restored`.
+        """
+        target = dict(self.target)
+        if torque_on is not None:
+            target["torque_enable"] = 1 if torque_on else 0
+        out = Restored(self.servo_id)
+        link = self.link
+        alerts, link.raise_on_alert = link.raise_on_alert, False
         try:
-            self._write("torque_enable", 0, verify=False)
-        except (BusError, OSError):
-            return False
-        return True
+            with signals_held() as came:
+                try:
+                    self._restore(target, out)
+                except (BusError, ValueError) as exc:
+                    out.error = (
+                        str(exc)
+                        if not isinstance(exc, BusPortLostError)
+                        else (f"the port {link.port} is gone")
+                    )
+                    out.left_changed = sorted(_LABELS[r] for r in self._written if r in target)
+            out.held_signals = came
+        finally:
+            link.raise_on_alert = alerts
+        self.restored = out
+        return out
+
+    def _restore(self, target: dict[str, int], out: Restored) -> None:
+        now = self._read_roles()
+        spec = self.link.spec
+        torque_final = target["torque_enable"]
+        if torque_final and not self.found["torque_enable"]:
+            target["goal_position"] = now["goal_position"]  # kept on: it holds where it is
+        changes = [r for r in _SNAPSHOT_ROLES if spec.has_role(r) and now[r] != target[r]]
+        if changes and now["torque_enable"] != 0:
+            self._write("torque_enable", 0)
+        eeprom = [r for r in changes if spec.role(r).area == "EEPROM"]
+        if eeprom and spec.has_role("lock"):
+            self._write("lock", 1)  # an STS: the EEPROM-area writes take effect, not saved
+        for role in changes:
+            self._write(role, target[role])
+        self._write("torque_enable", torque_final, only_if_changed=True)
+        if spec.has_role("lock"):
+            self._write("lock", target["lock"], only_if_changed=True)
+        back = self._read_roles()
+        out.written = [_LABELS[r] for r in changes]
+        out.mismatches = [
+            f"{_LABELS[r]} {back[r]} (wanted {target[r]})" for r in back if back[r] != target[r]
+        ]
+        out.torque_on = back["torque_enable"] != 0
+        out.torque_as_found = back["torque_enable"] == self.found["torque_enable"]
+        out.ok = not out.mismatches
+        self._written.clear()
 
     # ---- registers -------------------------------------------------------------------------------
 
@@ -135,43 +548,126 @@ class BusGripper:
         values["velocity"] = abs(values["velocity"])
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             values["deadband"] = max(self._read(r) for r in _DEADBAND_ROLES)
+        if self.model.current_mode and spec.has_role("goal_current"):
+            values["goal_current"] = abs(self._read("goal_current"))
         return RegisterSet(**values)
 
+    def register_values(self, regs: RegisterSet) -> dict[str, int]:
+        """``regs`` as register values by role, every one checked against its range and the
+        servo's maximum torque limit (ValueError, nothing sent)."""
+        spec = self.link.spec
+        skip = ("deadband", "goal_current")
+        values = {REGISTER_ROLES[k]: v for k, v in regs.model_dump().items() if k not in skip}
+        if regs.goal_current or self.model.current_mode:  # current-based position mode
+            if not spec.has_role("goal_current"):
+                raise ValueError(f"the {spec.family} has no goal-current register")
+            values["goal_current"] = regs.goal_current
+        if all(spec.has_role(r) for r in _DEADBAND_ROLES):
+            values.update(dict.fromkeys(_DEADBAND_ROLES, regs.deadband))
+        elif regs.deadband:
+            raise ValueError(f"the {spec.family} has no dead-zone register (deadband must be 0)")
+        for role, value in values.items():
+            spec.role(role).check(value)
+        top = self.servo_registers.max_torque_limit
+        if regs.torque_limit > top:
+            raise ValueError(
+                f"torque limit {regs.torque_limit} is above servo {self.servo_id}'s maximum "
+                f"torque limit {top} (its own protection setting, "
+                f"{spec.role('max_torque_limit').name}: left as it is)"
+            )
+        return values
+
     def write_registers(self, regs: RegisterSet) -> RegisterSet:
-        """Write ``regs`` with the torque off, read each back, leave the torque off.
+        """Write ``regs`` with the torque off (on an STS with ``Lock`` = 1: not saved), read each
+        back, leave the torque off.
 
         Returns the registers read back after the writes.
 
         Raises
         ------
         ValueError
-            A value outside its register's range (nothing of ``regs`` is sent).
+            A value outside its register's range or above the servo's maximum torque limit
+            (nothing of ``regs`` is sent).
         BusVerifyError
             A register did not read back what was written.
         """
+        values = self.register_values(regs)
         spec = self.link.spec
-        writes = [(REGISTER_ROLES[k], v) for k, v in regs.model_dump().items() if k != "deadband"]
-        if all(spec.has_role(r) for r in _DEADBAND_ROLES):
-            writes += [(r, regs.deadband) for r in _DEADBAND_ROLES]
-        elif regs.deadband:
-            raise ValueError(f"the {spec.family} has no dead-zone register (deadband must be 0)")
-        for role, value in writes:  # every range checked before anything is sent
-            spec.role(role).check(value)
         self.torque(False)
-        for role, value in writes:
-            self._write(role, value, verify=True)
+        if spec.has_role("lock") and any(spec.role(r).area == "EEPROM" for r in values):
+            self._write("lock", 1, only_if_changed=True)
+        for role, value in values.items():
+            self._write(role, value, only_if_changed=True)
         return self.read_registers()
 
+    def save(self, regs: RegisterSet) -> list[str]:
+        """Keep ``regs`` in the servo: on an STS, its EEPROM-area registers (P, D, I, dead zones)
+        are saved to flash with ``Lock`` = 0, each adjacent group that differs from what was
+        found in one write (one save), and ``Lock`` = 1 again; :meth:`restore` then leaves the
+        whole set (the RAM ones until power-off). A group equal to what was found is not
+        written when the servo was found unlocked (its flash holds it already). A Dynamixel's
+        gains are RAM registers: kept until power-off.
+
+        Returns the names of the registers saved to flash (none on a Dynamixel).
+        """
+        values = self.register_values(regs)
+        spec = self.link.spec
+        saved: list[str] = []
+        eeprom = {r: v for r, v in values.items() if spec.role(r).area == "EEPROM"}
+        groups: list[dict[str, int]] = []  # adjacent EEPROM registers, one write (save) each
+        if spec.has_role("lock"):
+            for role in sorted(eeprom, key=lambda r: spec.role(r).address):
+                if groups and spec.role(next(reversed(groups[-1]))).end == spec.role(role).address:
+                    groups[-1][role] = eeprom[role]
+                else:
+                    groups.append({role: eeprom[role]})
+            if self.found.get("lock") == 0:  # found unlocked: its flash holds what was found
+                groups = [g for g in groups if any(v != self.found[r] for r, v in g.items())]
+        if groups:
+            self.torque(False)
+            self._write("lock", 0)
+            self._written.add("lock")
+            try:
+                for group in groups:
+                    self.link.write_block(
+                        self.servo_id, {spec.role(r).name: v for r, v in group.items()}
+                    )
+                    saved += [spec.role(r).name for r in group]
+            finally:
+                self._write("lock", 1)
+        for role, value in values.items():
+            self._write(role, value, only_if_changed=True)
+        self.keep(values)
+        return saved
+
     def torque(self, on: bool) -> None:
-        """Turn the torque on (the servo holds its present position first) or off."""
+        """Turn the torque on (the servo holds its present position first, within the goal
+        range) or off; read back."""
         if on:
-            self._write("goal_position", self._ticks(self.position_deg()))
-        self._write("torque_enable", 1 if on else 0)
+            lo, hi = self.calibration.goal_range_ticks()
+            here = self._read("present_position")
+            self._write("goal_position", min(max(here, lo), hi))
+        self._write("torque_enable", 1 if on else 0, only_if_changed=not on)
+
+    def relax(self) -> bool:
+        """Turn the torque off, swallowing bus errors (the safe stop); True if it reads back
+        off."""
+        try:
+            self.link.write(self.servo_id, self.link.spec.role("torque_enable").name, 0)
+            self._written.add("torque_enable")
+        except (BusError, OSError):
+            return False
+        return True
 
     # ---- motion ----------------------------------------------------------------------------------
 
+    def goal_range_deg(self) -> tuple[float, float]:
+        """The goals this servo may be sent (deg, model frame): the calibrated jaw inside the
+        servo's own position limits."""
+        return self.calibration.goal_range_deg()
+
     def goal_deg(self, angle_deg: float) -> float:
-        """Send a goal (deg), clamped to the jaw's range; returns the goal sent (deg).
+        """Send a goal (deg), clamped to :meth:`goal_range_deg`; returns the goal sent (deg).
 
         Raises
         ------
@@ -181,14 +677,14 @@ class BusGripper:
         angle = float(angle_deg)
         if not math.isfinite(angle):
             raise ValueError(f"goal must be a finite angle in deg, got {angle_deg!r}")
-        lo, hi = self.model.jaw.limits_deg
-        ticks = self._ticks(min(max(angle, lo), hi))
+        lo, hi = self.calibration.goal_range_ticks()
+        ticks = min(max(self.calibration.ticks(angle), lo), hi)
         self._write("goal_position", ticks, verify=False)
-        return ticks * self.model.deg_per_tick
+        return self.calibration.deg(ticks)
 
-    def position_deg(self) -> float:
-        """The jaw's present position (deg)."""
-        return self._read("present_position") * self.model.deg_per_tick
+    def position_deg(self, retries: int | None = None) -> float:
+        """The jaw's present position (deg, model frame)."""
+        return self.calibration.deg(self._read("present_position", retries))
 
     def status(self) -> dict[str, object]:
         """Error bits, temperature, load (or current) and torque state, by name."""
@@ -204,12 +700,14 @@ class BusGripper:
                 out[role] = self._read(role)
         return out
 
-    def _read(self, role: str) -> int:
+    def _read(self, role: str, retries: int | None = None) -> int:
         # by role, never by name: an XL's "velocity_limit" field is not its velocity_limit role
-        return self.link.read(self.servo_id, self.link.spec.role(role).name)
+        return self.link.read(self.servo_id, self.link.spec.role(role).name, retries)
 
-    def _write(self, role: str, value: int, verify: bool = True) -> None:
+    def _write(
+        self, role: str, value: int, verify: bool = True, *, only_if_changed: bool = False
+    ) -> None:
+        if only_if_changed and self._read(role) == value:
+            return
+        self._written.add(role)
         self.link.write(self.servo_id, self.link.spec.role(role).name, value, verify=verify)
-
-    def _ticks(self, angle_deg: float) -> int:
-        return round(angle_deg / self.model.deg_per_tick)

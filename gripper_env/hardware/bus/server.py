@@ -18,8 +18,15 @@ What the servos answer, as the real ones do:
   2: all), STS ``response_status_level`` (0: PING and READ only, 1: all); the ID and the level
   a reply goes by are the servo's when the instruction came (a write to the ID is answered
   from the old ID);
+* the baud rate: a servo hears and answers only when the line runs at the rate its
+  ``baud_rate`` register selects (within 3 %, a UART's tolerance): the rate the host set on the
+  pseudo-terminal (its termios speed, what pyserial and the SDKs set); at another rate its bytes
+  are noise to the servo, as on a real bus (LeRobot's ``scan_port`` finds a servo at one rate);
 * the return delay, ``return_delay_time`` x 2 us of device time before each reply (the
-  Dynamixel's factory 250 is 0.5 ms, the STS's 0);
+  Dynamixel's factory 250 is 0.5 ms, the STS's 0); the physics is advanced lazily while the bus
+  idles (with the wall clock) and skips rests in closed form
+  (:class:`~gripper_env.hardware.bus.unit.ServoUnit`), so a reply after minutes of idling is as
+  prompt as any;
 * the error byte: STS, the ``status`` register's bits; Dynamixel, the alert bit 7 while
   ``hardware_error_status`` is not 0, with the error number of a refused instruction (the
   table's checks: :class:`~gripper_env.hardware.bus.control_table.ControlTable`); torque
@@ -45,10 +52,13 @@ Examples
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
+import termios
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
@@ -62,6 +72,34 @@ from gripper_env.hardware.pty import PtyDevice, PtyEndpoint, write_pending
 __all__ = ["Physics", "VirtualBus"]
 
 _INTERBYTE_TIMEOUT_S = 0.02  # a partial packet older than this is dropped (the servo's timeout)
+_IDLE_ADVANCE_S = 0.05  # while no byte comes, the physics catches up this often (wall clock)
+_BAUD_TOLERANCE = 0.03  # a UART samples correctly within about 3 % of its rate
+_TCGETS2 = 0x802C542A  # ioctl: struct termios2 (44 bytes; speeds at 36 and 40), x86 and ARM
+#: termios speed constants by rate, for the systems without TCGETS2
+_TERMIOS_SPEEDS = {
+    getattr(termios, f"B{rate}"): rate
+    for rate in (
+        9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000,
+        1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000,
+    )
+    if hasattr(termios, f"B{rate}")
+}  # fmt: skip
+
+
+def line_baud(fd: int) -> int:
+    """The line rate (baud) a terminal is set to: its output speed (``TCGETS2``, which holds a
+    custom rate such as 128000 or 76800 as pyserial sets it; the termios constant elsewhere);
+    0 if unknown."""
+    try:
+        buf = bytearray(44)
+        fcntl.ioctl(fd, _TCGETS2, buf)
+        return int.from_bytes(buf[40:44], "little")
+    except OSError:
+        pass
+    try:
+        return _TERMIOS_SPEEDS.get(termios.tcgetattr(fd)[5], 0)
+    except termios.error:
+        return 0
 
 
 @dataclass
@@ -92,11 +130,18 @@ class VirtualBus(PtyDevice):
         deterministic tests).
     return_delay : bool
         Wait each servo's return delay time before its reply.
+    baudrate : int, optional
+        Configure every servo's ``baud_rate`` register (and its flash) for this rate, as a
+        setup tool would have (LeRobot sets its buses to 1 Mbaud); default the registers'
+        values (the factory's: STS3215 1 Mbaud, XL330 / XL430 57600).
 
     Attributes
     ----------
     packets_received : int
         Instruction packets decoded (addressed to anyone).
+    packets_to : collections.Counter of int
+        Instruction packets by the ID they address: a packet to one ID counts for it, a SYNC or
+        BULK instruction for each ID it lists, any other broadcast for the broadcast ID (254).
     replies_sent : int
     bytes_received, bytes_sent : int
     error : BaseException or None
@@ -112,6 +157,7 @@ class VirtualBus(PtyDevice):
         speed: float = 1.0,
         clock: Callable[[], float] | None = None,
         return_delay: bool = True,
+        baudrate: int | None = None,
     ) -> None:
         self.spec = get_spec(family)
         if not speed > 0:
@@ -140,6 +186,10 @@ class VirtualBus(PtyDevice):
         else:
             raise ValueError("several servos need one physics each: physics={id: physics, ...}")
         self._servos = [_Servo(t, chosen.get(t.servo_id) or MirrorPhysics()) for t in tables]
+        if baudrate is not None:
+            for t in tables:
+                t.store(t.spec.role("baud_rate").name, t.spec.baud_index(int(baudrate)))
+        self._line_baud = 0
         self.lock = threading.RLock()
         self._parser: scs.Parser | dxl.Parser = (
             scs.Parser() if self.spec.protocol == "feetech" else dxl.Parser()
@@ -150,6 +200,7 @@ class VirtualBus(PtyDevice):
         self._garbage = bytearray()
         self._corrupt = self._truncate = self._drop = 0
         self.packets_received = self.replies_sent = 0
+        self.packets_to: Counter[int] = Counter()
         self.bytes_received = self.bytes_sent = 0
 
     # ---- lifecycle -------------------------------------------------------------------------------
@@ -260,13 +311,15 @@ class VirtualBus(PtyDevice):
         """Serve the host until stopped (the thread's body; see :class:`PtyEndpoint`)."""
         last_rx = time.monotonic()
         while not self._pty.stopping.is_set():
-            timeout = 0.005 if self._parser.pending or self._out else 0.5
+            timeout = 0.005 if self._parser.pending or self._out else _IDLE_ADVANCE_S
             readable, _, _ = select.select([master, wake], [], [], timeout)
             self._flush(master)
             if master not in readable:
                 if self._parser.pending and time.monotonic() - last_rx > _INTERBYTE_TIMEOUT_S:
                     with self.lock:
                         self._parser.reset()
+                elif self._clock is None:
+                    self._advance()  # keep the physics near the wall clock while idle
                 continue
             try:
                 data = os.read(master, 4096)
@@ -284,13 +337,22 @@ class VirtualBus(PtyDevice):
             for packet in packets:
                 self._handle(master, packet)
 
-    def _handle(self, master: int, packet: scs.Packet | dxl.Packet) -> None:
+    def _advance(self) -> None:
+        """Run every servo's physics to the present device time."""
         with self.lock:
-            self.packets_received += 1
             now = self.device_time()
             for s in self._servos:
                 with s.table.lock:
                     s.physics.advance(s.table, now)
+
+    def _handle(self, master: int, packet: scs.Packet | dxl.Packet) -> None:
+        slave = self._pty.slave
+        line = line_baud(slave) if slave is not None else 0
+        with self.lock:
+            self.packets_received += 1
+            self.packets_to.update(_addressed(packet))
+            self._line_baud = line
+            self._advance()
             if isinstance(packet, scs.Packet):
                 replies = self._feetech(packet)
             else:
@@ -322,18 +384,34 @@ class VirtualBus(PtyDevice):
         with self.lock:
             self.bytes_sent += write_pending(master, self._out)
 
+    def _hears(self, s: _Servo) -> bool:
+        """The servo listens and the line runs at its baud rate."""
+        if s.silent:
+            return False
+        spec = s.table.spec
+        try:
+            rate = spec.baud(s.table.get_role("baud_rate"))
+        except ValueError:
+            return False
+        return abs(self._line_baud - rate) <= _BAUD_TOLERANCE * rate
+
     def _targets(self, packet_id: int) -> list[_Servo]:
-        """The listening servos an instruction to ``packet_id`` reaches, in ID order."""
-        servos = [s for s in self._servos if not s.silent]
+        """The servos an instruction to ``packet_id`` reaches, in ID order."""
+        servos = [s for s in self._servos if self._hears(s)]
         if packet_id == dxl.BROADCAST_ID:  # the same ID on both protocols
             return sorted(servos, key=lambda s: s.table.servo_id)
         return [s for s in servos if s.table.servo_id == packet_id]
 
     def _listed(self, servo_id: int) -> _Servo | None:
         for s in self._servos:
-            if not s.silent and s.table.servo_id == servo_id:
+            if self._hears(s) and s.table.servo_id == servo_id:
                 return s
         return None
+
+    @property
+    def line_baud(self) -> int:
+        """The line rate (baud) the host set, as the last packet found it (0: none yet)."""
+        return self._line_baud
 
     # ---- Feetech SCS/STS -------------------------------------------------------------------------
 
@@ -492,6 +570,31 @@ class VirtualBus(PtyDevice):
             elif not broadcast:
                 status(s, dxl.ERR_INSTRUCTION)
         return replies
+
+
+def _addressed(packet: scs.Packet | dxl.Packet) -> list[int]:
+    """The IDs an instruction packet addresses (see :attr:`VirtualBus.packets_to`)."""
+    params = packet.params
+    if isinstance(packet, scs.Packet):
+        if packet.code == scs.INST_SYNC_READ:
+            return list(params[2:])
+        if packet.code == scs.INST_SYNC_WRITE and len(params) >= 2:
+            return list(params[2 :: params[1] + 1])
+        return [packet.id]
+    inst = packet.instruction
+    if inst == dxl.INST_SYNC_READ:
+        return list(params[4:])
+    if inst == dxl.INST_SYNC_WRITE and len(params) >= 4:
+        return list(params[4 :: _u16(params, 2) + 1])
+    if inst == dxl.INST_BULK_READ:
+        return list(params[0::5])
+    if inst == dxl.INST_BULK_WRITE:
+        ids, k = [], 0
+        while k + 5 <= len(params):
+            ids.append(params[k])
+            k += 5 + _u16(params, k + 3)
+        return ids
+    return [packet.id]
 
 
 def _id_and_level(table: ControlTable) -> tuple[int, int]:

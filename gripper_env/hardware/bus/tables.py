@@ -10,7 +10,12 @@ Three families, each a :class:`TableSpec` in :data:`TABLES`:
     goal/present position and velocity, bit 11 for the homing offset, bit 10 for the present
     load). Factory values from Feetech's STS memory table (the "initial value" column: P = D =
     32, I = 0, dead zones 1, protection current 500, overload torque 80 %, ...); ranges from the
-    same table. Feetech's factory area (80-86) is left out. Less certain: ``lock`` starts at 0
+    same table. The factory area (80-86: ``maximum_acceleration`` at 85, which LeRobot's
+    ``configure_motors`` writes, ...) is LeRobot's table's; Feetech does not publish its
+    initial values (those here are placeholders the physics does not read). Baud rate
+    indices are Feetech's (0 = 1 Mbaud, 1 = 500 k, 2 = 250 k, 3 = 128 k, 4 = 115200, 5 = 76800,
+    6 = 57600, 7 = 38400; LeRobot's table puts 57600 at 5 and 38400 at 6). Less certain:
+    ``lock`` starts at 0
     (transcriptions of Feetech's table say 0 or 1), the voltage limits are the 7.4 V
     version's (4.0-8.0 V; the 12 V versions share the model number), the firmware version bytes
     are only plausible.
@@ -87,6 +92,9 @@ ROLES = (
     "deadband_ccw",
     "torque_enable",
     "acceleration",
+    "baud_rate",
+    "drive_mode",
+    "goal_current",
     "goal_position",
     "velocity_limit",
     "torque_limit",
@@ -267,6 +275,8 @@ class TableSpec:
         ``pwm_limit``).
     ticks_per_rev : int
         Position ticks per revolution.
+    baud_rates : tuple of int
+        The line rate (baud) of each value of the ``baud_rate`` register.
     """
 
     family: str
@@ -280,6 +290,7 @@ class TableSpec:
     error_bits: Mapping[str, int] = field(hash=False)
     power_on_copies: tuple[tuple[str, str], ...] = ()
     ticks_per_rev: int = TICKS_PER_REV
+    baud_rates: tuple[int, ...] = ()
     _by_name: Mapping[str, Field] = field(init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
@@ -354,6 +365,41 @@ class TableSpec:
         """The fields that share at least one byte with ``[address, address + length)``."""
         end = address + length
         return [f for f in self.fields if f.address < end and address < f.end]
+
+    def baud(self, index: int) -> int:
+        """The line rate (baud) of the ``baud_rate`` register's value ``index``.
+
+        Raises
+        ------
+        ValueError
+            Naming the family and the values it knows.
+        """
+        if not 0 <= index < len(self.baud_rates):
+            raise ValueError(
+                f"{self.family}: no baud rate for register value {index} "
+                f"(0-{len(self.baud_rates) - 1}: {list(self.baud_rates)})"
+            )
+        return self.baud_rates[index]
+
+    @property
+    def factory_baudrate(self) -> int:
+        """The line rate (baud) the family ships at: its ``baud_rate`` register's factory value
+        (STS3215 1 Mbaud, XL330 and XL430 57600)."""
+        return self.baud(self.role("baud_rate").default)
+
+    def baud_index(self, baudrate: int) -> int:
+        """The ``baud_rate`` register's value for ``baudrate`` (baud).
+
+        Raises
+        ------
+        ValueError
+            Naming the rates the family offers.
+        """
+        if baudrate not in self.baud_rates:
+            raise ValueError(
+                f"{self.family} offers no {baudrate} baud (it offers {list(self.baud_rates)})"
+            )
+        return self.baud_rates.index(baudrate)
 
     def deg_to_ticks(self, deg: float) -> int:
         """Position ``deg`` (deg) in ticks, rounded to the nearest tick."""
@@ -448,6 +494,14 @@ _STS3215_FIELDS = (
     _f(65, 1, "status", "R", _R, 0, unit="error bits (see error_bits)"),
     _f(66, 1, "moving", "R", _R, 0, 0, 1),
     _f(69, 2, "present_current", "R", _R, 0, unit="6.5 mA"),
+    # the factory area (LeRobot's table; initial values not published: placeholders)
+    _f(80, 1, "moving_velocity_threshold", "RW", _R, 1, 0, 254),
+    _f(81, 1, "dts", "RW", _R, 0, 0, 254, unit="ms"),
+    _f(82, 1, "velocity_unit_factor", "RW", _R, 1, 0, 254),
+    _f(83, 1, "hts", "RW", _R, 0, 0, 254, unit="ns (firmware >= 2.54, else 0)"),
+    _f(84, 1, "maximum_velocity_limit", "RW", _R, 254, 0, 254),
+    _f(85, 1, "maximum_acceleration", "RW", _R, 254, 0, 254),
+    _f(86, 1, "acceleration_multiplier", "RW", _R, 1, 0, 254, unit="when acceleration is 0"),
 )
 
 _STS3215_ROLES = {
@@ -469,6 +523,7 @@ _STS3215_ROLES = {
     "deadband_ccw": "ccw_dead_zone",
     "torque_enable": "torque_enable",
     "acceleration": "acceleration",
+    "baud_rate": "baud_rate",
     "goal_position": "goal_position",
     "velocity_limit": "goal_velocity",
     "torque_limit": "torque_limit",
@@ -663,6 +718,8 @@ def _xl_roles(model: str) -> dict[str, str]:
         "d_gain": "position_d_gain",
         "torque_enable": "torque_enable",
         "acceleration": "profile_acceleration",
+        "baud_rate": "baud_rate",
+        "drive_mode": "drive_mode",
         "goal_position": "goal_position",
         "velocity_limit": "profile_velocity",
         "torque_limit": "goal_pwm",
@@ -675,6 +732,7 @@ def _xl_roles(model: str) -> dict[str, str]:
     }
     if model == "xl330":
         roles["present_current"] = "present_current"
+        roles["goal_current"] = "goal_current"
     else:
         roles["present_load"] = "present_load"
     return roles
@@ -694,6 +752,7 @@ TABLES: Mapping[str, TableSpec] = MappingProxyType(
             memory_size=128,
             error_bits=_STS_ERROR_BITS,
             power_on_copies=(("torque_limit", "max_torque_limit"),),
+            baud_rates=(1_000_000, 500_000, 250_000, 128_000, 115_200, 76_800, 57_600, 38_400),
         ),
         **{
             model: TableSpec(
@@ -710,6 +769,8 @@ TABLES: Mapping[str, TableSpec] = MappingProxyType(
                     ("goal_pwm", "pwm_limit"),
                     *([("goal_current", "current_limit")] if model == "xl330" else []),
                 ),
+                baud_rates=(9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+                + ((4_500_000,) if model == "xl430" else ()),
             )
             for model in ("xl330", "xl430")
         },

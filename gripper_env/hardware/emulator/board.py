@@ -57,6 +57,8 @@ if TYPE_CHECKING:
 
 __all__ = ["EmulatedBoard"]
 
+#: Bytes the line to the emulated board holds (``RX_CAP`` of firmware/emulator/board.c).
+RX_LINE_BYTES = 1 << 16
 SERVO_US = (544, 2400)  # the emulated servo's pulse widths at 0 and 180 deg (hobby-servo standard)
 SERVO_LIMP_MS = 25  # a servo that sees no pulse for this long stops driving (one frame lost)
 TIMING_PINS = (("B", 7), ("B", 6))  # firmware marks: control path (pin 13), telemetry (pin 12)
@@ -140,8 +142,19 @@ class EmulatedBoard:
         """The firmware reported an active mode (open or closed loop) last."""
         return self.mode != proto.Mode.IDLE
 
+    def rx_room(self) -> int:
+        """Bytes the line to the board can take now (:data:`RX_LINE_BYTES` less those on it):
+        a host that writes faster than the line carries them waits (flow control)."""
+        return RX_LINE_BYTES - self.mega.rx_pending
+
     def receive(self, data: bytes, now_us: int | None = None) -> None:
-        """Bytes from the host: onto the RX line now, one frame time apart."""
+        """Bytes from the host: onto the RX line now, one frame time apart.
+
+        Raises
+        ------
+        RuntimeError
+            More than :meth:`rx_room` bytes (the caller reads no more than that).
+        """
         if self.mega.write(data) < len(data):
             raise RuntimeError("the emulated RX line holds 64 KiB: the host wrote faster than that")
         self.last_rx_us = self.ms * 1000 if now_us is None else now_us

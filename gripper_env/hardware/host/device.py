@@ -127,6 +127,10 @@ class GripperDevice:
         self._last_rx_wall = time.monotonic()
         self.commands = CommandLog()
         self._setpoint_confirmed = False
+        #: HELLOs of the last handshake whose INFO has not arrived: a slow board answers a
+        #: HELLO sent again after the first answer (not a reset; see :meth:`handshake`).
+        self._late_infos = 0
+        self._hellos_sent = self._infos_seen = 0
         if open:
             self.open()
 
@@ -173,7 +177,12 @@ class GripperDevice:
         self._write(b"\x00")  # end any partial frame the board may hold
         self._session = False
         self.decoder.reset_sequence()
+        self._hellos_sent = self._infos_seen = 0
         info = self._request(proto.Hello(), proto.Info)
+        # a board slower than the timeout answers the first HELLO after the host sent it again:
+        # the INFOs still to come answer those HELLOs, which reached the board before anything
+        # sent after this one (the link is first in, first out), so they are no reset
+        self._late_infos = max(0, self._hellos_sent - self._infos_seen)
         if info.protocol_version != proto.PROTOCOL_VERSION:
             raise version_mismatch(self.port, info.protocol_version)
         self.info = info
@@ -464,6 +473,8 @@ class GripperDevice:
             raise
 
     def _send(self, msg: proto.Message) -> int:
+        if isinstance(msg, proto.Hello):
+            self._hellos_sent += 1
         seq = self._seq
         self._write(proto.encode_frame(seq, msg))
         self._seq = (seq + 1) & 0xFF
@@ -525,7 +536,12 @@ class GripperDevice:
                     )
                 elif msg.faults and self._mode != Mode.IDLE:
                     problem = problem or self._fault(msg.faults)
+            elif isinstance(msg, proto.Info) and not self._session:
+                self._infos_seen += 1  # answers to this handshake's HELLOs
             elif isinstance(msg, proto.Info) and self._session:
+                if self._late_infos > 0:  # the answer to a HELLO sent again (see handshake)
+                    self._late_infos -= 1
+                    continue
                 problem = problem or DeviceReset(
                     f"device on {self.port} reset: it sent INFO unasked"
                 )

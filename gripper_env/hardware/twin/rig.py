@@ -24,7 +24,7 @@ from gripper_env.hardware.safety import (
 )
 from gripper_env.hardware.twin.firmware import Firmware
 from gripper_env.model.disturbances import load_disturbance
-from gripper_env.model.pid import pid_update
+from gripper_env.model.pid import STATE_SIZE, pid_update
 from gripper_env.model.plants import load_plant
 from gripper_env.sim import BatchSimulator
 
@@ -82,7 +82,8 @@ class VirtualRig:
         # load the compiled kernels now, not at the first tick (a zero-step advance is a no-op)
         empty = (np.empty((1, 0)), np.empty((1, 0)), np.empty((1, 0)), np.empty((1, 0)))
         self.sim.advance(0, self._command, 0, empty)
-        pid_update(0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 1e-3, 0.0, 1.0, 1, 1.0, 1.0, 0, np.zeros(2))
+        pid_update(0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 1e-3, 0.0, 1.0, 1, 1.0, 1.0, 0,
+                   np.zeros(STATE_SIZE), 1, 1.0, 5.0, 0.5, 1.0, 100.0)  # fmt: skip
         self.adc = self.counts(y0_deg)
         self.position_deg = float(y0_deg)
 

@@ -24,6 +24,9 @@ from gripper_env.model.bus_servo import RegisterSet
 HW = "gripper_env/GripperBusServoHardware-v0"
 SIM = "gripper_env/GripperBusServo-v0"
 JC, JH = 205.0, 55.0  # centre and half-width of the shipped models' jaw range (deg)
+#: The virtual servo's jaw as its owner would calibrate it: its stops at 150 and 260 deg.
+JAW = {"closed_ticks": 1707, "open_ticks": 2958}
+ON_BUS = {"servo_id": 1, "jaw": JAW}
 
 
 def action_for(goal_deg: float) -> np.ndarray:
@@ -44,7 +47,7 @@ def test_registered_nondeterministic_with_a_time_limit_and_touches_no_device() -
     assert spec.max_episode_steps == 1000 and spec.nondeterministic
     assert spec.vector_entry_point is None
     assert HW not in gripper_env.ENV_IDS
-    env = gym.make(HW, port="/nonexistent/tty")  # the port is opened by reset, not here
+    env = gym.make(HW, port="/nonexistent/tty", **ON_BUS)  # the port is opened by reset
     assert isinstance(env, gym.wrappers.TimeLimit)
     sim = gym.make(SIM)
     assert env.action_space == sim.action_space
@@ -60,6 +63,11 @@ def test_registered_nondeterministic_with_a_time_limit_and_touches_no_device() -
         ({"port": "/dev/null", "reads_per_period": 0}, "reads_per_period"),
         ({"port": "/dev/null", "reads_per_period": 21}, "reads_per_period"),
         ({"port": "/dev/null", "servo_id": 300}, "servo_id"),
+        ({"port": "/dev/null", "servo_id": None}, "servo_id"),
+        ({"port": "/dev/null", "jaw": None}, "jaw"),
+        ({"port": "/dev/null", "jaw": {"closed_ticks": 1707}}, "jaw"),
+        ({"port": "/dev/null", "jaw": {"closed_ticks": 2000, "open_ticks": 2010}}, "jaw"),
+        ({"port": "/dev/null", "jaw": "/nonexistent/jaw.json"}, "jaw"),
         ({"port": "/dev/null", "settle_tol_deg": -1.0}, "settle_tol_deg"),
         ({"port": "/dev/null", "registers": {"p": 16}}, "registers"),
         ({"port": "/dev/null", "control_period_s": 0.0005}, "control_period_s"),
@@ -70,7 +78,7 @@ def test_bad_arguments_name_themselves(kwargs: dict, name: str) -> None:
     with pytest.raises(ConfigError, match=f"GripperBusServoHardware-v0: argument '{name}'"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # gym.make's own render_mode warning
-            gym.make(HW, **kwargs)
+            gym.make(HW, **{**ON_BUS, **kwargs})
 
 
 def test_docstring_has_gymnasium_sections() -> None:
@@ -90,7 +98,7 @@ def test_an_episode_reaches_the_goal_as_in_simulation(sts_bus: VirtualBus) -> No
     block of the simulation core, run by the bus as time passes); close relaxes."""
     regs = RegisterSet(p=24, d=32, torque_limit=800, deadband=1)
     table = sts_bus.table(1)
-    env = gym.make(HW, port=sts_bus.path, registers=regs, reference="tracking")
+    env = gym.make(HW, port=sts_bus.path, registers=regs, reference="tracking", **ON_BUS)
     sim = gym.make(SIM, registers=regs, reference="tracking")
     obs, info = env.reset(seed=0)
     sim_obs, _ = sim.reset(seed=0)
@@ -116,7 +124,7 @@ def test_an_episode_reaches_the_goal_as_in_simulation(sts_bus: VirtualBus) -> No
 
 
 def test_checker_passes_against_the_virtual_bus(sts_bus: VirtualBus) -> None:
-    env = gym.make(HW, port=sts_bus.path, episode_s=0.2)
+    env = gym.make(HW, port=sts_bus.path, episode_s=0.2, **ON_BUS)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*is different from the unwrapped version")
         warnings.filterwarnings("ignore", category=RuntimeWarning)  # missed deadlines
@@ -126,7 +134,7 @@ def test_checker_passes_against_the_virtual_bus(sts_bus: VirtualBus) -> None:
 
 
 def test_nan_action_is_refused_before_anything_is_sent(sts_bus: VirtualBus) -> None:
-    env = gym.make(HW, port=sts_bus.path)
+    env = gym.make(HW, port=sts_bus.path, **ON_BUS)
     env.reset(seed=0)
     before = sts_bus.packets_received
     with pytest.raises(ValueError, match=r"GripperBusServoHardware-v0: action must be finite"):
@@ -142,7 +150,7 @@ def test_an_overload_ends_the_episode_with_the_torque_off(family: str) -> None:
     next reset clears the trip (an STS when its torque goes off, a Dynamixel by a REBOOT)."""
     unit = ServoUnit(family, object_deg=185.0)
     with VirtualBus(family, physics=unit, speed=4.0) as bus:
-        env = gym.make(HW, port=bus.path, model=family, reference="tracking")
+        env = gym.make(HW, port=bus.path, model=family, reference="tracking", **ON_BUS)
         env.reset(seed=0)
         steps, positions = 0, []
         with warnings.catch_warnings(record=True) as caught:
@@ -168,13 +176,22 @@ def test_an_overload_ends_the_episode_with_the_torque_off(family: str) -> None:
         assert bus.table(1).get_role("torque_enable") == 0
 
 
-def test_a_lost_reply_ends_in_a_clear_error_with_the_torque_off(sts_bus: VirtualBus) -> None:
-    env = gym.make(HW, port=sts_bus.path)
+def test_a_lost_reply_is_sent_again_and_a_dead_link_ends_in_a_clear_error(
+    sts_bus: VirtualBus,
+) -> None:
+    env = gym.make(HW, port=sts_bus.path, **ON_BUS)
     env.reset(seed=0)
     for _ in range(3):
         env.step(action_for(230.0))
     assert sts_bus.table(1).get_role("torque_enable") == 1
-    sts_bus.drop_replies(1)  # the servo acts, its reply is lost
+    link = env.unwrapped.gripper.link
+    retried = link.retried
+    sts_bus.drop_replies(1)  # the servo acts, its reply is lost: the link asks again
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the retry may miss a deadline
+        env.step(action_for(225.0))
+    assert link.retried == retried + 1
+    sts_bus.drop_replies(1 + link.retries)  # every attempt lost
     with pytest.raises(BusTimeoutError, match=r"servo 1 on .*no reply") as excinfo:
         env.step(action_for(220.0))
     assert any("the torque is off" in note for note in excinfo.value.__notes__)
@@ -187,7 +204,7 @@ def test_a_lost_reply_ends_in_a_clear_error_with_the_torque_off(sts_bus: Virtual
 
 
 def test_a_silent_servo_ends_in_a_clear_error_and_close_relaxes_it(sts_bus: VirtualBus) -> None:
-    env = gym.make(HW, port=sts_bus.path)
+    env = gym.make(HW, port=sts_bus.path, **ON_BUS)
     env.reset(seed=0)
     env.step(action_for(230.0))
     sts_bus.silence(1)  # unplugged: it hears nothing, not even the torque off

@@ -21,6 +21,7 @@ from gripper_env.hardware.bus import (
     ControlTable,
     VirtualBus,
 )
+from gripper_env.hardware.bus.gripper import FACTORY_BAUD
 
 
 class DeafToGains(ControlTable):
@@ -139,8 +140,11 @@ def test_servo_refusals_and_hardware_alerts():
             "not available to target address!)"
         )
         bus.table(1).set_role("error_status", bus.spec.error_bits["overheat"])
-        with pytest.raises(BusAlertError, match=r"hardware alert \(read hardware_error_status\)"):
-            link.read(1, "present_position")
+        with pytest.raises(
+            BusAlertError, match=r"hardware alert \(overheat\) reading present_"
+        ) as a:
+            link.read(1, "present_position")  # the bits read from hardware_error_status
+        assert a.value.bits == ["overheat"] and a.value.servo_id == 1
         link.raise_on_alert = False
         assert link.read(1, "hardware_error_status") == 4
         assert link.alerts[1] == 0x80
@@ -166,7 +170,7 @@ def test_sts_alerts_name_the_status_bits():
 
 
 def test_corrupt_replies():
-    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430") as link:
+    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430", retries=0) as link:
         bus.corrupt_replies(1)
         with pytest.raises(BusCorruptError) as caught:
             link.read(1, "present_position")
@@ -178,6 +182,20 @@ def test_corrupt_replies():
         assert link.read(1, "present_position") == 2048
 
 
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_a_lost_or_garbled_reply_is_sent_again_and_counted(family):
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        bus.drop_replies(1)
+        link.write(1, "p_gain", 20)  # the write is sent again (idempotent), then read back
+        assert bus.table(1).get_role("p_gain") == 20 and link.retried == 1
+        bus.corrupt_replies(1)
+        assert link.read(1, "p_gain") == 20 and link.retried == 2
+        bus.drop_replies(link.retries + 1)  # every attempt lost: an error, counted
+        with pytest.raises(BusTimeoutError, match="no reply reading"):
+            link.read(1, "p_gain")
+        assert link.retried == 2 + link.retries
+
+
 def test_opening_the_port():
     with pytest.raises(ValueError, match="unknown servo family 'mx28'; known: sts3215, xl330"):
         BusLink("/dev/null", "mx28")
@@ -185,3 +203,22 @@ def test_opening_the_port():
         BusLink("/dev/null", "xl330", baudrate=12345)
     with pytest.raises(BusPortError, match="cannot open /nonexistent/tty at 57600 baud"):
         BusLink("/nonexistent/tty", "xl330", baudrate=57600)
+
+
+@pytest.mark.parametrize(
+    ("family", "factory", "other"),
+    [("sts3215", 1_000_000, 115_200), ("xl330", 57_600, 1_000_000), ("xl430", 57_600, 1_000_000)],
+)
+def test_the_link_opens_at_the_factory_rate_unless_told(family, factory, other):
+    """A servo fresh from its box answers a link opened with the defaults (the rates are the
+    vendors': STS3215 1 Mbaud, XL330 / XL430 57600, as BusGripper's ``FACTORY_BAUD``); one set
+    to another rate (as LeRobot sets its buses to 1 Mbaud) needs that rate given."""
+    assert FACTORY_BAUD[family] == factory
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        assert link.baudrate == factory
+        assert link.ping(1) == bus.spec.model_number
+    with VirtualBus(family, baudrate=other) as bus:
+        with BusLink(bus.path, family) as link, pytest.raises(BusTimeoutError):
+            link.ping(1)  # its bytes are noise at the factory rate
+        with BusLink(bus.path, family, baudrate=other) as link:
+            assert link.ping(1) == bus.spec.model_number

@@ -29,7 +29,7 @@ def sts() -> Iterator[tuple[VirtualBus, object, object]]:
 
 @pytest.fixture
 def xl() -> Iterator[tuple[VirtualBus, object, object]]:
-    with VirtualBus("xl330", ids=IDS) as bus:
+    with VirtualBus("xl330", ids=IDS, baudrate=1_000_000) as bus:  # as LeRobot sets it
         port = dx.PortHandler(bus.path)
         ph = dx.PacketHandler(2.0)
         assert port.setBaudRate(1_000_000)  # the broadcast ping waits 0.8 s (1.4 s at 57600)

@@ -44,7 +44,7 @@ def test_physics_runs_before_every_packet_on_device_time():
     clock = iter(range(100))
     one, two = Recording(), Recording()
     assert isinstance(one, Physics)
-    with VirtualBus("xl330", ids=(1, 2), physics={1: one, 2: two},
+    with VirtualBus("xl330", ids=(1, 2), physics={1: one, 2: two}, baudrate=1_000_000,
                     clock=lambda: float(next(clock))) as bus:  # fmt: skip
         with serial.Serial(bus.path, 1_000_000, timeout=0.2) as port:
             ping = dxl.encode_instruction(1, dxl.INST_PING)

@@ -70,6 +70,14 @@ LEROBOT_STS = {
     "Status": (65, 1),
     "Moving": (66, 1),
     "Present_Current": (69, 2),
+    # the factory area ("Moving_Velocity" at 80 is another name for the threshold)
+    "Moving_Velocity_Threshold": (80, 1),
+    "DTs": (81, 1),
+    "Velocity_Unit_factor": (82, 1),
+    "Hts": (83, 1),
+    "Maximum_Velocity_Limit": (84, 1),
+    "Maximum_Acceleration": (85, 1),
+    "Acceleration_Multiplier ": (86, 1),
 }
 # LeRobot's STS_SMS_SERIES_ENCODINGS_TABLE (sign bit of each sign-magnitude field)
 LEROBOT_STS_SIGN_BITS = {
@@ -151,7 +159,7 @@ def test_factory_gains(family, gains):
 
 def test_every_family_has_every_role_it_can():
     common = set(ROLES) - {"deadband_cw", "deadband_ccw", "lock", "present_load",
-                           "present_current"}  # fmt: skip
+                           "present_current", "drive_mode", "goal_current"}  # fmt: skip
     for spec in TABLES.values():
         assert common <= set(spec.roles), spec.family
         for role in spec.roles:
@@ -160,6 +168,9 @@ def test_every_family_has_every_role_it_can():
         TABLES["sts3215"].roles
     )
     assert TABLES["xl330"].roles["present_current"] == "present_current"
+    assert TABLES["xl330"].roles["goal_current"] == "goal_current"  # current-based position
+    assert "goal_current" not in TABLES["xl430"].roles
+    assert all(TABLES[f].roles["drive_mode"] == "drive_mode" for f in ("xl330", "xl430"))
     assert "present_load" not in TABLES["xl330"].roles
     assert TABLES["xl430"].roles["present_load"] == "present_load"
     assert "present_current" not in TABLES["xl430"].roles

@@ -50,7 +50,7 @@ def test_sts3215_follows_the_goal_and_trips_on_an_object():
 def test_xl330_overload_turns_the_torque_off_until_a_reboot():
     unit = ServoUnit("xl330", object_deg=None)
     m = unit.model
-    with VirtualBus("xl330", ids=(1,), physics=unit, speed=4.0) as bus:
+    with VirtualBus("xl330", ids=(1,), physics=unit, speed=4.0, baudrate=1_000_000) as bus:
         port = dxl.PortHandler(bus.path)
         assert port.openPort() and port.setBaudRate(1_000_000)
         ph = dxl.PacketHandler(2.0)

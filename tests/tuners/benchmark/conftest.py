@@ -1,4 +1,5 @@
-"""The quick benchmark, run once for the benchmark's and the leaderboard's tests."""
+"""The quick benchmark, run once per test run for the benchmark's and the leaderboard's tests
+(once across parallel workers: ``run_once`` in tests/conftest.py)."""
 
 import json
 
@@ -8,8 +9,10 @@ from tuners.benchmark import command as benchmark
 
 
 @pytest.fixture(scope="session")
-def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench") / "results"
-    code = benchmark.main(["--quick", "--out", str(out)])
-    assert code == 0
+def quick(run_once):
+    def compute(folder):
+        code = benchmark.main(["--quick", "--out", str(folder / "results")])
+        assert code == 0
+
+    out = run_once("quick-benchmark", compute) / "results"
     return out, json.loads((out / "benchmark.json").read_text())

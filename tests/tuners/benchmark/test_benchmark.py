@@ -54,7 +54,8 @@ def test_the_quick_report_has_the_grasp_section(quick):
     grasp = data["grasp"]["plants"]
     assert list(grasp) == ["test2"]  # test1 is not ranked
     names = [r["controller"].split(" P=")[0] for r in grasp["test2"]]
-    assert names == ["servo alone (no host loop)", *pid]
+    both = [n for name in pid for n in (name, name + " + grasp mode")]  # plain, with the mode
+    assert names == ["servo alone (no host loop)", *both]
     assert "## Grasp and hold" in (out / "benchmark.md").read_text()
 
 

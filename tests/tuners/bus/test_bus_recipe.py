@@ -15,8 +15,12 @@ import pytest
 from gripper_env.evaluation.bus_servo import judge, loop_margins
 from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.unit import ServoUnit
+from gripper_env.model.bus_calibration import JawCalibration
 from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
-from tuners.bus import deploy, identify, record, tune
+from tuners.bus import calibrate, deploy, identify, record, tune
+
+#: The virtual servo's jaw as its owner would calibrate it: its stops at 150 and 260 deg.
+JAW = ["--closed-ticks", "1707", "--open-ticks", "2958"]
 
 SETTINGS = {
     "sts3215": ["16,0,32", "32,0,32", "64,0,32"],
@@ -38,10 +42,13 @@ def _truth(family):
 def test_record_identify_tune_deploy(family, tmp_path, capsys):
     truth = _truth(family)
     out = tmp_path / family
+    jaw = str(tmp_path / "jaw.json")
     with VirtualBus(family, physics=ServoUnit(truth, object_deg=truth.jaw.object_deg)) as bus:
         port = bus.path
-        assert record.main(["--port", port, "--model", family, "--out", str(out),
-                            "--settings", *SETTINGS[family]]) == 0  # fmt: skip
+        assert calibrate.main(["--port", port, "--id", "1", "--model", family, *JAW,
+                               "--out", jaw]) == 0  # fmt: skip
+        assert record.main(["--port", port, "--id", "1", "--model", family, "--jaw", jaw,
+                            "--out", str(out), "--settings", *SETTINGS[family]]) == 0  # fmt: skip
         records = sorted(out.glob("record_*.csv"))
         assert len(records) == 3
         assert identify.main([*map(str, records), "--model", family, "--name", f"my-{family}",
@@ -83,9 +90,10 @@ def test_record_identify_tune_deploy(family, tmp_path, capsys):
         assert not score["hold"]["overload"] and factory["hold"]["overload"]
         capsys.readouterr()
         assert deploy.main(["--registers", str(out / f"my-{family}_registers.json"),
-                            "--port", port, "--hold", "2", "--no-plot"]) == 0  # fmt: skip
+                            "--port", port, "--id", "1", "--hold", "2", "--no-plot",
+                            "--save"]) == 0  # fmt: skip
         printed = capsys.readouterr().out
-        # what the servo holds now is what was tuned
+        # what the servo holds now is what was tuned (kept with --save)
         table = bus.table(1)
         regs = tuned["registers"]
         assert table.get_role("p_gain") == regs["p"]
@@ -102,10 +110,12 @@ def test_deploy_refuses_an_unstable_set_before_touching_the_servo(tmp_path, caps
     model = load_bus_servo("sts3215")
     bad = model.factory.model_copy(update={"p": 254, "d": 0})
     path = tmp_path / "bad_registers.json"
-    path.write_text(json.dumps({"model": model.model_dump(), "registers": bad.model_dump()}))
+    cal = JawCalibration(family="sts3215", closed_ticks=1707, open_ticks=2958)
+    doc = {"model": model.calibrated(cal).model_dump(), "registers": bad.model_dump()}
+    path.write_text(json.dumps(doc))
     with VirtualBus("sts3215", physics=ServoUnit(model)) as bus:
         before = bus.packets_received
-        code = deploy.main(["--registers", str(path), "--port", bus.path])
+        code = deploy.main(["--registers", str(path), "--port", bus.path, "--id", "1"])
         assert code == 2
         assert bus.packets_received == before  # nothing was sent
         assert bus.table(1).get_role("p_gain") == model.factory.p

@@ -70,3 +70,26 @@ def test_the_search_beats_the_shipped_registers_from_any_seed(family):
             if lo <= v <= hi
         ]
         assert not [n for n in judge(model, near) if n.feasible and n.cost < best.cost * (1 - 1e-3)]
+
+
+def test_the_koch_gripper_tunes_in_current_based_position_mode(tmp_path, capsys):
+    """The XL330 in mode 5 (the Koch gripper's): P, I, D and the goal current are tuned; the
+    result meets the margins of the current loop's plant (no back-EMF damping) and holds; a
+    given goal current is kept; a family without the mode is a one-line error."""
+    args = ["--model", "xl330", "--operating-mode", "current_position", "--trials", "200",
+            "--polish", "200", "--out", str(tmp_path), "--no-progress", "--no-plot"]  # fmt: skip
+    assert main(args) == 0
+    model, regs, doc = load_registers_file(tmp_path / "xl330_registers.json")
+    assert model.operating_mode == "current_position" and doc["score"]["feasible"]
+    assert "goal_current" in doc["search_space"] and "torque_limit" not in doc["search_space"]
+    assert regs.goal_current > 0 and regs.torque_limit == model.factory.torque_limit
+    margins = loop_margins(model, regs)
+    assert margins.ms <= MS_MAX and margins.gm_db >= GM_MIN_DB
+    assert loop_margins(model.with_updates(operating_mode="position"), regs).ms != margins.ms
+    best, _ = tune_registers(model, trials=60, polish=60, progress=False, goal_current=600)
+    assert best.registers.goal_current == 600
+    capsys.readouterr()
+    assert main(["--model", "sts3215", "--operating-mode", "current_position"]) == 2
+    assert "--operating-mode current_position" in capsys.readouterr().err
+    assert main(["--model", "xl330", "--goal-current", "600"]) == 2
+    assert "current-based position mode" in capsys.readouterr().err

@@ -1,0 +1,143 @@
+"""Hostile input to the bus commands: each case is refused with exit status 2 and one line on
+stderr that names the option, or the file and the key, with no traceback. The commands run as
+real processes, a few at a time (a refusal takes a few seconds, nearly all of it importing the
+package); nothing is sent to a servo in any case (the port does not exist)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+from dataclasses import dataclass
+
+import pytest
+from bus_arm import command
+
+from gripper_env.model.bus_calibration import JawCalibration
+from gripper_env.model.bus_servo import load_bus_servo
+
+CONCURRENCY = 3
+HANG_GUARD_S = 120
+NO_PORT = "/no/such/port"
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    module: str
+    args: tuple[str, ...]
+    names: tuple[str, ...]
+
+
+CASES = [
+    Case("virtual --link into a missing folder", "tuners.bus.virtual",
+         ("--link", "{missing}/sts3215"), ("--link", "does not exist")),
+    Case("virtual --link onto a file", "tuners.bus.virtual",
+         ("--link", "{a_file}"), ("--link", "a_file", "a file is there")),
+    Case("virtual --id -1", "tuners.bus.virtual", ("--id", "-1"), ("--id", "'-1'")),
+    Case("virtual --limits reversed", "tuners.bus.virtual",
+         ("--limits", "3000", "1000"), ("--limits",)),
+    Case("record --id -1", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "-1", "--jaw", "{jaw}"), ("--id", "'-1'")),
+    Case("deploy --id -1", "tuners.bus.deploy",
+         ("--registers", "{registers}", "--port", NO_PORT, "--id", "-1"), ("--id", "'-1'")),
+    Case("calibrate --id 300", "tuners.bus.calibrate",
+         ("--port", NO_PORT, "--id", "300"), ("--id", "'300'")),
+    Case("record on a model file with kp = inf", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "6", "--model", "{kp_inf}", "--jaw", "{jaw}"),
+         ("kp_inf.json", "scale.kp", "finite")),
+    Case("tune on a model file with kp = inf", "tuners.bus.tune",
+         ("--model", "{kp_inf}", "--out", "{out}"), ("kp_inf.json", "scale.kp")),
+    Case("tune on a model with NaN uncertainties", "tuners.bus.tune",
+         ("--model", "{nan_unc}", "--out", "{out}"), ("nan_unc.json", "uncertainty.kp", "nan")),
+    Case("deploy a registers file with NaN uncertainties", "tuners.bus.deploy",
+         ("--registers", "{nan_reg}", "--port", NO_PORT, "--id", "6"),
+         ("nan_reg.json", "uncertainty_rel_std.kd")),
+    Case("record --jaw missing", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "6", "--jaw", "{missing}/jaw.json"), ("jaw.json",)),
+    Case("record --sample-ms 0", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "6", "--jaw", "{jaw}", "--sample-ms", "0"), ("--sample-ms",)),
+    Case("record --settings 1,2", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "6", "--settings", "1,2"), ("--settings", "'1,2'")),
+    Case("deploy --hold -1", "tuners.bus.deploy",
+         ("--registers", "{registers}", "--port", NO_PORT, "--id", "6", "--hold", "-1"),
+         ("--hold",)),
+    Case("calibrate --closed-ticks alone", "tuners.bus.calibrate",
+         ("--port", NO_PORT, "--id", "6", "--closed-ticks", "1800"), ("--closed-ticks",)),
+    Case("calibrate --lerobot without the motor", "tuners.bus.calibrate",
+         ("--port", NO_PORT, "--id", "6", "--lerobot", "{arm_json}"),
+         ("arm.json", "no motor 'gripper'")),
+    Case("record on a port that does not exist", "tuners.bus.record",
+         ("--port", NO_PORT, "--id", "6", "--jaw", "{jaw}"), (NO_PORT, "nothing was written")),
+]  # fmt: skip
+
+
+def _files(folder):
+    paths = {"missing": str(folder / "missing"), "out": str(folder / "runs")}
+
+    def write(key, name, text):
+        paths[key] = p = folder / name
+        p.write_text(text)
+
+    model = load_bus_servo("sts3215")
+    cal = JawCalibration(family="sts3215", servo_id=6, closed_ticks=1760, open_ticks=2940)
+    write("a_file", "a_file", "not a link\n")
+    write("jaw", "jaw.json", cal.model_dump_json())
+    calibrated = model.calibrated(cal).model_dump()
+    registers = {"model": calibrated, "registers": model.factory.model_dump()}
+    write("registers", "registers.json", json.dumps(registers))
+    inf = json.loads(json.dumps(calibrated))
+    inf["scale"]["kp"] = math.inf
+    write("kp_inf", "kp_inf.json", json.dumps({"model": inf}))  # Python's JSON: Infinity
+    write("nan_unc", "nan_unc.json", json.dumps({"model": calibrated,
+                                                  "uncertainty": {"kp": math.nan}}))  # fmt: skip
+    write("nan_reg", "nan_reg.json", json.dumps({**registers, "uncertainty_rel_std": {
+        "kp": 0.1, "kd": math.nan}}))  # fmt: skip
+    write(
+        "arm_json",
+        "arm.json",
+        json.dumps(
+            {
+                "shoulder_pan": {
+                    "id": 1,
+                    "drive_mode": 0,
+                    "homing_offset": 0,
+                    "range_min": 800,
+                    "range_max": 3300,
+                }
+            }
+        ),
+    )
+    return {k: str(v) for k, v in paths.items()}
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("bus-hostile")
+    files = _files(folder)
+    results, queue, running = {}, list(CASES), []
+    while queue or running:
+        while queue and len(running) < CONCURRENCY:
+            case = queue.pop(0)
+            proc = command(case.module, *(a.format(**files) for a in case.args))
+            running.append((case, proc))
+        case, proc = running.pop(0)
+        try:
+            _, err = proc.communicate(timeout=HANG_GUARD_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        results[case.name] = (proc.returncode, err)
+    return results
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_refused_in_one_line_naming_the_input(case, outcomes):
+    code, err = outcomes[case.name]
+    lines = err.strip().splitlines()
+    assert code == 2, err[-2000:]
+    assert "Traceback" not in err
+    assert len(lines) == 1, err[-2000:]
+    assert "error" in lines[0]
+    for name in case.names:
+        assert name in lines[0], lines[0]

@@ -1,0 +1,108 @@
+"""Ctrl-C, SIGTERM and a vanished port in the middle of ``record`` and ``deploy``: the commands
+run as subprocesses against a six-servo virtual bus in this process; the signal is sent after a
+given number of packets to the gripper (an observable event, never a sleep); then every
+writable register of the gripper is read with the vendor's SDK and compared with what it held
+before. Nothing is saved to its flash, and the one line the command prints is what it read back.
+"""
+
+from __future__ import annotations
+
+import signal
+
+import pytest
+from bus_arm import (
+    GRIPPER,
+    OTHERS,
+    ROOT,
+    arm_bus,
+    command,
+    finish,
+    sdk_registers,
+    when_packets,
+)
+
+REGISTERS = {"sts3215": ROOT / "results/bus/sts3215_registers.json",
+             "xl330": ROOT / "results/bus/xl330_registers.json"}  # fmt: skip
+
+
+def _record(bus, family, jaw, out):
+    settings = ["16,0,32", "32,0,32"] if family == "sts3215" else ["200,0,0", "400,0,0"]
+    return command("tuners.bus.record", "--port", bus.path, "--id", str(GRIPPER), "--model",
+                   family, "--jaw", str(jaw), "--settings", *settings, "--out",
+                   str(out))  # fmt: skip
+
+
+def _deploy(bus, family, jaw, out):
+    return command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+                   bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--hold", "3",
+                   "--no-plot", "--out", str(out))  # fmt: skip
+
+
+def _one_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+# packets to the gripper before the signal: 12 while its registers are read (nothing written
+# yet: 19 packets open it), 30 while the registers are written, 400 and 600 in the motion
+@pytest.mark.parametrize(
+    ("family", "which", "after", "sig"),
+    [
+        ("sts3215", "record", 12, signal.SIGINT),
+        ("sts3215", "record", 30, signal.SIGINT),
+        ("sts3215", "record", 400, signal.SIGINT),
+        ("sts3215", "record", 400, signal.SIGTERM),
+        ("sts3215", "deploy", 30, signal.SIGINT),
+        ("sts3215", "deploy", 600, signal.SIGINT),
+        ("xl330", "record", 400, signal.SIGINT),
+        ("xl330", "deploy", 600, signal.SIGTERM),
+    ],
+)
+def test_every_register_is_restored_after_a_signal(family, which, after, sig, tmp_path, jaw_file):
+    with arm_bus(family) as bus:
+        jaw = jaw_file(bus, family)
+        before = sdk_registers(bus.path, family)
+        saves = bus.table(GRIPPER).eeprom_saves
+        others = {i: bytes(bus.table(i).memory) for i in OTHERS}
+        run = _record if which == "record" else _deploy
+        since = bus.packets_to[GRIPPER]
+        proc = run(bus, family, jaw, tmp_path / "out")
+        when_packets(bus, proc, after, since)
+        proc.send_signal(sig)
+        code, out, err = finish(proc)
+        line = _one_line(err)
+        name = signal.Signals(sig).name
+        assert code == 128 + sig, (out, err)
+        head = f"python -m tuners.bus.{which}: interrupted ({name}); "
+        said = line.removeprefix(head)
+        assert said != line, line
+        if not (after < 19 and said == "nothing was written to the servo"):  # opening: reads only
+            assert said.startswith("servo 6 restored and read back (written back: "), line
+            assert said.endswith("; torque reads on (as found)"), line
+        assert sdk_registers(bus.path, family) == before  # every writable register
+        assert bus.table(GRIPPER).eeprom_saves == saves  # nothing saved to flash
+        assert bus.table(GRIPPER).torque_on
+        for i in OTHERS:  # the other joints: no packet, no byte changed
+            assert bus.packets_to[i] == 0 and bytes(bus.table(i).memory) == others[i]
+        assert (
+            bus.packets_to[0xFE] == 2
+        )  # the broadcast pings of calibrate's and the command's scans
+
+
+@pytest.mark.parametrize("which", ["record", "deploy"])
+def test_a_vanished_port_ends_in_one_line_saying_what_was_left_changed(which, tmp_path, jaw_file):
+    family = "sts3215"
+    with arm_bus(family) as bus:
+        jaw = jaw_file(bus, family)
+        run = _record if which == "record" else _deploy
+        since = bus.packets_to[GRIPPER]
+        proc = run(bus, family, jaw, tmp_path / "out")
+        when_packets(bus, proc, 400, since)
+        bus.stop()  # the adapter unplugged: the pty's other side is gone
+        code, out, err = finish(proc)
+    line = _one_line(err)
+    assert code == 1, (out, err)
+    assert f"error: the port {bus.path} is gone" in line, line
+    assert "servo 6 could not be restored" in line, line
+    assert "torque" in line.split("written and not restored:")[1], line  # turned off to write

@@ -1,0 +1,129 @@
+"""``python -m tuners.compile``: compile every simulation kernel into numba's cache, once.
+
+The kernels (the core, the environments' step, the metrics, the bus servo's core,
+identification's loops) compile on first use, a minute or more on 2 cores, and are then
+loaded from numba's on-disk cache in a fraction of a second (:mod:`gripper_env.sim.compile`).
+This runs each one once, serial and parallel, with the argument types the project calls it
+with, so that later processes only load them: the test run does it before its workers start
+(``tests/conftest.py``), so that two workers never compile the same kernel side by side, and
+CI or a user can do it ahead of time. Run again with a warm cache it only loads them (seconds).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+from tuners.conventions import command_parser
+
+__all__ = ["WARM_UPS", "main", "warm_up"]
+
+
+def _core() -> None:
+    import numpy as np
+
+    from gripper_env.evaluation.metrics import compute_metrics
+    from gripper_env.sim import simulate
+    from gripper_env.sim.kernel import PARALLEL_MIN_BATCH
+
+    for batch in (1, PARALLEL_MIN_BATCH):  # the serial and the parallel kernels
+        gains = np.tile([1.0, 9.0, -0.001, 100.0], (batch, 1))
+        for disturbance in ("ideal", "actual"):
+            traj = simulate("test2", "step", gains, disturbance, seeds=np.arange(batch),
+                            randomize=disturbance == "actual")  # fmt: skip
+            compute_metrics(traj)
+    simulate("test2", "step", None, "actual")  # open loop
+
+
+def _envs() -> None:
+    import gymnasium as gym
+    import numpy as np
+
+    import gripper_env  # noqa: F401  (registers the environments)
+    from gripper_env.envs import ENV_IDS
+
+    for env_id in ENV_IDS:
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        for _ in range(2):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+        env.close()
+        spec = gym.spec(env_id)
+        if spec.vector_entry_point is None:
+            continue
+        for n, parallel in ((4, False), (64, True)):
+            venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
+            setter = getattr(venv.unwrapped, "set_parallel", None)
+            if setter is not None:  # the step-by-step ones; the PID tuner's runs the core
+                setter(parallel)
+            venv.reset(seed=0)
+            venv.step(np.stack([venv.single_action_space.sample() for _ in range(n)]))
+            venv.close()
+
+
+def _bus() -> None:
+    import numpy as np
+
+    from gripper_env.model.bus_servo import load_bus_servo
+    from gripper_env.sim.bus_servo import simulate_bus
+
+    model = load_bus_servo("sts3215")
+    registers = list(dict(model.baselines()).values())
+    goal = np.r_[np.full(400, 180.0), np.full(400, 150.0)]  # deg
+    simulate_bus(model, registers[:1], goal)
+    simulate_bus(model, registers[:1] * 300, goal)  # the parallel kernel
+
+
+def _stability() -> None:
+    from gripper_env.evaluation.stability import stability_report
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.pid import PIDGains
+    from gripper_env.model.plants import load_plant
+
+    stability_report(load_plant("test2"), PIDGains(1.0, 9.0, -0.001), 1,
+                     disturbance=load_disturbance("actual"))  # fmt: skip
+
+
+#: What is warmed, by name, in order (each a callable that runs it once).
+WARM_UPS: dict[str, Callable[[], None]] = {
+    "core and metrics": _core,
+    "environments": _envs,
+    "bus servo core": _bus,
+    "margins with the hold": _stability,
+}
+
+
+def warm_up(log: Callable[[str], None] | None = None) -> dict[str, float]:
+    """Run every :data:`WARM_UPS` entry once; the seconds each took."""
+    times = {}
+    for name, run in WARM_UPS.items():
+        start = time.perf_counter()
+        run()
+        times[name] = time.perf_counter() - start
+        if log is not None:
+            log(f"  {name}: {times[name]:.1f} s")
+    return times
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m tuners.compile``."""
+    parser = command_parser(
+        "tuners.compile",
+        "Compile every simulation kernel into numba's on-disk cache (once; later runs load "
+        "them). With a warm cache it only loads them.",
+    )
+    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    log = None if args.quiet else (lambda line: print(line, flush=True))
+    warm_up(log)
+    if not args.quiet:
+        print(f"kernels ready in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
