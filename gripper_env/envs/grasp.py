@@ -173,7 +173,7 @@ class GripperGraspEnv(GripperServoEnv):
         if not randomize:
             ranges = {}
         if hi > lo:
-            ranges["mechanics.object_contact_deg"] = [lo, hi]
+            ranges["mechanics.object_contact_deg"] = (lo, hi)
         dist = base.with_overrides({"mechanics": {"object_contact_deg": 0.5 * (lo + hi)}})
         self.object_range_deg = (lo, hi)
         self.force_weight = float(force_weight)
@@ -229,6 +229,7 @@ class GripperGraspEnv(GripperServoEnv):
         ep = self._batch.episodes[0]
         assert ep is not None
         o = ep.disturbance.mechanics.object_contact_deg
+        assert o is not None  # set in __init__: the object's place
         self._object = float(o)
         self._tracked = np.maximum(ep.reference.values_deg, self._object)
         sim = self._batch.sim

@@ -183,7 +183,7 @@ def pid_interface(task: Task, gains: Any, options: Any) -> tuple[dict[str, Any],
         if options.sign != 1:
             return None
         widest = np.maximum((10.0, 50.0, 0.1), 1.01 * np.abs(g))
-        gain_max = tuple(float(x) for x in widest)
+        gain_max = (float(widest[0]), float(widest[1]), float(widest[2]))
         action = gains_to_action(g, gain_max, "log")
         return ({"gain_max": gain_max, "derivative_filter": float(gains.N),
                  "pid_options": _options(options)}, constant_policy(action))  # fmt: skip
@@ -192,7 +192,11 @@ def pid_interface(task: Task, gains: Any, options: Any) -> tuple[dict[str, Any],
 
         if options.sign != 1:
             return None
-        s = gym.make(task.env_id, **task.eval_kwargs).unwrapped.settings
+        from gripper_env.envs.pid_tune import GripperPIDTuneEnv
+
+        env = gym.make(task.env_id, **task.eval_kwargs).unwrapped
+        assert isinstance(env, GripperPIDTuneEnv)
+        s = env.settings
         if s.gain_scaling != "relative" or s.gain_center is None:
             return None
         c = np.asarray(s.gain_center)

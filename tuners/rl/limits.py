@@ -154,6 +154,15 @@ def reward_limit(
     )
 
 
+def _put(
+    rows: list[int], cols: list[int], vals: list[float], row: int, col: int, val: float
+) -> None:
+    """One entry of a sparse matrix in coordinate form."""
+    rows.append(row)
+    cols.append(col)
+    vals.append(float(val))
+
+
 def _solve(
     plant: Plant,
     r: np.ndarray,
@@ -192,19 +201,21 @@ def _solve(
         return ix + (j - 1) * n_x + q
 
     # dynamics X_{j+1} - A^m X_j - S_m u_j = 0 for j = 0 .. n_f - 2
-    rows, cols, vals = [], [], []
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
     beq = np.zeros((n_f - 1) * n_x)
     for j in range(n_f - 1):
         for i in range(n_x):
             row = j * n_x + i
-            rows.append(row), cols.append(xcol(j + 1, i)), vals.append(1.0)
+            _put(rows, cols, vals, row, xcol(j + 1, i), 1.0)
             if j == 0:
                 beq[row] = am[i] @ x0
             else:
                 for q in range(n_x):
                     if am[i, q] != 0.0:
-                        rows.append(row), cols.append(xcol(j, q)), vals.append(-am[i, q])
-            rows.append(row), cols.append(iu + j), vals.append(-sm[i])
+                        _put(rows, cols, vals, row, xcol(j, q), -am[i, q])
+            _put(rows, cols, vals, row, iu + j, -sm[i])
     a_eq = sparse.csr_matrix((vals, (rows, cols)), shape=((n_f - 1) * n_x, n_var))
     rest = float(x0[0])
 
@@ -223,32 +234,33 @@ def _solve(
         terms.append((iu + j, float(sums[i][0] + dd)))
         return terms, const
 
-    rows, cols, vals, rhs = [], [], [], []
+    rows, cols, vals = [], [], []
+    rhs: list[float] = []
     row = 0
     for k in range(n_t):
         terms, const = y_terms(k - delay_steps)
         for sgn in (1.0, -1.0):  # e_k >= +/-(y_k - r_k)
             for col, v in terms:
-                rows.append(row), cols.append(col), vals.append(sgn * v)
-            rows.append(row), cols.append(ie + k), vals.append(-1.0)
+                _put(rows, cols, vals, row, col, sgn * v)
+            _put(rows, cols, vals, row, ie + k, -1.0)
             rhs.append(-sgn * (const - r[k]))
             row += 1
         if w_over > 0.0 and d[k] != 0.0:  # o_k >= d_k (y_k - r_k)
             for col, v in terms:
-                rows.append(row), cols.append(col), vals.append(d[k] * v)
-            rows.append(row), cols.append(io + k), vals.append(-1.0)
+                _put(rows, cols, vals, row, col, d[k] * v)
+            _put(rows, cols, vals, row, io + k, -1.0)
             rhs.append(-d[k] * (const - r[k]))
             row += 1
     if w_chat > 0.0:  # c_j >= |u_j - u_{j-1}|
         for j in range(n_f):
             for sgn in (1.0, -1.0):
-                rows.append(row), cols.append(iu + j), vals.append(sgn)
+                _put(rows, cols, vals, row, iu + j, sgn)
                 if j > 0:
-                    rows.append(row), cols.append(iu + j - 1), vals.append(-sgn)
+                    _put(rows, cols, vals, row, iu + j - 1, -sgn)
                     rhs.append(0.0)
                 else:
                     rhs.append(sgn * u_prev)
-                rows.append(row), cols.append(ic + j), vals.append(-1.0)
+                _put(rows, cols, vals, row, ic + j, -1.0)
                 row += 1
     a_ub = sparse.csr_matrix((vals, (rows, cols)), shape=(row, n_var))
     c = np.zeros(n_var)

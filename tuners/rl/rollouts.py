@@ -69,7 +69,7 @@ class EpisodeStats:
     infos: list[dict[str, Any]] = field(default_factory=list)
 
 
-def constant_policy(action: Sequence[float]) -> Policy:
+def constant_policy(action: Sequence[float] | np.ndarray) -> Policy:
     """The policy that always takes ``action``."""
     a = np.asarray(action, dtype=np.float32)
     return lambda obs: np.repeat(a[None, :], len(obs), axis=0)
@@ -147,8 +147,8 @@ def run_episodes(
         lengths=np.concatenate([o.lengths for o in out]),
         terminated=np.concatenate([o.terminated for o in out]),
         sums={k: np.concatenate([o.sums[k] for o in out]) for k in out[0].sums},
-        held=None if not grasp else np.concatenate([o.held for o in out]),  # type: ignore[misc]
-        tripped=None if not grasp else np.concatenate([o.tripped for o in out]),  # type: ignore[misc]
+        held=None if not grasp else np.concatenate([o.held for o in out]),
+        tripped=None if not grasp else np.concatenate([o.tripped for o in out]),
         infos=[i for o in out for i in o.infos],
     )
 
@@ -171,10 +171,12 @@ def _run_batch(
         seen: set[str] = set()
         infos: list[dict[str, Any]] = [{} for _ in range(n)]
         running = np.ones(n, dtype=bool)
+        shape = envs[0].action_space.shape
+        assert shape is not None  # a Box
         while running.any():
             idx = np.flatnonzero(running)
             actions = np.asarray(policy(obs[idx]), dtype=np.float32)
-            actions = actions.reshape(len(idx), *envs[0].action_space.shape)
+            actions = actions.reshape(len(idx), *shape)
             for k, i in enumerate(idx):
                 o, r, terminated, truncated, info = envs[i].step(actions[k])
                 obs[i] = o
