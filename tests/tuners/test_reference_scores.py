@@ -10,6 +10,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
+from tuners.rl.leaderboard import leaderboard
 from tuners.rl.reference_scores import aggregate, load_reference, render
 
 WORKTREE = Path(__file__).resolve().parents[2]
@@ -53,6 +54,49 @@ def test_it_writes_the_scale_the_rows_and_the_provenance(smoke):
     # the seeds' agents are kept and a rerun reuses them
     assert (smoke / "cache" / "reference" / "grasp" / "ppo" / "seed-0" / "agent" /
             "model.zip").is_file()  # fmt: skip
+
+
+def _run(*args):
+    run = subprocess.run([sys.executable, "-m", "tuners.rl.reference_scores", *args],
+                         cwd=WORKTREE, capture_output=True, text=True, timeout=1200)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    return run
+
+
+def test_no_train_scores_only_cells_whose_seeds_are_all_kept(smoke, tmp_path):
+    """--no-train trains nothing: with 2 seeds wanted and 1 kept per cell, no cell is scored and
+    each is listed as not trained with the command that trains it; with 1 seed wanted, the kept
+    seeds' cells are scored as the training run scored them."""
+    common = ["--tasks", "grasp", "--episodes", "4", "--timesteps", "256", "--cache",
+              str(smoke / "cache"), "--no-train"]  # fmt: skip
+    _run(*common, "--seeds", "2", "--out", str(tmp_path / "two"))
+    assert not (smoke / "cache" / "reference" / "grasp" / "ppo" / "seed-1").exists()
+    e = load_reference(tmp_path / "two" / "reference_scores.json")["tasks"]["grasp"]
+    assert e["cells"] == {}
+    assert set(e["untrained"]) == {"PPO", "SAC"}
+    for m in e["untrained"].values():
+        assert m["seeds"] == 2 and m["kept_seeds"] == [0] and m["timesteps"] == 256
+        assert m["train"].startswith("python -m tuners.rl.reference_scores --train-only "
+                                     "--tasks grasp --cache ")  # fmt: skip
+        assert m["train"].endswith("--seeds 2 --timesteps 256")
+    md = (tmp_path / "two" / "reference_scores.md").read_text()
+    assert "| grasp | yes |" in md and "not trained in this run (1/2 seeds)" in md
+    assert "PPO (2 seeds x 256 steps) | not trained in this run: 1 of 2 seeds kept" in md
+    assert not (tmp_path / "two" / "figures").exists()  # no scored hard cell, no profile
+    # the leaderboard's reference rows say so too
+    row = {"task": "grasp", "env_id": e["env_id"], "name": "a", "kind": "callable",
+           "score": 1.0, "interval": [0.0, 2.0], "runs": [{}], "admitted": True,
+           "verdict": "held"}  # fmt: skip
+    ref = load_reference(tmp_path / "two" / "reference_scores.json")
+    board = leaderboard([row], ref, "rows")
+    assert "*PPO (reference recipe, 256 steps)* | not trained in this run (1 of 2 seeds" in board
+
+    _run(*common, "--seeds", "1", "--out", str(tmp_path / "one"))
+    one = load_reference(tmp_path / "one" / "reference_scores.json")["tasks"]["grasp"]
+    ref_cells = load_reference(smoke / "reference_scores.json")["tasks"]["grasp"]["cells"]
+    assert "untrained" not in one and set(one["cells"]) == {"PPO", "SAC"}
+    for algo, cell in one["cells"].items():
+        assert cell["iqm"] == ref_cells[algo]["iqm"]
 
 
 def test_aggregate_and_render_on_a_hand_made_table():

@@ -80,6 +80,10 @@ def _reference_lines(entry: dict[str, Any]) -> list[str]:
         lines.append(f"| - | *{algo} (reference recipe, {c['timesteps']} steps)* | "
                      f"{c['iqm']:.1f} | [{c['ci95'][0]:.1f}, {c['ci95'][1]:.1f}] | {c['seeds']} | "
                      f"| | | {c['admitted_seeds']}/{c['seeds']} admitted |")  # fmt: skip
+    for algo, m in entry.get("untrained", {}).items():
+        lines.append(f"| - | *{algo} (reference recipe, {m['timesteps']} steps)* | not trained "
+                     f"in this run ({len(m['kept_seeds'])} of {m['seeds']} seeds kept) | | | | "
+                     "| | not scored |")  # fmt: skip
     lines.append(f"| - | *limit ({a['limit']['kind']})* | 100 | | | | | | |")
     return lines
 

@@ -135,17 +135,25 @@ def _row_key(agent_key: str, t: Task, anchors: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _kept_facts(folder: Path, key: str) -> dict[str, Any] | None:
+    """The facts of the agent kept in ``folder`` if it was trained with the recipe and budget
+    ``key`` (its ``agent.json`` is written last, so a seed still training has none)."""
+    meta = folder / "agent.json"
+    if not meta.is_file():
+        return None
+    facts: dict[str, Any] = json.loads(meta.read_text())
+    return facts if facts.get("recipe_key") == key else None
+
+
 def _agent(job: _Job, t: Task) -> tuple[Any, float, str]:
     """The seed's agent: kept in its folder (same recipe and budget), else trained now."""
     from tuners.rl.agents import load_agent
 
     folder = Path(job.folder) / "agent"
     key = _recipe_key(t, job.algo, job.timesteps)
-    meta = folder / "agent.json"
-    if meta.is_file():
-        facts = json.loads(meta.read_text())
-        if facts.get("recipe_key") == key:
-            return load_agent(folder), float(facts.get("train_wall_time_s", math.nan)), key
+    facts = _kept_facts(folder, key)
+    if facts is not None:
+        return load_agent(folder), float(facts.get("train_wall_time_s", math.nan)), key
     start = time.perf_counter()
     agent = train_agent(t, job.algo, job.seed, job.timesteps)
     wall = time.perf_counter() - start
@@ -324,11 +332,17 @@ def reference_scores(
     timesteps: int | None = None,
     engine_spec: str | None = None,
     train_only: bool = False,
+    train: bool = True,
     episodes: int | None = None,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Every named task's anchors, best PID and reference rows (module docstring);
-    ``train_only``: train and keep the seeds' agents, nothing else (an empty table)."""
+    ``train_only``: train and keep the seeds' agents, nothing else (an empty table).
+
+    ``train=False`` trains nothing: a cell is scored only when every one of its seeds has an
+    agent kept under ``cache`` (same recipe and budget); any other cell is listed in the task's
+    ``untrained`` (seeds kept of seeds wanted, and the command that trains them) instead of
+    ``cells``, never scored on the seeds it has."""
     table: dict[str, Any] = {}
     jobs: list[_Job] = []
     if train_only:
@@ -351,11 +365,28 @@ def reference_scores(
                      eval_kwargs=t.eval_kwargs, verdict_rule=t.verdict, limit_kind=t.limit,
                      cells={})  # fmt: skip
         table[name] = entry
+        untrained: dict[str, Any] = {}
         for algo in ALGOS:
             n = seeds or t.seeds[algo]
-            jobs += [_Job(name, algo, k, timesteps, entry["anchors"],
-                          str(cache / "reference" / name / algo / f"seed-{k}"), episodes)
-                     for k in range(n)]  # fmt: skip
+            cell_jobs = [_Job(name, algo, k, timesteps, entry["anchors"],
+                              str(cache / "reference" / name / algo / f"seed-{k}"), episodes)
+                         for k in range(n)]  # fmt: skip
+            key = _recipe_key(t, algo, timesteps)
+            kept = [j.seed for j in cell_jobs
+                    if _kept_facts(Path(j.folder) / "agent", key) is not None]  # fmt: skip
+            if train or len(kept) == n:
+                jobs += cell_jobs
+                continue
+            untrained[algo.upper()] = {
+                "seeds": n,
+                "kept_seeds": kept,
+                "timesteps": int(timesteps or t.timesteps[algo]),
+                "train": _train_command(name, cache, seeds, timesteps),
+            }
+            log(f"  {algo.upper()}: {len(kept)} of {n} seeds kept: not trained in this run, not "
+                "scored")  # fmt: skip
+        if untrained:
+            entry["untrained"] = untrained
         pid = entry["pid"]
         log(f"  best PID {pid['pid']}: score {pid['score']:.1f} (return {pid['return_mean']:.4g}"
             f"), {pid['verdict']}")  # fmt: skip
@@ -375,6 +406,14 @@ def reference_scores(
             [entry["pid"]["score"]] + [s["score"] for c in entry["cells"].values()
                                        for s in c["per_seed"]])  # fmt: skip
     return table
+
+
+def _train_command(name: str, cache: Path, seeds: int | None, timesteps: int | None) -> str:
+    """The command that trains (and keeps) a task's missing seeds."""
+    extra = "" if cache == Path("runs/rl") else f" --cache {cache}"
+    extra += "" if seeds is None else f" --seeds {seeds}"
+    extra += "" if timesteps is None else f" --timesteps {timesteps}"
+    return f"python -m tuners.rl.reference_scores --train-only --tasks {name}{extra}"
 
 
 def _anchor_shift(entry: dict[str, Any]) -> float:
@@ -416,7 +455,9 @@ def _f(x: float | None, fmt: str = ".1f") -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
-def _cell_text(c: dict[str, Any] | None) -> str:
+def _cell_text(c: dict[str, Any] | None, missing: dict[str, Any] | None = None) -> str:
+    if missing:
+        return f"not trained in this run ({len(missing['kept_seeds'])}/{missing['seeds']} seeds)"
     if not c:
         return "-"
     return (f"{c['iqm']:.1f} [{c['ci95'][0]:.1f}, {c['ci95'][1]:.1f}] "
@@ -460,18 +501,31 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
     for name, e in table.items():
         pid = e["pid"]
         cells = e["cells"]
+        untrained = e.get("untrained", {})
         se = max([pid["score_se"]] + [c["max_eval_se"] for c in cells.values()])
         lines.append(
             f"| {name} | {'yes' if e['hard'] else 'no'} | {pid['score']:.1f} "
             f"({'admitted' if pid['admitted'] else 'not admitted'}) | "
-            f"{_cell_text(cells.get('PPO'))} | {_cell_text(cells.get('SAC'))} | "
+            f"{_cell_text(cells.get('PPO'), untrained.get('PPO'))} | "
+            f"{_cell_text(cells.get('SAC'), untrained.get('SAC'))} | "
             f"{e['limit_kind']} | {se:.2f} | {e['anchor_stats']['max_cell_shift']:.2f} |"
         )
     if agg:
-        overall = "; ".join(f"{a} {v['iqm']:.1f} [{v['ci95'][0]:.1f}, {v['ci95'][1]:.1f}]"
-                            for a, v in agg.items())  # fmt: skip
-        lines += ["", "Over the hard tasks (IQM of every run's score, stratified bootstrap over "
-                  f"seeds within tasks): {overall}. Performance profiles: `{FIGURE}`."]  # fmt: skip
+        overall = "; ".join(f"{a} {v['iqm']:.1f} [{v['ci95'][0]:.1f}, {v['ci95'][1]:.1f}] "
+                            f"({', '.join(v['tasks'])})" for a, v in agg.items())  # fmt: skip
+        lines += ["", "Over the hard tasks with a scored cell (IQM of every run's score, "
+                  f"stratified bootstrap over seeds within tasks): {overall}. Performance "
+                  f"profiles: `{FIGURE}`."]  # fmt: skip
+    missing = [(name, algo, m) for name, e in table.items()
+               for algo, m in e.get("untrained", {}).items()]  # fmt: skip
+    if missing:
+        lines += ["", "**Not trained in this run** (no score is given for a cell until every "
+                  "one of its seeds is trained; the seeds kept so far are not scored): "
+                  + "; ".join(f"{name} {algo} ({len(m['kept_seeds'])} of {m['seeds']} seeds "
+                              "kept)" for name, algo, m in missing)
+                  + ". Each task's section gives the command that trains its seeds (kept "
+                  "under `runs/rl/reference`); `python -m tuners.rl.reference_scores --out "
+                  "results` then scores them."]  # fmt: skip
     for name, e in table.items():
         a = e["anchor_stats"]
         pid = e["pid"]
@@ -496,6 +550,12 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
                 f"{_costs(c['objective_cost'])} | {_costs(c['constraint_cost'])} | "
                 f"{_f(c['held_fraction'], '.0%')} | {_margins_text(c['worst_margin_db'])} | "
                 f"{c['admitted_seeds']}/{c['seeds']} admitted |"
+            )
+        for algo, m in e.get("untrained", {}).items():
+            lines.append(
+                f"| {algo} ({m['seeds']} seeds x {m['timesteps']} steps) | not trained in this "
+                f"run: {len(m['kept_seeds'])} of {m['seeds']} seeds kept (train them: "
+                f"`{m['train']}`) | | | | | | | not scored |"
             )
         lines.append(f"| limit ({e['limit_kind']}) | 100 | 0 | {a['limit']['mean']:.4g} | | | | "
                      "| |")  # fmt: skip
@@ -600,6 +660,12 @@ def _main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="train and keep the seeds' agents under --cache, score nothing",
     )
+    parser.add_argument(
+        "--no-train",
+        action="store_true",
+        help="train nothing: score the cells whose seeds are all kept under --cache and list "
+        "the others as not trained in this run (with the command that trains them)",
+    )
     parser.add_argument("--cache", type=Path, default=Path("runs/rl"),
                         help="where the limits, each seed's agent and row are kept and reused "
                              "(default runs/rl)")  # fmt: skip
@@ -615,6 +681,8 @@ def _main(argv: list[str] | None = None) -> int:
     from tuners.rl.envs import require_rl
 
     require_rl()
+    if args.train_only and args.no_train:
+        raise ValueError("--train-only and --no-train exclude each other")
     if args.train_only:
         reference_scores(names, cache=args.cache, seeds=args.seeds, timesteps=args.timesteps,
                          engine_spec=args.engine, train_only=True)  # fmt: skip
@@ -623,7 +691,7 @@ def _main(argv: list[str] | None = None) -> int:
     with collect_provenance(args.out, "reference_scores", command=args.command):
         table = reference_scores(names, cache=args.cache, seeds=args.seeds,
                                  timesteps=args.timesteps, engine_spec=args.engine,
-                                 episodes=args.episodes)  # fmt: skip
+                                 train=not args.no_train, episodes=args.episodes)  # fmt: skip
         agg = aggregate(table)
         write_result_json(args.out / "reference_scores.json",
                           {"format": "gripper-rl-reference-scores", "version": 2,
