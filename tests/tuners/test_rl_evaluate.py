@@ -64,7 +64,9 @@ def test_evaluate_prints_score_interval_and_verdict_and_writes_a_row(rows):
         # its provenance is the row's sidecar: the commit and the library versions
         prov = json.loads((out / "grasp" / f"{name}.provenance.json").read_text())
         assert prov["git_commit"] and prov["libraries"]["gymnasium"]
-        assert prov["libraries"]["stable_baselines3"] and "tuners.rl evaluate" in prov["command"]
+        assert "tuners.rl evaluate" in prov["command"]
+        # the libraries the run loaded: SB3 for the rl-zoo3 agent, not for a plain callable
+        assert ("stable_baselines3" in prov["libraries"]) == (name == "zoo-ppo")
     zoo = json.loads((out / "grasp" / "zoo-ppo.json").read_text())
     assert zoo["kind"] == "rl-zoo3" and zoo["runs"][0]["facts"]["algo"] == "ppo"
     # the run was trained with the recipe's residual on the reference: it is evaluated with it
