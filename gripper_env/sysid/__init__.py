@@ -13,10 +13,11 @@ Command line: ``python -m tuners.sysid [tf|greybox|experiments] ...``
 (:mod:`tuners.sysid`).
 """
 
-import importlib
 import sys
 import types
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from gripper_env._lazy import lazy_attributes
 
 if TYPE_CHECKING:  # imported on first use (below): a submodule alone loads only what it needs
     from gripper_env.evaluation.metrics import fit_percent
@@ -39,17 +40,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'gripper_env.sysid' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)
 
 
 class _Package(types.ModuleType):
