@@ -57,6 +57,7 @@ BUDGETS: dict[str, str | dict[str, str] | None] = {
     "--trials": {"tuners.bus.tune": "100", "tuners": "8"},
     "--search-seeds": "1",
     "--timesteps": {"tuners.rl": "8192"},
+    "--n-timesteps": {"rl_zoo3": "4096"},  # rl-zoo3's own option: one PPO update of the recipe
     "--generations": "4",
     "--quick": None,
 }
