@@ -11,24 +11,17 @@ import re
 
 import pytest
 from bus_arm import CLOSED, FOUND, GRIPPER, LIMITS, OPEN, OTHERS, arm_bus, sdk_registers
+from bus_recipe import SETTINGS as RECIPE_SETTINGS
+from bus_recipe import check_deployed, check_identified, check_tuned, perturbed_truth
 
-from gripper_env.evaluation.bus_servo import loop_margins
 from gripper_env.model.bus_calibration import JawCalibration
 from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
 from tuners.bus import calibrate, deploy, identify, record, tune
 
 FAMILY = "sts3215"
-SETTINGS = ["16,0,32", "32,0,32", "64,0,32"]
-
-
-def _truth():
-    prior = load_bus_servo(FAMILY)
-    sc, ph = prior.scale, prior.physics
-    return prior.with_updates(
-        name="true-arm",
-        scale=sc.model_copy(update={"kp": sc.kp * 1.1, "kd": sc.kd * 0.9}),
-        physics=ph.model_copy(update={"static": ph.static * 1.2}),
-    )
+SETTINGS = RECIPE_SETTINGS[FAMILY]
+#: Where the object sits in the jaws of ID 6 (deg).
+OBJECT_DEG = 190.0
 
 
 def _one_line(err: str) -> str:
@@ -42,9 +35,13 @@ def _memories(bus):
 
 
 def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
-    truth = _truth()
+    """The STS3215's end-to-end recipe (``bus_recipe``'s checks: the perturbed truth found, the
+    tuned set better than the shipped ones and inside the margins on the truth, deployed and
+    read back), on ID 6 of the arm, touching no other servo and leaving ID 6 as found but for
+    the saved gains."""
+    truth = perturbed_truth(FAMILY)
     out = tmp_path / "arm"
-    with arm_bus(FAMILY, truth=truth, object_deg=190.0) as bus:
+    with arm_bus(FAMILY, truth=truth, object_deg=OBJECT_DEG) as bus:
         table = bus.table(GRIPPER)
         jaw = jaw_file(bus, FAMILY)
         found = sdk_registers(bus.path, FAMILY)
@@ -64,6 +61,7 @@ def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
         assert identify.main([*map(str, records), "--model", FAMILY, "--name", "arm6",
                               "--generations", "20", "--no-plot"]) == 0  # fmt: skip
         model_file = out / "arm6_model.json"
+        check_identified(model_file, truth)
         model = load_bus_servo(str(model_file))
         cal = model.calibration  # the owner's jaw came through the records
         assert cal is not None and (cal.servo_id, cal.closed_ticks, cal.open_ticks) == (
@@ -74,6 +72,7 @@ def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
         tuned = json.loads((out / "arm6_registers.json").read_text())
         regs = RegisterSet(**tuned["registers"])
         assert tuned["model"]["calibration"] == cal.model_dump()
+        check_tuned(tuned, model_file, truth)
         capsys.readouterr()
         assert deploy.main(["--registers", str(out / "arm6_registers.json"), "--port", bus.path,
                             "--id", "6", "--hold", "2", "--no-plot", "--save"]) == 0  # fmt: skip
@@ -97,8 +96,7 @@ def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
     report = json.loads((out / "deploy_arm6" / "report.json").read_text())
     assert report["hold"]["tripped"] is False and report["kept"] is True
     assert report["jaw"]["servo_id"] == GRIPPER
-    on_truth = loop_margins(truth, regs)
-    assert on_truth.stable and on_truth.gm_db > 0, on_truth
+    check_deployed(report, tuned["registers"], OBJECT_DEG)
 
 
 def test_without_an_id_or_with_a_wrong_one_nothing_is_written(tmp_path, jaw_file, capsys):
