@@ -112,16 +112,18 @@ def _main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     from gripper_env.evaluation.objective import load_objective
     from tuners.benchmark import leaderboard
-    from tuners.benchmark.run import planned_rows, run_benchmark
     from tuners.benchmark.settings import load_benchmark_settings
     from tuners.settings import EvaluationSettings, OptunaSettings, check_disjoint, load_settings
 
+    # the configurations are checked before the tuners' imports: a refusal costs a second
     bench = load_benchmark_settings(args.config)
     ev = load_settings(EvaluationSettings, args.eval_config)
     check_disjoint(load_settings(OptunaSettings).tuning_seeds, ev.seeds)
     if ev.seeds.count < 10:
         raise ValueError(f"the benchmark needs at least 10 held-out seeds, got {ev.seeds.count}")
     objective = load_objective(args.objective)
+    from tuners.benchmark.run import planned_rows, run_benchmark
+
     if args.quick and not args.force:  # a smoke run never replaces a full one: checked first
         _quick_conflicts(args.out, planned_rows(bench, True, args.out))
     log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (

@@ -62,16 +62,19 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
-    from tuners.classical.constrained import KNOBS
-    from tuners.classical.rules import require_stable
-    from tuners.classical.tuner import tune_rule, tuner_name
     from tuners.settings import ClassicalSettings, OptunaSettings, check_disjoint, load_settings
 
+    # the inputs are checked before the rules' imports (python-control, scipy.signal): a
+    # refusal costs a second, not the tuning stack's
     inputs = cli.resolve(args)
     settings = load_settings(ClassicalSettings, args.config)
     opt = load_settings(OptunaSettings, args.optuna_config)
     check_disjoint(opt.tuning_seeds, inputs.settings.seeds)
     plants = cli.plants_arg(args.plants)
+    from tuners.classical.constrained import KNOBS
+    from tuners.classical.rules import require_stable
+    from tuners.classical.tuner import tune_rule, tuner_name
+
     require_stable(inputs.plant)  # refused before any work (and any progress line)
     chosen = args.method or settings.method
     methods = list(METHOD_NAMES) if chosen == "all" else [chosen]

@@ -291,14 +291,15 @@ def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     start = time.perf_counter()
     logging.getLogger("sqlalchemy").setLevel(logging.WARNING)
+    # 1. check every input before anything is written (and before the search's imports: a
+    # refusal costs a second, not the scoring stack's)
+    inputs = cli.resolve(args)
+    plants = cli.plants_arg(args.plants)
+    plan = _plan(args, inputs, plants)
     from tuners.optuna.search import best_of, make_scorer, tuner_name
     from tuners.optuna.storage import open_storage
     from tuners.search_space import search_space
 
-    # 1. check every input before anything is written
-    inputs = cli.resolve(args)
-    plants = cli.plants_arg(args.plants)
-    plan = _plan(args, inputs, plants)
     storage = open_storage(plan.url, plan.settings)
     scorer = make_scorer(inputs, plan.settings, plants)
     space = search_space(scorer.task.plants, inputs.disturbance, plan.settings)

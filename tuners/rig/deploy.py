@@ -183,6 +183,14 @@ def prediction(
 
 
 def _run(args: argparse.Namespace) -> int:
+    from gripper_env.model.gains_file import GainsFileError, load_gains_file
+
+    loaded = load_gains_file(args.gains)
+    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
+    # the file's names are checked before the gate's work and its imports (python-control)
+    safe_name(tuner or "gains", "tuner")
+    if plant:
+        safe_name(plant, "plant name")
     from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.evaluation.objective import load_objective
     from gripper_env.hardware.host.calibration import load_calibration
@@ -190,12 +198,9 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.hardware.host.experiment import CsvLog, run_profile
     from gripper_env.hardware.protocol import Mode
     from gripper_env.model.disturbances import load_disturbance
-    from gripper_env.model.gains_file import GainsFileError, load_gains_file
     from gripper_env.model.references import load_reference
     from gripper_env.sim import Trajectory
 
-    loaded = load_gains_file(args.gains)
-    plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
     try:
         model = loaded.plant_model()  # the transfer function tuned on, wherever it came from
     except GainsFileError as exc:

@@ -267,13 +267,13 @@ def _run_name(env: str, plants: list[str], plant: str) -> str:
 
 
 def _train_tuner(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str]) -> int:
+    seeds = _seeds(args)  # before the tuner's imports (the scoring stack): a refusal is quick
     from tuners.rl.tune import load_tune_settings, train_seeds
     from tuners.settings import OptunaSettings, check_disjoint, load_settings
 
     s = load_tune_settings(args.config)
     opt = load_settings(OptunaSettings, args.optuna_config)
     check_disjoint(opt.tuning_seeds, inputs.settings.seeds)
-    seeds = _seeds(args)
     folder = args.out / "rl" / _run_name("pid-tune", plants, inputs.plant.name)
     runs = train_seeds(inputs, s, seeds, folder, plants=plants, episodes=args.timesteps,
                        optuna_settings=opt, progress=not args.no_progress,

@@ -94,9 +94,9 @@ def read_record(path: str, args: argparse.Namespace, reference: bool = True) -> 
     ref = getattr(args, "reference", None) if reference else None
     if ref:
         names.append(ref)
+    cols = read_columns(path, list(dict.fromkeys(names)))  # checked before the fit's imports
     from gripper_env.sysid.orders import Record
 
-    cols = read_columns(path, list(dict.fromkeys(names)))
     r = cols[ref] if ref else None
     return Record(cols[args.t_column], cols[args.u_column], cols[args.y_column], r)
 

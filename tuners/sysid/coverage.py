@@ -74,8 +74,6 @@ MAX_RECORDS = 10_000
 def run(args: argparse.Namespace) -> int:
     """Run the ``coverage`` command; returns the exit status."""
     from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
-    from gripper_env.sysid.coverage import delay_sweep, greybox_coverage, tf_coverage
-    from gripper_env.sysid.coverage_report import render_coverage_report, sidecar
 
     say = (lambda _m: None) if args.quiet else (lambda m: print(f"  {m}", file=sys.stderr))
     try:
@@ -85,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"{flag} must be 1 to {MAX_RECORDS}, got {value}")
         if not 2.0 <= args.duration <= 600.0:
             raise ValueError(f"--duration must be between 2 and 600 s, got {args.duration:g}")
+        # checked before the study's imports (python-control): a refusal costs a second
+        from gripper_env.sysid.coverage import delay_sweep, greybox_coverage, tf_coverage
+        from gripper_env.sysid.coverage_report import render_coverage_report, sidecar
+
         delays = SWEEP_DELAYS_S[::6] if args.quick else SWEEP_DELAYS_S
         n_tf = 21 if args.quick else args.tf_records
         n_gb = 6 if args.quick else args.greybox_records

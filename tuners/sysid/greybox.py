@@ -187,18 +187,18 @@ def run(args: argparse.Namespace) -> int:
     """Run the ``greybox`` command; returns the exit status."""
     import sys
 
-    from gripper_env.sysid.session import save_actual
-
     say = (
         (lambda _m: None)
         if args.quiet or args.json
         else (lambda m: print(f"  {m}", file=sys.stderr))
     )
-    from gripper_env.sysid.greybox import identify_actual
-    from gripper_env.sysid.orders import split_record
-
     try:
         name, save_plant, save_disturbance = _save_paths(args)  # before the fit (minutes)
+        # ... and before its imports (python-control, the core): a refusal costs a second
+        from gripper_env.sysid.greybox import identify_actual
+        from gripper_env.sysid.orders import split_record
+        from gripper_env.sysid.session import save_actual
+
         with collect_warnings() as caught:
             record = read_record(args.log, args, reference=False)
             val = None

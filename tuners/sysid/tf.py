@@ -203,18 +203,19 @@ def _add_output_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fit(args: argparse.Namespace) -> tuple[TFEstimate, OrderSelection | None, Record]:
-    from gripper_env.sysid.orders import compare_orders, parse_orders, split_record, validate
-    from gripper_env.sysid.tfest import tfest
-
     record = read_record(args.log, args)
     est_rec, val_rec, source = record, None, ""
     if args.validate:
         val_rec, source = read_record(args.validate, args), Path(args.validate).name
-    elif args.split is not None:
-        est_rec, val_rec = split_record(record, args.split)
-        source = f"last {100 * args.split:.3g} % of {Path(args.log).name}"
     if args.max_iterations < 1:
         raise ValueError(f"--max-iterations must be >= 1, got {args.max_iterations}")
+    # the logs are read and checked before the fit's imports: a refusal costs a second
+    from gripper_env.sysid.orders import compare_orders, parse_orders, split_record, validate
+    from gripper_env.sysid.tfest import tfest
+
+    if not args.validate and args.split is not None:
+        est_rec, val_rec = split_record(record, args.split)
+        source = f"last {100 * args.split:.3g} % of {Path(args.log).name}"
     kwargs: dict[str, Any] = dict(
         input_delay_s=args.delay,
         max_delay_s=args.max_delay,
