@@ -6,6 +6,7 @@ ranges by it (:mod:`tuners.search_space`).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -48,6 +49,23 @@ def unstable_plant(plant: Plant) -> str:
     )
 
 
+@functools.lru_cache(maxsize=8)
+def _step_response(
+    num: tuple[float, ...], den: tuple[float, ...], dt_s: float, window_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) and unit step response of ``num / den`` over ``window_s``, read-only arrays.
+
+    Kept per transfer function and window: a rule's knob sweep (:mod:`tuners.classical`)
+    designs dozens of times on one plant, and each response takes python-control ~0.15 s.
+    """
+    t = np.arange(0.0, window_s, dt_s)
+    response = control.step_response(control.ss(control.tf(list(num), list(den))), T=t)
+    y = np.ravel(response.outputs)
+    t.flags.writeable = False
+    y.flags.writeable = False
+    return t, y
+
+
 def fit_fopdt(plant: Plant, disturbance: Disturbance, settings: ClassicalSettings) -> FOPDT:
     """Read a FOPDT model off the plant's unit step response over ``settings.window_s``.
 
@@ -61,9 +79,7 @@ def fit_fopdt(plant: Plant, disturbance: Disturbance, settings: ClassicalSetting
         raise ValueError(unstable_plant(plant))
     dt = plant.dt_s
     check_steps(f"the classical window_s ({plant.name})", settings.window_s, dt)
-    t = np.arange(0.0, settings.window_s, dt)
-    response = control.step_response(control.ss(plant.tf), T=t)
-    y = np.ravel(response.outputs)
+    t, y = _step_response(tuple(plant.num), tuple(plant.den), dt, settings.window_s)
     k = float(y[-1])
     if not (math.isfinite(k) and abs(k) > 1e-9):
         raise ValueError(f"plant {plant.name}: no usable step response over {settings.window_s} s")
