@@ -216,8 +216,6 @@ def _run(args: argparse.Namespace) -> int:
         load_registers_file,
         relative_uncertainties,
     )
-    from gripper_env.sysid.bus_experiments import BusRecorder
-    from gripper_env.sysid.bus_servo import write_bus_record
 
     model, regs, doc = load_registers_file(args.registers)
     source = str(args.registers)
@@ -227,6 +225,10 @@ def _run(args: argparse.Namespace) -> int:
     model = model.calibrated(calibration)
     alternatives = [m.calibrated(calibration) for m in alternatives]
     score = gate(model, regs, rel_std, args.allow_infeasible, alternatives)
+    # the recorder after the files' checks: a refused file costs no identification imports
+    from gripper_env.sysid.bus_experiments import BusRecorder
+    from gripper_env.sysid.bus_servo import write_bus_record
+
     plan = _check_plans(model, args.hold > 0)
     top = calibration.servo.max_torque_limit if calibration.servo else None
     if top is not None and regs.torque_limit > top:
