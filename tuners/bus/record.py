@@ -99,9 +99,6 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--sample-ms must be in (0, 100] ms, got {args.sample_ms}")
     # the library after parsing: --help and a usage error answer before it loads
     from gripper_env.model.bus_servo import load_bus_servo
-
-    model = load_bus_servo(args.model)
-    calibration = load_jaw(args.jaw, model, args.id)  # before the recorder's imports
     from gripper_env.sysid.bus_experiments import (
         BusRecorder,
         check_plan,
@@ -111,8 +108,10 @@ def _run(args: argparse.Namespace) -> int:
     )
     from gripper_env.sysid.bus_servo import write_bus_record
 
+    model = load_bus_servo(args.model)
     registers = settings_registers(model, args.settings)
     check_settings(model, registers)  # before anything is sent
+    calibration = load_jaw(args.jaw, model, args.id)
     model = model.calibrated(calibration)
     plan = record_plan(model)
     check_plan(plan, calibration.goal_range_deg(), "record's plan (steps of 30, 10, 4 deg)")
