@@ -102,21 +102,25 @@ class RLTuner:
 
 def _held_out(inputs: cli.Inputs, per_seed: list[dict[str, Any]], plants: list[str]) -> None:
     """Each seed's gains on the held-out seeds of the actual model (mean over ``plants``): the
-    cost a gains file of that seed would report, and its constraint verdict on every plant."""
+    cost a gains file of that seed would report, and the admission rule's verdict
+    (:mod:`gripper_env.evaluation.admission`) on every plant."""
     ideal_opts, actual_opts = inputs.settings.options(1)
     on = [inputs.for_plant(load_plant(p)) for p in plants]  # loaded once for every seed
     for e in per_seed:
-        e["held_out_cost"] = e["meets_constraints"] = None
+        e["held_out_cost"] = e["meets_constraints"] = e["admission_reason"] = None
         if e["gains"] is None:
             continue
-        costs, meets = [], True
+        costs, meets, reasons = [], True, []
         for plant_inputs in on:
             ev = cli.evaluate_inputs(plant_inputs, PIDGains(*e["gains"]), actual_opts,
                                      ideal_opts, cross=False)  # fmt: skip
             costs.append(float(ev.actual["mean"]["cost"]))
-            meets = meets and bool(ev.robustness["meets_constraints"])
+            meets = meets and bool(ev.admission["admitted"])
+            if not ev.admission["admitted"]:
+                reasons.append(f"on {plant_inputs.plant.name}: {ev.admission['reason']}")
         e["held_out_cost"] = float(np.mean(costs))
-        e["meets_constraints"] = meets
+        e["meets_constraints"] = meets  # the admission rule on the held-out runs, every plant
+        e["admission_reason"] = reasons[0] if reasons else None
 
 
 def _best_so_far(run: Mapping[str, Any]) -> list[tuple[int, float]]:
