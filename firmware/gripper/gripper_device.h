@@ -27,7 +27,7 @@
 namespace gripper {
 
 const uint8_t FIRMWARE_VERSION_MAJOR = 0;
-const uint8_t FIRMWARE_VERSION_MINOR = 2;
+const uint8_t FIRMWARE_VERSION_MINOR = 3;
 const uint8_t FIRMWARE_VERSION_PATCH = 0;
 const uint32_t TICK_PERIOD_US = 1000; // control period (1 kHz)
 const uint16_t MAX_DECIMATION = 1000;
@@ -58,6 +58,12 @@ inline DeviceConfig default_config() {
     c.gains.kb = 1;
     c.gains.sign = 1;
     c.gains.d_on_meas = false;
+    c.gains.grasp = true; // a gripper's controller holds an object without stalling its servo
+    c.gains.squeeze = 1;
+    c.gains.push = 5;
+    c.gains.shortfall = 0.5f;
+    c.gains.still = 1;
+    c.gains.dwell = 100;
     c.jaw_min = JAW_CLOSED_DEG;
     c.jaw_max = JAW_OPEN_DEG;
     c.adc.adc_at_lo = 119; // a 0-5 V pot over 0-180 deg; closed loop needs a CONFIGURE anyway
@@ -134,6 +140,18 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     if (m.d_on_meas > 1) return reject(CF_D_ON_MEAS, bad_field);
     if (m.telemetry_batch < 1 || m.telemetry_batch > TELEMETRY_MAX_SAMPLES)
         return reject(CF_TELEMETRY_BATCH, bad_field);
+    if (m.grasp > 1) return reject(CF_GRASP, bad_field);
+    if (m.grasp) { // the grasp mode's settings, checked only when it is on
+        if (!finite_f(m.grasp_squeeze_deg) || !(m.grasp_squeeze_deg > 0.0f))
+            return reject(CF_GRASP_SQUEEZE_DEG, bad_field);
+        if (!finite_f(m.grasp_push_deg) || !(m.grasp_push_deg > m.grasp_squeeze_deg))
+            return reject(CF_GRASP_PUSH_DEG, bad_field);
+        if (!finite_f(m.grasp_short_deg) || !(m.grasp_short_deg > 0.0f))
+            return reject(CF_GRASP_SHORT_DEG, bad_field);
+        if (!finite_f(m.grasp_still_deg) || !(m.grasp_still_deg > 0.0f))
+            return reject(CF_GRASP_STILL_DEG, bad_field);
+        if (m.grasp_dwell_ticks < 1) return reject(CF_GRASP_DWELL_TICKS, bad_field);
+    }
     DeviceConfig c;
     c.gains.p = m.p;
     c.gains.i = m.i;
@@ -145,6 +163,21 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     c.gains.kb = m.kb;
     c.gains.sign = m.sign;
     c.gains.d_on_meas = m.d_on_meas != 0;
+    c.gains.grasp = m.grasp != 0;
+    if (c.gains.grasp) {
+        c.gains.squeeze = m.grasp_squeeze_deg;
+        c.gains.push = m.grasp_push_deg;
+        c.gains.shortfall = m.grasp_short_deg;
+        c.gains.still = m.grasp_still_deg;
+        c.gains.dwell = m.grasp_dwell_ticks;
+    } else { // unused; the defaults rather than unchecked values
+        DeviceConfig d = default_config();
+        c.gains.squeeze = d.gains.squeeze;
+        c.gains.push = d.gains.push;
+        c.gains.shortfall = d.gains.shortfall;
+        c.gains.still = d.gains.still;
+        c.gains.dwell = d.gains.dwell;
+    }
     c.jaw_min = m.jaw_min;
     c.jaw_max = m.jaw_max;
     c.adc.adc_at_lo = m.adc_at_lo;
@@ -237,7 +270,7 @@ class Device {
         setpoint_ = JAW_OPEN_DEG;
         reference_ = JAW_OPEN_DEG;
         command_ = JAW_OPEN_DEG;
-        pid_state_[0] = pid_state_[1] = 0;
+        for (uint8_t k = 0; k < PID_STATE_SIZE; ++k) pid_state_[k] = 0;
         last_rx_us_ = now_us;
         now_us_ = now_us;
         echo_ = 0;
@@ -294,10 +327,12 @@ class Device {
             real_t v = 0;
             real_t u = pid_update<real_t>(reference_, y, cfg_.gains,
                                           real_t(TICK_PERIOD_US) / real_t(1000000), pid_state_, &v);
-            if (!is_finite(v) || !is_finite(pid_state_[0]) || !is_finite(pid_state_[1])) {
+            if (!is_finite(v) || !is_finite(pid_state_[PID_XI]) ||
+                !is_finite(pid_state_[PID_XF]) || !is_finite(pid_state_[PID_YF])) {
                 safe_stop(FAULT_NUMERIC);
             } else {
                 if (!same(u, v)) sample_flags |= SAMPLE_SATURATED;
+                if (pid_state_[PID_HELD] != real_t(0)) sample_flags |= SAMPLE_GRASP;
                 command_ = clamp_jaw<real_t>(u, cfg_.jaw_min, cfg_.jaw_max, safe_deg());
             }
         }
@@ -477,7 +512,8 @@ class Device {
 
     void apply_config(const DeviceConfig& c) {
         bool structure_changed = c.gains.sign != cfg_.gains.sign ||
-                                 c.gains.d_on_meas != cfg_.gains.d_on_meas;
+                                 c.gains.d_on_meas != cfg_.gains.d_on_meas ||
+                                 c.gains.grasp != cfg_.gains.grasp;
         bool telemetry_changed = c.decimation != cfg_.decimation || c.batch != cfg_.batch;
         if (telemetry_changed) {
             flush_telemetry();
@@ -485,7 +521,8 @@ class Device {
         }
         cfg_ = c;
         configured_ = true;
-        // A new sign or derivative input changes what xf means: re-enter bumplessly.
+        // A new sign or derivative input changes what xf means, and the grasp mode switched on
+        // or off what the state holds: re-enter bumplessly.
         if (structure_changed && mode_ == MODE_CLOSED_LOOP) entry_pending_ = true;
     }
 
@@ -607,7 +644,7 @@ class Device {
     PendingSample pending_;
     DeviceConfig cfg_;
     PulseWindow window_;
-    real_t pid_state_[2];
+    real_t pid_state_[PID_STATE_SIZE];
     real_t setpoint_, reference_, command_;
     uint32_t device_id_;
     uint32_t last_rx_us_, now_us_, echo_;

@@ -17,7 +17,7 @@
 
 namespace gripper {
 
-const uint16_t PROTOCOL_VERSION = 2; // bumped by any incompatible change
+const uint16_t PROTOCOL_VERSION = 3; // bumped by any incompatible change
 const size_t MAX_PAYLOAD = 240; // bytes of payload in one frame
 const uint8_t TELEMETRY_MAX_SAMPLES = 32; // samples in one TELEMETRY frame
 const uint8_t PROFILE_CHUNK_MAX_SAMPLES = 100; // samples in one PROFILE_CHUNK frame
@@ -74,7 +74,8 @@ enum SampleFlag {
     SAMPLE_OVERRUN = 0x08, // the control tick started late
     SAMPLE_FAULT = 0x10, // a fault is latched
     SAMPLE_SERVO_ON = 0x20, // servo pulses are being generated
-    SAMPLE_CLAMPED = 0x40 // the requested setpoint lay outside the jaw range
+    SAMPLE_CLAMPED = 0x40, // the requested setpoint lay outside the jaw range
+    SAMPLE_GRASP = 0x80 // the PID's grasp mode holds the command past a blocked jaw
 };
 
 // ERROR.code
@@ -109,20 +110,26 @@ enum ConfigureField {
     CF_ANTI_WINDUP = 14,
     CF_SIGN = 15,
     CF_D_ON_MEAS = 16,
-    CF_TELEMETRY_BATCH = 17
+    CF_TELEMETRY_BATCH = 17,
+    CF_GRASP = 18,
+    CF_GRASP_SQUEEZE_DEG = 19,
+    CF_GRASP_PUSH_DEG = 20,
+    CF_GRASP_SHORT_DEG = 21,
+    CF_GRASP_STILL_DEG = 22,
+    CF_GRASP_DWELL_TICKS = 23
 };
 
 struct TelemetrySample {
     int16_t reference_cdeg; // closed-loop reference, open-loop setpoint, or the safe position when idle
     int16_t command_cdeg; // the servo command; -32768 while the servo gets no pulses
     uint16_t adc; // potentiometer reading (counts)
-    uint8_t flags; // bits 0-1 mode, 0x04 SATURATED (PID `u != v`), 0x08 OVERRUN (tick started late), 0x10 FAULT latched, 0x20 SERVO_ON, 0x40 CLAMPED (setpoint outside the jaw range)
+    uint8_t flags; // bits 0-1 mode, 0x04 SATURATED (PID `u != v`), 0x08 OVERRUN (tick started late), 0x10 FAULT latched, 0x20 SERVO_ON, 0x40 CLAMPED (setpoint outside the jaw range), 0x80 GRASP (the grasp mode holds the command)
 };
 
 // HELLO (0x01, host -> device)
 struct Hello {
     enum { TYPE = MSG_HELLO, SIZE = 2 };
-    uint16_t protocol_version; // the protocol version the host speaks (= 2)
+    uint16_t protocol_version; // the protocol version the host speaks (= 3)
     size_t encode(uint8_t* b) const {
         put_u16(b, protocol_version);
         return SIZE;
@@ -136,7 +143,7 @@ struct Hello {
 
 // CONFIGURE (0x02, host -> device)
 struct Configure {
-    enum { TYPE = MSG_CONFIGURE, SIZE = 50 };
+    enum { TYPE = MSG_CONFIGURE, SIZE = 69 };
     float p; // deg/deg, finite
     float i; // 1/s, finite
     float d; // s, finite
@@ -155,6 +162,12 @@ struct Configure {
     int8_t sign; // +1: `e = r - y`; -1: `e = y - r`
     uint8_t d_on_meas; // 0: derivative of `e`; 1: of `-sign * y`
     uint8_t telemetry_batch; // samples per TELEMETRY frame, 1..32
+    uint8_t grasp; // 1: the PID's grasp mode on (gripper_env.model.pid.GraspOptions); 0: off, the fields below unchecked
+    float grasp_squeeze_deg; // deg the command is held past the contact, finite, `> 0`
+    float grasp_push_deg; // deg the command must lie past the jaw to read as blocked, finite, `> grasp_squeeze_deg`
+    float grasp_short_deg; // deg the jaw must lie short of the reference to read as blocked, finite, `> 0`
+    float grasp_still_deg; // deg the jaw may move and still be still, finite, `> 0`
+    uint16_t grasp_dwell_ticks; // control ticks (1 ms) blocked before the mode holds, `>= 1`
     size_t encode(uint8_t* b) const {
         put_f32(b, p);
         put_f32(b + 4, i);
@@ -174,6 +187,12 @@ struct Configure {
         b[47] = (uint8_t)sign;
         b[48] = d_on_meas;
         b[49] = telemetry_batch;
+        b[50] = grasp;
+        put_f32(b + 51, grasp_squeeze_deg);
+        put_f32(b + 55, grasp_push_deg);
+        put_f32(b + 59, grasp_short_deg);
+        put_f32(b + 63, grasp_still_deg);
+        put_u16(b + 67, grasp_dwell_ticks);
         return SIZE;
     }
     bool decode(const uint8_t* b, size_t len) {
@@ -196,6 +215,12 @@ struct Configure {
         sign = (int8_t)b[47];
         d_on_meas = b[48];
         telemetry_batch = b[49];
+        grasp = b[50];
+        grasp_squeeze_deg = get_f32(b + 51);
+        grasp_push_deg = get_f32(b + 55);
+        grasp_short_deg = get_f32(b + 59);
+        grasp_still_deg = get_f32(b + 63);
+        grasp_dwell_ticks = get_u16(b + 67);
         return true;
     }
 };

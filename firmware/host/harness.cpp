@@ -13,6 +13,8 @@
 //   reencode HEX                 -> OK seq type REFRAMED_HEX field... | ERR reason
 //   encode TYPE SEQ field...     -> frame HEX | ERR reason
 //   pid dt P I D N umin umax aw kb sign dmeas xi0 xf0 n r1 y1 ... rn yn
+//   pid_grasp dt P I D N umin umax aw kb sign dmeas squeeze push short still dwell
+//             xi0 xf0 held0 at0 count0 yf0 n r1 y1 ... rn yn
 //                                -> u1 v1 ... un vn xi xf
 //   clamp x lo hi safe           -> real            cdeg x -> int (to_cdeg of a real)
 //   adc2deg adc lo hi            -> real            deg2adc deg lo hi -> int
@@ -290,8 +292,9 @@ std::string pid_run(std::istringstream& in) {
     g.p = (real_t)a[1], g.i = (real_t)a[2], g.d = (real_t)a[3], g.n = (real_t)a[4];
     g.u_min = (real_t)a[5], g.u_max = (real_t)a[6], g.anti_windup = (uint8_t)a[7];
     g.kb = (real_t)a[8], g.sign = (real_t)a[9], g.d_on_meas = a[10] != 0;
+    g.grasp = false;
     pid_prepare<real_t>(g, dt);
-    real_t state[2] = {(real_t)a[11], (real_t)a[12]};
+    real_t state[PID_STATE_SIZE] = {(real_t)a[11], (real_t)a[12], 0, 0, 0, 0};
     size_t n = (size_t)a[13];
     if (a.size() != 14 + 2 * n) return "ERR args";
     std::string out;
@@ -301,6 +304,39 @@ std::string pid_run(std::istringstream& in) {
         out += real_str(u) + " " + real_str(v) + " ";
     }
     return out + real_str(state[0]) + " " + real_str(state[1]);
+}
+
+// pid_grasp dt P I D N umin umax aw kb sign dmeas squeeze push short still dwell
+//           xi0 xf0 held0 at0 count0 yf0 n r1 y1 ... rn yn
+// -> "u v held" per sample, then the 6 state values
+std::string pid_grasp_run(std::istringstream& in) {
+    std::string t;
+    std::vector<double> a;
+    while (in >> t) a.push_back(real_parse(t));
+    const size_t head = 23;
+    if (a.size() < head) return "ERR args";
+    PidGains<real_t> g;
+    real_t dt = (real_t)a[0];
+    g.p = (real_t)a[1], g.i = (real_t)a[2], g.d = (real_t)a[3], g.n = (real_t)a[4];
+    g.u_min = (real_t)a[5], g.u_max = (real_t)a[6], g.anti_windup = (uint8_t)a[7];
+    g.kb = (real_t)a[8], g.sign = (real_t)a[9], g.d_on_meas = a[10] != 0;
+    g.grasp = true;
+    g.squeeze = (real_t)a[11], g.push = (real_t)a[12], g.shortfall = (real_t)a[13];
+    g.still = (real_t)a[14], g.dwell = (uint16_t)a[15];
+    pid_prepare<real_t>(g, dt);
+    real_t state[PID_STATE_SIZE];
+    for (int k = 0; k < PID_STATE_SIZE; ++k) state[k] = (real_t)a[16 + k];
+    size_t n = (size_t)a[22];
+    if (a.size() != head + 2 * n) return "ERR args";
+    std::string out;
+    for (size_t k = 0; k < n; ++k) {
+        real_t v = 0;
+        real_t u = pid_update<real_t>((real_t)a[head + 2 * k], (real_t)a[head + 1 + 2 * k], g, dt,
+                                      state, &v);
+        out += real_str(u) + " " + real_str(v) + " " + real_str(state[PID_HELD]) + " ";
+    }
+    for (int k = 0; k < PID_STATE_SIZE; ++k) out += real_str(state[k]) + (k + 1 < PID_STATE_SIZE ? " " : "");
+    return out;
 }
 
 // ---- the simulated device ----
@@ -379,6 +415,7 @@ std::string handle(const std::string& line) {
         return encode((int)type, (uint8_t)seq, f);
     }
     if (cmd == "pid") return pid_run(in);
+    if (cmd == "pid_grasp") return pid_grasp_run(in);
     if (cmd == "clamp") {
         in >> a >> b >> c >> d;
         return real_str((double)clamp_jaw<real_t>((real_t)real_parse(a), (real_t)real_parse(b),

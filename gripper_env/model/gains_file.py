@@ -12,7 +12,11 @@
                                 user's own file is found again wherever the gains file goes)
     P, I, D, N                  Simulink parallel-form gains: deg/deg, 1/s, s, 1/s
     sign, sign_convention       +1 for e = r - y, -1 for e = y - r (the paper's hardware gains)
-    limits                      output_deg [min, max], anti_windup, kb, derivative_on
+    limits                      output_deg [min, max], anti_windup, kb, derivative_on, grasp
+                                (the PID's grasp mode: {squeeze_deg, push_deg, short_deg,
+                                still_deg, dwell_s}, or null for none; a file without the key,
+                                written before the mode, gets the default mode, which changes
+                                nothing while the jaw moves freely)
     sample_time_s               PID sample time (s)
     evaluation                  profile, disturbance preset, held-out seeds, randomize, signal,
                                 the output limits used on the ideal model
@@ -55,7 +59,7 @@ from typing import Any
 from gripper_env._version import __version__
 from gripper_env.io.config import SHIPPED
 from gripper_env.io.files import json_ready, read_format_json
-from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.pid import GraspOptions, PIDGains, PIDOptions
 from gripper_env.model.plants import Plant, PlantSpec, load_plant
 
 __all__ = [
@@ -154,6 +158,7 @@ def build_gains_file(
                 "anti_windup": options.anti_windup,
                 "kb": options.kb,
                 "derivative_on": options.derivative_on,
+                "grasp": None if options.grasp is None else options.grasp.as_dict(),
             },
             "sample_time_s": sample_time_s,
             "evaluation": evaluation_settings,
@@ -226,6 +231,23 @@ def _number(content: dict[str, Any], key: str, source: str) -> float:
     return float(value)
 
 
+def _grasp(limits: dict[str, Any]) -> GraspOptions | None:
+    """``limits.grasp``: null for none, a mapping of :class:`GraspOptions`' fields (missing ones
+    take its defaults), or no key (a file from before the mode: the default mode)."""
+    if "grasp" not in limits:
+        return GraspOptions()
+    value = limits["grasp"]
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ValueError(f"limits.grasp must be null or a mapping, got {value!r}")
+    known = set(GraspOptions().as_dict())
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise ValueError(f"limits.grasp has unknown keys {unknown}; known: {sorted(known)}")
+    return GraspOptions(**value)
+
+
 def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
     """Read and check a gains file.
 
@@ -257,6 +279,7 @@ def load_gains_file(path: str | os.PathLike[str]) -> GainsFile:
             kb=float(limits.get("kb", 1.0)),
             derivative_on=limits.get("derivative_on", "error"),
             sign=content.get("sign", 1),
+            grasp=_grasp(limits),
         )
         pid_gains = PIDGains(*gains)
     except (TypeError, ValueError) as exc:

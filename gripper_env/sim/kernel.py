@@ -28,7 +28,7 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit, prange
 
-from gripper_env.model.pid import pid_step
+from gripper_env.model.pid import pid_grasp_step
 from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.friction import friction_params, friction_step, load_friction, store_friction
 from gripper_env.sim.layout import (
@@ -36,15 +36,25 @@ from gripper_env.sim.layout import (
     P_AW,
     P_D,
     P_DMEAS,
+    P_DWELL,
+    P_GRASP,
     P_I,
     P_KB,
     P_N,
     P_P,
+    P_PUSH,
+    P_SHORT,
     P_SIGN,
+    P_SQUEEZE,
+    P_STILL,
     P_UHI,
     P_ULO,
     S_DIDX,
     S_DIVERGED,
+    S_GRASP,
+    S_GRASP_AT,
+    S_GRASP_COUNT,
+    S_GRASP_YF,
     S_SATURATED,
     S_STEPS,
     S_U,
@@ -72,28 +82,46 @@ from gripper_env.sim.servo import load_servo, servo_params, servo_step, store_se
 
 __all__ = ["PARALLEL_MIN_BATCH", "advance_kernel", "advance_row"]
 
-PidParams = tuple[float, float, float, float, float, float, int, float, float, int]
+PidParams = tuple[
+    float, float, float, float, float, float, int, float, float, int,
+    int, float, float, float, float, float,
+]  # fmt: skip
 
 
 @njit(inline="always")
 def _pid_params(params: np.ndarray, b: int) -> PidParams:
-    """Run ``b``'s PID parameters in :func:`~gripper_env.model.pid.pid_step`'s order (from
-    ``p``)."""
+    """Run ``b``'s PID parameters in :func:`~gripper_env.model.pid.pid_grasp_step`'s order
+    (from ``p``): the gains and options, then the grasp mode's."""
     return (
         params[b, P_P], params[b, P_I], params[b, P_D], params[b, P_N],
         params[b, P_ULO], params[b, P_UHI], int(params[b, P_AW]), params[b, P_KB],
         params[b, P_SIGN], int(params[b, P_DMEAS]),
+        int(params[b, P_GRASP]), params[b, P_SQUEEZE], params[b, P_PUSH], params[b, P_SHORT],
+        params[b, P_STILL], params[b, P_DWELL],
     )  # fmt: skip
 
 
 @njit(inline="always")
 def _pid(
-    r: float, y: float, g: PidParams, dt: float, xi: float, xf: float
-) -> tuple[float, float, float, float]:
-    """:func:`~gripper_env.model.pid.pid_step` with the run's parameters ``g``;
-    ``(u, v, xi, xf)``."""
-    p, i, d, n, u_lo, u_hi, aw, kb, sign, d_on_meas = g
-    return pid_step(r, y, p, i, d, n, dt, u_lo, u_hi, aw, kb, sign, d_on_meas, xi, xf)
+    r: float,
+    y: float,
+    g: PidParams,
+    dt: float,
+    xi: float,
+    xf: float,
+    held: float,
+    at: float,
+    count: float,
+    yf: float,
+) -> tuple[float, float, float, float, float, float, float, float]:
+    """:func:`~gripper_env.model.pid.pid_grasp_step` with the run's parameters ``g``;
+    ``(u, v, xi, xf, held, at, count, yf)`` (flat: nested tuples break numba's parallel array
+    analysis)."""
+    p, i, d, n, u_lo, u_hi, aw, kb, sign, d_on_meas, grasp, squeeze, push, short, still, dwell = g
+    return pid_grasp_step(
+        r, y, p, i, d, n, dt, u_lo, u_hi, aw, kb, sign, d_on_meas, xi, xf,
+        grasp, squeeze, push, short, still, dwell, held, at, count, yf,
+    )  # fmt: skip
 
 
 @njit(nogil=True, inline="always")
@@ -168,6 +196,8 @@ def advance_row(
     mech_p, sensor_p = mechanics_params(params, b), sensor_params(params, b)
     plant_m = plant_matrices(plant_a, plant_b, plant_d, pb)
     xi, xf, u, y_meas = state[b, S_XI], state[b, S_XF], state[b, S_U], state[b, S_YMEAS]
+    held, at = state[b, S_GRASP], state[b, S_GRASP_AT]
+    count, yf = state[b, S_GRASP_COUNT], state[b, S_GRASP_YF]
     servo_s, fric_s = load_servo(state, b), load_friction(state, b)
     mech_s = load_mechanics(state, b)
     small = plant_b.shape[1] <= 2
@@ -184,7 +214,9 @@ def advance_row(
         r = ref[rb, ref_offset + k]
         clipped = False
         if closed_loop:
-            u, v, xi, xf = _pid(r, y_meas, pid_p, dt, xi, xf)
+            u, v, xi, xf, held, at, count, yf = _pid(
+                r, y_meas, pid_p, dt, xi, xf, held, at, count, yf
+            )
             clipped = u != v
         else:
             u = r
@@ -215,6 +247,8 @@ def advance_row(
     if plant_b.shape[1] > 1:
         state[b, S_X + 1] = x1
     state[b, S_XI], state[b, S_XF], state[b, S_U], state[b, S_YMEAS] = xi, xf, u, y_meas
+    state[b, S_GRASP], state[b, S_GRASP_AT] = held, at
+    state[b, S_GRASP_COUNT], state[b, S_GRASP_YF] = count, yf
     store_servo(state, b, servo_s)
     store_friction(state, b, fric_s)
     store_mechanics(state, b, mech_s)

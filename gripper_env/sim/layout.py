@@ -15,17 +15,20 @@ __all__ = ["DIVERGENCE_BOUND", "N_PARAMS", "state_width"]
 # PID (gripper_env.model.pid): gains, output limits (deg), back-calculation gain (1/s), error sign,
 # anti-windup mode, derivative on measurement (0/1).
 P_P, P_I, P_D, P_N, P_ULO, P_UHI, P_KB, P_SIGN, P_AW, P_DMEAS = range(10)
+# the PID's grasp mode (gripper_env.model.pid.GraspOptions): on (0/1), squeeze, push, short and
+# still (deg), dwell (steps)
+P_GRASP, P_SQUEEZE, P_PUSH, P_SHORT, P_STILL, P_DWELL = range(10, 16)
 # servo command path (sim.servo): range (deg), quantum (deg), refresh period (steps), rate (deg/s)
-P_CMD_LO, P_CMD_HI, P_QUANTUM, P_REFRESH, P_RATE = range(10, 15)
+P_CMD_LO, P_CMD_HI, P_QUANTUM, P_REFRESH, P_RATE = range(16, 21)
 # friction (sim.friction): model code, S and J (deg), backlash width (deg)
-P_FRIC, P_S, P_J, P_BACKLASH = range(15, 19)
+P_FRIC, P_S, P_J, P_BACKLASH = range(21, 25)
 # mechanics (sim.mechanics): stops (deg; an object in the jaws raises the lower one)
-P_MECH_LO, P_MECH_HI = range(19, 21)
+P_MECH_LO, P_MECH_HI = range(25, 27)
 # sensor (sim.sensor): ADC step (deg), ADC range start (deg), largest code, noise (deg), delay
-P_ADC_LSB, P_ADC_LO, P_ADC_MAX, P_NOISE, P_DELAY = range(21, 26)
+P_ADC_LSB, P_ADC_LO, P_ADC_MAX, P_NOISE, P_DELAY = range(27, 32)
 # mechanics: command beyond a stop (deg) that stalls the servo
-P_STALL_BAND = 26
-N_PARAMS = 27
+P_STALL_BAND = 32
+N_PARAMS = 33
 
 # ----------------------------------------------------------------------------------------------
 # Friction state (sim.friction): a vector of F_SIZE values, at S_FRIC in a state row.
@@ -39,8 +42,11 @@ F_SIZE = 5
 # ----------------------------------------------------------------------------------------------
 # State row: controller, command path, friction, sensor, counters, then the plant.
 S_XI, S_XF = 0, 1  # PID integrator term and derivative filter state
-S_CMD, S_COUNTDOWN = 2, 3  # held servo command (deg), physics steps to the next refresh tick
-S_FRIC = 4  # F_SIZE entries
+# the PID's grasp mode: held direction (0 none, -1 closing, +1 opening), contact or where the jaw
+# stopped (deg), steps blocked so far, filtered measurement (deg)
+S_GRASP, S_GRASP_AT, S_GRASP_COUNT, S_GRASP_YF = 2, 3, 4, 5
+S_CMD, S_COUNTDOWN = 6, 7  # held servo command (deg), physics steps to the next refresh tick
+S_FRIC = 8  # F_SIZE entries
 S_BACKLASH = S_FRIC + F_SIZE  # backlash output (deg)
 S_DIDX = S_BACKLASH + 1  # write position in the sensor's delay line
 S_VPREV = S_DIDX + 1  # plant input of the previous step (deg)

@@ -21,6 +21,8 @@ from gripper_env.sim.layout import (
     P_AW,
     P_CMD_LO,
     P_DMEAS,
+    P_DWELL,
+    P_GRASP,
     P_KB,
     P_N,
     P_P,
@@ -88,7 +90,7 @@ def build_params(
     dt_s : float
         Physics step (s).
     pid_options : PIDOptions, optional
-        Output limits, anti-windup, derivative input and sign convention.
+        Output limits, anti-windup, derivative input, sign convention and grasp mode.
     n_runs : int, optional
         Batch size, when one gain set and one disturbance are shared by more runs.
 
@@ -111,6 +113,7 @@ def build_params(
     params[:, P_SIGN] = opts.sign
     params[:, P_AW] = ANTI_WINDUP_MODES[opts.anti_windup]
     params[:, P_DMEAS] = DERIVATIVE_ON[opts.derivative_on]
+    params[:, P_GRASP : P_DWELL + 1] = opts.grasp_row(dt_s)
     rows = [disturbance_row(d, dt_s) for d in disturbances]
     params[:, P_CMD_LO:] = rows[0] if len(rows) == 1 else np.stack(rows)
     return params

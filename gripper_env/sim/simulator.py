@@ -47,6 +47,8 @@ from gripper_env.sim.layout import (
     S_DIVERGED,
     S_FORCE,
     S_FRIC,
+    S_GRASP_AT,
+    S_GRASP_YF,
     S_SATURATED,
     S_SERVO_TV,
     S_STALL,
@@ -251,6 +253,7 @@ class BatchSimulator:
             y_start = np.zeros(len(idx))
         st[:, S_XI] = u0 if self.closed_loop else 0.0
         st[:, S_XF] = -sign * y_start if d_meas else 0.0
+        st[:, S_GRASP_AT] = st[:, S_GRASP_YF] = y_start  # the jaw taken as standing at y0
         for col in (S_CMD, S_FRIC + F_OUT, S_FRIC + F_XPREV, S_FRIC + F_XSS, S_BACKLASH,
                     S_VPREV, S_U):  # fmt: skip
             st[:, col] = u0

@@ -159,3 +159,75 @@ def test_board_float_pid_stays_close_to_double(harness, harness_f32, name: str) 
     reference, _ = _run_cpp(harness, gains, r, y, (92.0, 0.0))
     board, _ = _run_cpp(harness_f32, gains, r, y, (92.0, 0.0))
     np.testing.assert_allclose(board[0::2], reference[0::2], rtol=0, atol=0.01)
+
+
+# ---- the grasp mode --------------------------------------------------------------------------
+
+# (squeeze, push, short, still, dwell ticks)
+GRASP = (1.0, 5.0, 0.5, 1.0, 100.0)
+
+
+def _grasp_inputs(seed: int, n: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """Close on an object at 40 deg (the reference 38, then 30), open again at 3 s: the jaw
+    follows the reference but stops at the object; noisy, quantised like the ADC."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(n)
+    r = np.where(k < 200, 92.0, np.where(k < 1800, 38.0, np.where(k < 3000, 30.0, 92.0)))
+    y = np.empty(n)
+    level = 92.0
+    for j in range(n):
+        level = max(40.0, level + 0.03 * (r[j] - level))
+        y[j] = round((level + rng.normal(0, 0.4)) / 0.264) * 0.264
+    return r, y
+
+
+def _run_python_grasp(gains: tuple, r: np.ndarray, y: np.ndarray, state0: tuple) -> tuple:
+    p, i, d, n, u_min, u_max, aw, kb, sign, dmeas = gains
+    state = np.array(state0, dtype=np.float64)
+    out, held = [], []
+    for rk, yk in zip(r, y, strict=True):
+        u, v = pid_update(
+            float(rk), float(yk), p, i, d, n, DT, u_min, u_max, aw, kb, sign, dmeas, state, 1,
+            *GRASP,
+        )  # fmt: skip
+        out += [u, v]
+        held.append(state[2])
+    return np.array(out), np.array(held), state
+
+
+def _run_cpp_grasp(h, gains: tuple, r: np.ndarray, y: np.ndarray, state0: tuple) -> tuple:
+    ry = [float(x).hex() for pair in zip(r, y, strict=True) for x in pair]
+    args = [float(DT).hex(), *(float(g).hex() for g in (*gains, *GRASP)),
+            *(float(s).hex() for s in state0)]  # fmt: skip
+    values = np.array([float.fromhex(t) for t in h("pid_grasp", *args, len(r), *ry).split()])
+    per = values[:-6].reshape(-1, 3)
+    return per[:, :2].ravel(), per[:, 2], values[-6:]
+
+
+@pytest.mark.parametrize(
+    "name", ["paper_tuned_tf_clamp", "paper_hw_sign_minus", "aggressive_saturating_backcalc"]
+)
+def test_grasp_mode_matches_python_pid_update(harness, name: str) -> None:
+    gains = GAIN_SETS[name]
+    r, y = _grasp_inputs(7)
+    state0 = (92.0, 0.0, 0.0, 92.0, 0.0, 92.0)  # PID.reset(u0=92, y0=92)
+    expected, held, state = _run_python_grasp(gains, r, y, state0)
+    got, got_held, got_state = _run_cpp_grasp(harness, gains, r, y, state0)
+    np.testing.assert_array_equal(got_held, held)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got_state, state, rtol=0, atol=1e-6)
+    # the case grasps (closing), and the opening at 3 s lets go
+    assert np.any(held == -1.0) and held[-1] == 0.0
+
+
+def test_board_float_grasp_mode_holds_like_double(harness, harness_f32) -> None:
+    gains = GAIN_SETS["paper_tuned_tf_clamp"]
+    r, y = _grasp_inputs(8)
+    state0 = (92.0, 0.0, 0.0, 92.0, 0.0, 92.0)
+    reference, held, _ = _run_cpp_grasp(harness, gains, r, y, state0)
+    board, board_held, _ = _run_cpp_grasp(harness_f32, gains, r, y, state0)
+    # the same grasp within a tick or two (float32 may cross a threshold a sample apart)
+    onset, board_onset = np.argmax(held == -1), np.argmax(board_held == -1)
+    assert held[onset] == -1 and abs(int(onset) - int(board_onset)) <= 2
+    both = (held == -1) & (board_held == -1)
+    np.testing.assert_allclose(board[0::2][both], reference[0::2][both], rtol=0, atol=0.01)

@@ -26,7 +26,9 @@ def test_matches_simulinks_discrete_transfer_function():
     c = p + i * ts / (z - 1) + d * n / (1 + n * ts / (z - 1))
     e = np.random.default_rng(1).normal(size=500).cumsum()
     _, u_ref = control.forced_response(c, T=np.arange(500) * ts, U=e)
-    pid = PID(PIDGains(p, i, d, n), dt_s=ts, options=PIDOptions(anti_windup="none"))
+    # without the grasp mode: a jaw that never moves (y = 0) under a growing command reads as
+    # blocked (tests/model/test_pid_grasp.py)
+    pid = PID(PIDGains(p, i, d, n), dt_s=ts, options=PIDOptions(anti_windup="none", grasp=None))
     pid.reset()
     u = run(pid, e, np.zeros_like(e))
     np.testing.assert_allclose(u, u_ref, rtol=1e-10, atol=1e-10)
@@ -42,7 +44,7 @@ def test_sign_convention_flips_the_error():
 
 
 def test_output_limits_and_clamping_anti_windup():
-    opts = PIDOptions(output_limits=(0.0, 10.0), anti_windup="clamping")
+    opts = PIDOptions(output_limits=(0.0, 10.0), anti_windup="clamping", grasp=None)
     pid = PID(PIDGains(1.0, 100.0, 0.0), options=opts)
     pid.reset()
     u = run(pid, np.full(1000, 50.0), np.zeros(1000))
@@ -50,14 +52,19 @@ def test_output_limits_and_clamping_anti_windup():
     # the integrator stopped once the output saturated: it holds at most what reached the limit
     assert pid.state[0] <= 10.0 + 1e-9
     # without anti-windup it keeps integrating
-    free = PID(PIDGains(1.0, 100.0, 0.0), options=PIDOptions((0.0, 10.0), anti_windup="none"))
+    free = PID(
+        PIDGains(1.0, 100.0, 0.0),
+        options=PIDOptions((0.0, 10.0), anti_windup="none", grasp=None),
+    )
     free.reset()
     run(free, np.full(1000, 50.0), np.zeros(1000))
     assert free.state[0] == pytest.approx(100.0 * 50.0 * 1.0, rel=1e-9)
 
 
 def test_back_calculation_bleeds_the_integrator():
-    opts = PIDOptions(output_limits=(0.0, 10.0), anti_windup="back-calculation", kb=50.0)
+    opts = PIDOptions(
+        output_limits=(0.0, 10.0), anti_windup="back-calculation", kb=50.0, grasp=None
+    )
     pid = PID(PIDGains(1.0, 100.0, 0.0), options=opts)
     pid.reset()
     run(pid, np.full(2000, 50.0), np.zeros(2000))

@@ -10,8 +10,12 @@ from gripper_env.model.plants import Plant, load_plant
 from gripper_env.model.references import load_reference
 from gripper_env.paper import PID_GAINS as PAPER_GAINS
 from gripper_env.sim import BatchSimulator, simulate
+from gripper_env.sim.layout import S_CMD
 
 TS = 1e-3
+#: Simulink's PID block, the linear loop python-control solves: no grasp mode (on test1 a free
+#: jaw moves too slowly to tell from a blocked one, gripper_env.model.pid)
+SIMULINK = PIDOptions(grasp=None)
 
 
 def discrete_pid(p, i, d, n=100.0, ts=TS):
@@ -35,7 +39,8 @@ def test_ideal_closed_loop_matches_python_control(paper_plant_name, gains):
     ref = load_reference("step")
     with np.errstate(all="ignore"):  # the reference solution overflows where the loop diverges
         _, y_ref = control.forced_response(loop, T=ref.t_s, U=ref.values_deg)
-    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="zero")
+    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="zero",
+                    pid_options=SIMULINK)  # fmt: skip
     if not np.all(np.abs(y_ref) < 1e9):
         # e.g. the paper's untuned gains on test4: the loop diverges, and is flagged so
         assert not traj.stable[0]
@@ -55,7 +60,8 @@ def test_ideal_from_rest_is_superposition(paper_plant_name):
     loop = control.feedback(discrete_plant(plant) * discrete_pid(*gains), 1)
     ref = load_reference("step")
     _, y_ref = control.forced_response(loop, T=ref.t_s, U=ref.values_deg - 92.0)
-    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="equilibrium")
+    traj = simulate(plant, ref, gains=[gains], disturbance="ideal", initial="equilibrium",
+                    pid_options=SIMULINK)  # fmt: skip
     np.testing.assert_allclose(traj.y_true[0] - 92.0, y_ref, rtol=0, atol=1e-9 * 92)
 
 
@@ -135,7 +141,7 @@ def test_servo_sees_whole_degrees_every_20_ms():
     held = []
     for k in range(0, 2000):
         sim.advance(1, r, offset=k)
-        held.append(sim.state[0, 2])  # S_CMD
+        held.append(sim.state[0, S_CMD])
     held = np.array(held)
     changes = np.flatnonzero(np.diff(held)) + 1
     assert len(changes) > 5
@@ -159,20 +165,21 @@ def test_stick_slip_on_the_slow_slope():
 
 
 def test_object_in_the_jaws_stops_closing_and_winds_up_without_anti_windup():
+    """The plain PID (no grasp mode; with it: tests/sim/test_grasp_mode.py)."""
     d = load_disturbance("actual").with_overrides({"mechanics": {"object_contact_deg": 45.0}})
     clamp = simulate(
         "test2",
         "step",
         gains=[(0.2, 5.0, 0.0)],
         disturbance=d,
-        pid_options=PIDOptions(output_limits=(0, 180), anti_windup="clamping"),
+        pid_options=PIDOptions(output_limits=(0, 180), anti_windup="clamping", grasp=None),
     )
     free = simulate(
         "test2",
         "step",
         gains=[(0.2, 5.0, 0.0)],
         disturbance=d,
-        pid_options=PIDOptions(anti_windup="none"),
+        pid_options=PIDOptions(anti_windup="none", grasp=None),
     )
     grip = slice(1000, 10_000)
     assert clamp.y_true[0, grip].min() == pytest.approx(45.0)
@@ -274,7 +281,9 @@ def test_third_order_plant_matches_python_control(closed):
     if closed:
         loop = control.feedback(discrete_plant(plant) * discrete_pid(p, i, d), 1)
         _, y_ref = control.forced_response(loop, T=ref.t_s, U=ref.values_deg)
-        traj = simulate(plant, ref, gains=[[p, i, d]], disturbance="ideal", initial="zero")
+        # (DC gain 2/3: the command rests 50 % past the jaw, no position servo: no grasp mode)
+        traj = simulate(plant, ref, gains=[[p, i, d]], disturbance="ideal", initial="zero",
+                        pid_options=SIMULINK)  # fmt: skip
     else:
         _, y_ref = control.forced_response(discrete_plant(plant), T=ref.t_s, U=ref.values_deg)
         traj = simulate(plant, ref, gains=None, disturbance="ideal", initial="zero")
@@ -282,7 +291,7 @@ def test_third_order_plant_matches_python_control(closed):
     np.testing.assert_allclose(traj.y_true[0], y_ref, rtol=0, atol=1e-9 * 92)
     # the same run in 20-step pieces (as the environments step it): the state carries over
     sim = BatchSimulator(plant)
-    sim.configure([[p, i, d]] if closed else None, load_disturbance("ideal"))
+    sim.configure([[p, i, d]] if closed else None, load_disturbance("ideal"), SIMULINK)
     sim.reset(ref.values_deg[0], initial="zero")
     pieces = [sim.advance(20, ref.values_deg, offset=k)[3][0] for k in range(0, len(ref), 20)]
     np.testing.assert_array_equal(np.concatenate(pieces), traj.y_true[0])

@@ -23,7 +23,7 @@ __all__ = [
     "StatusFlag",
 ]
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 MAX_PAYLOAD = 240  # bytes of payload in one frame
 MAX_RAW_FRAME = MAX_PAYLOAD + 4  # seq + type + payload + crc16
 MAX_ENCODED_FRAME = MAX_RAW_FRAME + 2  # COBS-encoded, without the delimiter
@@ -75,6 +75,7 @@ class SampleFlag:
     FAULT = 0x10
     SERVO_ON = 0x20
     CLAMPED = 0x40
+    GRASP = 0x80
 
 
 class ErrorCode:

@@ -97,7 +97,7 @@ class Hello(FixedMessage):
 
 @dataclass(frozen=True)
 class Configure(FixedMessage):
-    """Host -> device, type 0x02: controller, calibration and telemetry settings (50 bytes).
+    """Host -> device, type 0x02: controller, calibration and telemetry settings (69 bytes).
 
     Parameters
     ----------
@@ -129,10 +129,19 @@ class Configure(FixedMessage):
         1 to differentiate ``-sign * y`` instead of the error (u8).
     telemetry_batch : int
         Samples per TELEMETRY frame (u8, 1..32).
+    grasp : int
+        1 for the PID's grasp mode (:class:`gripper_env.model.pid.GraspOptions`), 0 for none
+        (u8); with 0 the five fields below are not checked.
+    grasp_squeeze_deg, grasp_push_deg, grasp_short_deg, grasp_still_deg : float
+        The grasp mode's squeeze past the contact (``> 0``), command past the jaw that reads as
+        blocked (``> grasp_squeeze_deg``), jaw short of the reference that reads as blocked
+        (``> 0``) and motion that still counts as still (``> 0``), deg (float32).
+    grasp_dwell_ticks : int
+        Control ticks (1 ms) the jaw must stay blocked before the mode holds (u16, ``>= 1``).
     """
 
     TYPE: ClassVar[int] = 0x02
-    _FORMAT: ClassVar[str] = "fffffffffHHHHHBbBB"
+    _FORMAT: ClassVar[str] = "fffffffffHHHHHBbBBBffffH"
     p: float = 0.0
     i: float = 0.0
     d: float = 0.0
@@ -151,6 +160,12 @@ class Configure(FixedMessage):
     sign: int = 1
     d_on_meas: int = 0
     telemetry_batch: int = 10
+    grasp: int = 1
+    grasp_squeeze_deg: float = 1.0
+    grasp_push_deg: float = 5.0
+    grasp_short_deg: float = 0.5
+    grasp_still_deg: float = 1.0
+    grasp_dwell_ticks: int = 100
 
 
 @dataclass(frozen=True)

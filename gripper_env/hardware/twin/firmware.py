@@ -49,11 +49,11 @@ from gripper_env.hardware.twin.firmware_config import (
     FirmwareConfig,
     validate_configure,
 )
-from gripper_env.model.pid import pid_update
+from gripper_env.model.pid import G_HELD, STATE_SIZE, pid_update
 
 __all__ = ["TX_QUEUE_CAPACITY", "UART_BYTES_PER_TICK", "Firmware"]
 
-FIRMWARE_VERSION = (0, 2, 0)  # the C++ FIRMWARE_VERSION_MAJOR/MINOR/PATCH
+FIRMWARE_VERSION = (0, 3, 0)  # the C++ FIRMWARE_VERSION_MAJOR/MINOR/PATCH
 TX_QUEUE_CAPACITY = 512  # bytes in the board's transmit queue
 UART_BYTES_PER_TICK = 100  # 1 Mbaud 8N1 drains 100 bytes per 1 ms tick
 _DT_S = TICK_PERIOD_US / 1e6
@@ -112,7 +112,7 @@ class Firmware:
         self.setpoint = JAW_OPEN_DEG
         self.reference = JAW_OPEN_DEG
         self.command = JAW_OPEN_DEG
-        self.pid_state = np.zeros(2)
+        self.pid_state = np.zeros(STATE_SIZE)
         self.last_rx_us = now_us & 0xFFFFFFFF
         self.now_us = now_us & 0xFFFFFFFF
         self.echo = 0
@@ -174,13 +174,16 @@ class Firmware:
                 u, v = pid_update(
                     reference, y, cfg.p, cfg.i, cfg.d, cfg.n, _DT_S, cfg.u_min, cfg.u_max,
                     cfg.anti_windup, cfg.kb, cfg.sign, cfg.d_on_meas, self.pid_state,
+                    cfg.grasp, cfg.squeeze, cfg.push, cfg.shortfall, cfg.still, float(cfg.dwell),
                 )  # fmt: skip
                 st = self.pid_state
-                if not (_finite(v) and _finite(st[0]) and _finite(st[1])):
+                if not (_finite(v) and _finite(st[0]) and _finite(st[1]) and _finite(st[5])):
                     self._safe_stop(proto.Fault.NUMERIC)
                 else:
                     if u != v:
                         flags |= proto.SampleFlag.SATURATED
+                    if st[G_HELD] != 0.0:
+                        flags |= proto.SampleFlag.GRASP
                     self.command = clamp_jaw(u, cfg.jaw_min, cfg.jaw_max, safe)
         if self.mode == proto.Mode.IDLE:
             self.reference = safe
@@ -266,8 +269,8 @@ class Firmware:
                 if self.servo_on
                 else clamp_jaw(y, cfg.jaw_min, cfg.jaw_max, cfg.jaw_max)
             )
-            self.pid_state[0] = u0
-            self.pid_state[1] = -cfg.sign * y if cfg.d_on_meas else 0.0
+            # PID.reset: the integrator at u0, no derivative kick, no grasp (the jaw at y)
+            self.pid_state[:] = (u0, -cfg.sign * y if cfg.d_on_meas else 0.0, 0.0, y, 0.0, y)
         self.have_setpoint = True
         self.servo_on = True
 
@@ -363,13 +366,16 @@ class Firmware:
 
     def _apply_config(self, c: FirmwareConfig) -> None:
         old = self.cfg
-        structure_changed = c.sign != old.sign or c.d_on_meas != old.d_on_meas
+        structure_changed = (
+            c.sign != old.sign or c.d_on_meas != old.d_on_meas or c.grasp != old.grasp
+        )
         if c.decimation != old.decimation or c.batch != old.batch:
             self._flush_telemetry()
             self._decimation_count = 0
         self.cfg = c
         self.configured = True
-        # A new sign or derivative input changes what xf means: re-enter bumplessly.
+        # A new sign or derivative input changes what xf means, and the grasp mode switched on
+        # or off what the state holds: re-enter bumplessly.
         if structure_changed and self.mode == proto.Mode.CLOSED_LOOP:
             self.entry_pending = True
 

@@ -40,15 +40,21 @@ class FirmwareConfig:
         "d",
         "d_on_meas",
         "decimation",
+        "dwell",
+        "grasp",
         "i",
         "jaw_max",
         "jaw_min",
         "kb",
         "n",
         "p",
+        "push",
         "servo_us_at_0",
         "servo_us_at_180",
+        "shortfall",
         "sign",
+        "squeeze",
+        "still",
         "u_max",
         "u_min",
     )
@@ -61,6 +67,10 @@ class FirmwareConfig:
         self.kb = 1.0
         self.sign = 1.0
         self.d_on_meas = 0
+        # the grasp mode, on: a gripper's controller holds an object without stalling its servo
+        self.grasp = 1
+        self.squeeze, self.push, self.shortfall, self.still = 1.0, 5.0, 0.5, 1.0
+        self.dwell = 100
         self.jaw_min, self.jaw_max = JAW_CLOSED_DEG, JAW_OPEN_DEG
         self.adc_at_lo, self.adc_at_hi = 119, 523
         self.servo_us_at_0, self.servo_us_at_180 = 544, 2400
@@ -122,6 +132,19 @@ def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
             return None, index
         if index == 12 and not _pulses_inside(m):
             return None, 11
+    if m.grasp > 1:
+        return None, 18
+    if m.grasp:  # the grasp mode's settings, checked only when it is on
+        grasp = (
+            _finite(m.grasp_squeeze_deg) and m.grasp_squeeze_deg > 0.0,
+            _finite(m.grasp_push_deg) and m.grasp_push_deg > m.grasp_squeeze_deg,
+            _finite(m.grasp_short_deg) and m.grasp_short_deg > 0.0,
+            _finite(m.grasp_still_deg) and m.grasp_still_deg > 0.0,
+            m.grasp_dwell_ticks >= 1,
+        )
+        for index, ok in enumerate(grasp, start=19):
+            if not ok:
+                return None, index
     c = FirmwareConfig()
     c.p, c.i, c.d, c.n = m.p, m.i, m.d, m.n
     c.u_min = max(m.u_min, m.jaw_min)
@@ -130,6 +153,11 @@ def validate_configure(m: proto.Configure) -> tuple[FirmwareConfig | None, int]:
     c.kb = m.kb
     c.sign = float(m.sign)
     c.d_on_meas = 1 if m.d_on_meas else 0
+    c.grasp = 1 if m.grasp else 0
+    if c.grasp:  # else the defaults, rather than unchecked values
+        c.squeeze, c.push = m.grasp_squeeze_deg, m.grasp_push_deg
+        c.shortfall, c.still = m.grasp_short_deg, m.grasp_still_deg
+        c.dwell = m.grasp_dwell_ticks
     c.jaw_min, c.jaw_max = m.jaw_min, m.jaw_max
     c.adc_at_lo, c.adc_at_hi = m.adc_at_lo, m.adc_at_hi
     c.servo_us_at_0, c.servo_us_at_180 = m.servo_us_at_0, m.servo_us_at_180
