@@ -700,37 +700,64 @@ def grasp_plot(
     runs: Sequence[tuple[str, Any]],
     path: str | os.PathLike[str],
     title: str,
+    *,
+    mode_suffix: str | None = None,
 ) -> Path:
-    """The grasp-and-hold scenario: the true jaw angle (top) and the fingertip force (bottom)
-    against time from the close command, one line per controller (the mean over its runs), the
-    object and the close command, the hold window shaded, the required force and the stall
-    force, and an x where the overload criterion first trips (earliest run).
+    """The grasp-and-hold scenario: the true jaw angle (top), the fingertip force (middle) and
+    the servo's heat relative to its thermal trip (bottom) against time from the close command,
+    one line per controller (the mean over its runs), the object and the close command, the hold
+    window shaded, the required force and the stall force, the trip level, and an x where the
+    overload criterion first trips (earliest run).
 
     Parameters
     ----------
     runs : sequence of (label, GraspRun)
         :class:`gripper_env.evaluation.grasp.GraspRun` of each controller, one scenario.
+    mode_suffix : str, optional
+        Labels ending in it are a controller with the PID's grasp mode: drawn solid in the
+        colour of the label without it (drawn dashed, the plain PID).
     """
+    from gripper_env.evaluation.grasp import thermal_state
+
     if not runs:
         raise ValueError("no grasp runs to draw")
     scenario = runs[0][1].scenario
-    fig, (ax_jaw, ax_force) = plt.subplots(2, 1, figsize=(9.5, 6.4), sharex=True,
-                                           height_ratios=(1.0, 1.2))  # fmt: skip
+    fig, (ax_jaw, ax_force, ax_heat) = plt.subplots(
+        3, 1, figsize=(9.5, 8.2), sharex=True, height_ratios=(1.0, 1.2, 0.8)
+    )
     lo, hi = scenario.hold_window_s
     t = runs[0][1].t_s
+    bases: list[str] = []
+    for label, _ in runs:
+        base = label.removesuffix(mode_suffix) if mode_suffix else label
+        if base not in bases:
+            bases.append(base)
     styles = ("-", "--", "-.", ":")
-    for j, (label, run) in enumerate(runs):
-        color, ls = f"C{j % 10}", styles[(j // 10 + j) % len(styles)]
+    for label, run in runs:
+        mode = bool(mode_suffix) and label.endswith(mode_suffix or "")
+        base = label.removesuffix(mode_suffix) if mode and mode_suffix else label
+        j = bases.index(base)
+        color = f"C{j % 10}"
+        if mode_suffix:
+            has_mode = any(lab == base + mode_suffix for lab, _ in runs)
+            ls, lw = ("-", 1.6) if mode or not has_mode else ("--", 1.0)
+        else:
+            ls, lw = styles[(j // 10 + j) % len(styles)], 1.3
+        after = run.t_s >= -1e-9
         with np.errstate(all="ignore"):
             jaw = np.nanmean(run.jaw_deg, axis=0)
             force = np.nanmean(run.force_n, axis=0)
-        ax_jaw.plot(run.t_s, jaw, color=color, ls=ls, lw=1.3, label=label)
-        ax_force.plot(run.t_s, force, color=color, ls=ls, lw=1.3, label=label)
+            heat = np.mean([thermal_state(run.t_s[after], c[after]) for c in
+                            run.current_fraction], axis=0)  # fmt: skip
+        name = "_" if mode_suffix else label  # with pairs, the legend has a colour per base
+        ax_jaw.plot(run.t_s, jaw, color=color, ls=ls, lw=lw, label=name)
+        ax_force.plot(run.t_s, force, color=color, ls=ls, lw=lw, label=name)
+        ax_heat.plot(run.t_s[after], 100 * heat, color=color, ls=ls, lw=lw, label=name)
         trips = [x for x in run.overload_at_s if x is not None]
         if trips:
             k = min(int(np.searchsorted(run.t_s, min(trips))), len(run.t_s) - 1)
             ax_force.plot([min(trips)], [force[k]], "x", color=color, ms=9, mew=2)
-    for ax in (ax_jaw, ax_force):
+    for ax in (ax_jaw, ax_force, ax_heat):
         ax.axvspan(lo, hi, color="tab:green", alpha=0.08, lw=0)
         ax.axvline(0.0, color="0.5", lw=0.8)
         ax.grid(alpha=0.3)
@@ -749,12 +776,21 @@ def grasp_plot(
     ax_force.plot([], [], color="tab:green", alpha=0.3, lw=6, label="hold window")
     ax_force.set_ylim(-0.05 * stall, 1.12 * stall)
     ax_force.set_ylabel("fingertip force (N)")
-    ax_force.set_xlabel("time from the close command (s); lines: mean over the runs")
-    ax_force.set_xlim(max(float(t[0]), -0.2), float(t[-1]))
+    ax_heat.axhline(100.0, color="tab:red", lw=1.2, ls="--", label="thermal trip")
+    ax_heat.set_ylim(-5.0, 115.0)
+    ax_heat.set_ylabel("servo heat (% of trip)")
+    ax_heat.set_xlabel("time from the close command (s); lines: mean over the runs")
+    ax_heat.set_xlim(max(float(t[0]), -0.2), float(t[-1]))
     handles: dict[str, Any] = {}
-    for ax in (ax_jaw, ax_force):
+    if mode_suffix:
+        for j, base in enumerate(bases):
+            handles[base] = Line2D([], [], color=f"C{j % 10}", lw=1.6)
+    for ax in (ax_jaw, ax_force, ax_heat):
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(lab, h)
+    if mode_suffix:
+        handles["plain PID"] = Line2D([], [], color="0.3", ls="--", lw=1.0)
+        handles[f"with{mode_suffix.replace(' + ', ' the ')}"] = Line2D([], [], color="0.3", lw=1.6)
     fig.legend(handles.values(), handles.keys(), loc="upper left", bbox_to_anchor=(0.99, 0.95),
                fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout()

@@ -84,15 +84,20 @@ class EvaluationSettings(BaseModel):
     limits_on_ideal: bool = False
 
     def options(self, sign: int = 1) -> tuple[PIDOptions, PIDOptions]:
-        """PID options on the ``(ideal, actual)`` models for error sign ``sign``."""
+        """PID options on the ``(ideal, actual)`` models for error sign ``sign``: the actual
+        gripper's PID has the grasp mode (:class:`gripper_env.model.pid.GraspOptions`, on by
+        default; it changes nothing while the jaw moves freely), the ideal model is Simulink's
+        PID block."""
         actual = self.pid.options(sign)
         if self.limits_on_ideal:
             return actual, actual
+        # the paper's Simulink model: no output limits and no grasp mode (nothing to grasp)
         ideal = PIDOptions(
             anti_windup=actual.anti_windup,
             kb=actual.kb,
             derivative_on=actual.derivative_on,
             sign=sign,
+            grasp=None,
         )
         return ideal, actual
 

@@ -81,6 +81,17 @@ inline DeviceConfig default_config() {
 
 inline uint16_t abs_diff_u16(uint16_t a, uint16_t b) { return a > b ? a - b : b - a; }
 
+// The grasp mode's settings: CONFIGURE's when it is on, else the defaults (unused, but never
+// unchecked values).
+inline void set_grasp(PidGains<real_t>& g, const Configure& m) {
+    bool on = m.grasp != 0;
+    g.squeeze = on ? m.grasp_squeeze_deg : 1.0f;
+    g.push = on ? m.grasp_push_deg : 5.0f;
+    g.shortfall = on ? m.grasp_short_deg : 0.5f;
+    g.still = on ? m.grasp_still_deg : 1.0f;
+    g.dwell = on ? m.grasp_dwell_ticks : 100;
+}
+
 // Report `field` as the first offending ConfigureField; always false (a rejection).
 inline bool reject(uint16_t field, uint16_t* bad_field) {
     *bad_field = field;
@@ -164,20 +175,7 @@ inline bool validate_configure(const Configure& m, PulseWindow w, DeviceConfig* 
     c.gains.sign = m.sign;
     c.gains.d_on_meas = m.d_on_meas != 0;
     c.gains.grasp = m.grasp != 0;
-    if (c.gains.grasp) {
-        c.gains.squeeze = m.grasp_squeeze_deg;
-        c.gains.push = m.grasp_push_deg;
-        c.gains.shortfall = m.grasp_short_deg;
-        c.gains.still = m.grasp_still_deg;
-        c.gains.dwell = m.grasp_dwell_ticks;
-    } else { // unused; the defaults rather than unchecked values
-        DeviceConfig d = default_config();
-        c.gains.squeeze = d.gains.squeeze;
-        c.gains.push = d.gains.push;
-        c.gains.shortfall = d.gains.shortfall;
-        c.gains.still = d.gains.still;
-        c.gains.dwell = d.gains.dwell;
-    }
+    set_grasp(c.gains, m);
     c.jaw_min = m.jaw_min;
     c.jaw_max = m.jaw_max;
     c.adc.adc_at_lo = m.adc_at_lo;

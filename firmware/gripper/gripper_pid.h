@@ -49,6 +49,7 @@ struct PidGains {
     // multiplications and two by +-1 per tick on the AVR (~500 cycles).
     Real dn, dt_n;
     bool negate;
+    Real dwell_real; // dwell as a Real, for the count's comparison
 };
 
 // Fill the derived coefficients of g for the sample time dt (s).
@@ -57,6 +58,7 @@ inline void pid_prepare(PidGains<Real>& g, Real dt) {
     g.dn = g.d * g.n;
     g.dt_n = dt * g.n;
     g.negate = g.sign < Real(0);
+    g.dwell_real = Real(g.dwell);
 }
 
 // Index of each value in a PID state vector: the integral term, the filtered derivative input,
@@ -125,42 +127,41 @@ inline Real pid_update(Real r, Real y, const PidGains<Real>& g, Real dt, Real* s
     Real yf = state[PID_YF] + Real(GRASP_FILTER) * (y - state[PID_YF]);
     state[PID_YF] = yf;
     Real held = state[PID_HELD];
-    Real at = state[PID_AT];
-    if (held != Real(0)) {
-        if (held * (r - at) <= Real(0) || held * (yf - at) > g.still) {
-            // let go: opening, or the object gave way; the integrator resumes from the command
-            state[PID_XI] = grasp_hold<Real>(at, held, r, g);
-            state[PID_HELD] = Real(0);
-            state[PID_COUNT] = Real(0);
-            state[PID_AT] = yf;
-        } else {
-            // holding: the integrator frozen, the derivative filter running on
-            Real xi = state[PID_XI];
-            pid_step<Real>(r, y, g, dt, state, 0);
-            state[PID_XI] = xi;
-            Real u = grasp_hold<Real>(at, held, r, g);
-            if (v_out) *v_out = u;
-            return u;
-        }
+    if (held != Real(0) &&
+        (held * (r - state[PID_AT]) <= Real(0) || held * (yf - state[PID_AT]) > g.still)) {
+        // let go: opening, or the object gave way; the integrator resumes from the command
+        state[PID_XI] = grasp_hold<Real>(state[PID_AT], held, r, g);
+        held = Real(0);
+        state[PID_HELD] = held;
+        state[PID_COUNT] = Real(0);
+        state[PID_AT] = yf;
     }
     Real xi_frozen = state[PID_XI];
     Real u = pid_step<Real>(r, y, g, dt, state, v_out);
-    Real direction = u > yf ? Real(1) : Real(-1);
-    if (direction * (u - yf) >= g.push && direction * (r - yf) >= g.shortfall &&
-        fabs_real(yf - state[PID_AT]) <= g.still) {
-        state[PID_COUNT] += Real(1);
-    } else {
-        state[PID_COUNT] = Real(0);
+    if (held == Real(0)) {
+        // Python's direction * (u - yf) and direction * (r - yf), as branches (a product by +-1
+        // is exact, and a soft-float multiplication on the AVR costs more than a sign flip).
+        // While the jaw moves freely the first test fails and the rest is skipped.
+        Real d = u - yf;
+        bool up = d > Real(0);
+        if ((up ? d : -d) >= g.push && (up ? r - yf : yf - r) >= g.shortfall &&
+            fabs_real(yf - state[PID_AT]) <= g.still) {
+            state[PID_COUNT] += Real(1);
+            if (state[PID_COUNT] < g.dwell_real) return u;
+        } else {
+            state[PID_COUNT] = Real(0);
+            state[PID_AT] = yf;
+            return u;
+        }
+        held = up ? Real(1) : Real(-1); // blocked for the dwell: hold from this tick
+        state[PID_HELD] = held;
         state[PID_AT] = yf;
-    }
-    if (state[PID_COUNT] >= Real(g.dwell)) {
-        state[PID_HELD] = direction;
-        state[PID_AT] = yf;
         state[PID_COUNT] = Real(0);
-        state[PID_XI] = xi_frozen;
-        u = grasp_hold<Real>(yf, direction, r, g);
-        if (v_out) *v_out = u;
     }
+    // holding: the integrator frozen, the derivative filter running on
+    state[PID_XI] = xi_frozen;
+    u = grasp_hold<Real>(state[PID_AT], held, r, g);
+    if (v_out) *v_out = u;
     return u;
 }
 

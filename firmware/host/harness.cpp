@@ -119,6 +119,8 @@ void dump(const Configure& m, Fields& o) {
     o.f(m.jaw_min), o.f(m.jaw_max);
     o.i(m.adc_at_lo), o.i(m.adc_at_hi), o.i(m.servo_us_at_0), o.i(m.servo_us_at_180);
     o.i(m.decimation), o.i(m.anti_windup), o.i(m.sign), o.i(m.d_on_meas), o.i(m.telemetry_batch);
+    o.i(m.grasp), o.f(m.grasp_squeeze_deg), o.f(m.grasp_push_deg), o.f(m.grasp_short_deg);
+    o.f(m.grasp_still_deg), o.i(m.grasp_dwell_ticks);
 }
 void load(Configure& m, Fields& o) {
     m.p = o.gf(), m.i = o.gf(), m.d = o.gf(), m.n = o.gf(), m.u_min = o.gf(), m.u_max = o.gf();
@@ -127,6 +129,9 @@ void load(Configure& m, Fields& o) {
     m.servo_us_at_0 = (uint16_t)o.gi(), m.servo_us_at_180 = (uint16_t)o.gi();
     m.decimation = (uint16_t)o.gi(), m.anti_windup = (uint8_t)o.gi(), m.sign = (int8_t)o.gi();
     m.d_on_meas = (uint8_t)o.gi(), m.telemetry_batch = (uint8_t)o.gi();
+    m.grasp = (uint8_t)o.gi(), m.grasp_squeeze_deg = o.gf(), m.grasp_push_deg = o.gf();
+    m.grasp_short_deg = o.gf(), m.grasp_still_deg = o.gf();
+    m.grasp_dwell_ticks = (uint16_t)o.gi();
 }
 
 void dump(const SetMode& m, Fields& o) { o.i(m.mode); }
@@ -293,6 +298,8 @@ std::string pid_run(std::istringstream& in) {
     g.u_min = (real_t)a[5], g.u_max = (real_t)a[6], g.anti_windup = (uint8_t)a[7];
     g.kb = (real_t)a[8], g.sign = (real_t)a[9], g.d_on_meas = a[10] != 0;
     g.grasp = false;
+    g.squeeze = g.push = g.shortfall = g.still = 0;
+    g.dwell = 1;
     pid_prepare<real_t>(g, dt);
     real_t state[PID_STATE_SIZE] = {(real_t)a[11], (real_t)a[12], 0, 0, 0, 0};
     size_t n = (size_t)a[13];

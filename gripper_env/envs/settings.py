@@ -20,7 +20,7 @@ from gripper_env.envs.rendering import RENDER_MODES
 from gripper_env.envs.spaces import GAIN_MAX
 from gripper_env.io.config import ConfigError, validate
 from gripper_env.model.disturbances import Disturbance, load_disturbance
-from gripper_env.model.pid import PIDOptions
+from gripper_env.model.pid import GraspOptions, PIDOptions
 from gripper_env.model.plants import Plant, load_plant
 from gripper_env.model.references import Reference, load_reference
 
@@ -130,7 +130,9 @@ def parse_settings(
         Servo command range that actions are normalised over (deg); default the preset's command
         range if finite, else the plant's jaw range.
     pid_options : PIDOptions or dict, optional
-        PID structure (output limits, anti-windup, derivative input, error sign).
+        PID structure (output limits, anti-windup, derivative input, error sign, and the grasp
+        mode: ``"grasp"``, a :class:`~gripper_env.model.pid.GraspOptions` or a dict of its
+        fields, on by default, ``None`` for off).
     gain_max : (float, float, float)
         Largest ``|P|``, ``|I|``, ``|D|`` an action maps to.
     gain_scaling : {"log", "linear", "relative"}
@@ -271,7 +273,10 @@ def _parse_pid_options(env_name: str, pid_options: Any) -> PIDOptions:
         return pid_options
     if isinstance(pid_options, Mapping):
         try:
-            return PIDOptions(**pid_options)
+            values = dict(pid_options)
+            if isinstance(values.get("grasp"), Mapping):  # the grasp mode's settings as a dict
+                values["grasp"] = GraspOptions(**values["grasp"])
+            return PIDOptions(**values)
         except (TypeError, ValueError) as exc:
             raise _fail(env_name, "pid_options", str(exc)) from None
     raise _fail(env_name, "pid_options", f"expected PIDOptions or a dict, got {pid_options!r}")

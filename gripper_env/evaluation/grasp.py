@@ -44,7 +44,19 @@ steady heating at stall current), tripping when ``x >= i_c^2``, with
 
 So a full stall trips at 2 s, a push at 60 % of stall after about 6 s, one at 40 % after 15 s,
 and one at or below 25 % never. Current drawn in free motion is not modelled (the mechanics
-block has no push then), and the state starts cold at the close command.
+block has no push then), and the state starts cold at the close command. The *heat* reported is
+that state relative to the trip (:func:`thermal_state`): 1 trips.
+
+**The PID's grasp mode** (:class:`gripper_env.model.pid.GraspOptions`) holds the command
+``squeeze_deg`` past the jaw once it is blocked: a push of 1 deg on the 5-deg stall band is 20 %
+of stall, whose heating settles at 0.2^2 / 0.25^2 = 64 % of the trip: a hold the servo sustains
+indefinitely, at 1.49 N on the 5-cm finger.
+
+**As an admission check** (:func:`grasp_admission`): gain sets, PID options, a plant, a
+disturbance preset and seeds in; per gain set whether the object is held on every seed, and the
+margins (heat: ``1 - peak heat``; force: the least force over the hold window over the required
+force, minus 1), batched through the one simulation core (about 0.1 s for 10 seeds of one gain
+set on one core), for the searches and the benchmark.
 """
 
 from __future__ import annotations
@@ -62,6 +74,8 @@ from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import Plant
 from gripper_env.model.references import Reference, Segment
 from gripper_env.sim import BatchSimulator, sampling_rng
+from gripper_env.sim.kernel import PARALLEL_MIN_BATCH
+from gripper_env.sim.layout import S_CONTACT, S_FORCE, S_GRASP, S_STALL, S_VPREV, S_X
 
 __all__ = [
     "CONTINUOUS_CURRENT_FRACTION",
@@ -70,15 +84,18 @@ __all__ = [
     "SERVO_NAME",
     "STALL_TORQUE_NM",
     "THERMAL_TIME_CONSTANT_S",
+    "GraspAdmission",
     "GraspResult",
     "GraspRun",
     "GraspScenario",
     "arduino_grasp",
     "describe_gains",
+    "grasp_admission",
     "simulate_grasp",
     "stall_force_n",
     "summarize_grasp",
     "thermal_overload_at",
+    "thermal_state",
 ]
 
 #: The hobby servo the force is computed for (the paper names none; see the module docstring).
@@ -225,6 +242,9 @@ class GraspResult:
         window, and nothing tripped.
     hold_s : float
         Length of the hold window (s).
+    peak_heat : float
+        The highest heat of any run, relative to the trip (:func:`thermal_state`: 1 trips);
+        NaN where not computed (the bus servos' rows: their protection is their own).
     """
 
     gripper: str
@@ -237,6 +257,7 @@ class GraspResult:
     overload_at_s: float | None
     held: bool
     hold_s: float
+    peak_heat: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         """Field name -> value (NaN stays NaN; the JSON writers turn it into ``null``)."""
@@ -262,12 +283,53 @@ class GraspResult:
             overload_at_s=None if at is None else float(at),
             held=bool(data["held"]),
             hold_s=float(data["hold_s"]),
+            peak_heat=number("peak_heat") if "peak_heat" in data else math.nan,
         )
 
 
 def stall_force_n(scenario: GraspScenario, stall_torque_nm: float = STALL_TORQUE_NM) -> float:
     """The fingertip force at stall torque (N): ``stall_torque_nm / finger_lever_m``."""
     return stall_torque_nm / scenario.finger_lever_m
+
+
+def _heat(
+    t_s: np.ndarray, current_fraction: np.ndarray, limit_s: float, continuous: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(t, x, trip)``: the times, the thermal state ``x`` at the end of each sample (from
+    ``x = 0``) and the trip level ``continuous^2``."""
+    t = np.asarray(t_s, dtype=float)
+    i = np.clip(np.nan_to_num(np.asarray(current_fraction, dtype=float)), 0.0, 1.0)
+    if t.ndim != 1 or t.shape != i.shape:
+        raise ValueError(
+            f"t_s and current_fraction must be 1-D of one length: {t.shape}, {i.shape}"
+        )
+    if not (0.0 < continuous < 1.0 and limit_s > 0.0):
+        raise ValueError("need 0 < continuous < 1 and limit_s > 0")
+    trip = continuous * continuous
+    if len(t) == 0:
+        return t, np.zeros(0), trip
+    dt = float(t[1] - t[0]) if len(t) > 1 else 1e-3
+    tau = limit_s / math.log(1.0 / (1.0 - trip))
+    a = math.exp(-dt / tau)
+    # x_k = a x_{k-1} + (1 - a) i_k^2, from x = 0: i^2 through a first-order filter
+    return t, lfilter([1.0 - a], [1.0, -a], i * i), trip
+
+
+def thermal_state(
+    t_s: np.ndarray,
+    current_fraction: np.ndarray,
+    *,
+    limit_s: float = FULL_STALL_LIMIT_S,
+    continuous: float = CONTINUOUS_CURRENT_FRACTION,
+) -> np.ndarray:
+    """The hobby servo's heat relative to its trip, at the end of each sample (1 trips).
+
+    The state of :func:`thermal_overload_at` (``x``, from cold) over ``continuous^2``: a steady
+    current ``i`` (fraction of stall) settles at ``(i / continuous)^2``, so a hold at 20 % of
+    stall settles at 0.64, one at 25 % at 1.
+    """
+    _, x, trip = _heat(t_s, current_fraction, limit_s, continuous)
+    return x / trip
 
 
 def thermal_overload_at(
@@ -300,22 +362,10 @@ def thermal_overload_at(
     float or None
         The time (s, on ``t_s``'s clock) at the end of the sample in which it trips.
     """
-    t = np.asarray(t_s, dtype=float)
-    i = np.clip(np.nan_to_num(np.asarray(current_fraction, dtype=float)), 0.0, 1.0)
-    if t.ndim != 1 or t.shape != i.shape:
-        raise ValueError(
-            f"t_s and current_fraction must be 1-D of one length: {t.shape}, {i.shape}"
-        )
+    t, x, trip = _heat(t_s, current_fraction, limit_s, continuous)
     if len(t) == 0:
         return None
-    if not (0.0 < continuous < 1.0 and limit_s > 0.0):
-        raise ValueError("need 0 < continuous < 1 and limit_s > 0")
     dt = float(t[1] - t[0]) if len(t) > 1 else 1e-3
-    trip = continuous * continuous
-    tau = limit_s / math.log(1.0 / (1.0 - trip))
-    a = math.exp(-dt / tau)
-    # x_k = a x_{k-1} + (1 - a) i_k^2, from x = 0: i^2 through a first-order filter
-    x = lfilter([1.0 - a], [1.0, -a], i * i)
     hit = np.flatnonzero(x >= trip * (1.0 - 1e-12))  # the tolerance: rounding of a^k
     return float(t[hit[0]] + dt) if len(hit) else None
 
@@ -331,6 +381,7 @@ def summarize_grasp(
     gripper: str,
     controller: str,
     valid: np.ndarray | None = None,
+    peak_heat: Sequence[float] | None = None,
 ) -> GraspResult:
     """A :class:`GraspResult` from per-sample signals of one or more runs (any actuator).
 
@@ -352,6 +403,8 @@ def summarize_grasp(
         The labels.
     valid : ndarray of bool, shape (B,), optional
         Runs that did not diverge (default: all); a diverged run neither grasps nor holds.
+    peak_heat : sequence of float, one per run, optional
+        Each run's highest heat relative to the trip (the result keeps the highest).
     """
     t = np.asarray(t_s, dtype=float)
     force = np.atleast_2d(np.asarray(force_n, dtype=float))
@@ -395,6 +448,7 @@ def summarize_grasp(
         overload_at_s=min(trips) if trips else None,
         held=all(held),
         hold_s=scenario.hold_s,
+        peak_heat=math.nan if peak_heat is None or not len(peak_heat) else float(max(peak_heat)),
     )
 
 
@@ -429,6 +483,11 @@ class GraspRun:
     overload_at_s : tuple of (float or None)
         When each run's thermal criterion tripped, from the close command (s), or ``None``
         (:func:`thermal_overload_at` of ``current_fraction`` from the close command on).
+    peak_heat : tuple of float
+        Each run's highest heat relative to the trip from the close command on
+        (:func:`thermal_state`).
+    grasping : ndarray of bool, shape (B, T)
+        The PID's grasp mode holds the command (all False without a host loop or the mode).
     """
 
     t_s: np.ndarray
@@ -443,6 +502,8 @@ class GraspRun:
     scenario: GraspScenario
     stall_force_n: float
     overload_at_s: tuple[float | None, ...] = field(default=())
+    peak_heat: tuple[float, ...] = field(default=())
+    grasping: np.ndarray | None = None
 
     @property
     def force_n(self) -> np.ndarray:
@@ -454,7 +515,7 @@ class GraspRun:
         return summarize_grasp(
             self.t_s, self.force_n, self.touching, self.scenario,
             stall_force=self.stall_force_n, overload_at_s=self.overload_at_s,
-            gripper=gripper, controller=controller, valid=self.stable,
+            gripper=gripper, controller=controller, valid=self.stable, peak_heat=self.peak_heat,
         )  # fmt: skip
 
 
@@ -486,7 +547,8 @@ def simulate_grasp(
         own position loop only).
     scenario : GraspScenario
     options : PIDOptions, optional
-        Limits, anti-windup, derivative input, sign (default :class:`PIDOptions`'s).
+        Limits, anti-windup, derivative input, sign and grasp mode (default
+        :class:`PIDOptions`'s: the grasp mode on).
     seeds : sequence of int
         One run per seed (noise, and the parameter draw when ``randomize``).
     randomize : bool
@@ -494,6 +556,18 @@ def simulate_grasp(
     stall_torque_nm : float
         The servo's stall torque (N m).
     """
+    seed_arr, dists = _scenario_runs(disturbance, scenario, seeds, randomize)
+    rows = None if gains is None else gains.as_array()[None, :]
+    return _run_scenario(plant, dists, rows, options, seed_arr, scenario, stall_torque_nm)
+
+
+def _scenario_runs(
+    disturbance: Disturbance,
+    scenario: GraspScenario,
+    seeds: Sequence[int] | np.ndarray,
+    randomize: bool,
+) -> tuple[np.ndarray, list[Disturbance]]:
+    """The seeds as an array and each seed's disturbance, with the scenario's object."""
     dist = disturbance.with_overrides({"mechanics": {"object_contact_deg": scenario.object_deg}})
     if "mechanics.object_contact_deg" in dist.randomize:
         ranges = {k: v for k, v in dist.randomize.items() if k != "mechanics.object_contact_deg"}
@@ -501,25 +575,72 @@ def simulate_grasp(
     seed_arr = np.atleast_1d(np.asarray(seeds, dtype=np.int64))
     if seed_arr.ndim != 1 or len(seed_arr) == 0:
         raise ValueError("give at least one seed")
-    dists = [dist.sample(sampling_rng(int(s))) if randomize else dist for s in seed_arr]
+    return seed_arr, [dist.sample(sampling_rng(int(s))) if randomize else dist for s in seed_arr]
+
+
+def _run_scenario(
+    plant: Plant,
+    dists: Sequence[Disturbance],
+    gain_rows: np.ndarray | None,
+    options: PIDOptions | None,
+    seed_arr: np.ndarray,
+    scenario: GraspScenario,
+    stall_torque_nm: float,
+) -> GraspRun:
+    """One run per entry of ``dists`` and ``seed_arr`` (gain rows: one shared, or one per run),
+    stepped through the core; the core's counters give each step's push, contact and stall.
+
+    Stepped one physics step per call, the core's parallel kernel would start its threads 4,500
+    times (2.8 s against 0.6 s serial for 50 runs): larger batches go in serial chunks.
+    """
+    n = len(seed_arr)
+    if n >= PARALLEL_MIN_BATCH:
+        size = PARALLEL_MIN_BATCH - 1
+        parts = []
+        for lo in range(0, n, size):
+            rows = gain_rows
+            if gain_rows is not None and len(gain_rows) == n:
+                rows = gain_rows[lo : lo + size]
+            chunk = slice(lo, lo + size)
+            parts.append(_run_scenario(plant, dists[chunk], rows, options, seed_arr[chunk],
+                                       scenario, stall_torque_nm))  # fmt: skip
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(p, name) for p in parts])
+
+        first = parts[0]
+        return GraspRun(
+            t_s=first.t_s, jaw_deg=cat("jaw_deg"), command_deg=cat("command_deg"),
+            force_fraction=cat("force_fraction"), current_fraction=cat("current_fraction"),
+            touching=cat("touching"), stalled=cat("stalled"), stable=cat("stable"),
+            seeds=sum((p.seeds for p in parts), ()), scenario=scenario,
+            stall_force_n=first.stall_force_n,
+            overload_at_s=sum((p.overload_at_s for p in parts), ()),
+            peak_heat=sum((p.peak_heat for p in parts), ()), grasping=cat("grasping"),
+        )  # fmt: skip
     ref = scenario.reference(plant.dt_s)
-    n, steps = len(seed_arr), len(ref)
+    steps = len(ref)
     sim = BatchSimulator(plant, plant.dt_s, delay_capacity=_delay_capacity(dists, plant.dt_s))
-    sim.configure(None if gains is None else gains.as_array()[None, :], dists, options, n_runs=n)
+    sim.configure(gain_rows, list(dists), options, n_runs=n)
     sim.reset(scenario.open_deg, seed_arr)
-    jaw, command, after_step = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))
-    current, contact, stalled = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))
+    jaw, command = np.empty((n, steps)), np.empty((n, steps))
     out = (np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)), np.empty((n, 1)))
-    counters = np.column_stack([sim.force_sum, sim.contact_steps, sim.stall_steps])
+    # the core's state after each step: its counters, the jaw (its plant state and last input)
+    # and the PID's grasp mode
+    cols = np.array([S_FORCE, S_CONTACT, S_STALL, S_X, S_VPREV, S_GRASP])
+    rec = np.empty((steps + 1, n, len(cols)))
+    rec[0] = sim.state[:, cols]
     values = np.ascontiguousarray(ref.values_deg)
-    # each step's increments of the core's counters are that step's push fraction, contact and
-    # stall (rounded to 1e-12: the sums' rounding is not the block's)
     for k in range(steps):
         sim.advance(1, values, offset=k, out=out)
-        command[:, k], jaw[:, k], after_step[:, k] = out[1][:, 0], out[3][:, 0], sim.position_deg
-        now = np.column_stack([sim.force_sum, sim.contact_steps, sim.stall_steps])
-        current[:, k], contact[:, k], stalled[:, k] = np.round(now - counters, 12).T
-        counters = now
+        command[:, k], jaw[:, k] = out[1][:, 0], out[3][:, 0]
+        rec[k + 1] = sim.state[:, cols]
+    # each step's increments of the core's counters are that step's push fraction, contact and
+    # stall (rounded to 1e-12: the sums' rounding is not the block's)
+    current, contact, stalled = np.round(np.diff(rec[:, :, :3], axis=0), 12).transpose(2, 1, 0)
+    plant_d = sim.plant_d if len(sim.plant_d) == n else np.broadcast_to(sim.plant_d[0], (n,))
+    after_step = (rec[1:, :, 3] + plant_d * rec[1:, :, 4]).T  # the jaw after the stops' clamp
+    grasping = (rec[1:, :, 5] != 0.0).T
     # the counters do not say which stop the jaw is held by: the object (or the closed stop) is
     # below the midpoint between where the jaw closes to and the open angle, the open stop above
     closes_to = scenario.close_command_deg if scenario.object_deg is None else scenario.object_deg
@@ -528,11 +649,179 @@ def simulate_grasp(
     t = (np.arange(steps) - ref.segments[0].start) * plant.dt_s  # from the close command
     after = t >= -1e-9
     trips = tuple(thermal_overload_at(t[after], current[b, after]) for b in range(n))
+    heat = tuple(float(np.max(thermal_state(t[after], current[b, after]), initial=0.0))
+                 for b in range(n))  # fmt: skip
     return GraspRun(
         t_s=t, jaw_deg=jaw, command_deg=command, force_fraction=np.where(on_object, current, 0.0),
         current_fraction=current, touching=on_object, stalled=stalled > 0.5, stable=~sim.diverged,
         seeds=tuple(int(s) for s in seed_arr), scenario=scenario,
         stall_force_n=stall_torque_nm / scenario.finger_lever_m, overload_at_s=trips,
+        peak_heat=heat, grasping=grasping,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class GraspAdmission:
+    """:func:`grasp_admission`'s verdict: per gain set (``G``) and seed (``S``).
+
+    Attributes
+    ----------
+    held : ndarray of bool, shape (G,)
+        The object held on every seed: grasped, at least the required force all through the
+        hold window, no thermal trip, no diverged run.
+    heat_margin : ndarray, shape (G,)
+        ``1 - peak heat`` of the worst seed (:func:`thermal_state`): above 0 nothing tripped;
+        ``1 - 0.64 = 0.36`` for a sustained 20 % push.
+    force_margin : ndarray, shape (G,)
+        The least fingertip force over the hold window on the worst seed over the scenario's
+        required force, minus 1: 0 or above, enough force all through (``-1``: none at all).
+    time_to_grasp_s : ndarray, shape (G,)
+        The slowest seed's time to grasp (s; NaN if a seed never grasped).
+    reason : tuple of str, one per gain set
+        ``""`` when held, else what failed first on the worst seed: ``"diverged"``,
+        ``"overload"`` (the thermal trip), ``"force"`` (below the required force in the hold
+        window: not grasped in time, or too weak).
+    steady_heat : ndarray, shape (G,)
+        The heat the hold would settle at, on the worst seed: the mean squared current over the
+        last tenth of the hold window over the trip level. Above 1, a hold longer than the
+        scenario's trips (the servo alone, pushing 40 % of stall: 2.56, after 15 s).
+    held_runs, peak_heat, min_force_n : ndarray, shape (G, S)
+        Per seed: held, highest heat relative to the trip, least force in the hold window (N).
+    seeds : tuple of int
+    scenario : GraspScenario
+    """
+
+    held: np.ndarray
+    heat_margin: np.ndarray
+    force_margin: np.ndarray
+    time_to_grasp_s: np.ndarray
+    reason: tuple[str, ...]
+    steady_heat: np.ndarray
+    held_runs: np.ndarray
+    peak_heat: np.ndarray
+    min_force_n: np.ndarray
+    seeds: tuple[int, ...]
+    scenario: GraspScenario
+
+    @property
+    def margin(self) -> np.ndarray:
+        """The binding margin per gain set, ``min(heat_margin, force_margin)``: at or above 0
+        for every held gain set (a diverged one: -1)."""
+        m = np.minimum(self.heat_margin, self.force_margin)
+        return np.where(np.isfinite(m), m, -1.0)
+
+
+def grasp_admission(
+    gains: Any,
+    options: PIDOptions | Sequence[PIDOptions],
+    plant: Plant,
+    disturbance: Disturbance,
+    seeds: Sequence[int] | np.ndarray,
+    *,
+    scenario: GraspScenario | None = None,
+    randomize: bool = True,
+) -> GraspAdmission:
+    """Does each gain set hold the object through ``scenario`` on every seed, and by how much?
+
+    The admission check of the searches and the benchmark: every gain set and seed runs in one
+    batch of the simulation core (a batch per distinct ``options``), each seed with the same
+    draw of the preset for every gain set.
+
+    Parameters
+    ----------
+    gains : PIDGains, list of PIDGains, or array (G, 3|4)
+        ``[P, I, D(, N)]`` per gain set.
+    options : PIDOptions or sequence of PIDOptions (one per gain set)
+        Limits, anti-windup, sign and the grasp mode (``grasp=None`` for the plain PID).
+    plant : Plant
+    disturbance : Disturbance
+        The actual-gripper preset (``actual``); the scenario's object is put in it.
+    seeds : sequence of int
+        The held-out (or tuning) seeds.
+    scenario : GraspScenario, optional
+        Default :class:`GraspScenario` (close to 38 deg on an object at 40, hold 1-4 s, 1 N).
+    randomize : bool
+        Draw each seed's parameters from the preset's ranges.
+
+    Returns
+    -------
+    GraspAdmission
+
+    Examples
+    --------
+    >>> from gripper_env.model.disturbances import load_disturbance
+    >>> from gripper_env.model.plants import load_plant
+    >>> verdict = grasp_admission([[1.0, 9.0, -0.001]],
+    ...                           PIDOptions(output_limits=(0.0, 180.0)),
+    ...                           load_plant("test2"), load_disturbance("actual"), [100000, 100001])
+    >>> bool(verdict.held[0]), verdict.reason[0]
+    (True, '')
+    """
+    from gripper_env.sim.params import as_gain_rows
+
+    sc = scenario or GraspScenario()
+    rows = as_gain_rows(gains)
+    n_sets = rows.shape[0]
+    opts = [options] * n_sets if isinstance(options, PIDOptions) else list(options)
+    if len(opts) != n_sets:
+        raise ValueError(f"{len(opts)} PID options for {n_sets} gain sets: give one or one each")
+    seed_arr, dists = _scenario_runs(disturbance, sc, seeds, randomize)
+    n_seeds = len(seed_arr)
+    held = np.zeros((n_sets, n_seeds), dtype=bool)
+    heat = np.full((n_sets, n_seeds), np.inf)
+    least = np.zeros((n_sets, n_seeds))
+    ttg = np.full((n_sets, n_seeds), np.nan)
+    stable = np.zeros((n_sets, n_seeds), dtype=bool)
+    steady = np.full((n_sets, n_seeds), np.inf)
+    lo, hi = sc.hold_window_s
+    groups: dict[PIDOptions, list[int]] = {}
+    for g, o in enumerate(opts):
+        groups.setdefault(o, []).append(g)
+    for o, members in groups.items():
+        run = _run_scenario(plant, dists * len(members), np.repeat(rows[members], n_seeds, axis=0),
+                            o, np.tile(seed_arr, len(members)), sc, STALL_TORQUE_NM)  # fmt: skip
+        hold = (run.t_s >= lo - 1e-9) & (run.t_s < hi - 1e-9)
+        late = hold & (run.t_s >= hi - 0.1 * sc.hold_s - 1e-9)
+        force = np.nan_to_num(run.force_n, nan=0.0)
+        trip = CONTINUOUS_CURRENT_FRACTION**2
+        settles = np.mean(np.nan_to_num(run.current_fraction[:, late]) ** 2, axis=1) / trip
+        for j, g in enumerate(members):
+            for k in range(n_seeds):
+                b = j * n_seeds + k
+                one = summarize_grasp(
+                    run.t_s, force[b], run.touching[b], sc, stall_force=run.stall_force_n,
+                    overload_at_s=[run.overload_at_s[b]], gripper="", controller="",
+                    valid=run.stable[b : b + 1], peak_heat=[run.peak_heat[b]],
+                )  # fmt: skip
+                held[g, k], heat[g, k], ttg[g, k] = one.held, one.peak_heat, one.time_to_grasp_s
+                least[g, k] = float(np.min(force[b, hold]))
+                stable[g, k] = bool(run.stable[b])
+                steady[g, k] = settles[b]
+    heat = np.where(stable, heat, np.inf)
+    steady = np.where(stable, steady, np.inf)
+    least = np.where(stable, least, 0.0)
+    required = sc.required_force_n
+    worst_force = least.min(axis=1)
+    force_margin = worst_force / required - 1.0 if required > 0 else np.where(
+        worst_force >= 0, np.inf, -1.0)  # fmt: skip
+    heat_margin = 1.0 - heat.max(axis=1)
+    reasons = []
+    for g in range(n_sets):
+        if held[g].all():
+            reasons.append("")
+        elif not stable[g].all():
+            reasons.append("diverged")
+        elif heat_margin[g] <= 0.0:
+            reasons.append("overload")
+        else:
+            reasons.append("force")
+    with np.errstate(invalid="ignore"):
+        slowest = np.where(np.isnan(ttg).any(axis=1), np.nan, np.nanmax(ttg, axis=1))
+    return GraspAdmission(
+        held=held.all(axis=1), heat_margin=heat_margin, force_margin=force_margin,
+        time_to_grasp_s=slowest, reason=tuple(reasons), steady_heat=steady.max(axis=1),
+        held_runs=held, peak_heat=heat,
+        min_force_n=least, seeds=tuple(int(s) for s in seed_arr), scenario=sc,
     )  # fmt: skip
 
 

@@ -217,22 +217,19 @@ def pid_grasp_step(
                                 d_on_meas, xi, xf)  # fmt: skip
         return u, v, xi, xf, held, at, count, yf
     yf = yf + GRASP_FILTER * (y - yf)
-    if held != 0.0:
-        if held * (r - at) <= 0.0 or held * (yf - at) > still:
-            # let go: opening, or the object gave way; the integrator resumes from the command
-            xi = grasp_hold(at, held, r, squeeze, u_min, u_max)
-            held = 0.0
-            count = 0.0
-            at = yf
-        else:
-            # holding: the integrator frozen, the derivative filter running on
-            _, _, _, xf = pid_step(r, y, p, i, d, n, dt, u_min, u_max, aw_mode, kb, sign,
-                                   d_on_meas, xi, xf)  # fmt: skip
-            u = grasp_hold(at, held, r, squeeze, u_min, u_max)
-            return u, u, xi, xf, held, at, count, yf
+    if held != 0.0 and (held * (r - at) <= 0.0 or held * (yf - at) > still):
+        # let go: opening, or the object gave way; the integrator resumes from the command
+        xi = grasp_hold(at, held, r, squeeze, u_min, u_max)
+        held = 0.0
+        count = 0.0
+        at = yf
     xi_frozen = xi
     u, v, xi, xf = pid_step(r, y, p, i, d, n, dt, u_min, u_max, aw_mode, kb, sign, d_on_meas,
                             xi, xf)  # fmt: skip
+    if held != 0.0:
+        # holding: the integrator frozen, the derivative filter running on
+        u = grasp_hold(at, held, r, squeeze, u_min, u_max)
+        return u, u, xi_frozen, xf, held, at, count, yf
     direction = 1.0 if u > yf else -1.0
     if direction * (u - yf) >= push and direction * (r - yf) >= short and abs(yf - at) <= still:
         count += 1.0

@@ -47,6 +47,7 @@ from gripper_env.sim.layout import (
     S_DIVERGED,
     S_FORCE,
     S_FRIC,
+    S_GRASP,
     S_GRASP_AT,
     S_GRASP_YF,
     S_SATURATED,
@@ -344,6 +345,12 @@ class BatchSimulator:
     def diverged(self) -> np.ndarray:
         """Runs whose states left the divergence bound (bool, shape (B,))."""
         return self.state[:, S_DIVERGED] != 0.0
+
+    @property
+    def grasping(self) -> np.ndarray:
+        """The PID's grasp mode per run: 0 not holding, -1 holding a grasp closing, +1 opening
+        (:class:`gripper_env.model.pid.GraspOptions`)."""
+        return self.state[:, S_GRASP].astype(np.int64)
 
     @property
     def position_deg(self) -> np.ndarray:

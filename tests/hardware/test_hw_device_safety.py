@@ -210,7 +210,7 @@ def test_handshake_info_and_refusals_before_hello(harness) -> None:
     assert not summary.servo_on and summary.ticks_on == 0 and summary.replies == []
     info = _only(host.send(proto.Hello()), proto.Info)
     assert info == proto.Info(
-        proto.PROTOCOL_VERSION, 0, 2, 0, 0x12345678, 1000, 32, 240, 21.0, 92.0, 760.5, 1492.5
+        proto.PROTOCOL_VERSION, 0, 3, 0, 0x12345678, 1000, 32, 240, 21.0, 92.0, 760.5, 1492.5
     )
 
 
@@ -239,6 +239,13 @@ def test_commands_are_validated(harness) -> None:
         (proto.Configure(anti_windup=3), 14),
         (proto.Configure(sign=0), 15),
         (proto.Configure(telemetry_batch=33), 17),
+        # the grasp mode: its switch, and its settings while it is on
+        (proto.Configure(grasp=2), 18),
+        (proto.Configure(grasp_squeeze_deg=0.0), 19),
+        (proto.Configure(grasp_push_deg=1.0), 20),  # not beyond the squeeze (1 deg)
+        (proto.Configure(grasp_short_deg=math.nan), 21),
+        (proto.Configure(grasp_still_deg=-1.0), 22),
+        (proto.Configure(grasp_dwell_ticks=0), 23),
     ]
     for msg, field_index in cases:
         err = _only(host.send(msg), proto.ErrorReport)
@@ -255,8 +262,11 @@ def test_commands_are_validated(harness) -> None:
     err = _only(host.raw(proto.encode_raw_frame(host.seq, 0x42, b"")), proto.ErrorReport)
     assert err.code == proto.ErrorCode.UNKNOWN_TYPE
     host.seq += 1
+    # with the grasp mode off its settings are not looked at
+    off = proto.Configure(grasp=0, grasp_squeeze_deg=math.nan, grasp_dwell_ticks=0)
+    assert isinstance(_only(host.send(off), proto.Status), proto.Status)
     status = _only(host.send(proto.Heartbeat(token=77)), proto.Status)
-    assert status.echo == 77 and status.refused == 24 and status.frames_lost == 0
+    assert status.echo == 77 and status.refused == 30 and status.frames_lost == 0
     assert math.isclose(status.setpoint_deg, 50.0) and status.rx_overflow == 0
 
 

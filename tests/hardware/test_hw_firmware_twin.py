@@ -33,6 +33,12 @@ _valid_configure = st.builds(
     sign=st.sampled_from([1, -1]),
     d_on_meas=st.integers(0, 1),
     telemetry_batch=st.integers(1, 32),
+    grasp=st.integers(0, 1),
+    grasp_squeeze_deg=st.floats(0.25, 3.0, width=32),
+    grasp_push_deg=st.floats(3.5, 8.0, width=32),
+    grasp_short_deg=st.floats(0.25, 2.0, width=32),
+    grasp_still_deg=st.floats(0.5, 2.0, width=32),
+    grasp_dwell_ticks=st.integers(1, 40),  # within a step's ticks: the mode engages and lets go
 )
 _any_configure = st.builds(proto.Configure, *[field_strategy(c) for c in proto.Configure._FORMAT])
 host_messages = st.one_of(

@@ -107,7 +107,7 @@ def test_frame_layout_is_cobs_of_seq_type_payload_crc_le() -> None:
 def test_payload_sizes_match_protocol_md() -> None:
     sizes = {
         proto.Hello: 2,
-        proto.Configure: 50,
+        proto.Configure: 69,
         proto.SetMode: 1,
         proto.Setpoint: 4,
         proto.Heartbeat: 4,

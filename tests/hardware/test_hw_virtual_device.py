@@ -36,7 +36,7 @@ def test_handshake_reports_the_firmware_and_refuses_another_version(virtual) -> 
         assert dev.info.tick_period_us == 1000
         status, rtt = dev.heartbeat()
         assert status.flags & proto.StatusFlag.SESSION and 0 < rtt < 0.5
-        with pytest.raises(VersionMismatch, match="protocol version 2"):
+        with pytest.raises(VersionMismatch, match="protocol version 3"):
             dev._request(proto.Hello(protocol_version=1), proto.Info)
 
 

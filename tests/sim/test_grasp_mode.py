@@ -51,8 +51,14 @@ def test_with_the_mode_the_jaw_squeezes_and_reopens_at_once():
     """The object test of test_simulator.py with the mode on: instead of a command run away to
     the servo's range (clamped at 0 deg), the command held 1 deg past the contact."""
     runs = {
-        name: simulate(PLANT, "step", gains=[GAINS.as_array()], disturbance=ON_OBJECT, seeds=0,
-                       pid_options=dataclasses.replace(OPTIONS, grasp=grasp))  # fmt: skip
+        name: simulate(
+            PLANT,
+            "step",
+            gains=[GAINS.as_array()],
+            disturbance=ON_OBJECT,
+            seeds=0,
+            pid_options=dataclasses.replace(OPTIONS, grasp=grasp),
+        )
         for name, grasp in (("plain", None), ("grasp", GraspOptions()))
     }
     hold = slice(3000, 10_000)
@@ -72,9 +78,15 @@ def test_nothing_changes_while_the_jaw_moves_freely():
     seeds = list(range(100000, 100004))
     for profile in ("step", "slope60"):
         a, b = (
-            simulate(PLANT, profile, gains=np.tile(GAINS.as_array(), (4, 1)), disturbance="actual",
-                     seeds=seeds, randomize=True,
-                     pid_options=dataclasses.replace(OPTIONS, grasp=grasp))  # fmt: skip
+            simulate(
+                PLANT,
+                profile,
+                gains=np.tile(GAINS.as_array(), (4, 1)),
+                disturbance="actual",
+                seeds=seeds,
+                randomize=True,
+                pid_options=dataclasses.replace(OPTIONS, grasp=grasp),
+            )
             for grasp in (None, GraspOptions())
         )
         np.testing.assert_array_equal(a.u, b.u)

@@ -1,11 +1,14 @@
 """``python -m tuners.benchmark.grasp``: the grasp-and-hold scenario on the benchmark's grippers.
 
 The jaw closes on an object and holds it (:mod:`gripper_env.evaluation.grasp`): time to grasp,
-holding force, the lowest force over the hold window, whether the overload criterion trips, and
-whether the object is held. The Arduino (hobby-servo) gripper runs with the paper's tuned and
-untuned gains, the committed gains files of the benchmark (``<gains-from>/<plant>/<row>.json``:
-the paper's hardware gains, Optuna, the best textbook rules) and the servo alone (no host loop,
-commanded the close angle), on the actual-gripper preset over the held-out seeds.
+holding force, the lowest force over the hold window, whether the overload criterion trips, the
+servo's peak heat, and whether the object is held. The Arduino (hobby-servo) gripper runs with
+the paper's tuned and untuned gains, the committed gains files of the benchmark
+(``<gains-from>/<plant>/<row>.json``: the paper's hardware gains, Optuna, the best textbook
+rules) and the servo alone (no host loop, commanded the close angle), on the actual-gripper
+preset over the held-out seeds. Each PID runs twice, side by side: the plain PID (the grasp
+mode off) and with the PID's grasp mode (:class:`gripper_env.model.pid.GraspOptions`; a gains
+file's own setting, else the default).
 
 Writes ``<out>/grasp.md`` (the table), ``<out>/grasp.json`` (the scenario, the servo, the
 overload criterion and every row), ``<out>/figures/grasp.png`` (jaw angle and force against
@@ -21,6 +24,7 @@ that return lists of :class:`~gripper_env.evaluation.grasp.GraspResult`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -49,7 +53,7 @@ from gripper_env.evaluation.grasp import (
 from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
 from gripper_env.model.disturbances import Disturbance, load_disturbance
 from gripper_env.model.gains_file import load_gains_file
-from gripper_env.model.pid import PIDGains, PIDOptions
+from gripper_env.model.pid import GraspOptions, PIDGains, PIDOptions
 from gripper_env.model.plants import Plant, load_plant
 from tuners import cli
 from tuners.settings import EvaluationSettings, load_settings
@@ -57,11 +61,13 @@ from tuners.settings import EvaluationSettings, load_settings
 __all__ = [
     "BUS_FAMILIES",
     "COMMITTED_ROWS",
+    "WITH_MODE",
     "GainSet",
     "RowProvider",
     "arduino_runs",
     "benchmark_grasp",
     "benchmark_section",
+    "both_ways",
     "build_parser",
     "bus_context",
     "bus_rows",
@@ -91,30 +97,43 @@ COMMITTED_ROWS = (
 PAPER_PRESETS = ("paper-tuned", "paper-untuned")
 #: The row without a host loop: the servo commanded the close angle directly.
 SERVO_ALONE = "servo alone"
+#: What a PID row with the grasp mode adds to its label.
+WITH_MODE = " + grasp mode"
 
 
 @dataclass(frozen=True)
 class GainSet:
     """A controller of the Arduino gripper: its label, gains (``None``: no host loop) and PID
-    options (limits, anti-windup, sign)."""
+    options (limits, anti-windup, sign, grasp mode)."""
 
     label: str
     gains: PIDGains | None
     options: PIDOptions
 
 
+def both_ways(label: str, gains: PIDGains, options: PIDOptions) -> list[GainSet]:
+    """A PID as two controllers: plain (the grasp mode off), then with the grasp mode
+    (``options``' own, else the default), labelled ``label`` and ``label + grasp mode``."""
+    mode = options.grasp if options.grasp is not None else GraspOptions()
+    return [
+        GainSet(label, gains, dataclasses.replace(options, grasp=None)),
+        GainSet(label + WITH_MODE, gains, dataclasses.replace(options, grasp=mode)),
+    ]
+
+
 def gain_sets(
     plant: str, gains_from: Path | None, settings: EvaluationSettings
 ) -> tuple[list[GainSet], list[str]]:
     """The servo alone, the paper's presets and the committed gains files of ``plant`` found
-    under ``gains_from``; and the files not found (``gains_from`` ``None``: none looked for)."""
+    under ``gains_from``, each PID plain and with the grasp mode (:func:`both_ways`); and the
+    files not found (``gains_from`` ``None``: none looked for)."""
     from tuners.manual import PAPER_GAINS
 
     _, actual = settings.options(1)
     sets = [GainSet(SERVO_ALONE, None, actual)]
     for name in PAPER_PRESETS:
         preset = PAPER_GAINS[name]
-        sets.append(GainSet(name, preset.gains, settings.options(preset.sign)[1]))
+        sets += both_ways(name, preset.gains, settings.options(preset.sign)[1])
     missing: list[str] = []
     if gains_from is None:
         return sets, missing
@@ -127,7 +146,7 @@ def gain_sets(
         label = name.removeprefix("manual-")
         if f.options.sign != 1:
             label += " (e = y - r)"
-        sets.append(GainSet(label, f.gains, f.options))
+        sets += both_ways(label, f.gains, f.options)
     return sets, missing
 
 
@@ -276,8 +295,8 @@ def table_lines(rows: Sequence[GraspResult]) -> list[str]:
     """The Markdown table of ``rows``."""
     lines = [
         "| gripper | controller | time to grasp s | holding force N (% of stall) | "
-        "min force N | overload (at s) | held |",
-        "|---|---|---|---|---|---|---|",
+        "min force N | peak heat (% of trip) | overload (at s) | held |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         overload = f"yes ({r.overload_at_s:.2f})" if r.overload_at_s is not None else "no"
@@ -287,7 +306,7 @@ def table_lines(rows: Sequence[GraspResult]) -> list[str]:
         lines.append(
             f"| {r.gripper} | {r.controller} | {grasp} | {_num(r.holding_force_n, '.2f')} "
             f"({_num(r.holding_force_pct, '.0f')} %) | {_num(r.min_force_n, '.2f')} | "
-            f"{overload} | {'yes' if r.held else '**no**'} |"
+            f"{_num(100 * r.peak_heat, '.0f')} | {overload} | {'yes' if r.held else '**no**'} |"
         )
     return lines
 
@@ -335,12 +354,17 @@ def render_markdown(
         f"{FULL_STALL_LIMIT_S:g} s (stall damage within seconds; hobby servo datasheets warn "
         f"against continuous stall). A push at 60 % of stall trips after {_trip_s(0.6):.1f} s, "
         f"one at 40 % after {_trip_s(0.4):.1f} s, one at "
-        f"{100 * CONTINUOUS_CURRENT_FRACTION:g} % or less never.",
+        f"{100 * CONTINUOUS_CURRENT_FRACTION:g} % or less never. The peak heat is that state "
+        "over the trip level, the highest of any run (100 % trips; a steady push at 20 % of "
+        "stall settles at 64 %).",
+        "",
+        _mode_paragraph(),
         "",
         f"**Read it as the worst case over the runs**: time to grasp (from the close command "
         f"until the jaw touches the object and the force reaches {100 * GRASP_FRACTION:g} % of "
-        "its hold value) of the slowest run, the lowest force of any run, the earliest trip; held "
-        "only if every run held. The holding force is the mean over the runs and the window.",
+        "its hold value) of the slowest run, the lowest force of any run, the highest heat, the "
+        "earliest trip; held only if every run held. The holding force is the mean over the runs "
+        "and the window.",
         "",
         *table_lines(rows),
         "",
@@ -358,21 +382,80 @@ def render_markdown(
             f"* Overloaded: {len(tripped)} (the first, {first.controller}, at "
             f"{_num(first.overload_at_s or math.nan, '.2f')} s)."
         )
+    plain = [r for r in rows if r.gripper.startswith("arduino") and not r.controller.startswith(
+        SERVO_ALONE) and WITH_MODE not in r.controller]  # fmt: skip
+    mode = [r for r in rows if WITH_MODE in r.controller]
+    if plain:
+        lines.append(
+            f"* The plain PID: {sum(r.held for r in plain)} of {len(plain)} held, "
+            f"{sum(r.overload for r in plain)} tripped the thermal limit. The object keeps the "
+            "jaw short of the reference, so the error never vanishes and the integrator charges "
+            "until the PID's output limit (the servo's command range), far past the object: "
+            "full stall current until something gives. The servo's own position loop (no host "
+            "loop) squeezes with a force set by how far its command lies past the object."
+        )
+    if mode:
+        held_mode = [r for r in mode if r.held]
+        lost = [r for r in mode if not r.held]
+        text = (
+            f"* With the grasp mode: {len(held_mode)} of {len(mode)} held, "
+            f"{sum(r.overload for r in mode)} tripped; peak heat "
+            f"{_span([100 * r.peak_heat for r in mode], '.0f')} % of the trip, holding force "
+            f"{_span([r.holding_force_n for r in mode], '.2f')} N, grasped in "
+            f"{_span([r.time_to_grasp_s for r in mode], '.2f')} s."
+        )
+        if lost:
+            text += " Not held: " + "; ".join(
+                f"{r.controller} (lowest force {_num(r.min_force_n, '.2f')} N"
+                + (", grasped after the hold window opened" if not r.time_to_grasp_s < 1.0 else "")
+                + ")"
+                for r in lost
+            ) + "."  # fmt: skip
+        lines.append(text)
     lines += [
-        "* Why a host PID with integral action cannot hold gently: the object keeps the jaw "
-        "short of the reference, so the error never vanishes and the integrator charges until "
-        "the PID's output limit (the servo's command range), far past the object: full stall "
-        "current until something gives. The servo's own position loop (no host loop) squeezes "
-        "with a force set by how far its command lies past the object. A grasp needs a force "
-        "mode: "
-        "the integrator frozen, or the command held a set distance past the jaw, once the jaw "
-        "touches.",
         "",
-        "Figure: `figures/grasp.png` (jaw angle and force against time per controller, the mean "
-        "over the runs).",
+        "Figure: `figures/grasp.png` (jaw angle, force and heat against time per controller, the "
+        "mean over the runs; dashed the plain PID, solid with the grasp mode).",
         "",
     ]
     return "\n".join(lines)
+
+
+def _span(values: Sequence[float], fmt: str) -> str:
+    """``"lo-hi"`` of the finite values (``"x"`` if they agree, ``"-"`` if none)."""
+    ok = [v for v in values if v is not None and math.isfinite(v)]
+    if not ok:
+        return "-"
+    lo, hi = format(min(ok), fmt), format(max(ok), fmt)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _pct(push_deg: float, stall_band_deg: float = 5.0) -> str:
+    """A push (deg) as a percentage of stall on the stall band."""
+    return f"{100 * min(max(push_deg, 0.0) / stall_band_deg, 1.0):g}"
+
+
+def _mode_paragraph(mode: GraspOptions | None = None) -> str:
+    """The grasp mode and its settings, for the report."""
+    g = mode or GraspOptions()
+    return (
+        "**The grasp mode** (`gripper_env.model.pid.GraspOptions`, on by default; the same in "
+        "the simulation core, the firmware and its Python twin). The PID reads only the "
+        "potentiometer, the reference and its own output: once its command has stood at least "
+        f"{g.push_deg:g} deg (push) past the jaw, the jaw at least {g.short_deg:g} deg short of "
+        f"the reference and still within {g.still_deg:g} deg, for {1000 * g.dwell_s:g} ms "
+        "(dwell), it freezes the integrator and holds the command "
+        f"{g.squeeze_deg:g} deg (squeeze) past the contact, never past the reference: "
+        f"{100 * min(g.squeeze_deg / 5.0, 1.0):g} % of stall on the 5-deg stall band, a force "
+        f"and current limit under the {100 * CONTINUOUS_CURRENT_FRACTION:g} % the servo carries "
+        "indefinitely (with whole-degree servo commands the push lands within half a degree of "
+        f"the squeeze: {_pct(g.squeeze_deg - 0.5)}-{_pct(g.squeeze_deg + 0.5)} % of stall; "
+        f"{_pct(g.squeeze_deg + 0.5)} % would trip after "
+        f"{_trip_s((g.squeeze_deg + 0.5) / 5.0):.0f} s). It lets go when the reference comes "
+        "back to or over the contact (opening) or the jaw moves on past it, and the PID resumes "
+        "from the held command. Each PID row below runs plain (the mode off) and with it "
+        f"(`{WITH_MODE.strip()}`)."
+    )
 
 
 def result_json(
@@ -402,6 +485,7 @@ def result_json(
             "tau_s": THERMAL_TIME_CONSTANT_S,
         },
         "grasp_fraction": GRASP_FRACTION,
+        "grasp_mode": GraspOptions().as_dict(),
         "rows": [r.as_dict() for r in rows],
     }
 
@@ -415,8 +499,8 @@ def benchmark_grasp(
 ) -> list[dict[str, Any]]:
     """The benchmark's grasp rows on one plant (:func:`benchmark_section` renders them): the
     servo alone and every PID row of ``rows`` (the benchmark's rows of that plant: ``P``, ``I``,
-    ``D``, ``N``, ``sign``; learned controllers are left out), over the held-out seeds, as
-    :meth:`GraspResult.as_dict`."""
+    ``D``, ``N``, ``sign``; learned controllers are left out), plain and with the grasp mode
+    (:func:`both_ways`), over the held-out seeds, as :meth:`GraspResult.as_dict`."""
     sc = scenario or GraspScenario()
     seeds = settings.seeds.seeds()
     sets = [GainSet(SERVO_ALONE, None, settings.options(1)[1])]
@@ -424,7 +508,7 @@ def benchmark_grasp(
         if row.get("controller") != "pid":
             continue
         gains = PIDGains(row["P"], row["I"], row["D"], row["N"])
-        sets.append(GainSet(name, gains, settings.options(int(row["sign"]))[1]))
+        sets += both_ways(name, gains, settings.options(int(row["sign"]))[1])
     gripper = _gripper(plant.name, disturbance.name)
     out = []
     for g in sets:
@@ -449,8 +533,10 @@ def benchmark_section(grasp: dict[str, Any]) -> list[str]:
         f"fingertip; the hobby servo's force from the mechanics block "
         f"({stall_force_n(sc):.2f} N at stall on a {sc.finger_lever_m * 100:g} cm finger), "
         f"overload when its I^2 t estimate trips (a full stall: after {FULL_STALL_LIMIT_S:g} s). "
-        "Worst case over the held-out seeds; the scenario, its criteria and a figure: "
-        "`grasp.md` (`python -m tuners.benchmark.grasp`).",
+        f"Each PID plain and with the PID's grasp mode (`{WITH_MODE.strip()}`: the command held "
+        f"{GraspOptions().squeeze_deg:g} deg past a blocked jaw). Worst case over the held-out "
+        "seeds; the scenario, its criteria and a figure: `grasp.md` "
+        "(`python -m tuners.benchmark.grasp`).",
     ]
     for plant, rows in grasp["plants"].items():
         results = [GraspResult.from_dict(r) for r in rows]
@@ -530,7 +616,8 @@ def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
         f"Arduino gripper: plant {plant.name}, actual-gripper preset `{dist.name}` (the servo's "
         f"20 ms command hold and whole degrees, stiction, stops, ADC), {len(seeds)} held-out "
         f"seed{'s' if len(seeds) > 1 else ''} (friction, noise and stops drawn per seed); the "
-        f"PID at 1 kHz, its output limited to the servo's 0-180 deg with clamping anti-windup."
+        f"PID at 1 kHz, its output limited to the servo's 0-180 deg with clamping anti-windup, "
+        "plain and with the grasp mode (below)."
     )
     if args.bus:
         context += "\n\n" + bus_context(args.bus)
@@ -543,7 +630,8 @@ def _main(argv: list[str] | None, extra: Sequence[RowProvider]) -> int:
                                      command=args.command))  # fmt: skip
         grasp_plot([(g.label, run) for g, run in runs], args.out / "figures" / "grasp.png",
                    f"Grasp and hold: {gripper}, close command {scenario.close_command_deg:g} "
-                   f"deg on an object at {scenario.object_deg:g} deg")  # fmt: skip
+                   f"deg on an object at {scenario.object_deg:g} deg",
+                   mode_suffix=WITH_MODE)  # fmt: skip
     print("\n".join(table_lines(rows)))
     print(f"wrote {args.out / 'grasp.md'}, grasp.json and figures/grasp.png in "
           f"{time.perf_counter() - start:.1f} s")  # fmt: skip

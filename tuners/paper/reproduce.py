@@ -353,7 +353,7 @@ def _table34_row(
     hardware = "hardware" in label
     actual_opts = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping", sign=sign)
     model = simulate("test2", ref, gains=[gains], disturbance="ideal",
-                     pid_options=PIDOptions(sign=sign))  # fmt: skip
+                     pid_options=PIDOptions(sign=sign, grasp=None))  # fmt: skip
     mm = compute_metrics(model)
     act = simulate("test2", ref, gains=np.tile(gains, (len(seeds), 1)),
                    disturbance="actual", seeds=seeds, randomize=True,

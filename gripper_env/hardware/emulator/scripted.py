@@ -280,6 +280,7 @@ def _closed_loop_run(host: ScriptedHost, calibration: Calibration, n: int) -> di
         "u": s.command_deg[idx],
         "adc": s.adc[idx],
         "y": np.asarray(calibration.to_deg(s.adc[idx])),
+        "flags": s.flags[idx],
     }
 
 

@@ -15,8 +15,8 @@ from tuners.benchmark import grasp
 from tuners.settings import EvaluationSettings
 
 #: The controllers of the committed table: the servo alone, the paper's two presets and the
-#: committed gains files.
-CONTROLLERS = 1 + len(grasp.PAPER_PRESETS) + len(grasp.COMMITTED_ROWS)
+#: committed gains files, each PID plain and with the grasp mode.
+CONTROLLERS = 1 + 2 * (len(grasp.PAPER_PRESETS) + len(grasp.COMMITTED_ROWS))
 
 
 def test_the_command_writes_the_table_the_json_and_the_figure(tmp_path, capsys):
@@ -32,7 +32,15 @@ def test_the_command_writes_the_table_the_json_and_the_figure(tmp_path, capsys):
     assert len({r.controller for r in rows}) == CONTROLLERS
     assert rows[0].controller == "servo alone (no host loop)"
     assert rows[1].controller.startswith("paper-tuned P=1 I=9 D=-0.001")
+    assert rows[2].controller.startswith("paper-tuned + grasp mode P=1 I=9 D=-0.001")
     assert any(r.controller.startswith("optuna P=") for r in rows)
+    # the plain PIDs wind up and trip; with the grasp mode the fast ones hold, cool
+    for plain, mode in zip(rows[1::2], rows[2::2], strict=True):
+        assert mode.controller.startswith(plain.controller.split(" P=")[0] + " + grasp mode")
+        assert plain.overload and not mode.overload and mode.peak_heat < 0.5
+        assert mode.held or "paper-hw-tuned" in mode.controller  # slow: reaches it late
+    assert content["grasp_mode"] == {"squeeze_deg": 1.0, "push_deg": 5.0, "short_deg": 0.5,
+                                     "still_deg": 1.0, "dwell_s": 0.1}  # fmt: skip
     assert {r.gripper for r in rows} == {"arduino test2 (actual)"}
     # then the bus servos' rows: the committed tuned registers, the factory's, the community's
     bus = [r.controller.split(" P=")[0] for r in every[len(rows) :]]
@@ -44,6 +52,7 @@ def test_the_command_writes_the_table_the_json_and_the_figure(tmp_path, capsys):
     table = [line for line in md.splitlines() if line.startswith("| arduino")]
     assert len(table) == CONTROLLERS
     assert "| gripper | controller | time to grasp s | holding force N (% of stall)" in md
+    assert "**The grasp mode**" in md and "With the grasp mode:" in md
     # no run's date, version or wall time in the results (they are the sidecar's)
     assert not set(content) & set(VOLATILE_KEYS)
     assert json.loads((out / "grasp.provenance.json").read_text())["command"].startswith(
@@ -57,10 +66,13 @@ def test_other_grippers_add_their_rows(tmp_path):
                         True, 3.0)  # fmt: skip
     rows = grasp.grasp_rows("test2", extra=[lambda: [other]], seeds=[100000], gains_from=None)
     assert [r.controller.split(" P=")[0] for r in rows] == [
-        "servo alone (no host loop)", "paper-tuned", "paper-untuned", "its own loop",
+        "servo alone (no host loop)", "paper-tuned", "paper-tuned + grasp mode", "paper-untuned",
+        "paper-untuned + grasp mode", "its own loop",
     ]  # fmt: skip
     md = grasp.render_markdown(rows)
-    assert "| bus servo (virtual) | its own loop | 0.300 | 2.00 (20 %) | 1.90 | no | yes |" in md
+    assert (
+        "| bus servo (virtual) | its own loop | 0.300 | 2.00 (20 %) | 1.90 | - | no | yes |" in md
+    )
     # and through the command
     out = tmp_path / "out"
     assert grasp.main(["--out", str(out), "--seeds", "1", "--gains-from", str(tmp_path)],
@@ -74,7 +86,7 @@ def test_missing_gains_files_are_left_out_and_said(tmp_path, capsys):
                        str(tmp_path / "none"), "--bus"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert "optuna.json: not found, its row left out" in out
-    assert len(json.loads((tmp_path / "grasp.json").read_text())["rows"]) == 3
+    assert len(json.loads((tmp_path / "grasp.json").read_text())["rows"]) == 5
 
 
 def test_the_bus_servos_rows_judge_their_registers_on_the_hold(tmp_path):
@@ -123,7 +135,7 @@ def test_bad_input_is_refused_with_one_line(tmp_path, capsys):
 def test_a_grasp_that_never_happens_reads_never():
     row = GraspResult("g", "c", math.nan, 0.0, 0.0, 0.0, True, 2.5, False, 3.0)
     (line,) = [x for x in grasp.table_lines([row]) if x.startswith("| g |")]
-    assert line == "| g | c | never | 0.00 (0 %) | 0.00 | yes (2.50) | **no** |"
+    assert line == "| g | c | never | 0.00 (0 %) | 0.00 | - | yes (2.50) | **no** |"
 
 
 def test_the_benchmark_section_from_its_rows():
@@ -140,10 +152,12 @@ def test_the_benchmark_section_from_its_rows():
     assert [r["controller"].split(" P=")[0] for r in got] == [
         "servo alone (no host loop)",
         "manual-paper-tuned",
+        "manual-paper-tuned + grasp mode",
     ]
+    assert [r["held"] for r in got] == [True, False, True]
     data = {"scenario": GraspScenario().as_dict(), "plants": {"test2": got}}
     lines = grasp.benchmark_section(data)
-    assert "## Grasp and hold" in lines and "### test2: 1 of 2 held" in lines
+    assert "## Grasp and hold" in lines and "### test2: 2 of 3 held" in lines
     stored = json.loads(json.dumps(data, default=str).replace("NaN", "null"))
     assert grasp.benchmark_section(stored) == lines
 
