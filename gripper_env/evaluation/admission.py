@@ -310,7 +310,7 @@ class Admission:
         """
         values: dict[str, np.ndarray] = {}
         details: dict[str, np.ndarray] = {}
-        scales = dict(SCALES)
+        scales = {k: 1.0 if v is None else float(v) for k, v in SCALES.items()}
         scales["ms"] = float(limits["ms_max"])
         if loop_stable is not None:
             st = np.asarray(loop_stable, bool)
@@ -461,10 +461,10 @@ def describe(name: str, d: Mapping[str, Any], limits: Mapping[str, Any]) -> str:
         reach = d.get("jaw_min_deg") if side == "closed" else d.get("jaw_max_deg")
         clear = d.get("clearance_deg")
         need = limits.get("stop_clearance_deg", 0.0)
-        where = ("past" if clear is not None and clear < 0 else "within "
-                 f"{f(clear)} deg of")  # fmt: skip
-        if where == "past":
+        if clear is not None and clear < 0:
             where = f"{f(-clear)} deg past"
+        else:
+            where = f"within {f(clear)} deg of"
         return (f"the jaw reaches {f(reach, 4)} deg, {where} the nearest {side} stop the preset "
                 f"can draw ({stop:g} deg; {need:g} deg of clearance required)")  # fmt: skip
     if name == "stall":

@@ -494,8 +494,8 @@ def compute_metrics(
     _metrics_kernel(t, r, ys, us, bounds, values, float(settling_band_deg), run_out, seg_out)
     parts: dict[str, list[dict[str, np.ndarray]]] = {"grip": [], "ungrip": []}
     dt = float(t[1] - t[0]) if len(t) > 1 else 1.0
-    jaw = np.atleast_2d(getattr(traj, "y_true", None) if getattr(traj, "y_true", None)
-                        is not None else y)  # fmt: skip
+    y_true = getattr(traj, "y_true", None)
+    jaw = np.atleast_2d(np.asarray(y if y_true is None else y_true, dtype=float))
     jaw = np.where(stable[:, None], jaw, 0.0)
     for i, s in enumerate(segs):
         part = {name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)}
