@@ -50,6 +50,7 @@ __all__ = [
     "nearest_stops_deg",
     "run_checks",
     "shift_stops",
+    "with_grasp",
 ]
 
 #: The constraints, in the order the judge reports the first one missed.
@@ -283,6 +284,7 @@ class Admission:
         measured_gm_db: np.ndarray | None = None,
         checks: RunChecks | None = None,
         grasp_lost: np.ndarray | None = None,
+        grasp_reason: np.ndarray | None = None,
     ) -> Admission:
         """The values from what was measured (each argument optional: a rule is checked only
         where its measure is given).
@@ -306,7 +308,11 @@ class Admission:
         checks : RunChecks
             The runs' worst cases.
         grasp_lost : ndarray
-            Fraction of the grasp scenario's seeds on which the object was not held.
+            The grasp scenario's verdict: the fraction of its runs (plants and seeds) on which
+            the object was not held, or, when every one held, minus the least margin (heat or
+            force; :func:`gripper_env.evaluation.scoring.grasp_check`); 0 where not checked.
+        grasp_reason : ndarray of str, optional
+            What failed first on the worst plant (``overload``, ``force``, ``diverged``).
         """
         values: dict[str, np.ndarray] = {}
         details: dict[str, np.ndarray] = {}
@@ -351,6 +357,9 @@ class Admission:
             limits = lim
         if grasp_lost is not None:
             values["grasp"] = np.asarray(grasp_lost, float)
+            details["grasp_lost"] = values["grasp"]
+            if grasp_reason is not None:
+                details["grasp_reason"] = np.asarray(grasp_reason, dtype=object)
         return cls(values, scales, details, dict(limits))
 
     def __len__(self) -> int:
@@ -470,5 +479,37 @@ def describe(name: str, d: Mapping[str, Any], limits: Mapping[str, Any]) -> str:
     if name == "stall":
         return f"stalls against a stop ({f(d.get('stall_s'))} s)"
     if name == "grasp":
-        return "does not hold the grasp scenario's object on every seed"
+        lost, why = d.get("grasp_lost"), d.get("grasp_reason") or ""
+        what = {"overload": "trips the servo's thermal limit",
+                "force": "holds with less than the object needs",
+                "diverged": "diverges"}.get(str(why).split(" ")[0], "loses the object")  # fmt: skip
+        where = str(why).partition(" on ")[2]
+        share = f"{100 * float(lost):.0f} % of" if lost is not None else "some of"
+        return (
+            f"does not hold the grasp scenario's object: {what}"
+            + (f" on {where}" if where else "")
+            + f" ({share} its grasp runs)"
+        )
     raise ValueError(f"unknown constraint {name!r}")
+
+
+def with_grasp(row: dict[str, Any], lost: float, reason: str) -> dict[str, Any]:
+    """An :meth:`Admission.row` with the grasp constraint added (for a controller whose grasp
+    scenario runs apart from its other checks: a policy): ``lost`` is the fraction of the grasp
+    runs that lost the object, ``reason`` what failed first (``overload``, ``force``,
+    ``diverged``, with `` on <plant>``)."""
+    import copy
+
+    out = copy.deepcopy(row)
+    value = float(lost)
+    out["constraints"]["grasp"] = value
+    out["measured"]["grasp_lost"] = value
+    out["measured"]["grasp_reason"] = reason
+    if value > 0.0:
+        missed = set(out["missed"]) | {"grasp"}
+        out["missed"] = [n for n in CONSTRAINT_NAMES if n in missed]
+        out["admitted"] = False
+        words = describe("grasp", out["measured"], out["limits"])
+        out["reason"] = out["reason"] or words
+        out["binding"] = out["binding"] or "grasp"
+    return out

@@ -101,7 +101,7 @@ class Constraints(BaseModel):
     gm_min_db: float = Field(6.0, ge=0.0)
     stop_clearance_deg: float = Field(0.0, ge=0.0)
     search_backoff_deg: float = Field(1.0, ge=0.0)
-    grasp: bool = False
+    grasp: bool = True
 
     @property
     def measured_gm_min_db(self) -> float:

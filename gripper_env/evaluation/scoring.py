@@ -168,6 +168,33 @@ class Task:
         return len(self.plants) * len(self.seeds)
 
 
+def grasp_check(gains: np.ndarray, task: Task, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grasp scenario (:func:`gripper_env.evaluation.grasp.grasp_admission`) for the gain
+    sets ``which`` of ``gains`` on every plant of ``task`` over its seeds, with its PID
+    options: per gain set the admission value (the fraction of plant and seed runs that lost
+    the object, or, when all held, minus the least heat or force margin; 0 where not checked)
+    and the reason of the worst plant."""
+    from gripper_env.evaluation.grasp import grasp_admission
+
+    k = len(gains)
+    value = np.zeros(k)
+    why = np.full(k, "", dtype=object)
+    if not len(which):
+        return value, why
+    lost = np.zeros(len(which))
+    margin = np.full(len(which), np.inf)
+    for plant in task.plants:
+        v = grasp_admission(gains[which], task.options, plant, task.disturbance, task.seeds,
+                            randomize=task.randomize)  # fmt: skip
+        share = 1.0 - v.held_runs.mean(axis=1)
+        for j in np.flatnonzero((share > lost) & ~v.held):
+            why[which[j]] = f"{v.reason[j]} on {plant.name}"
+        lost = np.maximum(lost, share)
+        margin = np.minimum(margin, v.margin)
+    value[which] = np.where(lost > 0, lost, -np.clip(margin, 0.0, 1.0))
+    return value, why
+
+
 @dataclass
 class GainScores:
     """Scores of ``k`` gain sets (arrays of shape (k,) unless noted).
@@ -253,10 +280,20 @@ class GainScorer:
         t = self.task
         rb = rb if rb is not None else self.robustness(gains)
         checks = run_checks(metrics, len(gains), t.disturbance, t.randomize)
+        limits = t.objective.constraints.limits(t.search)
+        rule = Admission.build(
+            limits, ms=rb["ms"], gm_db=rb["gm_db"], gm_lower_db=rb["gm_lower_db"],
+            loop_stable=rb["stable"], spectral_radius=rb["spectral_radius"], checks=checks,
+        )  # fmt: skip
+        if not t.objective.constraints.grasp:
+            return rule
+        # the grasp scenario only for the gain sets that meet the rest (a refused one needs no
+        # more reasons; the grasp runs cost as much as the step's): the same verdict, cheaper
+        lost, why = grasp_check(np.asarray(gains, float), t, np.flatnonzero(rule.feasible))
         return Admission.build(
-            t.objective.constraints.limits(t.search), ms=rb["ms"], gm_db=rb["gm_db"],
-            gm_lower_db=rb["gm_lower_db"], loop_stable=rb["stable"],
-            spectral_radius=rb["spectral_radius"], checks=checks,
+            limits, ms=rb["ms"], gm_db=rb["gm_db"], gm_lower_db=rb["gm_lower_db"],
+            loop_stable=rb["stable"], spectral_radius=rb["spectral_radius"], checks=checks,
+            grasp_lost=lost, grasp_reason=why,
         )  # fmt: skip
 
     def rollout(self, gains: np.ndarray) -> Trajectory:

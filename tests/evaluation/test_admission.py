@@ -103,3 +103,33 @@ def test_a_search_holds_the_jaw_further_in_than_the_judge():
     assert Admission.build(c.limits(), checks=checks).feasible[0]
     assert not Admission.build(c.limits(search=True), checks=checks).feasible[0]
     assert c.measured_gm_min_db == pytest.approx(20 * math.log10(1.6 / 0.6))
+
+
+def test_the_grasp_is_a_constraint_of_the_rule():
+    """With the grasp mode a PID holds the object; the plain PID's integrator winds up against
+    it and trips the servo: refused, with the reason (gripper_env.evaluation.grasp's verdict)."""
+    plant = load_plant("test2")
+    ref = load_reference("step", plant.dt_s)
+    gains = np.array([[2.4, 39.0, 0.0, 100.0]])
+    verdicts = {}
+    for name, grasp in (("mode", True), ("plain", False)):
+        opts = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping",
+                          **({} if grasp else {"grasp": None}))  # fmt: skip
+        task = Task.build(plant, ref, ACTUAL, [0, 1], objective=OBJECTIVE, options=opts)
+        verdicts[name] = GainScorer(task).score(gains).admission
+    assert OBJECTIVE.constraints.grasp
+    mode, plain = verdicts["mode"], verdicts["plain"]
+    assert mode.feasible[0] and mode.values["grasp"][0] < 0.0  # held, with a margin
+    assert plain.missed(0) == ["grasp"] and plain.values["grasp"][0] == 1.0
+    assert "trips the servo's thermal limit on test2" in plain.reason(0)
+
+
+def test_a_policys_grasp_joins_its_admission_row():
+    from gripper_env.evaluation.admission import with_grasp
+
+    row = Admission.build(LIMITS, checks=_runs([20.0], [92.0])).row(0)
+    kept = with_grasp(row, 0.0, "")
+    assert kept["admitted"] and kept["constraints"]["grasp"] == 0.0
+    lost = with_grasp(row, 0.3, "overload on test4")
+    assert not lost["admitted"] and lost["missed"] == ["grasp"]
+    assert "trips the servo's thermal limit on test4 (30 % of its grasp runs)" in lost["reason"]

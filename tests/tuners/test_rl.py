@@ -331,3 +331,23 @@ def test_the_floor_check_agrees_with_the_linear_gain_margin():
         gm = stability_report(TEST2, g, disturbance=ACTUAL).gain_margin_db
         kwargs = env_kwargs(inputs, g, ControllerSettings())
         assert meets_floor(zero, inputs, kwargs, ["test2"]) == (gm > 8.6), (gains, gm)
+
+
+def test_a_policys_grasp_is_its_pids_when_it_does_not_correct():
+    """The policy grasp scenario (tuners.rl.grasp) with the zero policy is the base PID's own
+    grasp verdict (gripper_env.evaluation.grasp.grasp_admission): the same heat and force."""
+    from gripper_env.evaluation.grasp import grasp_admission
+    from gripper_env.model.pid import PIDGains
+    from tuners.rl.controller import ControllerSettings, env_kwargs
+    from tuners.rl.grasp import policy_grasp
+
+    inputs = cli.load_inputs("test2")
+    g = PIDGains(2.4, 39.0, 0.0, 100.0)
+    kwargs = env_kwargs(inputs, g, ControllerSettings())
+    seeds = [100000, 100001, 100002]
+    zero = lambda obs: np.zeros((len(obs), 1))  # noqa: E731 - the base PID itself
+    policy = policy_grasp(zero, kwargs, TEST2, ACTUAL, seeds)
+    pid = grasp_admission([[g.P, g.I, g.D]], inputs.settings.options(1)[1], TEST2, ACTUAL, seeds)
+    assert policy["held"] == pid.held_runs[0].tolist() == [True] * 3
+    assert policy["peak_heat"] == pytest.approx(pid.peak_heat[0].tolist(), abs=0.01)
+    assert policy["min_force_n"] == pytest.approx(pid.min_force_n[0].tolist(), rel=0.02)

@@ -497,9 +497,13 @@ def _rule_words(meta: dict[str, Any]) -> str:
         f"as it runs (PID at 1 ms, the servo's 20 ms hold) stable with Ms <= {lim['ms_max']:g} and "
         f"GM >= {lim['gm_min_db']:g} dB (a learned controller: its measured limit-cycle onset at "
         f"least the {floor:.3g} dB gain margin that Ms <= {lim['ms_max']:g} guarantees a linear "
-        "loop), every run settled, no stall, and the jaw at least "
+        "loop), every run settled, no stall, the jaw at least "
         f"{lim.get('stop_clearance_deg', 0):g} deg inside the nearest stop the preset can draw"
-        f"{where}: a worst case over the stop range, not the sampled stops. The searches hold "
+        f"{where}: a worst case over the stop range, not the sampled stops"
+        + (", and the grasp scenario's object held on every run (close on an object at 40 deg, "
+           "hold 3 s with at least 1 N, no thermal trip of the servo; "
+           "`gripper_env/evaluation/grasp.py`)" if lim.get("grasp") else "")
+        + ". The searches hold "
         f"the jaw {lim.get('search_backoff_deg', 0):g} deg further in (they see 4 friction and "
         "noise draws, the judge 10 others)."
     )

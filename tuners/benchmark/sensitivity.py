@@ -66,8 +66,13 @@ def candidate_runs(
     onsets = [m["gain_margin_db"]
               for m in (row["measured_margins"].get("per_seed") or {}).values()]  # fmt: skip
     moved = replace(inputs, disturbance=disturbance)
-    return {"admission": policy_admission(moved, runs, onsets or [None]),
-            "cost": float(np.mean([r["cost"] for r in runs]))}  # fmt: skip
+    admission = policy_admission(moved, runs, onsets or [None])
+    held = (row.get("admission") or {}).get("measured") or {}
+    if "grasp_lost" in held:  # the grasp scenario has no stops to move: the row's verdict
+        from gripper_env.evaluation.admission import with_grasp
+
+        admission = with_grasp(admission, held["grasp_lost"], held.get("grasp_reason") or "")
+    return {"admission": admission, "cost": float(np.mean([r["cost"] for r in runs]))}
 
 
 def stress_check(

@@ -490,6 +490,8 @@ def controller_study(
     wall = time.perf_counter() - t0
     study = _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
     study["requested_timesteps"] = s.timesteps if timesteps is None else int(timesteps)
+    if inputs.objective.constraints.grasp:
+        add_grasp(study, inputs, folder)
     return study
 
 
@@ -634,6 +636,31 @@ def policy_admission(
     rule = Admission.build(inputs.objective.constraints.limits(), measured_gm_db=[worst],
                            checks=checks)  # fmt: skip
     return rule.row(0)
+
+
+def add_grasp(study: dict[str, Any], inputs: cli.Inputs, folder: Path) -> dict[str, Any]:
+    """The grasp scenario (:func:`tuners.rl.grasp.policy_grasp`) of every training seed's kept
+    policy on every plant's held-out seeds, added to the study's per-plant admission (the rule's
+    last constraint: a policy whose correction trips the servo on the object is refused)."""
+    from gripper_env.evaluation.admission import with_grasp
+    from tuners.rl.agents import load_agent
+    from tuners.rl.grasp import policy_grasp
+
+    seeds = inputs.settings.seeds.seeds()
+    agents = {e["seed"]: load_agent(folder / f"seed-{e['seed']}" / "best") for e in study["seeds"]}
+    for p, entry in study["per_plant"].items():
+        plant = load_plant(p)
+        per_seed = {}
+        for k, agent in agents.items():
+            kwargs = dict(agent.env_kwargs)
+            per_seed[str(k)] = policy_grasp(agent, kwargs, plant, inputs.disturbance, seeds,
+                                            randomize=inputs.settings.randomize)  # fmt: skip
+        worst = max(per_seed.values(), key=lambda g: g["lost"])
+        reason = f"{worst['reason']} on {p}" if worst["reason"] else ""
+        entry["grasp"] = {"per_seed": per_seed, "lost": worst["lost"], "reason": reason}
+        entry["admission"] = with_grasp(entry["admission"], worst["lost"], reason)
+        entry["deployable"] = entry["admission"]["admitted"]
+    return study
 
 
 def learning_curve(per_seed: list[dict[str, Any]]) -> dict[str, Any]:

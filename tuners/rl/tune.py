@@ -15,7 +15,9 @@ per-plant bandit. The recipe, chosen from learning curves over seeds (README, "R
   violation being the admission rule's (:mod:`gripper_env.evaluation.admission`) on each
   episode: robustness with the hold on its plant, settled, no stall, and the jaw's envelope
   inside the nearest stops the preset can draw. The constraints as an exact penalty without the
-  cliff, in log scale (as :func:`tuners.rl.envs.LogExactPenalty` does for robustness alone).
+  cliff, in log scale (as :func:`tuners.rl.envs.LogExactPenalty` does for robustness alone). The
+  grasp scenario is not in the reward (it would triple an episode's simulation); the
+  selection below scores it, with the rest of the rule.
 * **Algorithm**: PPO with ``gamma = 0`` (a bandit: no bootstrapping), 16 environments in one
   compiled call, 256 episodes per update, learning rate 1e-3, initial exploration ``std =
   exp(-1.5)`` in action units (a factor 1.4 on the gains).

@@ -194,6 +194,13 @@ class RLControllerTuner:
                                      log=lambda m: None, engine_spec=budget.engine)  # fmt: skip
             write_study(study, self.out, name)
             study = json.loads(path.read_text())
+        if inputs.objective.constraints.grasp and any(
+            "grasp" not in v for v in study["per_plant"].values()
+        ):  # a study trained before the grasp check: its saved policies run it now
+            from tuners.rl.controller import add_grasp
+
+            add_grasp(study, inputs, path.parent)
+            write_study(study, self.out, name)
         tuning = {
             "algo": "ppo",
             "base_row": self.base,
