@@ -208,7 +208,8 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
     rows = [per[p] for p in plants]
     first = rows[0]
     name = key.split(" @ ")[0]
-    knob = (first.get("tuning") or {}).get("knob")
+    # the tuning record is kept with the plant it was tuned on (stored()): any row's
+    knob = next((r["tuning"].get("knob") for r in per.values() if r.get("tuning")), None)
     shares = [_to_limit(data["plants"][p], per[p]["metrics"]["actual"]["mean"]["iae"])
               for p in plants]  # fmt: skip
     return {
