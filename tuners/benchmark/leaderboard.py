@@ -501,9 +501,13 @@ def _rule_words(meta: dict[str, Any]) -> str:
         "loop), every run settled, no stall, the jaw at least "
         f"{lim.get('stop_clearance_deg', 0):g} deg inside the nearest stop the preset can draw"
         f"{where}: a worst case over the stop range, not the sampled stops"
-        + (", and the grasp scenario's object held on every run (close on an object at 40 deg, "
-           "hold 3 s with at least 1 N, no thermal trip of the servo; "
-           "`gripper_env/evaluation/grasp.py`)" if lim.get("grasp") else "")
+        + (
+            ", and the grasp scenario's object held on every run (close on an object at 40 deg, "
+            "hold 3 s with at least 1 N, no thermal trip of the servo; "
+            "`gripper_env/evaluation/grasp.py`)"
+            if lim.get("grasp")
+            else ""
+        )
         + ". The searches hold "
         f"the jaw {lim.get('search_backoff_deg', 0):g} deg further in (they see 4 friction and "
         "noise draws, the judge 10 others)."

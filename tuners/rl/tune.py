@@ -378,6 +378,7 @@ def train_tuner(
         best=best,
         settings=s.model_dump(),
         context_free=robust,
+        rule=rule_record(scorer.task.objective),
     )
     write_result_json(run_dir / "history.json", run)
     run["gains"] = None if best is None else PIDGains(*best["gains"])
@@ -450,7 +451,8 @@ def train_seeds(
     if reuse:
         wanted = json.loads(json.dumps(_plain(env_kwargs(inputs, names, s, center))))
         for k in seeds:
-            run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted)
+            run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted,
+                                rule_record(scorer.task.objective))  # fmt: skip
             if run is not None:
                 done[int(k)] = run
     tasks = [_TuneTask(inputs, s, int(k), tuple(plants), episodes, optuna_settings,
@@ -463,10 +465,17 @@ def train_seeds(
     return [done[int(k)] for k in seeds]
 
 
+def rule_record(objective: Objective) -> dict[str, Any]:
+    """What the run's reward and selection judged by: the admission rule's limits (a run made
+    under another rule, or before the rule, is not reused)."""
+    return {"reward": "admission", **objective.constraints.model_dump()}
+
+
 def _reusable_run(
-    path: Path, s: RLTuneSettings, episodes: int | None, kwargs: dict[str, Any]
-) -> TuneRun | None:
-    """The run at ``path`` if it was made with these settings, budget and environment."""
+    path: Path, s: RLTuneSettings, episodes: int | None, kwargs: dict[str, Any],
+    rule: dict[str, Any],
+) -> TuneRun | None:  # fmt: skip
+    """The run at ``path`` if it was made with these settings, budget, environment and rule."""
     try:
         old = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -477,6 +486,7 @@ def _reusable_run(
     same = (
         {k: v for k, v in (old.get("settings") or {}).items() if k != "center"} == mine
         and old.get("env_kwargs") == kwargs
+        and old.get("rule") == json.loads(json.dumps(rule))
         and old.get("episodes", -1) >= budget > old.get("episodes", 0) - s.n_envs * s.n_steps
     )
     if not same:

@@ -187,7 +187,8 @@ class RLControllerTuner:
         name = f"controller-{'+'.join(names)}"
         path = self.out / "rl" / name / "study.json"
         start = time.perf_counter()
-        study = _reusable(path, s.model_dump(), base, seeds, steps) if self.reuse else None
+        limits = inputs.objective.constraints.limits()
+        study = _reusable(path, s.model_dump(), base, seeds, steps, limits) if self.reuse else None
         if study is None:
             study = controller_study(inputs, base, seeds=seeds, settings=s, plants=self.plants,
                                      out=self.out, timesteps=steps, progress=False,
@@ -216,9 +217,12 @@ class RLControllerTuner:
 
 
 def _reusable(
-    path: Path, settings: dict[str, Any], base: PIDGains, seeds: list[int], steps: int
-) -> dict[str, Any] | None:
-    """The study at ``path`` if it was made with these settings, base, seeds and budget."""
+    path: Path, settings: dict[str, Any], base: PIDGains, seeds: list[int], steps: int,
+    limits: dict[str, float],
+) -> dict[str, Any] | None:  # fmt: skip
+    """The study at ``path`` if it was made with these settings, base, seeds and budget, and
+    judged by these limits of the admission rule (its checkpoints were chosen by the floor, its
+    verdicts recorded; the grasp scenario, if the study lacks it, runs afterwards)."""
     try:
         study = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -228,5 +232,10 @@ def _reusable(
         and np.allclose(study.get("base_gains") or [], [base.P, base.I, base.D, base.N])
         and [e["seed"] for e in study.get("seeds", [])] == seeds
         and study.get("requested_timesteps") == steps
-    )
+        and all(
+            {k: v for k, v in ((p.get("admission") or {}).get("limits") or {}).items()
+             if k in limits} == json.loads(json.dumps(limits))
+            for p in (study.get("per_plant") or {}).values()
+        )
+    )  # fmt: skip
     return study if same else None
