@@ -159,13 +159,14 @@ def constrained_design(
     score(list(grid))
     if not any(evaluated[v][1] for v in grid):
         nearest = min(refusals.values(), key=lambda r: r[0]) if refusals else None
+        clearance = lim.limits(scorer.task.search)["stop_clearance_deg"]
         why = (f"; binding constraint '{nearest[1]}' at the nearest setting: {nearest[2]}"
                if nearest else "; no setting gives gains")  # fmt: skip
         raise ValueError(
             f"{method}: infeasible: no setting of {knob.name} in [{knob.low:g}, {knob.high:g}] "
             f"meets the admission rule (Ms <= {lim.ms_max:g}, GM >= {lim.gm_min_db:g} dB with "
-            f"the hold, settled, no stall, {lim.stop_clearance_deg:g} deg inside the nearest "
-            f"stops){why}"
+            f"the hold, settled, no stall, {clearance:g} deg inside the nearest stops the preset "
+            f"can draw){why}"
         )
     # refine twice between the best setting's neighbours: the cost is piecewise constant in
     # some knobs (pidtune's crossover snaps to a frequency grid) and falls off a cliff at the
