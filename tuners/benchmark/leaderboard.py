@@ -906,21 +906,28 @@ def _rl_section(data: dict[str, Any]) -> list[str]:
 
 
 def _controller_admission(per_plant: dict[str, Any], row: dict[str, Any]) -> list[str]:
-    """A learned controller's verdict and its base PID's, plant by plant."""
+    """A learned controller's verdict plant by plant: admitted or why not, its held-out cost
+    against its base PID's, its worst limit-cycle onset beside the base PID's gain margin (the
+    linear one with the hold, which the probe measures too)."""
     out = []
     for plant, r in per_plant.items():
         adm = r.get("admission")
         if not adm:
             continue
         word = "admitted" if adm["admitted"] else f"not admitted: {adm['reason']}"
-        base = (r.get("base") or {}).get("cost")
+        base = r.get("base") or {}
         own = r["metrics"]["actual"]["mean"]["cost"]
         cmp = (
             ""
-            if base is None or own is None
-            else (f"; held-out cost {own:.4g} against its base PID's {base:.4g}")
+            if base.get("cost") is None or own is None
+            else f"; held-out cost {own:.4g} against its base PID's {base['cost']:.4g}"
         )
-        out.append(f"* {plant}: {word}{cmp}.")
+        onset = (r.get("measured_margins") or {}).get("gain_margin_db")
+        base_gm = (base.get("measured_margins") or {}).get("gain_margin_db")
+        margins = (f"; limit-cycle onset {_f(onset)} dB (worst seed), the base PID's gain "
+                   f"margin {_f(base_gm)} dB" if onset is not None or base_gm is not None
+                   else "")  # fmt: skip
+        out.append(f"* {plant}: {word}{cmp}{margins}.")
     return ["", *out] if out else []
 
 
