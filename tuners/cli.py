@@ -490,6 +490,19 @@ def format_table(content: dict[str, Any], ev: Evaluation) -> str:
         f"robustness constraints (Ms <= {lim['ms_max']:g}, GM >= {lim['gm_min_db']:g} dB with "
         f"the hold): {'met' if stab['meets_constraints'] else 'NOT MET'}"
     )
+    adm = content.get("admission") or {}
+    if adm:
+        lines.append(
+            f"admission rule on the {n} held-out runs (robustness, settled, no stall, jaw "
+            f"{adm['limits'].get('stop_clearance_deg', 0):g} deg inside the nearest stops the "
+            f"preset can draw): {'met' if adm['admitted'] else 'NOT MET: ' + str(adm['reason'])}"
+        )
+    for other, entry in ((content.get("cross_model") or {}).get("plants") or {}).items():
+        a = entry.get("admission") or {}
+        if a and entry.get("profile_feasible", True):
+            lines.append(
+                f"  on {other}: {'met' if a['admitted'] else 'NOT MET: ' + str(a['reason'])}"
+            )
     worst = (content.get("cross_model") or {}).get("worst")
     if worst:
         lines.append(
