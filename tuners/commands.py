@@ -68,6 +68,8 @@ COMMANDS: tuple[Command, ...] = (
             "a board on a pseudo-terminal (the firmware's twin, or --emulated)"),
     Command("bus-virtual", "tuners.bus.virtual", "tuners.bus.virtual:main",
             "a virtual STS3215 / XL330 / XL430 on a pseudo-terminal"),
+    Command("bus-calibrate", "tuners.bus.calibrate", "tuners.bus.calibrate:main",
+            "the gripper's jaw in the servo's ticks: by hand, given, or LeRobot's file"),
     Command("bus-record", "tuners.bus.record", "tuners.bus.record:main",
             "a bus servo's steps and creep at several P/I/D settings"),
     Command("bus-identify", "tuners.bus.identify", "tuners.bus.identify:main",

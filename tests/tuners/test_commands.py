@@ -156,8 +156,8 @@ def test_console_scripts_name_themselves_in_usage(tmp_path):
     script = Path(sys.executable).parent / "gripper-optuna"
     if not script.exists():
         pytest.skip("the console scripts are not installed (pip install -e .)")
-    result = subprocess.run([str(script), "--bogus"], capture_output=True, text=True,
-                            timeout=120, check=False)  # fmt: skip
+    result = subprocess.run([str(script), "--plant", "test2", "--bogus"], capture_output=True,
+                            text=True, timeout=120, check=False)  # fmt: skip
     assert result.returncode == 2
     assert result.stderr == (
         "gripper-optuna: error: unrecognized arguments: --bogus (see gripper-optuna --help)\n"

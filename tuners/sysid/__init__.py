@@ -17,6 +17,7 @@ Each command is a module here with ``add_parser(subparsers)`` and ``run(args) ->
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Sequence
 
@@ -30,7 +31,7 @@ COMMANDS = {"tf": tf, "greybox": greybox, "experiments": experiments, "coverage"
 DEFAULT = "tf"
 
 
-def build_parser() -> Parser:
+def build_parser() -> argparse.ArgumentParser:
     """The parser with one subparser per command."""
     p = Parser(
         prog="python -m tuners.sysid",
