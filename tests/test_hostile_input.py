@@ -298,6 +298,7 @@ def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp
                         "--out", disk, cwd=tmp_path)  # fmt: skip
     _one_line_no_space(proc)
     assert sorted(p.name for p in disk.rglob("*") if p.is_file()) == ["filler"]
+    assert list(tmp_path.iterdir()) == [disk]  # nothing beside --out (no runs/ in the cwd)
 
 
 def test_a_full_disk_keeps_the_optuna_journal_readable(small_disk, filled, tmp_path):
@@ -313,6 +314,7 @@ def test_a_full_disk_keeps_the_optuna_journal_readable(small_disk, filled, tmp_p
     filler = filled(disk, leave_bytes=12 * 1024)  # a few trials' records, then none
     proc = _run_command("tuners.optuna", *args, cwd=tmp_path)
     _one_line_no_space(proc)
+    assert list(tmp_path.iterdir()) == [disk]  # nothing beside --out (no runs/ in the cwd)
     journal = disk / "optuna.journal"
     assert journal.read_bytes().endswith(b"\n")
     storage = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))

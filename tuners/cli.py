@@ -27,6 +27,7 @@ from gripper_env.io.config import ConfigError
 from gripper_env.io.files import (
     collect_provenance,
     path_in,
+    result_json_text,
     safe_name,
     write_group,
     write_result_json,
@@ -446,8 +447,8 @@ def publish(
         inputs, seed=args.seed, command=getattr(args, "command", None), **kwargs
     )
     path = write_result(args.out, inputs, content, ev, force=getattr(args, "force", False))
-    if args.json:  # the file as written: its volatile provenance is in the sidecar
-        print(path.read_text(), end="")
+    if args.json:  # this run's file as written (its volatile provenance is in the sidecar)
+        print(result_json_text(content), end="")
     else:
         for note in notes or []:
             print(note)

@@ -125,8 +125,9 @@ class GripperBusServoEnv(gym.Env[np.ndarray, np.ndarray]):
     protection time, 2 s; or overheat), reward ``-(100 + n_left)``, ``info["trip"]`` names it.
     Truncation at
     the end of the reference (500 steps of 20 ms for the 10 s random reference, 210 for
-    ``"tracking"``, 510 for ``"grasp"``) and by the ``TimeLimit`` of 1000 steps registered with
-    the id.
+    ``"tracking"``, 510 for ``"grasp"``) and by the ``TimeLimit`` registered with the id: 500
+    steps, the default episode (``gym.make(..., reference="grasp", max_episode_steps=510)`` for
+    the whole grasp).
 
     ## Arguments
 

@@ -33,10 +33,66 @@ from gripper_env.evaluation.scoring import robustness, score_trajectory
 from gripper_env.io.config import ConfigError
 from gripper_env.sim import Trajectory
 
-__all__ = ["EpisodeRenderer", "EpisodeResults", "GripperPIDTuneEnv", "run_episodes"]
+__all__ = [
+    "DEFAULT_RELATIVE",
+    "REWARDS",
+    "EpisodeRenderer",
+    "EpisodeResults",
+    "GripperPIDTuneEnv",
+    "exact_log_reward",
+    "run_episodes",
+]
 
 #: Largest number of whole episodes the core advances in one call (memory: 4 x rows x samples).
 MAX_ROWS_PER_CALL = 128
+#: The rewards an episode can return (``reward=``): minus the penalised cost (the default), or
+#: the RL PID tuner's ``-log`` of the exact penalty (:func:`exact_log_reward`, the default of
+#: ``GripperPIDTuneRelative-v0``).
+REWARDS = ("penalised", "log-exact-penalty")
+#: ``GripperPIDTuneRelative-v0``'s defaults: the RL PID tuner's working formulation
+#: (:mod:`tuners.rl.tune`): log-gains one and a half decades around a deployable design, the
+#: PID's output limited to the servo's 0-180 deg with clamping anti-windup (the benchmark's
+#: evaluation settings) and the ``-log`` exact-penalty reward. The design is the AMIGO PI rule
+#: with its robustness knob set under the constraints on test2, test3 and test4 at once
+#: (``results/test2/classical-amigo-pi-robust.json``): the one gain set the benchmark admits on
+#: every identification, so the zero action is deployable on each. 1.5 decades and 0.02 s of D
+#: reach the benchmark's per-plant Optuna optima (test2's P 3.43, I 67.5, D -0.0087: 0.86 and 1.10
+#: decades, -0.43 of the D span).
+DEFAULT_RELATIVE: dict[str, Any] = {
+    "gain_scaling": "relative",
+    "gain_center": (0.4731, 5.415, 0.0),
+    "gain_decades": 1.5,
+    "gain_max": (1.0, 1.0, 0.02),
+    "pid_options": {"output_limits": (0.0, 180.0), "anti_windup": "clamping"},
+    "reward": "log-exact-penalty",
+}
+#: The floor of the exact penalty under the log (an episode cannot cost less than 0).
+_LOG_FLOOR = 1e-6
+
+
+def exact_log_reward(penalised: np.ndarray, feasible: np.ndarray, jump: float) -> np.ndarray:
+    """The RL PID tuner's reward, ``-log(cost + jump * violation)``, from the penalised costs.
+
+    :meth:`~gripper_env.evaluation.objective.Objective.penalised` adds ``jump * (1 +
+    violation)`` to an infeasible gain set's cost: a cliff of ``jump`` at the constraints'
+    boundary, where the best gains lie (Optuna's best have ``Ms`` 1.52-1.57 against the limit
+    1.6). A Gaussian policy maximising the expected reward across that cliff keeps its mean away
+    from the boundary. The exact penalty (the cliff taken off, growing with the violation;
+    larger than the constraint's multiplier, so its minimum is the constrained one) lets the
+    policy sit on the boundary, and the log keeps an unstable loop's 10,000 from swamping the
+    differences between the gains that matter (costs 10-20).
+
+    Parameters
+    ----------
+    penalised : ndarray
+        ``objective.penalised(cost, violation)`` per episode.
+    feasible : ndarray of bool
+        Whether each episode's gains met the constraints.
+    jump : float
+        ``objective.infeasible_penalty``.
+    """
+    exact = np.asarray(penalised, dtype=float) - np.where(np.asarray(feasible, bool), 0.0, jump)
+    return -np.log(np.maximum(exact, _LOG_FLOOR))
 
 
 @dataclass
@@ -300,6 +356,11 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     ``stable``), ``cost``, ``penalised_cost``, ``feasible``, ``robustness`` (margins),
     ``cost_terms`` and ``gains``.
 
+    ``reward="log-exact-penalty"`` (``GripperPIDTuneRelative-v0``'s default) returns instead
+    ``-log(cost + infeasible_penalty * violation)`` (:func:`exact_log_reward`): the RL PID
+    tuner's training reward, the constraints as an exact penalty without the cliff at their
+    boundary, in log scale (about -2.3 to -3.4 for good gains, -9.2 for a diverged run).
+
     ## Starting State
 
     Each ``reset`` draws the episode from the seeded generator: the plant (if several), the
@@ -328,11 +389,21 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
     ```
 
     Also ``episode_s`` (length of random references, s), ``gain_center`` and ``gain_decades``
-    (the ``relative`` gain map).
+    (the ``relative`` gain map), ``reward`` (``"penalised"``, the default, or
+    ``"log-exact-penalty"``).
+
+    ``gripper_env/GripperPIDTuneRelative-v0`` is this environment with the RL PID tuner's
+    working formulation as its defaults (:data:`DEFAULT_RELATIVE`): the ``relative`` gain map,
+    1.5 decades around the AMIGO PI design the benchmark admits on every identification (P
+    0.4731, I 5.415, D 0 +/- 0.02 s), the output limited to 0-180 deg with clamping, and the
+    ``log-exact-penalty`` reward. Every argument works the same.
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version: the signed ``log`` gain map and the penalised cost as the reward;
+      ``reward`` added without changing the default. Its metrics' oscillation check measures the
+      tracking error since the RL benchmark's change (a random profile's ramp still running in
+      the check's window was taken for an oscillation: such episodes cost ``unstable_cost``).
     """
 
     # gymnasium declares metadata per instance (Env.metadata); this is the class default
@@ -355,7 +426,12 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
         gain_decades: float = 1.0,
         derivative_filter: float = 100.0,
         objective: str | os.PathLike[str] | Mapping[str, Any] | Objective | None = None,
+        reward: str = "penalised",
     ) -> None:
+        if reward not in REWARDS:
+            raise ConfigError(f"{self._name}: argument 'reward': expected one of {REWARDS}, "
+                              f"got {reward!r}")  # fmt: skip
+        self.reward = reward
         self.settings = parse_settings(
             self._name, plant=plant, disturbance=disturbance, reference=reference,
             randomize=randomize, render_mode=render_mode, episode_s=episode_s,
@@ -419,6 +495,13 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
             "noise_seed": episode.noise_seed,
         }
 
+    def rewards(self, res: EpisodeResults) -> np.ndarray:
+        """The rewards of episodes run by :func:`run_episodes` (``reward=``)."""
+        if self.reward == "penalised":
+            return -res.costs
+        feasible = np.array([info["feasible"] for info in res.infos], dtype=bool)
+        return exact_log_reward(res.costs, feasible, self.objective.infeasible_penalty)
+
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._done or self._episode is None:
             raise RuntimeError(f"{self._name}: call reset() before step() (the episode has ended)")
@@ -429,7 +512,7 @@ class GripperPIDTuneEnv(gym.Env[np.ndarray, np.ndarray]):
         info = res.infos[0]
         if self._renderer is not None:
             self._renderer.finish(res.trajectories[0], info)
-        return self._obs.copy(), -float(res.costs[0]), True, False, info
+        return self._obs.copy(), float(self.rewards(res)[0]), True, False, info
 
     def render(self) -> np.ndarray | None:
         """Plot the last episode's reference, position and command (``rgb_array``: an image)."""

@@ -391,7 +391,7 @@ class GripperPIDTuneVectorEnv(_SeededVectorEnv):
                 self.settings, self._slots, [self._episodes[i] for i in run], acts[run],
                 self.objective, keep_trajectories=bool(self._renderers),
             )  # fmt: skip
-            rewards[run] = -res.costs
+            rewards[run] = self._single.rewards(res)
             terminated[run] = True
             self._elapsed[run] += 1
             for k, i in enumerate(run):

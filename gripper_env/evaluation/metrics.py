@@ -363,7 +363,9 @@ class Metrics:
         return out
 
 
-def sustained_swing(y: np.ndarray, segments: Any, dt_s: float) -> np.ndarray:
+def sustained_swing(
+    y: np.ndarray, segments: Any, dt_s: float, reference: np.ndarray | None = None
+) -> np.ndarray:
     """Largest peak-to-peak swing (deg) of each run over a window of :data:`OSCILLATION_WINDOW_S`
     ending :data:`OSCILLATION_GUARD_S` before the end of every segment (within its second
     half); 0 without segments.
@@ -376,7 +378,13 @@ def sustained_swing(y: np.ndarray, segments: Any, dt_s: float) -> np.ndarray:
         The moves; each spans from its start to the next move.
     dt_s : float
         Sample time (s).
+    reference : ndarray, shape (B, n) or (1, n), optional
+        The reference: the swing is then that of the tracking error ``y - r``, so a ramp still
+        running in the window (a random profile's moves are ramps of up to 5 s) is not taken
+        for an oscillation. Over a hold (every window of the step profiles) the two agree.
     """
+    if reference is not None:
+        y = y - np.asarray(reference, dtype=float)
     swing = np.zeros(y.shape[0])
     guard = round(OSCILLATION_GUARD_S / dt_s)
     for seg in segments:
@@ -519,7 +527,7 @@ def compute_metrics(
         "contact_s": _counter(traj, "contact_s", n_runs),
         "stall_s": _counter(traj, "stall_s", n_runs),
         "force_proxy": _counter(traj, "force_proxy", n_runs),
-        "oscillation_deg": sustained_swing(ys, segs, dt),
+        "oscillation_deg": sustained_swing(ys, segs, dt, reference=r),
         "jaw_min_deg": jaw.min(axis=1),
         "jaw_max_deg": jaw.max(axis=1),
     }

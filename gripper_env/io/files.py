@@ -56,6 +56,7 @@ __all__ = [
     "provenance_path",
     "read_format_json",
     "record_provenance",
+    "result_json_text",
     "run_facts",
     "safe_name",
     "save_figure",
@@ -545,6 +546,14 @@ def write_result_json(path: str | os.PathLike[str], obj: Any, indent: int = 2) -
     with collect_provenance(p.parent, _run_name(p)) if own else contextlib.nullcontext():
         record_provenance(p, volatile)
         return write_json(p, stable, indent)
+
+
+def result_json_text(obj: Any, indent: int = 2) -> str:
+    """The text :func:`write_result_json` writes for ``obj`` (its volatile values apart): what a
+    command prints for its own result, not the file read back, which a concurrent run of the same
+    command may have replaced meanwhile."""
+    stable, _volatile = split_volatile(json_ready(obj))
+    return json.dumps(json_ready(stable), indent=indent, allow_nan=False) + "\n"
 
 
 def read_format_json(

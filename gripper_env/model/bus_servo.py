@@ -48,6 +48,7 @@ from gripper_env.io.config import (
     read_bounded,
     validate,
 )
+from gripper_env.io.files import safe_name
 from gripper_env.model.bus_calibration import JawCalibration
 
 __all__ = [
@@ -409,6 +410,11 @@ class BusServoModel(BaseModel):
     community: dict[str, RegisterSet] = Field(default_factory=dict)
     calibration: JawCalibration | None = None
     operating_mode: Literal["position", "current_position"] = "position"
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v: str) -> str:
+        return safe_name(v, "model name")  # it names the tuner's files and deploy's folder
 
     @model_validator(mode="after")
     def _jaw_of_the_calibration(self) -> BusServoModel:

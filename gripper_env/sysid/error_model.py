@@ -24,7 +24,6 @@ import math
 from typing import Literal
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 __all__ = [
     "LOSSES",
@@ -67,6 +66,8 @@ def despike(y: np.ndarray, scale: float, width: int = 7) -> np.ndarray:
     """``y`` with the samples more than :data:`OUTLIER_SIGMAS` ``scale`` (deg) from their
     running median (``width`` samples) replaced by it: a Hampel filter. The starts of a robust
     fit use it, whose least-squares steps spikes would otherwise lead astray."""
+    from scipy.ndimage import median_filter  # here: LOSSES is read by a command's parser
+
     med = median_filter(np.asarray(y, dtype=float), size=width, mode="nearest")
     return np.where(np.abs(y - med) > OUTLIER_SIGMAS * scale, med, y)
 

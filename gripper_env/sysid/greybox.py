@@ -51,6 +51,7 @@ from gripper_env.model.disturbances import Disturbance, load_disturbance
 from gripper_env.model.plants import Plant
 from gripper_env.sysid.core_batches import CoreRuns, phase_scan
 from gripper_env.sysid.data import prepare_data
+from gripper_env.sysid.defaults import MAX_FRICTION_DEG
 from gripper_env.sysid.estimate import json_float
 from gripper_env.sysid.friction_profile import (
     FINE_STEP_DEG,
@@ -88,8 +89,6 @@ __all__ = [
     "response_on",
 ]
 
-#: Friction candidates span [0, this] deg for S and J unless told otherwise.
-MAX_FRICTION_DEG = 8.0
 #: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
 DELAY_INFORMATIVE_S = 0.005
 #: Refresh phases, spread over the servo's frame, where the friction is searched globally.

@@ -53,6 +53,7 @@ from gripper_env.sysid.data import (
     Offset,
     prepare_data,
 )
+from gripper_env.sysid.defaults import ESTIMATE
 from gripper_env.sysid.delay import DelayCandidate, default_max_delay, scan_delay
 from gripper_env.sysid.diagnostics import (
     IdentificationWarning,
@@ -103,8 +104,6 @@ __all__ = [
     "tfest",
 ]
 
-#: ``input_delay_s=ESTIMATE``: estimate the input delay.
-ESTIMATE = "estimate"
 #: Output-error evaluations each start gets before the best one is refined to convergence.
 SCREEN_NFEV = 8
 

@@ -10,6 +10,13 @@ GAIN_SCHEDULE = "gripper_env/GripperGainSchedule-v0"
 # (test_bus_servo_env.py). gripper_env.ENV_IDS holds all four.
 ENV_IDS = (SERVO, PID_TUNE, GAIN_SCHEDULE)
 BUS_SERVO = "gripper_env/GripperBusServo-v0"
+# The RL benchmark's task ids (test_benchmark_envs.py): the tuner's formulation of PIDTune, the
+# robust controller with its constraint cost, the grasp on the hobby servo and on a bus servo.
+PID_TUNE_RELATIVE = "gripper_env/GripperPIDTuneRelative-v0"
+ROBUST = "gripper_env/GripperServoRobust-v0"
+GRASP = "gripper_env/GripperGrasp-v0"
+BUS_GRASP = "gripper_env/GripperBusGrasp-v0"
+BENCHMARK_IDS = (PID_TUNE_RELATIVE, ROBUST, GRASP, BUS_GRASP)
 
 # Everything random at once: plants drawn, actual-gripper parameters drawn, random references.
 RANDOMIZED = {

@@ -61,7 +61,8 @@ def test_registered_in_env_ids_with_a_time_limit_and_no_vector_entry_point():
     assert BUS_SERVO in gripper_env.ENV_IDS
     assert gripper_env.envs.BUS_HARDWARE_ENV_ID not in gripper_env.ENV_IDS
     spec = gym.spec(BUS_SERVO)
-    assert spec.max_episode_steps == 1000 and spec.vector_entry_point is None
+    # the default episode (the 10 s random reference at 20 ms); "grasp"'s 10 s hold is 510
+    assert spec.max_episode_steps == 500 and spec.vector_entry_point is None
     env = gym.make(BUS_SERVO)
     assert isinstance(env, gym.wrappers.TimeLimit)
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -351,7 +352,8 @@ def test_grasp_holds_an_object_or_trips_the_overload():
     episode ends, -(100 + steps left))."""
     model = load_bus_servo("sts3215")
     stall_n = model.stall_force_n()
-    env = gym.make(BUS_SERVO, reference="grasp")
+    # the grasp's 10 s hold is 510 steps, beyond the registered TimeLimit (the default episode)
+    env = gym.make(BUS_SERVO, reference="grasp", max_episode_steps=510)
     _, info = env.reset(seed=0)
     assert info["object_deg"] == model.jaw.object_deg == 185.0
     rewards = []

@@ -7,7 +7,18 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import BUS_SERVO, ENV_IDS, GAIN_SCHEDULE, PID_TUNE, SERVO
+from helpers import (
+    BENCHMARK_IDS,
+    BUS_GRASP,
+    BUS_SERVO,
+    ENV_IDS,
+    GAIN_SCHEDULE,
+    GRASP,
+    PID_TUNE,
+    PID_TUNE_RELATIVE,
+    ROBUST,
+    SERVO,
+)
 
 import gripper_env
 
@@ -15,13 +26,18 @@ WORKTREE = Path(__file__).resolve().parents[2]
 
 
 def test_ids_registered_with_time_limits():
-    assert set(gripper_env.ENV_IDS) == {*ENV_IDS, BUS_SERVO}
-    limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 1000}
+    assert set(gripper_env.ENV_IDS) == {*ENV_IDS, BUS_SERVO, *BENCHMARK_IDS}
+    # each TimeLimit is its default episode's length: 20 s, 10 s (bus: 500; robust: 500), the
+    # grasp scenarios' 4.5 s and 4.2 s at the 20 ms control period
+    limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 500,
+              PID_TUNE_RELATIVE: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210}  # fmt: skip
+    no_vector = {BUS_SERVO, ROBUST, GRASP, BUS_GRASP}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == limit
-        # the bus servo has no native vector form (gym.make_vec makes a SyncVectorEnv)
-        assert (spec.vector_entry_point is None) == (env_id == BUS_SERVO)
+        # the bus servo and the benchmark's task ids have no native vector form (gym.make_vec
+        # makes a SyncVectorEnv)
+        assert (spec.vector_entry_point is None) == (env_id in no_vector)
         env = gym.make(env_id)
         assert isinstance(env, gym.wrappers.TimeLimit) == (limit is not None)
         env.close()
@@ -43,7 +59,8 @@ def test_make_without_prior_import_in_fresh_interpreter():
     code = (
         "import gymnasium as gym\n"
         "for i in ('GripperServo-v0', 'GripperPIDTune-v0', 'GripperGainSchedule-v0',\n"
-        "          'GripperBusServo-v0'):\n"
+        "          'GripperBusServo-v0', 'GripperPIDTuneRelative-v0', 'GripperServoRobust-v0',\n"
+        "          'GripperGrasp-v0', 'GripperBusGrasp-v0'):\n"
         "    env = gym.make(f'gripper_env:gripper_env/{i}')\n"
         "    env.reset(seed=0)\n"
         "    print(env.spec.id, env.spec.max_episode_steps)\n"
@@ -56,7 +73,8 @@ def test_make_without_prior_import_in_fresh_interpreter():
     )
     assert "gripper_env/GripperServo-v0 1000" in out.stdout
     assert "gripper_env/GripperPIDTune-v0 None" in out.stdout
-    assert "gripper_env/GripperBusServo-v0 1000" in out.stdout
+    assert "gripper_env/GripperBusServo-v0 500" in out.stdout
+    assert "gripper_env/GripperGrasp-v0 225" in out.stdout
     assert "GripperServoVectorEnv" in out.stdout
 
 

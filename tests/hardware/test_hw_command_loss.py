@@ -45,7 +45,7 @@ def test_a_lost_mode_change_is_sent_again(virtual_twin) -> None:
 
 
 def test_a_setpoint_that_never_arrives_fails_loudly(virtual_twin) -> None:
-    with open_device(virtual_twin, retries=2, timeout_s=0.3) as dev:
+    with open_device(virtual_twin, retries=2, timeout_s=1.0) as dev:  # replies late under load
         dev.configure()
         virtual_twin.lose_host_frames(proto.Setpoint.TYPE, 100)
         with pytest.raises(CommandLost, match=r"does not hold SETPOINT 33 deg after 3 tries"):

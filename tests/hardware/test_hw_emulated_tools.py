@@ -60,6 +60,7 @@ def test_noise_faster_than_the_line_takes_it_is_held_back_not_fatal(emulated) ->
     fd = os.open(emulated.path, os.O_RDWR | os.O_NOCTTY)
     try:
         fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
+        noise += b"\x00"  # the last byte ends the garbage's frame
         sent, deadline = 0, time.monotonic() + 120
         while sent < len(noise) and time.monotonic() < deadline:
             try:
@@ -67,7 +68,6 @@ def test_noise_faster_than_the_line_takes_it_is_held_back_not_fatal(emulated) ->
             except BlockingIOError:
                 time.sleep(0.01)  # the line is full: wait, as a writer to a bridge does
         assert sent == len(noise)
-        os.write(fd, b"\x00")  # end the garbage's frame
     finally:
         os.close(fd)
     assert emulated.running and emulated.error is None

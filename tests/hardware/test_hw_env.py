@@ -21,7 +21,10 @@ from gripper_env.hardware.virtual import VirtualDevice
 from gripper_env.io.config import ConfigError
 
 HW = "gripper_env/GripperServoHardware-v0"
-SPEED = 2.0  # at most 2x: scheduling hiccups of this loaded machine stay far from the watchdog
+#: Real time, as the environment runs on a board. The board's watchdog stops it after 500 ms of
+#: device time without a host frame: at 2x that was 250 ms of wall time, which the test's
+#: thread went without running at load 9 on 2 cores (three tests ended in a WATCHDOG stop).
+SPEED = 1.0
 STUB_CALIBRATION = Calibration(80.0, 350.0)  # for envs that never open their port
 JC, JH, CC, CH = 56.5, 35.5, 90.0, 90.0  # jaw and command range centre / half-width (deg)
 
@@ -128,15 +131,23 @@ def test_non_finite_action_is_refused_before_anything_is_sent(virtual) -> None:
     assert idle_and_open(virtual)
 
 
+def _counted(info: dict) -> bool:
+    """A first step's count says whether it was late (on a loaded machine a step taken at once
+    may still arrive after its 20 ms: that is what the count is for)."""
+    return info["missed_deadlines"] == (1 if info["late_ms"] > 0 else 0)
+
+
 def test_missed_deadlines_are_counted_and_warned(virtual) -> None:
     env = make(virtual, warn_every=3)
     env.reset(seed=0)
     a = action_for(70.0)
-    _, _, _, _, info = env.step(a)
-    assert info["missed_deadlines"] == 0 and info["late_ms"] == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
+        _, _, _, _, info = env.step(a)
+    assert _counted(info), info
     with pytest.warns(MissedDeadlineWarning, match="after the end of its 20 ms control period"):
         for _ in range(6):
-            time.sleep(0.060)  # a slow agent: 120 ms of device time between steps
+            time.sleep(0.120 / SPEED)  # a slow agent: 120 ms of device time between steps
             _, _, terminated, _, info = env.step(a)
             assert not terminated
             assert info["late_ms"] >= 40.0, info
@@ -144,8 +155,10 @@ def test_missed_deadlines_are_counted_and_warned(virtual) -> None:
     assert env.unwrapped.missed_deadlines_total == info["missed_deadlines"]
     # a new episode counts afresh
     env.reset()
-    _, _, _, _, info = env.step(a)
-    assert info["missed_deadlines"] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
+        _, _, _, _, info = env.step(a)
+    assert _counted(info), info
     env.close()
 
 
@@ -153,7 +166,7 @@ def test_watchdog_fault_ends_the_episode_and_reset_recovers(virtual) -> None:
     env = make(virtual)
     env.reset(seed=0)
     env.step(action_for(50.0))
-    time.sleep(0.4)  # 800 ms of device time without a host frame: the board's watchdog fires
+    time.sleep(0.8 / SPEED)  # 800 ms of device time without a host frame: the watchdog fires
     with pytest.warns(RuntimeWarning, match="WATCHDOG"), warnings.catch_warnings():
         warnings.simplefilter("ignore", MissedDeadlineWarning)  # the step is late too, by design
         obs, reward, terminated, truncated, info = env.step(action_for(50.0))
@@ -198,8 +211,11 @@ def test_gymnasium_env_checker(virtual) -> None:
     env = make(virtual)
     with warnings.catch_warnings():
         # No warning is inherent to real time: the spec is registered nondeterministic, so the
-        # checker skips its same-seed-same-observation tests; it declares no render modes.
+        # checker skips its same-seed-same-observation tests; it declares no render modes. A
+        # missed deadline is the host's doing (a loaded machine, the checker's own work between
+        # steps), counted and warned by design (test_missed_deadlines_are_counted_and_warned).
         warnings.simplefilter("error")
+        warnings.simplefilter("ignore", MissedDeadlineWarning)
         check_env(env.unwrapped)
     env.close()
     assert idle_and_open(virtual)

@@ -256,3 +256,17 @@ def test_a_group_of_files_appears_whole_or_not_at_all(tmp_path):
         write_atomic(tmp_path / "b.png", b"png")
     assert sorted(os.listdir(tmp_path)) == ["a.json", "b.png"]
     assert keep.read_text() == "new"
+
+
+def test_a_result_prints_as_this_run_wrote_it(tmp_path):
+    """``--json`` prints the result's own text, byte for byte the file this run wrote (not the
+    file read back, which a concurrent worker of the same study may have replaced: three Optuna
+    workers on one journal printed each other's trial counts)."""
+    from gripper_env.io.files import result_json_text, write_result_json
+
+    result = {"tuner": "optuna", "P": 0.5, "wall_time_s": 3.2, "tuning": {"trials_this_run": 4}}
+    path = write_result_json(tmp_path / "optuna.json", result)
+    assert result_json_text(result) == path.read_text()
+    assert "wall_time_s" not in result_json_text(result)  # volatile values go to the sidecar
+    write_result_json(path, {**result, "tuning": {"trials_this_run": 16}})  # another worker
+    assert '"trials_this_run": 4' in result_json_text(result)

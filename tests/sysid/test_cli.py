@@ -236,3 +236,19 @@ def test_no_convergence_exits_1_unless_allowed(log_csv, tmp_path, capsys):
                             "--save-plant", str(plant)], capsys)  # fmt: skip
     assert status == 0 and "warning: the output-error search did not converge" in err
     assert plant.exists()
+
+
+def test_the_package_names_stay_what_they_were_whatever_was_imported_first():
+    """gripper_env.sysid imports its public names on first use (so that the command's --help
+    loads no estimator); ``tfest`` stays the function even after its submodule was imported
+    alone (which rebinds a package attribute to the submodule), in a fresh interpreter."""
+    code = (
+        "import types, gripper_env.sysid.orders\n"
+        "from gripper_env.sysid import tfest, ESTIMATE, identify_actual\n"
+        "assert callable(tfest) and not isinstance(tfest, types.ModuleType), tfest\n"
+        "from gripper_env.sysid.tfest import tfest as same\n"
+        "assert same is tfest and ESTIMATE == 'estimate' and callable(identify_actual)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=300, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]

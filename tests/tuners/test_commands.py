@@ -20,11 +20,15 @@ from tuners.conventions import HelpFormatter, command_parser, program_name
 
 REPO = Path(__file__).resolve().parents[2]
 #: What --help and a refused name must not load: the core's compiler, python-control, plots,
-#: the search and the learning libraries (seconds of imports on a busy machine).
-HEAVY = ("numba", "control", "matplotlib", "scipy", "optuna", "torch", "stable_baselines3")
-#: The commands whose --help and bad-name refusal are light (the bus servos' commands take
-#: these conventions when they adopt tuners.conventions).
-LIGHT = ("manual", "classical", "optuna", "rl", "benchmark", "reproduce")
+#: the search and the learning libraries, the simulation core and the environments' classes
+#: (seconds of imports on a busy machine; gymnasium's registry alone is light and allowed).
+HEAVY = ("numba", "control", "matplotlib", "scipy", "optuna", "torch", "stable_baselines3",
+         "gripper_env.sim", "gripper_env.envs.control_env", "gripper_env.envs.servo",
+         "gripper_env.envs.pid_tune")  # fmt: skip
+#: The commands whose --help and --version are light (and the tuners' refusal of a bad name).
+LIGHT = ("manual", "classical", "optuna", "rl", "benchmark", "leaderboard", "results", "sysid",
+         "reproduce", "calibrate", "record", "deploy", "bus-calibrate", "bus-record",
+         "bus-identify", "bus-deploy")  # fmt: skip
 
 PROBE = """
 import json, runpy, sys
@@ -130,9 +134,12 @@ def test_the_method_names_are_the_rules():
     assert METHOD_NAMES == tuple(METHODS)
 
 
-def test_version(capfd):
-    code, _, _ = _probe("tuners.optuna", "--version")
-    assert code == 0
+@pytest.mark.parametrize("module", [c.module for c in commands.COMMANDS])
+def test_every_command_answers_version(module):
+    result = subprocess.run([sys.executable, "-m", module, "--version"], cwd=REPO,
+                            capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout == f"gripper-env {__version__}\n"
 
 
 @pytest.mark.parametrize("name", LIGHT)

@@ -1,55 +1,142 @@
-"""Reference scores: the policies run through the environment as documented."""
+"""The reference scores' command end to end on a few episodes, and what it writes."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from gripper_env.model.pid import PIDGains, PIDOptions
-from gripper_env.sim import simulate
-from tuners.rl import reference_scores as rs
+from tuners.rl.leaderboard import leaderboard
+from tuners.rl.reference_scores import aggregate, load_reference, render
 
-PID = PIDGains(3.43, 67.5, -0.0087)
-
-
-def test_the_pid_through_the_servo_environment_is_the_pid_of_the_core():
-    """The "best PID" row of GripperServo-v0 runs the PID inside the environment: its jaw is
-    the simulation core's closed loop with those gains."""
-    from gripper_env.envs.rollout import policy_trajectory
-
-    policy, kwargs = rs._pid_policy("gripper_env/GripperServo-v0", {}, PID)
-    traj = policy_trajectory(policy, [0], reference="step", **kwargs)
-    core = simulate(
-        "test2",
-        "step",
-        [PID.as_array()],
-        "actual",
-        seeds=[0],
-        pid_options=PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping"),
-    )
-    np.testing.assert_allclose(traj.y_true[0], core.y_true[0], atol=1e-9)
+WORKTREE = Path(__file__).resolve().parents[2]
 
 
-def test_the_pid_gains_through_the_tuning_environment_are_the_gains():
-    import gymnasium as gym
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    """``python -m tuners.rl.reference_scores`` on the grasp task's first 4 episodes, one seed
+    per algorithm with 256 steps (a smoke run: the published one uses the whole set)."""
+    out = tmp_path_factory.mktemp("ref")
+    run = subprocess.run(
+        [sys.executable, "-m", "tuners.rl.reference_scores", "--tasks", "grasp", "--episodes",
+         "4", "--seeds", "1", "--timesteps", "256", "--out", str(out), "--cache",
+         str(out / "cache")],
+        cwd=WORKTREE, capture_output=True, text=True, timeout=1200,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    return out
 
-    policy, kwargs = rs._pid_policy("gripper_env/GripperPIDTune-v0", {}, PID)
-    env = gym.make("gripper_env/GripperPIDTune-v0", **kwargs)
-    obs, _ = env.reset(seed=0)
-    info = env.step(policy(obs[None, :])[0].astype(np.float32))[4]
-    assert [info["gains"][k] for k in "PID"] == pytest.approx([PID.P, PID.I, PID.D], rel=1e-5)
+
+def test_it_writes_the_scale_the_rows_and_the_provenance(smoke):
+    data = load_reference(smoke / "reference_scores.json")
+    e = data["tasks"]["grasp"]
+    anchors = e["anchors"]
+    assert len(anchors["trivial"]) == len(anchors["limit"]) == 4
+    assert all(b > a for a, b in zip(anchors["trivial"], anchors["limit"], strict=True))
+    pid = e["pid"]
+    # the PID's score is its mean return on the scale of the anchors' means
+    r0, r100 = np.mean(anchors["trivial"]), np.mean(anchors["limit"])
+    assert pid["score"] == pytest.approx(100 * (pid["return_mean"] - r0) / (r100 - r0))
+    assert set(e["cells"]) == {"PPO", "SAC"}
+    for cell in e["cells"].values():
+        assert cell["seeds"] == 1 and cell["iqm"] == cell["per_seed"][0]["score"]
+        assert cell["ci95"] == [cell["iqm"], cell["iqm"]]
+    md = (smoke / "reference_scores.md").read_text()
+    assert "| grasp | yes |" in md and "0 = the trivial" in md
+    prov = json.loads((smoke / "reference_scores.provenance.json").read_text())
+    assert prov["git_commit"] and prov["libraries"]["stable_baselines3"]
+    assert prov["libraries"]["torch"] and prov["libraries"]["gymnasium"]
+    assert (smoke / "figures" / "rl_performance_profiles.png").is_file()
+    # the seeds' agents are kept and a rerun reuses them
+    assert (smoke / "cache" / "reference" / "grasp" / "ppo" / "seed-0" / "agent" /
+            "model.zip").is_file()  # fmt: skip
 
 
-def test_command_equals_reference_commands_the_reference():
-    import gymnasium as gym
+def _run(*args):
+    run = subprocess.run([sys.executable, "-m", "tuners.rl.reference_scores", *args],
+                         cwd=WORKTREE, capture_output=True, text=True, timeout=1200)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    return run
 
-    env = gym.make("gripper_env/GripperServo-v0")
-    policy = rs._command_equals_reference("gripper_env/GripperServo-v0", {})
-    obs, _ = env.reset(seed=0)
-    for _ in range(90):  # through the grip step at 1 s
-        action = policy(obs[None, :])[0]
-        obs, *_ = env.step(action.astype(np.float32))
-    # after the step the command is the reference, 21 deg on the 0-180 deg command range
-    assert action[0] == pytest.approx((21.0 - 90.0) / 90.0)
-    assert float(obs[1]) == pytest.approx(-1.0)  # the reference is the jaw range's closed end
-    assert abs(float(obs[1]) - float(obs[0])) < 0.05  # and the jaw has followed it
+
+def test_no_train_scores_only_cells_whose_seeds_are_all_kept(smoke, tmp_path):
+    """--no-train trains nothing: with 2 seeds wanted and 1 kept per cell, no cell is scored and
+    each is listed as not trained with the command that trains it; with 1 seed wanted, the kept
+    seeds' cells are scored as the training run scored them."""
+    common = ["--tasks", "grasp", "--episodes", "4", "--timesteps", "256", "--cache",
+              str(smoke / "cache"), "--no-train"]  # fmt: skip
+    _run(*common, "--seeds", "2", "--out", str(tmp_path / "two"))
+    assert not (smoke / "cache" / "reference" / "grasp" / "ppo" / "seed-1").exists()
+    e = load_reference(tmp_path / "two" / "reference_scores.json")["tasks"]["grasp"]
+    assert e["cells"] == {}
+    assert set(e["untrained"]) == {"PPO", "SAC"}
+    for m in e["untrained"].values():
+        assert m["seeds"] == 2 and m["kept_seeds"] == [0] and m["timesteps"] == 256
+        assert m["train"].startswith("python -m tuners.rl.reference_scores --train-only "
+                                     "--tasks grasp --cache ")  # fmt: skip
+        assert m["train"].endswith("--seeds 2 --timesteps 256")
+    md = (tmp_path / "two" / "reference_scores.md").read_text()
+    assert "| grasp | yes |" in md and "not trained in this run (1/2 seeds)" in md
+    assert "PPO (2 seeds x 256 steps) | not trained in this run: 1 of 2 seeds kept" in md
+    assert not (tmp_path / "two" / "figures").exists()  # no scored hard cell, no profile
+    # the leaderboard's reference rows say so too
+    row = {"task": "grasp", "env_id": e["env_id"], "name": "a", "kind": "callable",
+           "score": 1.0, "interval": [0.0, 2.0], "runs": [{}], "admitted": True,
+           "verdict": "held"}  # fmt: skip
+    ref = load_reference(tmp_path / "two" / "reference_scores.json")
+    board = leaderboard([row], ref, "rows")
+    assert "*PPO (reference recipe, 256 steps)* | not trained in this run (1 of 2 seeds" in board
+
+    _run(*common, "--seeds", "1", "--out", str(tmp_path / "one"))
+    one = load_reference(tmp_path / "one" / "reference_scores.json")["tasks"]["grasp"]
+    ref_cells = load_reference(smoke / "reference_scores.json")["tasks"]["grasp"]["cells"]
+    assert "untrained" not in one and set(one["cells"]) == {"PPO", "SAC"}
+    for algo, cell in one["cells"].items():
+        assert cell["iqm"] == ref_cells[algo]["iqm"]
+
+
+def test_aggregate_and_render_on_a_hand_made_table():
+    def cell(scores):
+        return {"seeds": len(scores), "iqm": float(np.mean(scores)), "ci95": [0.0, 1.0],
+                "median": 0.0, "per_seed": [{"seed": i, "score": s, "score_se": 0.5,
+                                             "return_mean": -10.0, "admitted": True,
+                                             "verdict": "ok", "train_wall_time_s": 1.0}
+                                            for i, s in enumerate(scores)],
+                "return_mean": -10.0, "admitted_seeds": len(scores), "max_eval_se": 0.5,
+                "timesteps": 10, "train_wall_time_s": 1.0, "objective_cost": None,
+                "constraint_cost": None, "held_fraction": None,
+                "worst_margin_db": None}  # fmt: skip
+
+    pid = {"pid": "x", "score": 40.0, "score_se": 0.3, "return_mean": -12.0, "return_sd": 1.0,
+           "admitted": True, "verdict": "ok", "score_interval_episodes": [39.0, 41.0]}  # fmt: skip
+    table = {
+        name: {"about": name, "env_id": "e", "hard": hard, "train_kwargs": {}, "eval_kwargs": {},
+               "limit_kind": "reward-lp", "pid": pid, "max_score_seen": 60.0,
+               "anchor_stats": {"trivial": {"mean": -20.0, "se": 0.1},
+                                "limit": {"mean": 0.0, "se": 0.1, "kind": "reward-lp"},
+                                "episodes": 8, "max_cell_shift": 0.2},
+               "cells": {"PPO": cell(scores), "SAC": cell(scores)}}
+        for name, hard, scores in (("a", True, [10.0, 20.0, 30.0, 40.0]),
+                                   ("b", True, [50.0, 60.0, 70.0, 80.0]),
+                                   ("c", False, [1000.0] * 4))
+    }  # fmt: skip
+    agg = aggregate(table)
+    # the hard tasks' runs pooled: 10..80, IQM = mean of the middle four
+    assert agg["PPO"]["iqm"] == pytest.approx(np.mean([30, 40, 50, 60]))
+    assert agg["PPO"]["tasks"] == ["a", "b"]
+    md = render(table, agg)
+    assert "| a | yes | 40.0 (admitted) | 25.0 [0.0, 1.0] (4/4)" in md
+    assert "Over the hard tasks" in md
+
+
+def test_a_missing_or_old_reference_file_is_one_line_naming_the_command(tmp_path):
+    with pytest.raises(ValueError, match=r"python -m tuners\.rl\.reference_scores"):
+        load_reference(tmp_path / "none.json")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"pid_source": "x", "table": {}}))
+    with pytest.raises(ValueError, match="regenerate"):
+        load_reference(old)

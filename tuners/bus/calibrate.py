@@ -56,6 +56,7 @@ from gripper_env.model.bus_calibration import (
 )
 from gripper_env.model.bus_servo import load_bus_servo
 from tuners.bus.cli import BusArgumentParser, add_servo_arguments, output_folder, run_cli
+from tuners.conventions import conform
 
 __all__ = ["main"]
 
@@ -106,7 +107,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="the calibration file (default runs/bus/jaw_<family>_id<ID>.json)",
     )
-    return parser
+    return conform(parser, "tuners.bus.calibrate")
 
 
 def _check_options(args: argparse.Namespace) -> str:
@@ -118,8 +119,10 @@ def _check_options(args: argparse.Namespace) -> str:
         raise ValueError("--lerobot and --closed-ticks/--open-ticks exclude each other")
     if args.closed_at is not None and args.lerobot is None:
         raise ValueError("--closed-at goes with --lerobot")
-    if args.out is not None and args.out.is_dir():
-        raise ValueError(f"--out {str(args.out)!r} is a folder; give a file name")
+    if args.out is not None:  # before the servo is read: a folder, under a file, read-only
+        from tuners.cli import check_output_file
+
+        check_output_file(args.out, "--out")
     if args.lerobot is not None:
         return "lerobot"
     return "given" if given[0] is not None else "hand"

@@ -62,7 +62,7 @@ class BusArgumentParser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line (naming the option) and exit 2."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see --help)\n")
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def servo_id(text: str) -> int:
@@ -117,10 +117,13 @@ def add_servo_arguments(
 
 
 def output_folder(path: Path, option: str = "--out") -> Path:
-    """``path`` as an output folder, created (ValueError naming ``option`` if it is a file)."""
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"{option} {str(path)!r} is a file; give a folder")
-    path.mkdir(parents=True, exist_ok=True)
+    """``path`` as an output folder, checked before any work (a ValueError naming ``option`` if
+    it is a file, lies under one or cannot be written). It is not created here: the first file
+    written into it makes it, so a command refused later (a port that does not open) leaves
+    nothing behind."""
+    from tuners.cli import check_output_folder
+
+    check_output_folder(path, option)
     return path
 
 

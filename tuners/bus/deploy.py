@@ -41,24 +41,10 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from gripper_env.evaluation.bus_servo import BusScore, judge
-from gripper_env.evaluation.metrics import fit_percent
-from gripper_env.hardware.bus.gripper import BusGripper
 from gripper_env.hardware.bus.link import BusAlertError, BusError
 from gripper_env.io.files import write_json
-from gripper_env.model.bus_servo import (
-    BusServoModel,
-    RegisterSet,
-    alternative_models,
-    load_registers_file,
-    relative_uncertainties,
-)
-from gripper_env.sysid.bus_experiments import BusRecorder, GoalPlan, check_plan, tracking_plan
-from gripper_env.sysid.bus_servo import BusRecord, predict_record, write_bus_record
 from tuners.bus.cli import (
     BusArgumentParser,
     add_servo_arguments,
@@ -67,6 +53,16 @@ from tuners.bus.cli import (
     output_folder,
     run_cli,
 )
+from tuners.conventions import conform
+
+if TYPE_CHECKING:  # the library is imported where it is used: --help answers before it loads
+    import numpy as np
+
+    from gripper_env.evaluation.bus_servo import BusScore
+    from gripper_env.hardware.bus.gripper import BusGripper
+    from gripper_env.model.bus_servo import BusServoModel, RegisterSet
+    from gripper_env.sysid.bus_experiments import BusRecorder, GoalPlan
+    from gripper_env.sysid.bus_servo import BusRecord
 
 __all__ = ["gate", "main"]
 
@@ -81,6 +77,8 @@ def gate(
     """Judge ``regs`` on ``model`` (and its ``alternatives``, the identification's fits at later
     loop delays); refuse (ValueError) an unstable loop, and registers that miss the constraints
     unless ``allow_infeasible`` (then warn)."""
+    from gripper_env.evaluation.bus_servo import judge
+
     score = judge(model, [regs], rel_std=rel_std, alternatives=alternatives)[0]
     if not score.robust_margins.stable:
         raise ValueError(
@@ -100,6 +98,8 @@ def gate(
 
 def _step_errors(rec: BusRecord, predicted: np.ndarray) -> list[dict[str, float]]:
     """Per step: the goal, and the measured and predicted angle at its end (deg)."""
+    import numpy as np
+
     out = []
     ends = [*rec.goal_times_s[1:], rec.t_s[-1] + 1e-9]
     for t_start, goal, t_end in zip(rec.goal_times_s, rec.goal_values_deg, ends, strict=False):
@@ -150,6 +150,10 @@ def _hold(jaw: BusGripper, seconds: float) -> dict[str, Any]:
 def _check_plans(model: BusServoModel, hold: bool) -> GoalPlan:
     """The verification's plan, refused (ValueError) if it or the hold leaves the calibrated
     jaw's goal range."""
+    import numpy as np
+
+    from gripper_env.sysid.bus_experiments import GoalPlan, check_plan, tracking_plan
+
     assert model.calibration is not None
     plan = tracking_plan(model)
     goal_range = model.calibration.goal_range_deg()
@@ -201,12 +205,20 @@ def _parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=None, help="output folder (default: next to the registers)"
     )
     parser.add_argument("--no-plot", action="store_true", help="skip response.png")
-    return parser
+    return conform(parser, "tuners.bus.deploy")
 
 
 def _run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.hold <= 600.0:
         raise ValueError(f"--hold must be 0..600 s, got {args.hold}")
+    from gripper_env.model.bus_servo import (
+        alternative_models,
+        load_registers_file,
+        relative_uncertainties,
+    )
+    from gripper_env.sysid.bus_experiments import BusRecorder
+    from gripper_env.sysid.bus_servo import write_bus_record
+
     model, regs, doc = load_registers_file(args.registers)
     source = str(args.registers)
     rel_std = relative_uncertainties(doc, "uncertainty_rel_std", source)
@@ -289,6 +301,11 @@ def _write_report(
     saved: list[str],
 ) -> tuple[float, float]:
     """Write report.json (and response.png); the fit % and the largest end-of-step gap."""
+    import numpy as np
+
+    from gripper_env.evaluation.metrics import fit_percent
+    from gripper_env.sysid.bus_servo import predict_record
+
     predicted = predict_record(model, rec)
     fit = float(fit_percent(rec.position_deg, predicted))
     steps = _step_errors(rec, predicted)

@@ -20,20 +20,15 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from gripper_env.io.files import save_figure, write_json
-from gripper_env.model.bus_servo import load_bus_servo
-from gripper_env.sysid.bus_servo import (
-    FIT_NAMES,
-    BusEstimate,
-    BusRecord,
-    identify_bus_servo,
-    predict_record,
-    read_bus_record,
-)
+from gripper_env.io.files import safe_name, save_figure, write_json
 from tuners.bus.cli import run_cli
+from tuners.cli import check_output_folder
+from tuners.conventions import conform
+
+if TYPE_CHECKING:  # the library is imported after parsing: --help answers before it loads
+    from gripper_env.sysid.bus_servo import BusEstimate, BusRecord
 
 __all__ = ["main"]
 
@@ -65,11 +60,13 @@ def _parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=None, help="output folder (default: the records' folder)"
     )
     parser.add_argument("--no-plot", action="store_true", help="do not draw NAME_fit.png")
-    return parser
+    return conform(parser, "tuners.bus.identify")
 
 
 def format_estimate(est: BusEstimate) -> str:
     """A markdown table of the estimate: value, standard error, 95 % range."""
+    from gripper_env.sysid.bus_servo import FIT_NAMES
+
     lines = ["| parameter | value | std | 95 % range |", "|---|---|---|---|"]
     for k in FIT_NAMES:
         v, s = est.values[k], est.std[k]
@@ -88,6 +85,8 @@ def _plot(est: BusEstimate, records: list[BusRecord], names: list[str], path: Pa
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from gripper_env.sysid.bus_servo import predict_record
 
     n = len(records)
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.2 * n), squeeze=False)
@@ -108,6 +107,14 @@ def _plot(est: BusEstimate, records: list[BusRecord], names: list[str], path: Pa
 def _run(args: argparse.Namespace) -> int:
     if not 1 <= args.generations <= 10_000:
         raise ValueError(f"--generations must be 1..10000, got {args.generations}")
+    safe_name(args.name, "--name")  # it names the files: never a path
+    out = args.out or args.records[0].parent
+    check_output_folder(out, "--out" if args.out else "the records' folder")
+    import numpy as np
+
+    from gripper_env.model.bus_servo import load_bus_servo
+    from gripper_env.sysid.bus_servo import identify_bus_servo, read_bus_record
+
     prior = load_bus_servo(args.model)
     records = [read_bus_record(p) for p in args.records]
     # the records' jaw calibration (the owner's jaw, their angles' frame) goes into the model
@@ -121,7 +128,6 @@ def _run(args: argparse.Namespace) -> int:
     prior = prior.calibrated(calibration)
     est = identify_bus_servo(records, prior, name=args.name, seed=args.seed,
                              generations=args.generations)  # fmt: skip
-    out = args.out or args.records[0].parent
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{args.name}_model"
     doc = est.as_dict()

@@ -29,15 +29,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from gripper_env.model.bus_servo import load_bus_servo
-from gripper_env.sysid.bus_experiments import (
-    BusRecorder,
-    check_plan,
-    check_settings,
-    record_plan,
-    settings_registers,
-)
-from gripper_env.sysid.bus_servo import write_bus_record
 from tuners.bus.cli import (
     BusArgumentParser,
     add_servo_arguments,
@@ -46,6 +37,7 @@ from tuners.bus.cli import (
     output_folder,
     run_cli,
 )
+from tuners.conventions import conform
 
 __all__ = ["main", "parse_setting"]
 
@@ -99,12 +91,23 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out", type=Path, default=Path("runs/bus"), help="records folder (default runs/bus)"
     )
-    return parser
+    return conform(parser, "tuners.bus.record")
 
 
 def _run(args: argparse.Namespace) -> int:
     if not 0.0 < args.sample_ms <= 100.0:
         raise ValueError(f"--sample-ms must be in (0, 100] ms, got {args.sample_ms}")
+    # the library after parsing: --help and a usage error answer before it loads
+    from gripper_env.model.bus_servo import load_bus_servo
+    from gripper_env.sysid.bus_experiments import (
+        BusRecorder,
+        check_plan,
+        check_settings,
+        record_plan,
+        settings_registers,
+    )
+    from gripper_env.sysid.bus_servo import write_bus_record
+
     model = load_bus_servo(args.model)
     registers = settings_registers(model, args.settings)
     check_settings(model, registers)  # before anything is sent

@@ -34,7 +34,7 @@ import optuna
 from tqdm.auto import tqdm
 
 from gripper_env.evaluation.bus_servo import GM_MIN_DB, MS_MAX, BusScore, judge
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import (
     BusServoModel,
@@ -44,6 +44,7 @@ from gripper_env.model.bus_servo import (
     relative_uncertainties,
 )
 from tuners import cli
+from tuners.conventions import conform
 
 __all__ = ["SEARCH_SPACE", "constraint_value", "main", "search_space", "tune_registers"]
 
@@ -404,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-plot", action="store_true", help="do not draw the figure")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return parser
+    return conform(parser, "tuners.bus.tune")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -532,7 +533,7 @@ def identified_extras(
     if not str(model_arg).endswith(".json"):
         return None, []
     try:
-        doc = json.loads(Path(model_arg).read_text())
+        doc = json.loads(read_bounded(Path(model_arg), MAX_CONFIG_BYTES, "bus servo model"))
     except (OSError, ValueError):
         return None, []
     if not isinstance(doc, dict):

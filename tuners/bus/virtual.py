@@ -31,6 +31,7 @@ from gripper_env.hardware.bus.unit import ServoUnit
 from gripper_env.io.config import ConfigError
 from gripper_env.model.bus_servo import load_bus_servo
 from tuners.bus.cli import BusArgumentParser, servo_id
+from tuners.conventions import conform
 
 __all__ = ["main"]
 
@@ -76,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="also make a symbolic link to the pty at this path (removed on exit)",
     )
-    return parser
+    return conform(parser, "tuners.bus.virtual")
 
 
 def _check_link(path: str | None) -> str | None:
@@ -122,8 +123,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         lo, hi = model.jaw.limits_deg
         if args.object is not None and not lo <= args.object <= hi:
             raise ValueError(f"--object must lie in the jaw's range [{lo:g}, {hi:g}] deg")
-        unit = ServoUnit(model, object_deg=args.object)
-        gripper = _gripper_table(model.family, args.id, args.limits)
+        gripper = _gripper_table(model.family, args.id, args.limits)  # checked before the
+        unit = ServoUnit(model, object_deg=args.object)  # physics (which compiles its kernels)
         ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
         bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
     except (ConfigError, ValueError, OSError) as exc:

@@ -14,8 +14,9 @@ constraints, as an engineer using the rule would; :mod:`~tuners.classical.comman
 command line.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from gripper_env._lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from tuners.classical.constrained import KNOBS, constrained_design
@@ -34,8 +35,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'tuners.classical' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

@@ -54,8 +54,9 @@ workers on one study), :mod:`~tuners.optuna.sampler` (samplers by name),
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from gripper_env._lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from tuners.optuna.sampler import SAMPLERS, make_sampler
@@ -107,10 +108,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'tuners.optuna' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

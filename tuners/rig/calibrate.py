@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,10 +25,12 @@ from gripper_env.hardware.host.calibration import (
     default_calibration_path,
     save_calibration,
 )
-from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.protocol import Mode
 from tuners.conventions import conform
 from tuners.rig.cli import add_device_arguments, positive_float, run_cli
+
+if TYPE_CHECKING:  # imported where it is used: --help answers before numba loads
+    from gripper_env.hardware.host.device import GripperDevice
 
 __all__ = ["main", "measure_counts"]
 
@@ -88,6 +91,8 @@ def _parser() -> argparse.ArgumentParser:
 def _run(args: argparse.Namespace) -> int:
     if args.average <= 0.01:
         raise ValueError("--average must be more than 0.01 s")
+    from gripper_env.hardware.host.device import GripperDevice
+
     with GripperDevice(args.port, boot_wait_s=args.boot_wait, timeout_s=args.timeout) as device:
         device.set_setpoint(92.0)
         device.set_mode(Mode.OPEN_LOOP)

@@ -26,33 +26,27 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gripper_env.evaluation.metrics import compute_metrics, fit_percent
-from gripper_env.evaluation.objective import Constraints, load_objective
-from gripper_env.evaluation.stability import StabilityReport, stability_report
-from gripper_env.hardware.host.calibration import load_calibration
-from gripper_env.hardware.host.device import GripperDevice
-from gripper_env.hardware.host.experiment import CsvLog, RecordedTrajectory, run_profile
-from gripper_env.hardware.host.telemetry import TelemetryBlock
-from gripper_env.hardware.protocol import Mode
 from gripper_env.io.files import path_in, safe_name, save_figure, write_json
-from gripper_env.model.disturbances import Disturbance, load_disturbance
-from gripper_env.model.gains_file import GainsFileError, load_gains_file
-from gripper_env.model.pid import PIDGains, PIDOptions
-from gripper_env.model.plants import Plant
-from gripper_env.model.references import PROFILES, load_reference
-from gripper_env.sim import Trajectory, simulate
+from gripper_env.model.references import PROFILES
 from tuners.cli import DEFAULT_OUT, check_output_folder
 from tuners.conventions import command_parser
 from tuners.rig.cli import add_device_arguments, run_cli
 
-__all__ = ["DEPLOY_COLUMNS", "main", "prediction"]
+if TYPE_CHECKING:  # the library is imported where it is used: --help answers before it loads
+    from gripper_env.evaluation.objective import Constraints
+    from gripper_env.evaluation.stability import StabilityReport
+    from gripper_env.hardware.host.experiment import RecordedTrajectory
+    from gripper_env.hardware.host.telemetry import TelemetryBlock
+    from gripper_env.model.disturbances import Disturbance
+    from gripper_env.model.pid import PIDGains, PIDOptions
+    from gripper_env.model.plants import Plant
+    from gripper_env.sim import Trajectory
 
-#: The log's columns: a :class:`~gripper_env.sim.Trajectory`'s CSV columns.
-DEPLOY_COLUMNS = Trajectory.CSV_COLUMNS
+__all__ = ["main", "prediction"]
 
 
 def deploy_rows(block: TelemetryBlock, t0_us: int) -> np.ndarray:
@@ -136,6 +130,8 @@ def _gate(
     """The stability gate: refuse (ValueError) gains unstable on ``model`` (named ``plant``) as
     the board runs them, unless ``allow_unstable``; warn when they are stable but not robust.
     Returns the :func:`~gripper_env.evaluation.stability.stability_report`."""
+    from gripper_env.evaluation.stability import stability_report
+
     # PID at 1 ms, servo command held 20 ms
     report = stability_report(model, gains, options.sign, disturbance=disturbance)
     if not report.stable and not allow_unstable:
@@ -171,6 +167,9 @@ def prediction(
     """What the simulation predicts for a recorded closed-loop run, and the fit (%) of the
     measured angle to it: ``model`` under ``gains`` on the run's own reference, from its first
     measured angle, with the run's grip and un-grip segments for the metrics."""
+    from gripper_env.evaluation.metrics import fit_percent
+    from gripper_env.sim import simulate
+
     predicted = simulate(
         model,
         measured.r[0],
@@ -184,6 +183,17 @@ def prediction(
 
 
 def _run(args: argparse.Namespace) -> int:
+    from gripper_env.evaluation.metrics import compute_metrics
+    from gripper_env.evaluation.objective import load_objective
+    from gripper_env.hardware.host.calibration import load_calibration
+    from gripper_env.hardware.host.device import GripperDevice
+    from gripper_env.hardware.host.experiment import CsvLog, run_profile
+    from gripper_env.hardware.protocol import Mode
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.gains_file import GainsFileError, load_gains_file
+    from gripper_env.model.references import load_reference
+    from gripper_env.sim import Trajectory
+
     loaded = load_gains_file(args.gains)
     plant, tuner, gains, options = loaded.plant, loaded.tuner, loaded.gains, loaded.options
     try:
@@ -207,7 +217,8 @@ def _run(args: argparse.Namespace) -> int:
     check_output_folder(out_dir, "--output-dir")  # before the board moves
     calibration = load_calibration(args.calibration)
     out_dir.mkdir(parents=True, exist_ok=True)
-    log = CsvLog(out_dir / "response.csv", DEPLOY_COLUMNS, deploy_rows)
+    # the log's columns: a Trajectory's CSV columns
+    log = CsvLog(out_dir / "response.csv", Trajectory.CSV_COLUMNS, deploy_rows)
     with GripperDevice(
         args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
     ) as device:

@@ -23,7 +23,6 @@ from pathlib import Path
 
 from gripper_env.io.files import path_in
 from gripper_env.model.references import PROFILES, load_reference
-from gripper_env.sysid.experiments import DeviceRecorder
 from tuners.cli import DEFAULT_OUT, check_output_file
 from tuners.conventions import command_parser
 from tuners.rig.cli import add_device_arguments, run_cli
@@ -75,6 +74,8 @@ def _run(args: argparse.Namespace) -> int:
     check_output_file(output, "--output", ".csv")  # before the board moves
     print(f"recording {reference.name} ({reference.duration_s:g} s of device time) on "
           f"{args.port}...", file=sys.stderr, flush=True)  # fmt: skip
+    from gripper_env.sysid.experiments import DeviceRecorder  # after parsing: --help is light
+
     recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout,
                               fraction=every_s(10.0, reference.duration_s))  # fmt: skip
     rec = recorder.record(reference, output)

@@ -20,12 +20,21 @@ preset or profile, so that::
     traj = policy_trajectory(agent, [100000], env_id=agent.env_id, reference="step", **kwargs)
 
 runs a committed agent on test4 (``python -m tuners.rl play`` does this and prints the metrics).
+
+:func:`load_any` loads any agent the benchmark scores (``python -m tuners.rl evaluate AGENT``):
+a stable-baselines3 zip, an rl-zoo3 log folder (one run, or an experiment folder of several),
+this project's agent folder, or ``module:callable`` (a function ``obs (B, n) -> actions (B,
+m)``, or an object with a stable-baselines3 ``predict``).
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import os
 import pickle
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,8 +46,10 @@ from gripper_env.model.pid import PIDGains
 __all__ = [
     "AGENT_FORMAT",
     "Agent",
+    "LoadedAgent",
     "agent_kwargs",
     "load_agent",
+    "load_any",
     "reproducible_zip",
     "save_agent",
     "save_model",
@@ -214,3 +225,184 @@ def agent_kwargs(agent: Agent, **changes: Any) -> dict[str, Any]:
         if key in kwargs and isinstance(kwargs[key], list):
             kwargs[key] = tuple(kwargs[key])
     return kwargs
+
+
+# ---- any agent: what python -m tuners.rl evaluate scores -----------------------------------
+
+#: stable-baselines3's algorithms by the module of their policy class (a zip does not name its
+#: algorithm; its policy's module does, up to PPO and A2C, which act alike).
+_ALGO_BY_POLICY = (("sac", "SAC"), ("td3", "TD3"), ("ddpg", "DDPG"), ("dqn", "DQN"))
+
+
+@dataclass
+class LoadedAgent:
+    """An agent to score: a policy and what is known about it.
+
+    Attributes
+    ----------
+    policy : callable
+        ``obs (B, n_obs) -> actions (B, n_actions)``, deterministic.
+    name : str
+        A label (the folder, file or callable).
+    kind : str
+        ``sb3-zip``, ``rl-zoo3``, ``agent-folder`` or ``callable``.
+    env_id : str or None
+        The environment it was trained on, when known.
+    env_kwargs : dict
+        Its environment's arguments, when known (its action map among them).
+    facts : dict
+        Algorithm, seed, source.
+    """
+
+    policy: Any
+    name: str
+    kind: str
+    env_id: str | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    facts: dict[str, Any] = field(default_factory=dict)
+
+
+def _sb3_class(algo: str | None, zip_path: Path) -> Any:
+    """The algorithm class to load ``zip_path`` with: ``algo`` if given, else the one its
+    policy class's module names (PPO for the actor-critic policies)."""
+    import json
+    import zipfile
+
+    import stable_baselines3 as sb3
+
+    if algo is not None:
+        name = algo.upper()
+        if not hasattr(sb3, name):
+            raise ValueError(f"--algo {algo!r}: not a stable-baselines3 algorithm")
+        return getattr(sb3, name)
+    try:
+        with zipfile.ZipFile(zip_path) as z:
+            data = json.loads(z.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{zip_path}: not a stable-baselines3 model zip ({exc})") from None
+    module = str((data.get("policy_class") or {}).get("__module__", "")).lower()
+    for key, cls in _ALGO_BY_POLICY:
+        if f".{key}." in module:
+            return getattr(sb3, cls)
+    return sb3.PPO
+
+
+def _normalizer(path: Path | None) -> Any:
+    if path is None or not path.is_file():
+        return None
+    with open(path, "rb") as f:
+        norm = pickle.load(f)
+    norm.training = False
+    return norm
+
+
+def _zip_agent(path: Path, algo: str | None, normalizer: Path | None = None) -> LoadedAgent:
+    cls = _sb3_class(algo, path)
+    model = cls.load(path, device="cpu")
+    norm = _normalizer(normalizer if normalizer is not None else path.parent / "vecnormalize.pkl")
+    agent = Agent(model, norm, "", {})
+    return LoadedAgent(
+        agent,
+        str(path),
+        "sb3-zip",
+        facts={"algo": cls.__name__.lower(), "normalized": norm is not None},
+    )
+
+
+def _zoo_runs(folder: Path) -> list[Path]:
+    """The rl-zoo3 run folders in ``folder``: itself (``<env>.zip`` beside ``<env>/args.yml``),
+    or its ``<env>_<k>`` sub-folders (an experiment of several runs, sorted by ``k``)."""
+
+    def is_run(p: Path) -> bool:
+        return any((z.with_suffix("") / "args.yml").is_file() for z in p.glob("*.zip"))
+
+    if is_run(folder):
+        return [folder]
+    runs = [p for p in folder.iterdir() if p.is_dir() and is_run(p)]
+
+    def order(p: Path) -> tuple[str, int]:
+        stem, _, k = p.name.rpartition("_")
+        return (stem, int(k)) if k.isdigit() else (p.name, 0)
+
+    return sorted(runs, key=order)
+
+
+def _zoo_agent(run: Path, algo: str | None) -> LoadedAgent:
+    import yaml
+
+    model_zip = next(
+        z for z in sorted(run.glob("*.zip")) if (z.with_suffix("") / "args.yml").is_file()
+    )
+    saved = model_zip.with_suffix("")
+    args = dict(yaml.load((saved / "args.yml").read_text(), Loader=yaml.UnsafeLoader))
+    config = dict(yaml.load((saved / "config.yml").read_text(), Loader=yaml.UnsafeLoader)) if (
+        saved / "config.yml").is_file() else {}  # fmt: skip
+    best = run / "best_model.zip"
+    chosen = best if best.is_file() else model_zip
+    loaded = _zip_agent(chosen, algo or args.get("algo"), saved / "vecnormalize.pkl")
+    env_kwargs = dict(config.get("env_kwargs") or {})
+    env_kwargs.update(dict(args.get("env_kwargs") or {}))
+    loaded.kind, loaded.name = "rl-zoo3", str(run)
+    loaded.env_id = str(args.get("env"))
+    loaded.env_kwargs = env_kwargs
+    loaded.facts.update(seed=args.get("seed"), model=chosen.name, algo=args.get("algo"))
+    return loaded
+
+
+def _callable_agent(spec: str) -> LoadedAgent:
+    module_name, _, attr = spec.rpartition(":")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name)
+            if not path.is_file():
+                raise ModuleNotFoundError(f"no file {path}")
+            mspec = importlib.util.spec_from_file_location(path.stem, path)
+            assert mspec is not None and mspec.loader is not None
+            module = importlib.util.module_from_spec(mspec)
+            sys.modules[path.stem] = module
+            mspec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(module_name)
+    except (ImportError, ModuleNotFoundError) as exc:
+        raise ValueError(f"AGENT {spec!r}: cannot import {module_name!r} ({exc})") from None
+    obj = getattr(module, attr, None)
+    if obj is None:
+        raise ValueError(f"AGENT {spec!r}: {module_name} has no {attr!r}")
+    if hasattr(obj, "predict"):
+        model = obj
+        policy: Any = lambda obs: model.predict(obs, deterministic=True)[0]  # noqa: E731
+    elif callable(obj):
+        policy = obj
+    else:
+        raise ValueError(f"AGENT {spec!r}: {attr} is neither callable nor a model with predict")
+    return LoadedAgent(policy, spec, "callable", facts={"callable": spec})
+
+
+def load_any(spec: str, algo: str | None = None) -> list[LoadedAgent]:
+    """The agent(s) ``spec`` names (module docstring); several for an rl-zoo3 experiment folder
+    of several runs (one per training seed).
+
+    Raises
+    ------
+    ValueError
+        ``spec`` names nothing this can load (one line saying what it looked for).
+    """
+    path = Path(spec)
+    if path.is_dir():
+        if (path / "agent.json").is_file():
+            agent = load_agent(path)
+            return [LoadedAgent(agent, str(path), "agent-folder", agent.env_id,
+                                dict(agent.env_kwargs), dict(agent.facts))]  # fmt: skip
+        runs = _zoo_runs(path)
+        if runs:
+            return [_zoo_agent(run, algo) for run in runs]
+        raise ValueError(f"AGENT {spec}: a folder with neither agent.json (this project's agent) "
+                         "nor an rl-zoo3 run (<env>.zip beside <env>/args.yml)")  # fmt: skip
+    if path.suffix == ".zip":
+        if not path.is_file():
+            raise ValueError(f"AGENT {spec}: no such file")
+        return [_zip_agent(path, algo)]
+    if ":" in spec and not path.exists():
+        return [_callable_agent(spec)]
+    raise ValueError(f"AGENT {spec}: expected a stable-baselines3 .zip, an rl-zoo3 log folder, an "
+                     "agent folder (agent.json) or module:callable")  # fmt: skip

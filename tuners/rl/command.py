@@ -8,10 +8,14 @@ Usage::
     python -m tuners.rl controller --plant test2             # the RL controller (residual PPO)
     python -m tuners.rl controller --plant test2 --plants test2,test3,test4  # across them
     python -m tuners.rl train --plant test2 --env servo      # a policy on a step-by-step env
-    python -m tuners.rl play runs/rl/controller-test2/seed-0/best --plant test4
+    python -m tuners.rl play results/rl/controller-test2/seed-0/best --plant test3
+    python -m tuners.rl evaluate AGENT --task grasp          # any agent on a benchmark task
 
 Every command shows its progress on stderr; ``--timesteps`` sets the budget. Runs go to
 ``<out>/rl/`` (``--out``, default ``runs``), gains and metrics files to ``<out>/<plant>/``.
+``evaluate`` scores an SB3 zip, an rl-zoo3 log folder, an agent folder or ``module:callable``
+on a task of the RL benchmark (``configs/rl_zoo/tasks.yaml``) and writes its row
+(:mod:`tuners.rl.evaluate`; ``python -m tuners.rl.leaderboard`` ranks a folder of rows).
 """
 
 from __future__ import annotations
@@ -165,6 +169,42 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pl.add_argument("agent", type=Path, help="the agent's folder")
     _shared(pl, plant_required=False)
+    ev = sub.add_parser(
+        "evaluate",
+        help="score any agent on a task of the RL benchmark and write its leaderboard row",
+        description="Run an agent on a task's fixed evaluation set; print its normalised score "
+        "(0 = command = reference, 100 = the limit) with its interval, the objective's cost, "
+        "the measured margin and the admission verdict; write a JSON row "
+        "(python -m tuners.rl.leaderboard ranks a folder of them). AGENT: a stable-baselines3 "
+        ".zip, an rl-zoo3 log folder (one run, or an experiment folder of several), this "
+        "project's agent folder (agent.json), or module:callable (obs (B, n) -> actions).",
+    )
+    ev.add_argument("agent", help="the agent (see above)")
+    ev.add_argument("--task", required=True, help="a task of configs/rl_zoo/tasks.yaml")
+    ev.add_argument(
+        "--algo",
+        default=None,
+        help="a bare zip's stable-baselines3 algorithm (default: read from it)",
+    )
+    ev.add_argument("--name", default=None, help="the row's label (default: from AGENT)")
+    ev.add_argument("--out", type=Path, default=None,
+                    help="a .json file, or a folder for <task>/<name>.json (default "
+                         "runs/rl/evaluate)")  # fmt: skip
+    ev.add_argument(
+        "--reference",
+        type=Path,
+        default=Path("results/reference_scores.json"),
+        help="the reference scores holding the task's anchors",
+    )
+    ev.add_argument("--episodes", type=int, default=None,
+                    help="only the first N episodes of the evaluation set (a quick look, not a "
+                         "published score)")  # fmt: skip
+    ev.add_argument(
+        "--no-margins",
+        action="store_true",
+        help="skip the margin probe (a margin task's verdict is then not admitted)",
+    )
+    ev.add_argument("--json", action="store_true", help="print the row instead of a summary")
     return conform(parser, "tuners.rl")
 
 
@@ -203,6 +243,8 @@ def _main(argv: list[str] | None = None) -> int:
     args = cli.parse(build_parser(), argv)
     if args.command_name == "play":
         return _play(args)
+    if args.command_name == "evaluate":
+        return _evaluate(args)
     inputs = cli.resolve(args)
     plants = cli.plants_arg(args.plants) if getattr(args, "plants", None) else []
     if getattr(args, "timesteps", None) is not None and not 1 <= args.timesteps <= MAX_TIMESTEPS:
@@ -470,19 +512,69 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str])
 # ---- a saved agent ---------------------------------------------------------------------------
 
 
+def _evaluate(args: argparse.Namespace) -> int:
+    from gripper_env.io.files import collect_provenance, write_result_json
+    from tuners.rl.envs import require_rl
+    from tuners.rl.evaluate import evaluate_agent, print_row, row_path
+
+    require_rl()
+    row = evaluate_agent(
+        args.agent, args.task, reference=args.reference, algo=args.algo, name=args.name,
+        episodes=args.episodes, margins=not args.no_margins,
+        log=(lambda m: None) if args.json else print,
+    )  # fmt: skip
+    path = row_path(row, args.out)
+    # the row's provenance (commit, library versions, date, machine) is its sidecar
+    with collect_provenance(path.parent, path.stem, command=args.command):
+        write_result_json(path, row)
+    if args.json:
+        print(json.dumps(row, indent=2))
+    else:
+        print_row(row)
+        print(f"wrote {path}")
+    return 0
+
+
 def _play(args: argparse.Namespace) -> int:
     from tuners.rl.agents import load_agent
     from tuners.rl.report import play
 
+    if not (args.agent / "agent.json").is_file():
+        hint = ""
+        committed = Path("results") / Path(*args.agent.parts[1:]) if args.agent.parts[:1] == (
+            "runs",) else None  # fmt: skip
+        if committed is not None and (committed / "agent.json").is_file():
+            hint = f"; a committed one is {committed}"
+        raise ValueError(
+            f"no agent in {args.agent} (it needs agent.json and model.zip): train "
+            f"one first (python -m tuners.rl controller --plant test2){hint}"
+        )
     agent = load_agent(args.agent)
     plant = args.plant or _default_plant(agent)
     args.plant = plant
     inputs = cli.resolve(args)
     require_rl()
+    _warn_unstable_base(agent, inputs)
     content = play(agent, inputs, args.out, command=args.command)
     if args.json:
         print(json.dumps(content, indent=2))
     return 0
+
+
+def _warn_unstable_base(agent: Any, inputs: cli.Inputs) -> None:
+    """Say so when a residual agent's base PID is unstable on the plant it is played on (with
+    the servo's hold): the agent then corrects a loop that diverges without it."""
+    if agent.base is None:
+        return
+    from gripper_env.evaluation.scoring import robustness
+
+    rb = robustness(inputs.plant, inputs.disturbance, agent.base.as_array()[None, :], 1).row(0)
+    if not rb["stable"]:
+        b = agent.base
+        print(f"note: the agent's base PID (P={b.P:.4g} I={b.I:.4g} D={b.D:.4g}, tuned on "
+              f"{agent.facts.get('trained_on', '?')}) is unstable on {inputs.plant.name} with the "
+              "servo's 20 ms hold: the policy corrects a loop that diverges without it, and "
+              "expect unstable runs")  # fmt: skip
 
 
 def _default_plant(agent: Any) -> str:

@@ -55,17 +55,13 @@ def make_vec_env(env: str, kwargs: dict[str, Any], n_envs: int, seed: int) -> An
 
 def LogExactPenalty(venv: Any, penalty: float) -> Any:
     """``GripperPIDTune-v0`` with the PID tuner's training reward,
-    ``-log(cost + penalty * violation)``.
-
-    The environment's reward is ``-objective.penalised(cost, violation)``: a cliff of
-    ``infeasible_penalty`` at the constraints' boundary, where the best gains lie (Optuna's best
-    have ``Ms`` 1.52-1.57 against the limit 1.6). A Gaussian policy maximising the expected
-    reward across that cliff keeps its mean away from the boundary. The exact penalty (no jump,
-    growing with the violation; larger than the constraint's multiplier, so its minimum is the
-    constrained one) lets the policy sit on the boundary, and the log keeps an unstable loop's
-    10,000 from swamping the advantages of the gains that matter (costs 10-20).
-    """
+    ``-log(cost + penalty * violation)``: the environment's own ``reward="log-exact-penalty"``
+    (:func:`gripper_env.envs.pid_tune.exact_log_reward`, the default of
+    ``GripperPIDTuneRelative-v0``, which says why), computed from each step's ``info`` so that it
+    wraps a vector environment of either reward."""
     from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    from gripper_env.envs.pid_tune import exact_log_reward
 
     class _LogExactPenalty(VecEnvWrapper):
         def reset(self) -> Any:
@@ -73,15 +69,15 @@ def LogExactPenalty(venv: Any, penalty: float) -> Any:
 
         def step_wait(self) -> Any:
             obs, rewards, dones, infos = self.venv.step_wait()
-            cost = np.array(
+            shaped = np.array(
                 [
-                    i["penalised_cost"] - (0.0 if i["feasible"] else penalty_jump)
+                    exact_log_reward(np.array([i["penalised_cost"]]), np.array([i["feasible"]]),
+                                     penalty_jump)[0]
                     if "penalised_cost" in i
-                    else -r
+                    else -np.log(max(-r, 1e-6))
                     for i, r in zip(infos, rewards, strict=True)
                 ]
-            )
-            shaped = -np.log(np.maximum(cost, 1e-6))
+            )  # fmt: skip
             return obs, shaped.astype(np.float32), dones, infos
 
     penalty_jump = float(penalty)

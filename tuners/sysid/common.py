@@ -9,14 +9,16 @@ import os
 import sys
 import warnings
 from collections.abc import Iterator
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
 from gripper_env.io.config import ConfigError
 from gripper_env.sysid.data import DEFAULT_MAX_GAP, DEFAULT_MAX_JITTER
 from gripper_env.sysid.logfile import LOG_COLUMNS, read_columns
-from gripper_env.sysid.orders import Record
+
+if TYPE_CHECKING:  # the library after parsing: --help answers before it loads
+    from gripper_env.sysid.orders import Record
 
 __all__ = [
     "EXIT_BAD_INPUT",
@@ -42,7 +44,7 @@ class Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line on stderr and exit status 2."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def add_column_arguments(p: argparse.ArgumentParser, reference: bool = True) -> None:
@@ -92,6 +94,8 @@ def read_record(path: str, args: argparse.Namespace, reference: bool = True) -> 
     ref = getattr(args, "reference", None) if reference else None
     if ref:
         names.append(ref)
+    from gripper_env.sysid.orders import Record
+
     cols = read_columns(path, list(dict.fromkeys(names)))
     r = cols[ref] if ref else None
     return Record(cols[args.t_column], cols[args.u_column], cols[args.y_column], r)

@@ -23,15 +23,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gripper_env.model.disturbances import load_disturbance
-from gripper_env.model.plants import load_plant
-from gripper_env.sysid.experiments import (
-    EXPERIMENTS,
-    QUICK_EXPERIMENTS,
-    DeviceRecorder,
-    SimulatedRecorder,
-    validation_reference,
-)
 from tuners.sysid.common import BAD_INPUT, errors_as_exit_2, safe_print
 
 __all__ = ["add_parser", "run"]
@@ -134,6 +125,15 @@ def _command(args: argparse.Namespace) -> str:
 
 def _session(args: argparse.Namespace, started: float) -> dict[str, Any]:
     from gripper_env.io.files import collect_provenance, write_atomic
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.plants import load_plant
+    from gripper_env.sysid.experiments import (
+        EXPERIMENTS,
+        QUICK_EXPERIMENTS,
+        DeviceRecorder,
+        SimulatedRecorder,
+        validation_reference,
+    )
     from gripper_env.sysid.report import (
         actual_figure,
         experiment_figure,

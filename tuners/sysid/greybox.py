@@ -17,13 +17,12 @@ import argparse
 import json
 import shlex
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gripper_env.io.config import find_config
-from gripper_env.sysid.greybox import MAX_FRICTION_DEG, ActualEstimate, identify_actual
-from gripper_env.sysid.orders import split_record
+from gripper_env.sysid.defaults import MAX_FRICTION_DEG
 from tuners.sysid.common import (
     BAD_INPUT,
     add_column_arguments,
@@ -34,6 +33,9 @@ from tuners.sysid.common import (
     read_record,
     safe_print,
 )
+
+if TYPE_CHECKING:  # the fit after parsing: --help answers before the simulation core loads
+    from gripper_env.sysid.greybox import ActualEstimate
 
 __all__ = ["add_parser", "run", "text_report"]
 
@@ -192,6 +194,9 @@ def run(args: argparse.Namespace) -> int:
         if args.quiet or args.json
         else (lambda m: print(f"  {m}", file=sys.stderr))
     )
+    from gripper_env.sysid.greybox import identify_actual
+    from gripper_env.sysid.orders import split_record
+
     try:
         name, save_plant, save_disturbance = _save_paths(args)  # before the fit (minutes)
         with collect_warnings() as caught:

@@ -15,21 +15,13 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gripper_env.sysid.data import OFFSET_MODES, prepare_data
+from gripper_env.sysid.defaults import ESTIMATE
 from gripper_env.sysid.error_model import LOSSES
-from gripper_env.sysid.orders import (
-    OrderSelection,
-    Record,
-    compare_orders,
-    parse_orders,
-    split_record,
-    validate,
-)
-from gripper_env.sysid.tfest import ESTIMATE, TFEstimate, tfest
 from tuners.sysid.common import (
     BAD_INPUT,
     EXIT_NOT_CONVERGED,
@@ -41,6 +33,10 @@ from tuners.sysid.common import (
     read_record,
     safe_print,
 )
+
+if TYPE_CHECKING:  # the fit after parsing: --help answers before python-control and numba load
+    from gripper_env.sysid.orders import OrderSelection, Record
+    from gripper_env.sysid.tfest import TFEstimate
 
 __all__ = ["add_parser", "run"]
 
@@ -207,6 +203,9 @@ def _add_output_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fit(args: argparse.Namespace) -> tuple[TFEstimate, OrderSelection | None, Record]:
+    from gripper_env.sysid.orders import compare_orders, parse_orders, split_record, validate
+    from gripper_env.sysid.tfest import tfest
+
     record = read_record(args.log, args)
     est_rec, val_rec, source = record, None, ""
     if args.validate:

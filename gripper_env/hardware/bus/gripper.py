@@ -187,10 +187,12 @@ def select_servo(link: BusLink, servo_id: int | None) -> list[FoundServo]:
         The servo is another model than the link's family.
     """
     answered = link.scan()
+    if not answered:  # a lost window (a busy host, a servo waking up): one more broadcast
+        answered = link.scan()
     where = f"{link.port} at {link.baudrate} baud"
     if servo_id is not None and servo_id not in answered:
-        try:  # a servo that ignores broadcast pings still answers its own
-            link.ping(servo_id, retries=1)
+        try:  # a servo that ignores broadcast pings still answers its own (retried as any read)
+            link.ping(servo_id)
             answered[servo_id] = None
         except BusTimeoutError:
             pass

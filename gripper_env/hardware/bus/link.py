@@ -210,7 +210,8 @@ class BusLink:
         self._sdk = sdk
         self._ph = sdk.PacketHandler(0) if self._feetech else sdk.PacketHandler(2.0)
         self._port = sdk.PortHandler(self.port)
-        _set_reply_timeout(self._port, float(timeout_ms))
+        self.timeout_ms = float(timeout_ms)
+        _set_reply_timeout(self._port, self.timeout_ms)
         if self._port.getCFlagBaud(self.baudrate) <= 0:
             vendor = "scservo" if self._feetech else "dynamixel"
             raise ValueError(
@@ -513,19 +514,41 @@ class BusLink:
                 f"the port {self.port} is gone (the adapter unplugged, or the virtual servo "
                 f"stopped): {_os_text(exc)}"
             ) from None
+        except IndexError:
+            # the scservo SDK indexes a status packet it took whole before checking its
+            # length: a short reply (a busy line, another caller's bytes) is a garbled one
+            name = getattr(fn, "__name__", "a transaction")
+            raise BusCorruptError(f"a short status packet on {self.port} ({name})") from None
+
+    #: The reply window doubles with each attempt after a lost reply, up to this (ms): a servo
+    #: that went quiet for a moment (a virtual one on a loaded host went silent for more than
+    #: the 0.4 s that four 50 ms windows and their drains spanned) answers a later, longer
+    #: window; one that is gone is reported after about 1 s instead of 0.4 s.
+    MAX_REPLY_MS = 800.0
 
     def _retrying(self, once: Callable[[], T], retries: int | None) -> T:
-        """``once()``, again after a lost or garbled reply, at most ``retries`` more times; after
-        each such reply the line is drained (:meth:`_drain`)."""
+        """``once()``, again after a lost or garbled reply, at most ``retries`` more times, each
+        time waiting twice as long for the reply (up to :attr:`MAX_REPLY_MS`); after each such
+        reply the line is drained (:meth:`_drain`), and after a success that took more than one
+        try (the earlier tries may be answered late). A late reply to an earlier try answers
+        the same instruction, so it may answer a later try."""
         n = self.retries if retries is None else retries
-        for attempt in range(n + 1):
-            try:
-                return once()
-            except BusCommError:
-                self._drain()
-                if attempt == n:
-                    raise
-                self.retried += 1
+        try:
+            for attempt in range(n + 1):
+                _reply_window(self._port, min(self.timeout_ms * 2**attempt, self.MAX_REPLY_MS))
+                try:
+                    result = once()
+                except BusCommError:
+                    self._drain()
+                    if attempt == n:
+                        raise
+                    self.retried += 1
+                    continue
+                if attempt:  # the earlier tries may be answered yet: not the next one's reply
+                    self._drain()
+                return result
+        finally:
+            _reply_window(self._port, self.timeout_ms)
         raise AssertionError("unreachable")
 
     #: After a lost or garbled reply, how long the line is left to settle before its input is
@@ -623,16 +646,23 @@ class BusLink:
 
 
 def _set_reply_timeout(port: Any, timeout_ms: float) -> None:
-    """Make the SDK's port handler wait ``timeout_ms`` for a reply beyond its transmission."""
+    """Make the SDK's port handler wait ``timeout_ms`` for a reply beyond its transmission
+    (:func:`_reply_window` changes it for the next transactions)."""
     if not 0.0 < timeout_ms <= 1000.0:
         raise ValueError(f"timeout_ms must be in (0, 1000] ms, got {timeout_ms}")
+    _reply_window(port, timeout_ms)
 
     def set_packet_timeout(packet_length: int) -> None:
         port.packet_start_time = port.getCurrentTime()
         byte_ms = port.tx_time_per_byte
-        port.packet_timeout = byte_ms * packet_length + byte_ms * 3.0 + timeout_ms
+        port.packet_timeout = byte_ms * packet_length + byte_ms * 3.0 + port.gripper_reply_ms
 
     port.setPacketTimeout = set_packet_timeout
+
+
+def _reply_window(port: Any, timeout_ms: float) -> None:
+    """The reply wait (ms beyond the transmission) of the port's next transactions."""
+    port.gripper_reply_ms = float(timeout_ms)
 
 
 def _os_text(exc: BaseException) -> str:

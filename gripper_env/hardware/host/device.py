@@ -67,6 +67,11 @@ from gripper_env.model.pid import PIDGains, PIDOptions
 __all__ = ["BAUDRATE", "GripperDevice"]
 
 BAUDRATE = 1_000_000
+#: The handshake sends HELLO again, every ``timeout_s``, for at least this long (s) before it
+#: gives up: the first answer after a port opens is the one a busy host or a slow USB bridge
+#: delays most (a virtual board on a loaded 2-core machine went 1.5 s without answering). A
+#: board that is there answers the first HELLO; one that is not is refused a few seconds later.
+HANDSHAKE_PATIENCE_S = 5.0
 
 
 class GripperDevice:
@@ -178,7 +183,8 @@ class GripperDevice:
         self._session = False
         self.decoder.reset_sequence()
         self._hellos_sent = self._infos_seen = 0
-        info = self._request(proto.Hello(), proto.Info)
+        tries = max(self.retries + 1, math.ceil(HANDSHAKE_PATIENCE_S / self.timeout_s))
+        info = self._request(proto.Hello(), proto.Info, tries=tries)
         # a board slower than the timeout answers the first HELLO after the host sent it again:
         # the INFOs still to come answer those HELLOs, which reached the board before anything
         # sent after this one (the link is first in, first out), so they are no reset
@@ -576,12 +582,20 @@ class GripperDevice:
             return f"; {s.rejected} corrupted frames received{last}"
         return f"; nothing received for {idle:.2f} s: the device is silent"
 
-    def _request(self, msg: proto.Message, expect: type, timeout_s: float | None = None) -> Any:
-        """Send ``msg`` and wait for its answer of type ``expect``; resend on silence."""
+    def _request(
+        self,
+        msg: proto.Message,
+        expect: type,
+        timeout_s: float | None = None,
+        tries: int | None = None,
+    ) -> Any:
+        """Send ``msg`` and wait for its answer of type ``expect``; resend on silence (``tries``
+        sends in all, default ``retries + 1``)."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
+        tries = self.retries + 1 if tries is None else tries
         name = type(msg).__name__.upper()
         rejected_before = self.decoder.stats.rejected
-        for _attempt in range(self.retries + 1):
+        for _attempt in range(tries):
             seq = self._send(msg)
             deadline = time.monotonic() + timeout
             while True:
@@ -613,9 +627,7 @@ class GripperDevice:
                             continue
                         return answer
         corrupted = self.decoder.stats.rejected - rejected_before
-        what = (
-            f"no answer to {name} from {self.port} after {self.retries + 1} tries of {timeout:g} s"
-        )
+        what = f"no answer to {name} from {self.port} after {tries} tries of {timeout:g} s"
         if corrupted:
             raise LinkError(
                 f"{what}: {corrupted} corrupted frames received (last: {self.decoder.last_error})"

@@ -153,6 +153,7 @@ def test_an_overload_ends_the_episode_with_the_torque_off(family: str) -> None:
         env = gym.make(HW, port=bus.path, model=family, reference="tracking", **ON_BUS)
         env.reset(seed=0)
         steps, positions = 0, []
+        t0 = unit.ticks_simulated + unit.ticks_skipped  # device time (1 ms ticks)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             while steps < 100:
@@ -165,7 +166,12 @@ def test_an_overload_ends_the_episode_with_the_torque_off(family: str) -> None:
         assert terminated, (steps, unit.trip, unit.force_n, positions, info, said)
         assert info["trip"] == "overload" and any("reports overload" in s for s in said)
         assert reward == -(100 + 210 - steps)
-        assert 10 <= steps <= 45  # 2 s of device time at 4x is 25 steps of 20 ms
+        # the protection's 2 s of overload in device time (a busy host's late steps see more
+        # device time each: the step count is at most 2 s at 4x, 25 steps of 20 ms, plus the
+        # approach)
+        device_s = (unit.ticks_simulated + unit.ticks_skipped - t0) * 1e-3
+        assert device_s >= 2.0, (device_s, steps)
+        assert steps <= 45
         assert bus.table(1).get_role("torque_enable") == 0
         unit.place_object(None)
         _, info = env.reset(seed=0)

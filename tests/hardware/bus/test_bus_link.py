@@ -4,6 +4,8 @@ read-back verification, and one clear error for each way a transaction fails."""
 from __future__ import annotations
 
 import re
+import threading
+import time
 
 import pytest
 import scservo_sdk
@@ -194,6 +196,29 @@ def test_a_lost_or_garbled_reply_is_sent_again_and_counted(family):
         with pytest.raises(BusTimeoutError, match="no reply reading"):
             link.read(1, "p_gain")
         assert link.retried == 2 + link.retries
+
+
+@pytest.mark.parametrize("family", ["sts3215", "xl330"])
+def test_a_servo_quiet_for_half_a_second_is_waited_for(family):
+    """A servo that answers nothing for 0.6 s, then everything it was sent (a virtual one whose
+    thread a loaded host left waiting: the 4 tries' 50 ms windows and drains spanned 0.4 s, and
+    a README walk's record failed): each try waits twice as long as the one before, and the
+    last one's window takes the reply."""
+    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+        held = threading.Event()
+
+        def starve() -> None:
+            with bus.lock:  # the servo's thread cannot serve the line meanwhile
+                held.set()
+                time.sleep(0.6)
+
+        thread = threading.Thread(target=starve)
+        thread.start()
+        held.wait()
+        link.write(1, "p_gain", 20)
+        thread.join()
+        assert bus.table(1).get_role("p_gain") == 20 and link.retried >= 2
+        assert link._port.gripper_reply_ms == link.timeout_ms  # back to the first window
 
 
 def test_opening_the_port():

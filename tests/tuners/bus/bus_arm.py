@@ -97,12 +97,15 @@ def sdk_registers(port: str, family: str, servo_id: int = GRIPPER) -> dict[str, 
     return out
 
 
-def command(module: str, *args: str, stdin: int | None = subprocess.DEVNULL) -> subprocess.Popen:
-    """``python -m module args`` from the repository's root, its output captured."""
+def command(
+    module: str, *args: str, stdin: int | None = subprocess.DEVNULL, cwd: Path | None = None
+) -> subprocess.Popen:
+    """``python -m module args`` from ``cwd`` (default the repository's root), its output
+    captured."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg"}
     return subprocess.Popen(
         [sys.executable, "-m", module, *args],
-        cwd=ROOT,
+        cwd=ROOT if cwd is None else cwd,
         env=env,
         stdin=stdin,
         stdout=subprocess.PIPE,

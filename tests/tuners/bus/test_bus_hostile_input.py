@@ -9,6 +9,7 @@ import json
 import math
 import subprocess
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 from bus_arm import command
@@ -69,6 +70,25 @@ CASES = [
          ("arm.json", "no motor 'gripper'")),
     Case("record on a port that does not exist", "tuners.bus.record",
          ("--port", NO_PORT, "--id", "6", "--jaw", "{jaw}"), (NO_PORT, "nothing was written")),
+    # names from files never become paths (gripper_env.io.files.safe_name): deploy's default
+    # folder is deploy_<model name> beside the registers, tune writes <model name>_registers
+    Case("deploy a registers file whose model name climbs", "tuners.bus.deploy",
+         ("--registers", "{climbing_reg}", "--port", NO_PORT, "--id", "6",
+          "--allow-infeasible"), ("climbing_reg.json", "model name", "../../escaped")),
+    Case("deploy a registers file whose model name holds a NUL", "tuners.bus.deploy",
+         ("--registers", "{nul_reg}", "--port", NO_PORT, "--id", "6", "--allow-infeasible"),
+         ("nul_reg.json", "model name", "\\x00")),
+    Case("tune on a model file whose name climbs", "tuners.bus.tune",
+         ("--model", "{climbing_model}", "--trials", "4", "--out", "{out}"),
+         ("climbing_model.json", "model name", "../escaped")),
+    Case("tune on a model file with an absolute name", "tuners.bus.tune",
+         ("--model", "{absolute_model}", "--trials", "4", "--out", "{out}"),
+         ("absolute_model.json", "model name", "/escaped-absolute")),
+    Case("identify --name climbing out of --out", "tuners.bus.identify",
+         ("{missing}/record.csv", "--name", "../escaped", "--out", "{out}"),
+         ("--name", "../escaped")),
+    Case("identify --out naming a file", "tuners.bus.identify",
+         ("{missing}/record.csv", "--out", "{a_file}"), ("--out", "a_file")),
 ]  # fmt: skip
 
 
@@ -93,6 +113,11 @@ def _files(folder):
                                                   "uncertainty": {"kp": math.nan}}))  # fmt: skip
     write("nan_reg", "nan_reg.json", json.dumps({**registers, "uncertainty_rel_std": {
         "kp": 0.1, "kd": math.nan}}))  # fmt: skip
+    absolute = str(folder / "escaped-absolute")  # tune would write <name>_registers.json there
+    for key, name in (("climbing", "../../escaped"), ("nul", "a\0b"), ("absolute", absolute)):
+        named = {**calibrated, "name": name}
+        write(f"{key}_reg", f"{key}_reg.json", json.dumps({**registers, "model": named}))
+        write(f"{key}_model", f"{key}_model.json", json.dumps({"model": named}))
     write(
         "arm_json",
         "arm.json",
@@ -115,11 +140,14 @@ def _files(folder):
 def outcomes(tmp_path_factory):
     folder = tmp_path_factory.mktemp("bus-hostile")
     files = _files(folder)
+    cwd = folder / "cwd"  # where a default output would land (runs/bus/...): must stay empty
+    cwd.mkdir()
+    inputs = set(folder.rglob("*"))
     results, queue, running = {}, list(CASES), []
     while queue or running:
         while queue and len(running) < CONCURRENCY:
             case = queue.pop(0)
-            proc = command(case.module, *(a.format(**files) for a in case.args))
+            proc = command(case.module, *(a.format(**files) for a in case.args), cwd=cwd)
             running.append((case, proc))
         case, proc = running.pop(0)
         try:
@@ -128,12 +156,15 @@ def outcomes(tmp_path_factory):
             proc.kill()
             _, err = proc.communicate()
         results[case.name] = (proc.returncode, err)
-    return results
+    out = Path(files["out"])
+    written = sorted(str(p.relative_to(folder)) for p in set(folder.rglob("*")) - inputs
+                     if p != out and out not in p.parents)  # fmt: skip
+    return results, written + [str(p) for p in folder.parent.glob("escaped*")]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_refused_in_one_line_naming_the_input(case, outcomes):
-    code, err = outcomes[case.name]
+    code, err = outcomes[0][case.name]
     lines = err.strip().splitlines()
     assert code == 2, err[-2000:]
     assert "Traceback" not in err
@@ -141,3 +172,10 @@ def test_refused_in_one_line_naming_the_input(case, outcomes):
     assert "error" in lines[0]
     for name in case.names:
         assert name in lines[0], lines[0]
+
+
+def test_nothing_is_written_outside_out(outcomes):
+    """Every case is refused before its work: nothing new beside the inputs (where a climbing
+    or absolute name would land), in the folder a default output would go to (``cwd``) or
+    above the inputs' folder; only --out may hold anything."""
+    assert outcomes[1] == [], outcomes[1]
