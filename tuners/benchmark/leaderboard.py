@@ -327,6 +327,13 @@ def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.0f} %"
 
 
+def _linear(e: dict[str, Any], key: str) -> str:
+    """A linear margin of a headline entry; ``-`` for a learned controller (a policy has no
+    loop transfer function: its measured limit-cycle onset is the column after)."""
+    x = e.get(key)
+    return "-" if x is None or not math.isfinite(x) else _f(x)
+
+
 def render_head(data: dict[str, Any]) -> str:
     """The headline table (the report's and the README's head): the best admitted gain set
     of each family, every textbook rule with its knob."""
@@ -344,8 +351,8 @@ def render_head(data: dict[str, Any]) -> str:
             f"| {i + 1} | {e.get('family', '-')} | {_name(key)} | {_sign(e.get('sign', 1))} | "
             f"{_f(e['P'], 4)} | {_f(e['I'], 4)} | {_f(e['D'], 3)} | {_knob(e)} | "
             f"{_f(e['cost'], 4)} | {_f(e['iae'], 4)} | {_pct(e.get('to_limit'))} | "
-            f"{_f(e.get('worst_step_overshoot_pct'))} | {_f(e['worst_ms'])} | "
-            f"{_f(e['worst_gm_db'])} | {_f(e['worst_measured_gm_db'])} | "
+            f"{_f(e.get('worst_step_overshoot_pct'))} | {_linear(e, 'worst_ms')} | "
+            f"{_linear(e, 'worst_gm_db')} | {_f(e['worst_measured_gm_db'])} | "
             f"{_f(e.get('closest_to_stop_deg'))} | {_vs(e, key, h['best_baseline'])} |"
         )
     return "\n".join(lines)
@@ -534,8 +541,9 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
         f"({', '.join(h['plants'])}); test1 is left out: it cannot follow the step profile "
         "within the servo's range (below). One row per family (each textbook rule with its knob "
         "set under the rule), the best admitted of it; tested against the best textbook row, "
-        "paired over the held-out seeds of every plant, Holm-corrected over the table. "
-        + _band_words(meta),
+        "paired over the held-out seeds of every plant, Holm-corrected over the table. An RL "
+        "controller's P, I, D are the PID its policy corrects (the base); it has no linear Ms "
+        "or GM (-), its measured limit-cycle onset is judged instead. " + _band_words(meta),
         "",
         render_head(data),
         "",
@@ -879,8 +887,15 @@ def _rl_section(data: dict[str, Any]) -> list[str]:
                 "",
                 f"{len(tsc['per_seed'])} training seeds: held-out cost {tsc['mean']:.4g} "
                 f"± {tsc['std']:.3g} (sd over seeds), worst seed {tsc['worst_seed']} at "
-                f"{tsc['max']:.4g}. The mean validation cost first beats the base PID at "
-                f"{_f(c['first_step_mean_beats_base'])} steps. Learning curve: "
+                f"{tsc['max']:.4g}. "
+                + (
+                    f"The mean validation cost first beats the base PID at "
+                    f"{_f(c['first_step_mean_beats_base'])} steps. "
+                    if c.get("first_step_mean_beats_base") is not None
+                    else "The mean validation cost never beats the base PID's in training. "
+                )
+                + "Learning curve: "
+                f"`figures/rl_controller_{where}.png`.",
                 f"`figures/rl_controller_{where}.png`.",
                 "",
                 "| seed | held-out cost | vs base PID | p (Wilcoxon) | better on seeds | "
