@@ -124,18 +124,25 @@ def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
     return parser
 
 
-def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
-    """Parse ``argv`` (default ``sys.argv[1:]``) and remember the command line for provenance.
+def parse(
+    parser: argparse.ArgumentParser, argv: list[str] | None, *, out_is_file: bool = False
+) -> argparse.Namespace:
+    """Parse ``argv`` (default ``sys.argv[1:]``) and remember the command line for provenance
+    (``out_is_file``: ``--out`` names the file to write, whose folder is checked).
 
     Raises
     ------
     ValueError
-        ``--out`` names a file.
+        ``--out`` names a file (a folder with ``out_is_file``), or its folder cannot be written.
     """
     args_list = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(args_list)
     out = getattr(args, "out", None)
-    if out is not None:
+    if out is not None and out_is_file:
+        if Path(out).is_dir():
+            raise ValueError(f"--out {str(out)!r} is a folder; give the file to write")
+        check_output_folder(Path(out).parent, "--out's folder")
+    elif out is not None:
         check_output_folder(out, "--out")
     check_config_names(args, ("plants",))  # before the library loads: an unknown name at once
     args.command = " ".join([parser.prog, *map(shlex.quote, args_list)])
@@ -491,6 +498,19 @@ def format_table(content: dict[str, Any], ev: Evaluation) -> str:
         f"robustness constraints (Ms <= {lim['ms_max']:g}, GM >= {lim['gm_min_db']:g} dB with "
         f"the hold): {'met' if stab['meets_constraints'] else 'NOT MET'}"
     )
+    adm = content.get("admission") or {}
+    if adm:
+        lines.append(
+            f"admission rule on the {n} held-out runs (robustness, settled, no stall, jaw "
+            f"{adm['limits'].get('stop_clearance_deg', 0):g} deg inside the nearest stops the "
+            f"preset can draw): {'met' if adm['admitted'] else 'NOT MET: ' + str(adm['reason'])}"
+        )
+    for other, entry in ((content.get("cross_model") or {}).get("plants") or {}).items():
+        a = entry.get("admission") or {}
+        if a and entry.get("profile_feasible", True):
+            lines.append(
+                f"  on {other}: {'met' if a['admitted'] else 'NOT MET: ' + str(a['reason'])}"
+            )
     worst = (content.get("cross_model") or {}).get("worst")
     if worst:
         lines.append(

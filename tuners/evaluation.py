@@ -13,7 +13,10 @@ scoring path (:mod:`gripper_env.evaluation.scoring`):
   alone, and whether the gains meet the objective's constraints;
 * ``cross_model``: the same gains on the other identifications of the gripper (the paper's four
   plants are four fits of one gripper): stability, margins and actual-model overshoot and IAE on
-  each, and the worst case.
+  each, and the worst case;
+* ``admission``: the admission rule (:mod:`gripper_env.evaluation.admission`) on the held-out
+  runs: robustness with the hold, every run settled, no stall, the jaw inside the nearest stops
+  the preset can draw (the judge's verdict on this plant).
 
 Metrics use the project's JSON keys (:meth:`gripper_env.evaluation.metrics.Metrics.as_dict`) plus
 ``cost``,
@@ -81,6 +84,9 @@ class Evaluation:
         :func:`robustness_block` of the gains.
     cross_model : dict
         :func:`cross_model` of the gains (empty if not asked for).
+    admission : dict
+        The admission rule on the held-out runs
+        (:meth:`gripper_env.evaluation.admission.Admission.row`).
     """
 
     ideal: dict[str, Any]
@@ -92,6 +98,7 @@ class Evaluation:
     actual_trajectory: Trajectory
     robustness: dict[str, Any] = field(default_factory=dict)
     cross_model: dict[str, Any] = field(default_factory=dict)
+    admission: dict[str, Any] = field(default_factory=dict)
 
 
 def with_cost(metrics: Metrics, costs: np.ndarray) -> list[dict[str, Any]]:
@@ -202,6 +209,7 @@ def cross_model(
         rb = robustness_block(plant, gains, sign, disturbance, objective)
         reach = reachability(plant, task.reference, disturbance)
         per[plant.name] = cross_model_entry(rb, s.metrics, reach.feasible)
+        per[plant.name]["admission"] = s.admission.row(0)
     return worst_case(per)
 
 
@@ -251,6 +259,10 @@ def worst_case(per: dict[str, Any]) -> dict[str, Any]:
             "iae": worst("iae", max),
             "stall_s": worst("stall_s", max),
             "meets_constraints": all(v["meets_constraints"] for v in counted.values()),
+            "admitted": all(
+                (v.get("admission") or {}).get("admitted", v["meets_constraints"])
+                for v in counted.values()
+            ),
         },
     }
 
@@ -322,6 +334,7 @@ def evaluate(
         ideal_trajectory=ideal_scores.trajectory,
         actual_trajectory=actual.trajectory,
         robustness=robustness_block(p, gains, options.sign, dist, obj),
+        admission=actual.admission.row(0),
         cross_model=cross_model(
             gains,
             options.sign,

@@ -48,6 +48,7 @@ __all__ = [
     "MeasuredMargins",
     "linear_delay_margin_s",
     "measure_margins",
+    "oscillates",
     "pid_runner",
     "policy_runner",
     "probe_disturbance",
@@ -194,6 +195,18 @@ def measure_margins(
     )
     dm = _sweep(runner, lambda s: (p, _with_delay(base, s)), DELAY_RANGE_S, DELAY_STEP_S)
     return MeasuredMargins(gm, dm, nominal)
+
+
+def oscillates(
+    runner: Runner, plant: Plant, disturbance: Disturbance, ideal: Disturbance,
+    gains_db: Sequence[float],
+) -> np.ndarray:  # fmt: skip
+    """Whether the probe loop (:func:`probe_disturbance`) swings on its own with the plant's
+    gain raised by each of ``gains_db`` (dB): one run per gain, in one call of ``runner``. A
+    quick test of a limit cycle below a floor; :func:`measure_margins` finds the onset."""
+    base = probe_disturbance(disturbance, ideal)
+    plants = [scaled_plant(plant, 10.0 ** (db / 20.0)) for db in gains_db]
+    return _swings(runner, plants, [base] * len(plants)) > SWING_THRESHOLD_DEG
 
 
 def pid_runner(gains: PIDGains, options: PIDOptions, reference: str | Reference = "step") -> Runner:

@@ -13,7 +13,10 @@ time ``theta`` including half the servo refresh):
 * ``D`` in units of ``tau / k`` (s);
 * ``N`` (1/s) is always absolute.
 
-With several plants (the robust mode) each bound is the widest over the plants. Every result is
+With several plants (the robust mode), P's and I's ranges are the tightest over the plants (one
+gain set must stay robust on the most demanding plant: on test2-test4 together test4's P range
+is a ninth of test2's, and the union of the ranges put nine tenths of the searched P where no
+trial can be feasible), D's the widest. Every result is
 checked against the bounds: a gain within 2 % of a bound, in the searched coordinate (linear,
 log, or the magnitude of a symlog gain), is flagged, because the optimum may lie beyond it.
 """
@@ -98,6 +101,21 @@ class SearchSpace:
             r["P"].decode(params["P"]), r["I"].decode(params["I"]), r["D"].decode(params["D"]), n
         )
 
+    def params(self, gains: PIDGains) -> dict[str, float]:
+        """The searched parameters of ``gains`` (the inverse of :meth:`gains`), clipped into the
+        ranges: what a warm start enqueues. A symlog gain below its smallest magnitude maps to
+        that magnitude, with its sign (0 to the positive one)."""
+        out = {}
+        for name in self.names:
+            r, v = self.ranges[name], float(getattr(gains, name))
+            if r.scale == "symlog":
+                mag = min(max(abs(v), r.low), r.high)
+                u = math.log(mag / r.low) / math.log(r.high / r.low)
+                out[name] = math.copysign(u, v) if v != 0 else 0.0
+            else:
+                out[name] = min(max(v, r.low), r.high)
+        return out
+
     def position(self, gains: PIDGains) -> dict[str, float]:
         """Where each searched gain lies in its range, 0 to 1 in the searched coordinate (the
         magnitude's position for a symlog gain: 0 = smallest magnitude, 1 = largest)."""
@@ -149,6 +167,9 @@ def search_space(
         r = getattr(s, name)
         lows = [r.low * sc[name] for sc in scales]
         highs = [r.high * sc[name] for sc in scales]
-        ranges[name] = ParamRange(scale=r.scale, low=min(lows), high=max(highs))
+        if name == "D":  # the widest: a lag (D < 0) that helps one plant may help them all
+            ranges[name] = ParamRange(scale=r.scale, low=min(lows), high=max(highs))
+        else:  # the tightest: one gain set must stay robust on the most demanding plant
+            ranges[name] = ParamRange(scale=r.scale, low=max(lows), high=min(highs))
     widest = {name: max(sc[name] for sc in scales) for name in ("P", "I", "D")}
     return SearchSpace(ranges, settings.tune_N, widest)

@@ -194,6 +194,8 @@ class OptunaSettings(BaseModel):
     search_seeds: int = Field(3, ge=1, le=MAX_SEARCH_SEEDS)
     sampler: Literal["tpe", "cmaes", "random"] = "tpe"
     n_startup_trials: int = Field(16, ge=0)
+    local_fraction: float = Field(0.6, ge=0.0, lt=1.0)
+    warm_start: bool = True
     tune_N: bool = False
     search: SearchSettings
     multi_objective: MultiObjective = MultiObjective()

@@ -34,6 +34,7 @@ def make_task(
         randomize=inputs.settings.randomize,
         options=actual_opts,
         objective=inputs.objective,
+        search=True,
     )
 
 

@@ -6,12 +6,21 @@ Definitions (DESIGN.md section 2):
   ``yinit`` to ``yfinal`` with ``yn = (y - yinit) / (yfinal - yinit)``: rise time from the first
   sample with ``yn >= 0.1`` to the first with ``yn >= 0.9``; settling time = time (from the move's
   first sample) of the first sample after which ``|y - yfinal| <= 2 % |yfinal - yinit|`` for good;
-  overshoot ``max(0, 100 max(yn - 1))`` %, undershoot ``max(0, -100 min(yn))`` %. The settling
+  overshoot ``max(0, 100 max(yn - 1))`` % (the largest excursion past the target anywhere in
+  the hold, late friction hunting included), undershoot ``max(0, -100 min(yn))`` %. The settling
   band may be given a floor in deg (``settling_band_deg``): on a gripper with stiction the jaw
   sticks anywhere within its friction band, and a 2 % band (1.4 deg on the 71 deg grip) inside
   that band would read "never settles" for every controller. Sample-based,
   without interpolation, like python-control's ``step_info``. A quantity that is never reached
   (no rise, never settles) is ``inf``, never NaN.
+* **Step overshoot** (``step_overshoot_pct``, %): the overshoot of the first rise alone, on the
+  true jaw angle: ``max(0, 100 (max yn - 1))`` up to the first sample after the 90 % crossing at
+  which the jaw has come to rest or turned back (it moves toward the target at less than
+  :data:`REST_SPEED_PER_S` of the move per second). Friction hunting late in the hold is not
+  part of it: that is the **hunting** swing, ``oscillation_deg`` below (peak to peak).
+* **Jaw envelope** (``jaw_min_deg``, ``jaw_max_deg``): the lowest and highest true jaw angle of
+  the run, what the admission rule holds against the nearest stop the preset can draw
+  (:mod:`gripper_env.evaluation.admission`); ``-inf`` / ``inf`` for a diverged run.
 * **Steady-state error**: ``|mean(y) - yfinal|`` over the last 10 % of the segment (deg).
 * **SD**: sample standard deviation (``ddof=1``, like MATLAB's ``std``) of the response over the
   run; **SD gap** ``|SD_reference - SD_response|``.
@@ -53,8 +62,10 @@ from gripper_env.sim.schedule import fetch_add, n_workers, rows_per_chunk
 
 __all__ = [
     "OSCILLATION_LIMIT_DEG",
+    "REST_SPEED_PER_S",
     "Metrics",
     "compute_metrics",
+    "first_rise_overshoot",
     "fit_percent",
     "sample_sd",
     "step_metrics",
@@ -68,6 +79,7 @@ STEP_KEYS = (
     "settling_time_s",
     "peak_deg",
     "steady_state_error_deg",
+    "step_overshoot_pct",
 )
 RUN_KEYS = (
     "sd_deg",
@@ -83,12 +95,17 @@ RUN_KEYS = (
     "stall_s",
     "force_proxy",
     "oscillation_deg",
+    "jaw_min_deg",
+    "jaw_max_deg",
 )
 
 #: Window (s) near the end of each segment over which the sustained swing is measured.
 OSCILLATION_WINDOW_S = 2.0
 #: The window ends this long (s) before the segment does.
 OSCILLATION_GUARD_S = 0.5
+#: The jaw has come to rest after its first rise once it moves toward the target at less than
+#: this fraction of the move per second (2 %/s: 1.4 deg/s on the 71 deg grip).
+REST_SPEED_PER_S = 0.02
 #: A run whose response still swings more than this (deg, peak to peak) at the end of a segment
 #: is classified as diverged (see the module docstring).
 OSCILLATION_LIMIT_DEG = 8.0
@@ -381,14 +398,41 @@ def sustained_swing(
     return swing
 
 
+def first_rise_overshoot(y: np.ndarray, y_init: float, y_final: float, dt_s: float) -> np.ndarray:
+    """Overshoot (%) of the first rise of each response ``y`` (B, n) to one move (see
+    ``step_overshoot_pct`` in the module docstring); 0 for a response that never reaches 90 %.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(0, 4, 1e-3)
+    >>> y = np.where(t < 1, 10 * t, 10.0)  # a ramp that stops at its target
+    >>> y = y + np.where((t > 2) & (t < 3), 1.0, 0.0)  # a late creep past it
+    >>> float(first_rise_overshoot(y[None, :], 0.0, 10.0, 1e-3)[0])
+    0.0
+    """
+    y = np.atleast_2d(np.asarray(y, dtype=float))
+    yn = (y - y_init) / (y_final - y_init)
+    n_runs, n = yn.shape
+    if n < 2:
+        return np.zeros(n_runs)
+    reached = yn >= 0.9
+    i90 = np.where(reached.any(axis=1), reached.argmax(axis=1), n)
+    rest = np.diff(yn, axis=1) <= REST_SPEED_PER_S * dt_s
+    rest &= np.arange(n - 1)[None, :] >= i90[:, None]
+    end = np.where(rest.any(axis=1), rest.argmax(axis=1), n - 1)
+    peak = np.maximum.accumulate(yn, axis=1)[np.arange(n_runs), end]
+    return np.where(i90 < n, np.maximum(0.0, 100.0 * (peak - 1.0)), 0.0)
+
+
 def _aggregate(parts: list[dict[str, np.ndarray]], n_runs: int) -> dict[str, np.ndarray]:
-    keys = _SEG_COLUMNS
+    keys = (*_SEG_COLUMNS, "step_overshoot_pct")
     if not parts:
         return {k: np.full(n_runs, np.inf) for k in keys}
     out = {}
     for k in keys:
         stack = np.stack([p[k] for p in parts])
-        if k in ("overshoot_pct", "undershoot_pct"):
+        if k in ("overshoot_pct", "undershoot_pct", "step_overshoot_pct"):
             out[k] = stack.max(axis=0)
         elif k in ("peak_deg", "peak_time_s"):
             out[k] = stack[0]
@@ -457,8 +501,16 @@ def compute_metrics(
         raise ValueError(f"settling_band_deg must be >= 0, got {settling_band_deg!r}")
     _metrics_kernel(t, r, ys, us, bounds, values, float(settling_band_deg), run_out, seg_out)
     parts: dict[str, list[dict[str, np.ndarray]]] = {"grip": [], "ungrip": []}
+    dt = float(t[1] - t[0]) if len(t) > 1 else 1.0
+    y_true = getattr(traj, "y_true", None)
+    jaw = np.atleast_2d(np.asarray(y if y_true is None else y_true, dtype=float))
+    jaw = np.where(stable[:, None], jaw, 0.0)
     for i, s in enumerate(segs):
-        parts[s.kind].append({name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)})
+        part = {name: seg_out[:, i, j] for j, name in enumerate(_SEG_COLUMNS)}
+        part["step_overshoot_pct"] = first_rise_overshoot(
+            jaw[:, s.start : s.stop], s.initial_deg, s.final_deg, dt
+        )
+        parts[s.kind].append(part)
     grip = _aggregate(parts["grip"], n_runs)
     ungrip = _aggregate(parts["ungrip"], n_runs)
     sd_y, sd_r = run_out[:, 5], run_out[:, 6]
@@ -475,9 +527,9 @@ def compute_metrics(
         "contact_s": _counter(traj, "contact_s", n_runs),
         "stall_s": _counter(traj, "stall_s", n_runs),
         "force_proxy": _counter(traj, "force_proxy", n_runs),
-        "oscillation_deg": sustained_swing(
-            ys, segs, float(t[1] - t[0]) if len(t) > 1 else 1.0, reference=r
-        ),
+        "oscillation_deg": sustained_swing(ys, segs, dt, reference=r),
+        "jaw_min_deg": jaw.min(axis=1),
+        "jaw_max_deg": jaw.max(axis=1),
     }
     oscillating = run["oscillation_deg"] > OSCILLATION_LIMIT_DEG
     stable = stable & ~oscillating
@@ -487,4 +539,5 @@ def compute_metrics(
             for k in d:
                 if k not in ("sd_reference_deg", "oscillation_deg"):
                     d[k] = np.where(bad, math.inf, d[k])
+        run["jaw_min_deg"] = np.where(bad, -math.inf, run["jaw_min_deg"])
     return Metrics(grip=grip, ungrip=ungrip, run=run, stable=stable)

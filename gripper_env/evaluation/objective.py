@@ -25,13 +25,19 @@ The paper's SD and SD gap are reported everywhere but not optimised by default: 
 overshoots has an SD *closer* to the reference's than one that does not (the SD gap rewards
 overshoot).
 
-Robustness is a constraint, not a weight (:attr:`Objective.constraints`): ``Ms <= 1.6`` and a gain
-margin of at least 6 dB on the loop as it runs, with the servo's command hold
-(:mod:`gripper_env.evaluation.stability`). 6 dB and Ms 1.6 are the usual textbook floors (Astrom and
-Hagglund); Ms <= 1.6 alone implies GM >= 8.5 dB and PM >= 36 deg. Tuners that support constraints
-(Optuna's TPE) get them as constraints; the others (CMA-ES, RL) minimise
-:meth:`Objective.penalised`, in which any infeasible gain set costs at least
-``infeasible_penalty`` more than the feasible ones (graded by how far it is from feasible).
+What a deployable controller must do is a constraint, not a weight (:attr:`Objective.constraints`,
+the admission rule of :mod:`gripper_env.evaluation.admission`): ``Ms <= 1.6`` and a gain margin of
+at least 6 dB on the loop as it runs, with the servo's command hold
+(:mod:`gripper_env.evaluation.stability`; 6 dB and Ms 1.6 are the usual textbook floors, Astrom
+and Hagglund; Ms <= 1.6 alone implies GM >= 8.5 dB and PM >= 36 deg), every run settled, no stall,
+and the jaw at least ``stop_clearance_deg`` inside the nearest stop the preset can draw on every
+run. Contact with a stop is therefore not in the cost: a search that touches cannot win, it is
+refused (the stall weight only grades what the constraint already refuses on the step profile,
+and still counts where an object makes the jaw stall on purpose). Tuners that support
+constraints (Optuna's TPE and random search) get them as constraints; the others (CMA-ES, the
+textbook knob scans, RL) minimise :meth:`Objective.penalised`, in which any infeasible gain set
+costs at least ``infeasible_penalty`` more than the feasible ones (graded by how far it is from
+feasible).
 
 Stable runs are capped at ``max_cost`` and diverged runs cost ``unstable_cost`` (finite and
 clearly the worst), so optimisers never see ``inf`` or NaN.
@@ -84,12 +90,38 @@ class Weights(BaseModel):
 
 
 class Constraints(BaseModel):
-    """Robustness every tuned gain set must have, on the loop as it runs (with the hold)."""
+    """The admission rule's limits (:mod:`gripper_env.evaluation.admission`): robustness on the
+    loop as it runs (with the hold), the jaw's clearance from the nearest stop the preset can
+    draw, and whether the grasp scenario is part of it. Settling and no stall have no limit to
+    set: every run must settle and none may stall."""
 
     model_config = _STRICT
 
     ms_max: float = Field(1.6, gt=1.0)
     gm_min_db: float = Field(6.0, ge=0.0)
+    stop_clearance_deg: float = Field(0.0, ge=0.0)
+    search_backoff_deg: float = Field(1.0, ge=0.0)
+    grasp: bool = True
+
+    @property
+    def measured_gm_min_db(self) -> float:
+        """The gain margin (dB) that ``Ms <= ms_max`` guarantees a linear loop,
+        ``20 log10(Ms / (Ms - 1))``: what a learned controller's measured limit-cycle onset must
+        reach (its ``Ms`` cannot be measured)."""
+        return 20.0 * math.log10(self.ms_max / (self.ms_max - 1.0))
+
+    def limits(self, search: bool = False) -> dict[str, float]:
+        """The limits as :meth:`gripper_env.evaluation.admission.Admission.build` takes them:
+        the judge's, or with ``search`` a search's (the stop clearance backed off by
+        ``search_backoff_deg``: a search sees the few friction and noise draws of its tuning
+        seeds, the judge others)."""
+        clearance = self.stop_clearance_deg + (self.search_backoff_deg if search else 0.0)
+        return {
+            "ms_max": self.ms_max,
+            "gm_min_db": self.gm_min_db,
+            "stop_clearance_deg": clearance,
+            "measured_gm_min_db": self.measured_gm_min_db,
+        }
 
 
 class Objective(BaseModel):

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.evaluation.admission import Admission, run_checks
 from gripper_env.evaluation.metrics import Metrics, compute_metrics
 from gripper_env.evaluation.objective import COST_TERMS, Objective
 from gripper_env.evaluation.stability import LoopAnalysis, Robustness, ServoLoop
@@ -119,6 +120,9 @@ class Task:
         PID structure (limits, anti-windup, derivative input, sign).
     objective : Objective
         The cost, the signal and the constraints.
+    search : bool
+        A search's task: the admission rule with the searches' back-off
+        (:meth:`~gripper_env.evaluation.objective.Constraints.limits`); else the judge's.
     """
 
     plants: tuple[Plant, ...]
@@ -128,6 +132,7 @@ class Task:
     objective: Objective
     randomize: bool = True
     options: PIDOptions = field(default_factory=PIDOptions)
+    search: bool = False
 
     @classmethod
     def build(
@@ -140,6 +145,7 @@ class Task:
         objective: Objective,
         randomize: bool = True,
         options: PIDOptions | None = None,
+        search: bool = False,
     ) -> Task:
         """A task from the loaded objects (the commands load them: :mod:`tuners.cli`)."""
         plant_list = (plants,) if isinstance(plants, Plant) else tuple(plants)
@@ -153,12 +159,40 @@ class Task:
             objective=objective,
             randomize=randomize,
             options=options or PIDOptions(),
+            search=search,
         )
 
     @property
     def runs_per_gain_set(self) -> int:
         """Simulated episodes per gain set: plants x seeds."""
         return len(self.plants) * len(self.seeds)
+
+
+def grasp_check(gains: np.ndarray, task: Task, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grasp scenario (:func:`gripper_env.evaluation.grasp.grasp_admission`) for the gain
+    sets ``which`` of ``gains`` on every plant of ``task`` over its seeds, with its PID
+    options: per gain set the admission value (the fraction of plant and seed runs that lost
+    the object, or, when all held, minus the least heat or force margin; 0 where not checked)
+    and the reason of the worst plant."""
+    from gripper_env.evaluation.grasp import grasp_admission
+
+    k = len(gains)
+    value = np.zeros(k)
+    why = np.full(k, "", dtype=object)
+    if not len(which):
+        return value, why
+    lost = np.zeros(len(which))
+    margin = np.full(len(which), np.inf)
+    for plant in task.plants:
+        v = grasp_admission(gains[which], task.options, plant, task.disturbance, task.seeds,
+                            randomize=task.randomize)  # fmt: skip
+        share = 1.0 - v.held_runs.mean(axis=1)
+        for j in np.flatnonzero((share > lost) & ~v.held):
+            why[which[j]] = f"{v.reason[j]} on {plant.name}"
+        lost = np.maximum(lost, share)
+        margin = np.minimum(margin, v.margin)
+    value[which] = np.where(lost > 0, lost, -np.clip(margin, 0.0, 1.0))
+    return value, why
 
 
 @dataclass
@@ -178,11 +212,15 @@ class GainScores:
     stable : ndarray of bool
         The loop as it runs is stable on every plant.
     violation : ndarray
-        How far from the constraints (0 when feasible; worst plant).
+        How far from the admission rule (0 when feasible; :attr:`Admission.violation`).
     feasible : ndarray of bool
-        ``violation == 0``.
+        Meets the admission rule (:mod:`gripper_env.evaluation.admission`): robustness on
+        every plant, and on every run settled, no stall, the jaw inside the nearest stops the
+        preset can draw.
     penalised : ndarray
         ``cost`` with the constraints folded in (:meth:`Objective.penalised`).
+    admission : Admission
+        Every constraint's value (``<= 0`` when met), what binds, the messages.
     metrics : Metrics
         Every run's metrics, gain set major (gain set, plant, seed).
     trajectory : Trajectory or None
@@ -200,6 +238,7 @@ class GainScores:
     feasible: np.ndarray
     penalised: np.ndarray
     metrics: Metrics
+    admission: Admission
     trajectory: Trajectory | None = None
 
 
@@ -218,17 +257,44 @@ class GainScorer:
         obj = task.objective
         self._band = obj.settling_band_deg(task.disturbance)
 
-    def robustness(self, gains: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Worst-plant ``(ms, gm_db, pm_deg, stable, violation)`` of gain sets (k, 4)."""
+    def robustness(self, gains: np.ndarray) -> dict[str, np.ndarray]:
+        """Worst-plant ``ms``, ``gm_db``, ``gm_lower_db``, ``pm_deg``, ``stable`` and
+        ``spectral_radius`` of gain sets (k, 4), the loop as it runs."""
         t = self.task
-        lim = t.objective.constraints
         per = [robustness(p, t.disturbance, gains, t.options.sign) for p in t.plants]
-        ms = np.max([r.ms for r in per], axis=0)
-        gm = np.min([r.gm_db for r in per], axis=0)
-        pm = np.min([r.pm_deg for r in per], axis=0)
-        stable = np.all([r.stable for r in per], axis=0)
-        violation = np.max([r.violation(lim.ms_max, lim.gm_min_db) for r in per], axis=0)
-        return ms, gm, pm, stable, violation
+        return {
+            "ms": np.max([r.ms for r in per], axis=0),
+            "gm_db": np.min([r.gm_db for r in per], axis=0),
+            "gm_lower_db": np.max([r.gm_lower_db for r in per], axis=0),
+            "pm_deg": np.min([r.pm_deg for r in per], axis=0),
+            "stable": np.all([r.stable for r in per], axis=0),
+            "spectral_radius": np.max([r.spectral_radius for r in per], axis=0),
+        }
+
+    def admission(
+        self, gains: np.ndarray, metrics: Metrics, rb: dict[str, np.ndarray] | None = None
+    ) -> Admission:
+        """The admission rule for gain sets (k, 4) whose runs are ``metrics`` (gain set major):
+        robustness from the loop analysis (``rb``, :meth:`robustness`'s, computed if not
+        given), the rest worst case over the runs."""
+        t = self.task
+        rb = rb if rb is not None else self.robustness(gains)
+        checks = run_checks(metrics, len(gains), t.disturbance, t.randomize)
+        limits = t.objective.constraints.limits(t.search)
+        rule = Admission.build(
+            limits, ms=rb["ms"], gm_db=rb["gm_db"], gm_lower_db=rb["gm_lower_db"],
+            loop_stable=rb["stable"], spectral_radius=rb["spectral_radius"], checks=checks,
+        )  # fmt: skip
+        if not t.objective.constraints.grasp:
+            return rule
+        # the grasp scenario only for the gain sets that meet the rest (a refused one needs no
+        # more reasons; the grasp runs cost as much as the step's): the same verdict, cheaper
+        lost, why = grasp_check(np.asarray(gains, float), t, np.flatnonzero(rule.feasible))
+        return Admission.build(
+            limits, ms=rb["ms"], gm_db=rb["gm_db"], gm_lower_db=rb["gm_lower_db"],
+            loop_stable=rb["stable"], spectral_radius=rb["spectral_radius"], checks=checks,
+            grasp_lost=lost, grasp_reason=why,
+        )  # fmt: skip
 
     def rollout(self, gains: np.ndarray) -> Trajectory:
         """Simulate every gain set (k, 4) on every plant under every seed: ``k * plants *
@@ -272,20 +338,23 @@ class GainScorer:
             v = np.where(stable_runs, parts[name].reshape(k, -1), 0.0).sum(axis=1)
             # the mean over a gain set's stable runs; NaN if none was stable
             terms[name] = np.divide(v, count, out=np.full(k, np.nan), where=count > 0)
-        ms, gm, pm, stable, violation = self.robustness(g)
+        rb = self.robustness(g)
+        admission = self.admission(g, metrics, rb)
+        violation = admission.violation
         cost = run_cost.mean(axis=(1, 2))
         return GainScores(
             cost=cost,
             run_cost=run_cost,
             terms=terms,
-            ms=ms,
-            gm_db=gm,
-            pm_deg=pm,
-            stable=stable,
+            ms=rb["ms"],
+            gm_db=rb["gm_db"],
+            pm_deg=rb["pm_deg"],
+            stable=rb["stable"],
             violation=violation,
-            feasible=violation <= 0.0,
+            feasible=admission.feasible,
             penalised=t.objective.penalised(cost, violation),
             metrics=metrics,
+            admission=admission,
             trajectory=traj if keep_trajectory else None,
         )
 

@@ -32,6 +32,9 @@
                                 constraints, meets_constraints (gripper_env.evaluation.stability)
     cross_model                 the gains on the other identifications: plants {name: {...}}
                                 and the worst case (``tuners.evaluation.cross_model``)
+    admission                   the admission rule on the held-out runs: constraints {name:
+                                value, <= 0 met}, admitted, missed, binding, reason, measured,
+                                limits (gripper_env.evaluation.admission)
     tuning                      what the tuner wants to record (trials, best cost, study, search
                                 ranges, on_bound: gains within 2 % of a search bound, ...)
     provenance                  command, config, seed (the version, commit, date, machine and
@@ -166,6 +169,7 @@ def build_gains_file(
             },
             "robustness": evaluation.robustness,
             "cross_model": evaluation.cross_model,
+            "admission": getattr(evaluation, "admission", None) or {},
             "tuning": tuning or {},
             "provenance": prov or provenance(),
         }

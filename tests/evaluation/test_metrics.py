@@ -126,3 +126,36 @@ def test_a_loop_that_swings_between_the_stops_is_classified_as_diverged():
                        seeds=seeds, randomize=True, pid_options=options)  # fmt: skip
     ms = compute_metrics(settled, "true")
     assert ms.stable.all() and np.all(ms.run["oscillation_deg"] < 4.0)  # friction hunting only
+
+
+def test_step_overshoot_is_the_first_peak_of_an_underdamped_loop():
+    """The first-rise overshoot of a second-order step is exp(-pi zeta / sqrt(1 - zeta^2))
+    (python-control's step_info agrees); a creep past the target seconds later is hunting, not
+    step overshoot, and the whole-hold overshoot does count it."""
+    from gripper_env.evaluation.metrics import first_rise_overshoot
+
+    zeta, wn = 0.5, 6.0
+    sys = control.tf([wn**2], [1.0, 2 * zeta * wn, wn**2])
+    t = np.arange(0, 8, DT)
+    _, y = control.step_response(sys, T=t)
+    analytic = 100 * math.exp(-math.pi * zeta / math.sqrt(1 - zeta**2))
+    late = np.where(t > 5.0, 0.3 * np.minimum(t - 5.0, 1.0), 0.0)  # a slow creep 30 % past
+    for y_init, span in [(0.0, 1.0), (92.0, -71.0)]:
+        yy = y_init + span * (y + late)
+        first = first_rise_overshoot(yy[None, :], y_init, y_init + span, DT)[0]
+        assert first == pytest.approx(analytic, rel=2e-3)
+        assert first == pytest.approx(control.step_info(y, t)["Overshoot"], rel=2e-3)
+        whole = step_metrics(t, yy, y_init, y_init + span)["overshoot_pct"][0]
+        assert whole == pytest.approx(30.0, abs=0.5)  # the creep's, not the step's
+
+
+def test_jaw_envelope_and_step_overshoot_in_the_metrics():
+    """compute_metrics reports the true jaw's lowest and highest angle and the step overshoot
+    of both moves (the jaw's own extremes, checked against the trajectory)."""
+    traj = simulate("test2", "step", gains=[(1.0, 9.0, -0.001)] * 3, disturbance="actual",
+                    seeds=[0, 1, 2])  # fmt: skip
+    m = compute_metrics(traj, "true")
+    assert np.allclose(m.run["jaw_min_deg"], traj.y_true.min(axis=1))
+    assert np.allclose(m.run["jaw_max_deg"], traj.y_true.max(axis=1))
+    assert np.all(m.grip["step_overshoot_pct"] <= m.grip["overshoot_pct"] + 1e-12)
+    assert np.all(m.grip["step_overshoot_pct"] >= 0.0)

@@ -363,3 +363,72 @@ def test_cmaes_minimises_the_penalised_cost(
     args = small(tmp_path, small_optuna_config, small_eval_config)
     code, out, _ = run([*args, "--trials", 12, "--sampler", "cmaes"], capsys)
     assert code == 0 and json.loads(out)["tuner"] == "optuna-cmaes"
+
+
+def test_search_space_params_invert_gains():
+    """A warm start enqueues gains in the searched coordinates: params() inverts gains()."""
+    from gripper_env.model.pid import PIDGains
+    from tuners.search_space import SearchSpace
+    from tuners.settings import ParamRange
+
+    space = SearchSpace(
+        {
+            "P": ParamRange(scale="linear", low=-1.0, high=10.0),
+            "I": ParamRange(scale="log", low=1.0, high=100.0),
+            "D": ParamRange(scale="symlog", low=1e-5, high=0.1),
+        }
+    )
+    for g in (PIDGains(0.87, 14.3, -0.0081), PIDGains(3.0, 50.0, 0.002)):
+        back = space.gains(space.params(g), 100.0)
+        assert (back.P, back.I, back.D) == pytest.approx((g.P, g.I, g.D), rel=1e-9)
+    clipped = space.gains(space.params(PIDGains(20.0, 0.5, 0.0)), 100.0)
+    assert clipped.P == 10.0 and clipped.I == 1.0 and abs(clipped.D) == pytest.approx(1e-5)
+
+
+def test_the_textbook_designs_are_the_first_trials(small_optuna_config):
+    """The warm start: a new study's first trials are the textbook designs, as designed."""
+    import optuna
+
+    from gripper_env.evaluation.objective import load_objective
+    from gripper_env.model.disturbances import load_disturbance
+    from gripper_env.model.plants import load_plant
+    from tuners.optuna.study import run_study
+    from tuners.optuna.warm_start import textbook_designs
+    from tuners.search_space import search_space
+    from tuners.settings import OptunaSettings, load_settings
+    from tuners.tasks import make_scorer
+
+    inputs = cli.load_inputs("test2")
+    settings = load_settings(OptunaSettings, small_optuna_config)
+    designs = textbook_designs((load_plant("test2"),), load_disturbance("actual"), 100.0)
+    assert len(designs) >= 10  # five rules at five knob settings, less the unreachable
+    scorer = make_scorer(inputs, settings)
+    space = search_space(scorer.task.plants, inputs.disturbance, settings)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    run_study(study, scorer, space, settings, 6, 100.0, progress=False, warm_start=designs)
+    first = sorted(study.trials, key=lambda t: t.number)[:6]
+    for trial, g in zip(first, designs, strict=False):
+        got = space.gains(trial.params, 100.0)
+        want = space.gains(space.params(g), 100.0)  # clipped into the searched ranges
+        assert (got.P, got.I, got.D) == pytest.approx((want.P, want.I, want.D), rel=1e-9)
+    assert load_objective().constraints.search_backoff_deg > 0  # the task is a search's
+    assert scorer.task.search
+
+
+def test_an_infeasible_search_names_its_binding_constraint(
+    tmp_path, capsys, small_optuna_config, small_eval_config
+):
+    """No gains meet Ms <= 1.01: the search says so in one line naming the constraint."""
+    import yaml
+
+    obj = tmp_path / "objective.yaml"
+    data = yaml.safe_load((REPO / "configs" / "objective.yaml").read_text())
+    data["constraints"]["ms_max"] = 1.01
+    obj.write_text(yaml.safe_dump(data))
+    args = small(tmp_path, small_optuna_config, small_eval_config)
+    args = [a for a in args if a != "--json"]
+    code, out, _ = run([*args, "--trials", 8, "--objective", obj], capsys)
+    assert code == 0
+    line = next(x for x in out.splitlines() if "infeasible" in x)
+    assert "no trial met the admission rule; binding constraint 'ms'" in line
+    assert "Ms " in line and "> 1.01" in line

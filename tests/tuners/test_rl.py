@@ -281,3 +281,77 @@ def test_the_centre_rule_list_falls_back_to_a_rule_that_meets_the_constraints():
     assert record["rule"] == "pidtune"
     assert record["refused"][0].startswith("simc: no setting of tau_c_factor")
     assert record["gains"][:3] == [gains.P, gains.I, gains.D]
+
+
+def test_the_tuners_reward_applies_the_admission_rule_to_each_episode():
+    """The RL tuner trains on the searches' rule: an episode whose jaw passes the nearest stop
+    the preset can draw (less the searches' back-off) is penalised even if its drawn stop was
+    not touched; a calm episode is not."""
+    import gymnasium as gym
+
+    import gripper_env.envs  # noqa: F401 - registers the environments
+    from tuners.rl.tune import episode_admission
+
+    env = gym.make("gripper_env/GripperPIDTune-v0", plant="test2", disturbance="actual",
+                   randomize=True, gain_scaling="relative", gain_center=(0.6925, 17.78, -0.0063),
+                   gain_max=(1.0, 1.0, 0.01))  # fmt: skip
+    infos = []
+    for action in ([0.0, 0.0, 0.0], [-0.3, -0.5, 0.63]):  # the centre overshoots; calm gains
+        env.reset(seed=3)
+        infos.append(env.step(np.array(action, dtype=np.float32))[4])
+    env.close()
+    rule = episode_admission(infos, OBJECTIVE, ACTUAL, True)
+    lows = [i["jaw_min_deg"] for i in infos]
+    need = 15.0 + OBJECTIVE.constraints.limits(search=True)["stop_clearance_deg"]
+    assert lows[0] < need and "stop_clearance" in rule.missed(0)
+    assert lows[1] > need and rule.feasible[1] and rule.violation[1] == 0.0
+    assert rule.violation[0] >= (need - lows[0]) / 10.0  # 10 deg past is one unit
+
+
+def test_robust_controller_training_draws_raised_gains_half_the_time():
+    from tuners.rl.controller import ControllerSettings, training_plants
+
+    s = ControllerSettings(gain_spread_db=9.0, gain_levels=3)
+    plants = training_plants(["test2", "test4"], s)
+    assert len(plants) == 12
+    ratios = [p.num[-1] / load_plant(p.name.split("*")[0]).num[-1] for p in plants]
+    nominal = [r for r in ratios if r == pytest.approx(1.0)]
+    assert len(nominal) == 6  # half nominal
+    raised = sorted({round(20 * math.log10(r), 6) for r in ratios if r != pytest.approx(1.0)})
+    assert raised == pytest.approx([3.0, 6.0, 9.0])
+    assert training_plants(["test2"], ControllerSettings()) == ["test2"]
+
+
+def test_the_floor_check_agrees_with_the_linear_gain_margin():
+    """meets_floor on the base PID alone (the zero policy) is the linear margin test: a PID
+    with 10 dB passes the 8.5 dB floor, one with 7 dB does not."""
+    from gripper_env.model.pid import PIDGains
+    from tuners.rl.controller import ControllerSettings, env_kwargs, meets_floor
+
+    inputs = cli.load_inputs("test2")
+    zero = lambda obs: np.zeros((len(obs), 1))  # noqa: E731 - the base PID itself
+    for gains in ((2.4, 39.0, 0.0), (4.4, 50.0, 0.0)):
+        g = PIDGains(*gains, 100.0)
+        gm = stability_report(TEST2, g, disturbance=ACTUAL).gain_margin_db
+        kwargs = env_kwargs(inputs, g, ControllerSettings())
+        assert meets_floor(zero, inputs, kwargs, ["test2"]) == (gm > 8.6), (gains, gm)
+
+
+def test_a_policys_grasp_is_its_pids_when_it_does_not_correct():
+    """The policy grasp scenario (tuners.rl.grasp) with the zero policy is the base PID's own
+    grasp verdict (gripper_env.evaluation.grasp.grasp_admission): the same heat and force."""
+    from gripper_env.evaluation.grasp import grasp_admission
+    from gripper_env.model.pid import PIDGains
+    from tuners.rl.controller import ControllerSettings, env_kwargs
+    from tuners.rl.grasp import policy_grasp
+
+    inputs = cli.load_inputs("test2")
+    g = PIDGains(2.4, 39.0, 0.0, 100.0)
+    kwargs = env_kwargs(inputs, g, ControllerSettings())
+    seeds = [100000, 100001, 100002]
+    zero = lambda obs: np.zeros((len(obs), 1))  # noqa: E731 - the base PID itself
+    policy = policy_grasp(zero, kwargs, TEST2, ACTUAL, seeds)
+    pid = grasp_admission([[g.P, g.I, g.D]], inputs.settings.options(1)[1], TEST2, ACTUAL, seeds)
+    assert policy["held"] == pid.held_runs[0].tolist() == [True] * 3
+    assert policy["peak_heat"] == pytest.approx(pid.peak_heat[0].tolist(), abs=0.01)
+    assert policy["min_force_n"] == pytest.approx(pid.min_force_n[0].tolist(), rel=0.02)

@@ -88,6 +88,14 @@ def test_the_leaderboard_lists_both_beside_the_reference_rows(rows, tmp_path):
     assert "zoo-ppo (rl-zoo3)" in md and "squeeze (callable)" in md
     assert "*trivial (command = reference)*" in md and "*best PID" in md
     assert "(6 episodes)" in md  # scored on a subset: listed, not ranked
+    # run again over the file it wrote (the committed leaderboard's regeneration): replaced
+    again = _run("tuners.rl.leaderboard", str(out), "--out", str(board), "--reference",
+                 str(REFERENCE))  # fmt: skip
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert board.read_text() == md
+    # a folder given as the file: one line, exit 2
+    folder = _run("tuners.rl.leaderboard", str(out), "--out", str(tmp_path))
+    assert folder.returncode == 2 and "is a folder; give the file" in folder.stderr
 
 
 @pytest.mark.parametrize(

@@ -147,10 +147,15 @@ def _main(argv: list[str] | None = None) -> int:
 
 def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data: Any) -> None:
     """benchmark.json, benchmark.md and the figures."""
+    from gripper_env.evaluation.admission import nearest_stops_deg
+    from gripper_env.model.disturbances import load_disturbance
     from tuners.benchmark import leaderboard
 
+    dist = load_disturbance(bench.disturbance)
     meta = {
         "command": args.command,
+        "settling_band_deg": objective.settling_band_deg(dist),
+        "nearest_stops_deg": list(nearest_stops_deg(dist, ev.randomize)),
         "profile": bench.profile,
         "disturbance": bench.disturbance,
         "grip_scenario": bench.grip_scenario,

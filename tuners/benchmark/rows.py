@@ -105,6 +105,7 @@ def pid_row(
         cli.write_result(out, inputs, content, ev, force=force)
         robustness, metrics = content["robustness"], content["metrics"]
         runs = ev.actual_runs
+        admission = content["admission"]
     else:  # another identification's evaluation of the same gains: no file
         ideal_opts, actual_opts = inputs.settings.options(sign)
         ev = evaluate(inputs.plant, gains, actual_opts, profile=inputs.reference,
@@ -117,6 +118,7 @@ def pid_row(
         robustness = json_ready(ev.robustness)
         metrics = json_ready({"ideal": ev.ideal, "actual": ev.actual})
         runs = ev.actual_runs
+        admission = json_ready(ev.admission)
     _, actual_opts = inputs.settings.options(sign)
     margins = measure_margins(pid_runner(gains, actual_opts, inputs.reference), inputs.plant,
                               inputs.disturbance, inputs.ideal)  # fmt: skip
@@ -126,6 +128,7 @@ def pid_row(
         "controller": "pid",
         "P": gains.P, "I": gains.I, "D": gains.D, "N": gains.N, "sign": sign,
         "robustness": robustness,
+        "admission": admission,
         "measured_margins": margins.as_dict(),
         "metrics": metrics,
         "per_seed_cost": [r["cost"] for r in runs],
@@ -179,6 +182,12 @@ def policy_row(inputs: cli.Inputs, name: str, tuned: Tuned, *, grip_preset: str)
             "phase_margin_deg": None,
             "note": "a policy has no transfer function: its margins are measured",
         },
+        "admission": p["admission"],
+        "base": {
+            "cost": p["base"]["actual"]["mean"]["cost"],
+            "per_seed_cost": p["base"]["per_seed_cost"],
+            "measured_margins": p["base"].get("measured_margins"),
+        },
         "measured_margins": {
             "gain_margin_db": _finite(mm["worst_gain_margin_db"]),
             "delay_margin_s": _finite(mm["worst_delay_margin_s"]),
@@ -199,6 +208,15 @@ def policy_row(inputs: cli.Inputs, name: str, tuned: Tuned, *, grip_preset: str)
 
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
+
+
+def run_admission(inputs: cli.Inputs, metrics: Any) -> dict[str, Any]:
+    """The admission rule's run-level part (settled, no stall, the jaw inside the nearest stops
+    the preset can draw) on a reference row's runs: it has no loop whose margins apply."""
+    from gripper_env.evaluation.admission import Admission, run_checks
+
+    checks = run_checks(metrics, 1, inputs.disturbance, inputs.settings.randomize)
+    return Admission.build(inputs.objective.constraints.limits(), checks=checks).row(0)
 
 
 def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any]:
@@ -222,6 +240,7 @@ def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any
                        "gain_margin_db": None, "phase_margin_deg": None,
                        "note": "open loop: the sensitivity is 1 at every frequency"},
         "measured_margins": None,
+        "admission": run_admission(inputs, metrics),
         "metrics": {"ideal": with_cost(ideal_m, ideal_c)[0], "actual": summarize_runs(runs)},
         "per_seed_cost": [r["cost"] for r in runs],
         "per_seed_iae": [r["iae"] for r in runs],
@@ -269,6 +288,7 @@ def oracle_row(inputs: cli.Inputs, seeds: np.ndarray, preview: bool) -> dict[str
         "controller": oracle_record(settings)["controller"],
         "oracle": oracle_record(settings),
         "seeds": [int(s) for s in seeds],
+        "admission": run_admission(inputs, metrics),
         "metrics": {"actual": summarize_runs(runs)},
         "per_seed_cost": [r["cost"] for r in runs],
         "per_seed_iae": [r["iae"] for r in runs],

@@ -89,10 +89,13 @@ def _tune(
             log(f"  {tuner.name}: skipped ({exc})")
             return None
     try:
-        return tuner.tune(inputs, budget, seed)
-    except ValueError as exc:  # e.g. no setting of a rule meets the constraints
+        tuned = tuner.tune(inputs, budget, seed)
+    except ValueError as exc:  # e.g. no setting of a rule meets the admission rule
         log(f"  {tuner.name}: no result ({exc})")
         return None
+    if tuned.tuning.get("infeasible"):  # one line naming the binding constraint
+        log(f"  {tuned.tuning['infeasible']}")
+    return tuned
 
 
 def _row(
@@ -188,10 +191,50 @@ def run_benchmark(
             evaluations[key][plant] = row
             _log_row(log, plant, tuner.name, row)
     data["evaluations"] = evaluations
+    data["stress"] = _stress(bench, ev, _inputs, evaluations, quick, feasible, log)
+    data["stops_moved"] = _stops_moved(bench, ev, _inputs, evaluations, robust_plants, quick,
+                                       feasible, log)  # fmt: skip
     data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
     data["pareto_fronts"] = {p: _pareto_front(_inputs(p, ev), bench, quick)
                              for p in feasible}  # fmt: skip
     return data
+
+
+def _stress(
+    bench: BenchmarkSettings, ev: EvaluationSettings, inputs_of: Callable[..., cli.Inputs],
+    evaluations: dict[str, dict[str, Any]], quick: bool, feasible: list[str],
+    log: Callable[..., None],
+) -> dict[str, Any] | None:  # fmt: skip
+    """Every candidate on the extra held-out seeds
+    (:func:`tuners.benchmark.sensitivity.stress_check`)."""
+    import numpy as np
+
+    from tuners.benchmark.sensitivity import stress_check
+
+    st = bench.stress
+    count = bench.quick.stress_seeds if quick else st.count
+    if not count or st.plant not in feasible:
+        return None
+    seeds = np.arange(st.start, st.start + count, dtype=np.int64)
+    return stress_check(evaluations, inputs_of(st.plant, ev), seeds, log)
+
+
+def _stops_moved(
+    bench: BenchmarkSettings, ev: EvaluationSettings, inputs_of: Callable[..., cli.Inputs],
+    evaluations: dict[str, dict[str, Any]], plants: list[str], quick: bool,
+    feasible: list[str], log: Callable[..., None],
+) -> dict[str, Any] | None:  # fmt: skip
+    """The verdict with the stops moved out (:func:`tuners.benchmark.sensitivity.stops_moved`);
+    not in a quick run (no robust rows)."""
+    from tuners.benchmark.sensitivity import stops_moved
+
+    sm = bench.stops_moved
+    if quick or not sm.shift_deg or not all(p in feasible for p in plants):
+        return None
+    retune = [make_tuner(dict(e)) for e in bench.tuners]
+    retune = [t for t in retune if t.name in sm.retune]
+    return stops_moved(evaluations, lambda p: inputs_of(p, ev), plants, sm.shift_deg, retune,
+                       bench.seed, log)  # fmt: skip
 
 
 def _grasp(

@@ -26,6 +26,24 @@ class ReferencesPart(BaseModel):
     oracle_seeds: int | None = Field(None, ge=1)  # default: every held-out seed
 
 
+class StressPart(BaseModel):
+    """Extra held-out seeds of one plant on which every headline candidate is run again."""
+
+    model_config = _STRICT
+    plant: str = "test2"
+    start: int = Field(300000, ge=0)
+    count: int = Field(50, ge=0, le=10000)
+
+
+class StopsMovedPart(BaseModel):
+    """The verdict with both stops ``shift_deg`` further out; the robust rows named in
+    ``retune`` are tuned again under the moved stops."""
+
+    model_config = _STRICT
+    shift_deg: float = Field(3.0, ge=0.0)
+    retune: list[str] = []
+
+
 class QuickPart(BaseModel):
     """``--quick``: fewer plants, every tuner at its quick budget, no robust rows."""
 
@@ -36,6 +54,7 @@ class QuickPart(BaseModel):
     limit: bool = True
     oracle_seeds: int = Field(2, ge=1)
     pareto_points: int = Field(3, ge=0)
+    stress_seeds: int = Field(5, ge=0)
 
 
 class BenchmarkSettings(BaseModel):
@@ -51,6 +70,8 @@ class BenchmarkSettings(BaseModel):
     tuners: list[dict[str, Any]]
     references: ReferencesPart = ReferencesPart()
     pareto_ms: list[float] = [1.2, 1.3, 1.4, 1.5, 1.6, 1.8, 2.0, 2.4]
+    stress: StressPart = StressPart()
+    stops_moved: StopsMovedPart = StopsMovedPart()
     quick: QuickPart = QuickPart()
 
     @field_validator("tuners")
@@ -92,4 +113,9 @@ def load_benchmark_settings(path: str | os.PathLike[str] | None = None) -> Bench
         for need in make_tuner(entry, str(p)).__dict__.get("requires", ()):
             if need not in names:
                 raise ConfigError(f"{p}: row {entry!r} builds on {need!r}, which is not a row")
+    for name in bench.stops_moved.retune:
+        if name not in names:
+            raise ConfigError(f"{p}: stops_moved.retune names {name!r}, which is not a row")
+    if bench.stress.plant not in bench.plants:
+        raise ConfigError(f"{p}: stress.plant {bench.stress.plant!r} is not one of the plants")
     return bench

@@ -8,9 +8,10 @@ the textbook allows: the engineer who uses it picks the knob. :func:`constrained
 what that engineer does, with the searches' own yardstick:
 
 1. the rule's design for every knob value on a grid over the knob's textbook range;
-2. the designs that meet the objective's constraints on the loop as it runs (``Ms`` and gain
-   margin with the servo's 20 ms hold, on every plant of the task) are scored on the searches'
-   tuning seeds, with their cost;
+2. every design is scored on the searches' tuning task (plants, tuning seeds) and judged by the
+   searches' admission rule (:mod:`gripper_env.evaluation.admission`: ``Ms`` and gain margin
+   with the servo's 20 ms hold on every plant, every run settled, no stall, the jaw inside the
+   nearest stops the preset can draw); the feasible ones compete on their cost;
 3. the best of them is refined twice by a finer scan between its neighbours (the cost is
    piecewise constant in some knobs and falls off a cliff at the constraints: no local
    minimiser would do).
@@ -136,6 +137,7 @@ def constrained_design(
     objective = scorer.task.objective
     lim = objective.constraints
     evaluated: dict[float, tuple[float, bool, PIDGains | None]] = {}
+    refusals: dict[float, tuple[float, str | None, str | None]] = {}  # violation, binding, why
 
     def score(values: list[float]) -> None:
         designs = [(v, _design(method, plant, disturbance, settings, n, v)) for v in values]
@@ -149,13 +151,22 @@ def constrained_design(
         penalised = objective.penalised(s.cost, np.where(s.feasible, 0.0, 1.0))
         for i, (v, g) in enumerate(rows):
             evaluated[v] = (float(penalised[i]), bool(s.feasible[i]), g)
+            if not s.feasible[i]:
+                refusals[v] = (float(s.violation[i]), s.admission.binding(i),
+                               s.admission.reason(i, "binding"))  # fmt: skip
 
     grid = knob.grid(GRID_POINTS)
     score(list(grid))
     if not any(evaluated[v][1] for v in grid):
+        nearest = min(refusals.values(), key=lambda r: r[0]) if refusals else None
+        clearance = lim.limits(scorer.task.search)["stop_clearance_deg"]
+        why = (f"; binding constraint '{nearest[1]}' at the nearest setting: {nearest[2]}"
+               if nearest else "; no setting gives gains")  # fmt: skip
         raise ValueError(
-            f"{method}: no setting of {knob.name} in [{knob.low:g}, {knob.high:g}] meets Ms <= "
-            f"{lim.ms_max:g} and GM >= {lim.gm_min_db:g} dB on the loop as it runs"
+            f"{method}: infeasible: no setting of {knob.name} in [{knob.low:g}, {knob.high:g}] "
+            f"meets the admission rule (Ms <= {lim.ms_max:g}, GM >= {lim.gm_min_db:g} dB with "
+            f"the hold, settled, no stall, {clearance:g} deg inside the nearest stops the preset "
+            f"can draw){why}"
         )
     # refine twice between the best setting's neighbours: the cost is piecewise constant in
     # some knobs (pidtune's crossover snaps to a frequency grid) and falls off a cliff at the
@@ -189,7 +200,7 @@ def constrained_design(
             "value": chosen,
             "range": [knob.low, knob.high],
             "scale": "log" if knob.log else "linear",
-            "chosen_by": "least tuning cost among the settings that meet the constraints",
+            "chosen_by": "least tuning cost among the settings that meet the admission rule",
         },
         "on_bound": on_bound,
         "best_value_tuning": evaluated[chosen][0],

@@ -14,12 +14,16 @@ Each trial's gains are scored through the one scoring path (:mod:`gripper_env.ev
 on the
 ``actual`` model under ``tuning_seeds`` randomised disturbance draws
 (``configs/tuners/optuna.yaml``) with the shared objective (``configs/objective.yaml``),
-averaged over the draws (and over the plants in the robust mode). The objective's robustness
-limits (``Ms`` and the gain margin of the loop as it runs, with the servo's command hold) are
-Optuna *constraints*
-(:meth:`optuna.trial.Trial.set_constraint`): TPE samples toward feasible gains and the result is
-the best feasible trial. CMA-ES takes no constraints, so it minimises the penalised cost
-(:meth:`gripper_env.evaluation.objective.Objective.penalised`).
+averaged over the draws (and over the plants in the robust mode). The admission rule
+(:mod:`gripper_env.evaluation.admission`: ``Ms`` and the gain margin of the loop as it runs, with
+the servo's command hold; every run settled; no stall; the jaw inside the nearest stops the preset
+can draw, with the searches' back-off) gives Optuna *constraints*
+(:meth:`optuna.trial.Trial.set_constraint`), one per rule: TPE samples toward feasible gains and
+the result is the best feasible trial; a search with none says so in one line naming the
+constraint that binds. CMA-ES takes no constraints, so it minimises the penalised cost
+(:meth:`gripper_env.evaluation.objective.Objective.penalised`). A new study starts from the
+textbook designs (:mod:`~tuners.optuna.warm_start`); TPE hands over to a CMA-ES local search for
+the last ``local_fraction`` of the trials (:func:`~tuners.optuna.study.run_search`).
 
 The search ranges scale with the plant (:mod:`tuners.search_space`); a result within 2 % of a
 bound is flagged. ``search_seeds`` independent studies (``<name>-s0``, ``-s1``, ...; just

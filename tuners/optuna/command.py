@@ -157,11 +157,13 @@ def _search(
     import optuna
 
     from gripper_env.io.config import ConfigError
-    from tuners.optuna.sampler import make_sampler
-    from tuners.optuna.study import check_study_attrs, run_study
+    from tuners.optuna.study import check_study_attrs, run_search
+    from tuners.optuna.warm_start import textbook_designs
     from tuners.optuna.workers import Worker
 
     n_objectives = len(plan.terms) if plan.multi else 1
+    warm_start = (textbook_designs(scorer.task.plants, inputs.disturbance, inputs.settings.pid.N)
+                  if plan.settings.warm_start else [])  # fmt: skip
     results, names = [], []
     for i in range(plan.n_seeds):
         name = plan.base_name if plan.n_seeds == 1 else f"{plan.base_name}-s{i}"
@@ -191,11 +193,11 @@ def _search(
                 },
             )
         with Worker(study, storage) as worker:  # its rank: its own sampler stream
-            sampler = make_sampler(plan.sampler, worker.seed(args.seed + i), plan.settings,
-                                   plan.multi)  # fmt: skip
-            result = run_study(
+            result = run_search(
                 study, scorer, space, plan.settings, plan.n_trials, inputs.settings.pid.N,
-                sampler=sampler, progress=not args.no_progress, terms=plan.terms, worker=worker,
+                sampler_name=plan.sampler, seed=worker.seed(args.seed + i),
+                progress=not args.no_progress, terms=plan.terms, worker=worker,
+                warm_start=warm_start,
             )  # fmt: skip
         results.append(result)
         names.append(name)
@@ -261,7 +263,7 @@ def _notes(
         )
     if not best.feasible:
         notes.append(
-            "warning: no trial met the robustness constraints; these are the least infeasible "
+            f"warning: {best.infeasible_line(plan.base_name)}; these are the least infeasible "
             "gains (raise --trials, or widen the search in the config)"
         )
     if plan.multi:

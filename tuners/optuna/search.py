@@ -9,9 +9,10 @@ import numpy as np
 import optuna
 
 from gripper_env.evaluation.scoring import GainScorer
+from gripper_env.model.pid import PIDGains
 from tuners import cli
-from tuners.optuna.sampler import make_sampler
-from tuners.optuna.study import StudyResult, run_study
+from tuners.optuna.study import StudyResult, run_search
+from tuners.optuna.warm_start import textbook_designs
 from tuners.search_space import SearchSpace, search_space
 from tuners.settings import OptunaSettings
 from tuners.tasks import make_scorer, make_task
@@ -28,18 +29,26 @@ def search(
     seed: int = 0,
     progress: bool = False,
     plants: Sequence[str] = (),
+    warm_start: Sequence[PIDGains] | None = None,
 ) -> tuple[StudyResult, GainScorer, SearchSpace]:
-    """One single-objective search in memory (no storage): the benchmark's entry point."""
+    """One single-objective search in memory (no storage): the benchmark's entry point.
+    ``warm_start``: the gain sets enqueued first (default the textbook designs on the task's
+    plants, :func:`tuners.optuna.warm_start.textbook_designs`; ``()`` for none)."""
     scorer = make_scorer(inputs, settings, plants)
     space = search_space(scorer.task.plants, inputs.disturbance, settings)
+    if warm_start is None:
+        warm_start = (
+            textbook_designs(scorer.task.plants, inputs.disturbance, inputs.settings.pid.N)
+            if settings.warm_start
+            else ()
+        )
     study = optuna.create_study(
         study_name=f"{inputs.plant.name}-{sampler_name}-s{seed}",
         sampler=optuna.samplers.RandomSampler(seed=seed),
     )
-    sampler = make_sampler(sampler_name, seed, settings, multi=False)
-    result = run_study(
-        study, scorer, space, settings, n_trials, inputs.settings.pid.N, sampler=sampler,
-        progress=progress,
+    result = run_search(
+        study, scorer, space, settings, n_trials, inputs.settings.pid.N,
+        sampler_name=sampler_name, seed=seed, progress=progress, warm_start=warm_start,
     )  # fmt: skip
     return result, scorer, space
 

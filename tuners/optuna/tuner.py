@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import time
 
+from gripper_env.model.plants import load_plant
 from tuners import cli
 from tuners.interface import Budget, Tuned
 from tuners.optuna.sampler import SAMPLERS, make_sampler
 from tuners.optuna.search import best_of, search, seed_summary, tuner_name
+from tuners.optuna.warm_start import textbook_designs
 from tuners.settings import OptunaSettings, load_settings
 
 __all__ = ["OptunaTuner"]
@@ -56,16 +58,20 @@ class OptunaTuner:
         trials = max(1, round(trials * budget.scale))
         start = time.perf_counter()
         results, episodes, space = [], 0, None
+        plants = [load_plant(p) for p in self.plants] or [inputs.plant]
+        warm = (textbook_designs(tuple(plants), inputs.disturbance, inputs.settings.pid.N)
+                if self.settings.warm_start else [])  # fmt: skip
         for i in range(n_seeds):
             result, scorer, space = search(
                 inputs, self.settings, n_trials=trials, sampler_name=self.sampler,
-                seed=seed + i, plants=self.plants,
+                seed=seed + i, plants=self.plants, warm_start=warm,
             )  # fmt: skip
             results.append(result)
             episodes += scorer.episodes
         assert space is not None
         best = results[best_of(results)]
         tuning = {
+            "infeasible": best.infeasible_line(self.name),
             "sampler": self.sampler,
             "trials_per_seed": trials,
             "tuned_on": list(self.plants) or [inputs.plant.name],

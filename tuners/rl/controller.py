@@ -18,10 +18,23 @@ Measured as an RL researcher would (:func:`controller_study`):
   signed-rank over the held-out seeds); across seeds, mean, spread and worst seed;
 * the learning curve (validation cost against steps: mean and range over the seeds, the base PID
   as a line) and the first step at which the mean beats the base PID;
-* **measured margins** (:mod:`tuners.probe`): a policy has no transfer function, so its gain and
-  delay margins are probed; a learned controller is deployable only if every seed's policy meets
-  the gain margin that ``Ms <= ms_max`` guarantees a linear loop
-  (``20 log10(Ms / (Ms - 1))``: 8.5 dB for 1.6).
+* **measured margins** (:mod:`tuners.probe`): a policy has no transfer function, so its margins
+  are probed: the plant's gain is raised until the frictionless loop with the hold swings on its
+  own. That threshold is the **onset of a limit cycle** (for a linear loop, its gain margin; a
+  policy's loop is not linear, and its swing can start below where the linearised loop would
+  go unstable); a learned controller is admitted only if every seed's policy keeps it at least
+  at the gain margin that ``Ms <= ms_max`` guarantees a linear loop (``20 log10(Ms / (Ms -
+  1))``: 8.5 dB for 1.6), on every plant, and meets the rest of the admission rule
+  (:mod:`gripper_env.evaluation.admission`: settled, no stall, the jaw inside the nearest stops
+  the preset can draw) on the held-out runs.
+
+**Robust training.** A residual policy trained on the nominal plants learns corrections that
+the nominal loop tolerates and a loop with more gain does not (the first version's onsets were
+0.7-4.7 dB on test4). So each training episode draws the plant's gain from the nominal one or
+up to ``gain_spread_db`` above it (more than the 8.5 dB floor), and the sensor delay from
+``[0, delay_spread_s]``, which the policy does not observe; and a checkpoint is kept only if
+the probe loop does not swing at the floor's gain on any plant (the admission rule applied at
+selection: :func:`meets_floor`).
 
 Settings: ``configs/tuners/rl_controller.yaml`` (:class:`ControllerSettings`).
 """
@@ -91,6 +104,10 @@ class ControllerSettings(BaseModel):
     randomize: bool = True
     seed: int = 0
     validation_seeds: SeedRange = SeedRange(start=200000, count=8)
+    gain_spread_db: float = Field(0.0, ge=0.0, le=20.0)
+    gain_levels: int = Field(5, ge=1, le=50)
+    delay_spread_s: float = Field(0.0, ge=0.0, le=0.060)
+    select_on_floor: bool = True
 
 
 def load_controller_settings(path: str | os.PathLike[str] | None = None) -> ControllerSettings:
@@ -101,8 +118,55 @@ def load_controller_settings(path: str | os.PathLike[str] | None = None) -> Cont
 
 def measured_gm_floor_db(ms_max: float) -> float:
     """The gain margin (dB) that ``Ms <= ms_max`` guarantees a linear loop: a learned
-    controller's measured gain margin must reach it (its ``Ms`` cannot be probed)."""
+    controller's measured limit-cycle onset must reach it (its ``Ms`` cannot be probed)."""
     return 20.0 * math.log10(ms_max / (ms_max - 1.0))
+
+
+def training_plants(names: Sequence[str], s: ControllerSettings) -> list[Any]:
+    """The plants a training episode draws from: each identification at its nominal gain
+    ``gain_levels`` times and with its gain raised by each of ``gain_levels`` steps up to
+    ``gain_spread_db`` (half the episodes nominal); the names alone without a spread."""
+    from tuners.probe import scaled_plant
+
+    if s.gain_spread_db <= 0.0:
+        return list(names)
+    levels = np.linspace(0.0, s.gain_spread_db, s.gain_levels + 1)[1:]
+    out: list[Any] = []
+    for name in names:
+        plant = load_plant(name)
+        out += [plant] * s.gain_levels
+        out += [scaled_plant(plant, 10.0 ** (db / 20.0)) for db in levels]
+    return out
+
+
+def training_randomize(inputs: cli.Inputs, s: ControllerSettings) -> Any:
+    """The training episodes' randomisation: the preset's ranges (if ``randomize``) and the
+    sensor delay up to ``delay_spread_s``."""
+    if s.delay_spread_s <= 0.0:
+        return s.randomize
+    ranges = {k: list(v) for k, v in inputs.disturbance.randomize.items()} if s.randomize else {}
+    ranges["sensor.delay_s"] = [0.0, s.delay_spread_s]
+    return ranges
+
+
+def meets_floor(
+    policy: Callable[[np.ndarray], np.ndarray], inputs: cli.Inputs, kwargs: dict[str, Any],
+    plants: Sequence[str],
+) -> bool:  # fmt: skip
+    """Whether the policy's probe loop (:func:`tuners.probe.measure_margins`'s: frictionless,
+    with the hold) stays free of a limit cycle at the nominal gain, half the floor and the floor
+    (:func:`measured_gm_floor_db`) on every plant: the checkpoint test of the admission rule's
+    margin (the judge then measures the onset itself)."""
+    from tuners.probe import oscillates, policy_runner
+
+    floor = measured_gm_floor_db(inputs.objective.constraints.ms_max)
+    for name in plants:
+        runner = policy_runner(policy, dict(kwargs, plant=name), inputs.reference)
+        swing = oscillates(runner, load_plant(name), inputs.disturbance, inputs.ideal,
+                           [0.0, floor / 2, floor])  # fmt: skip
+        if swing.any():
+            return False
+    return True
 
 
 def env_kwargs(
@@ -215,7 +279,14 @@ def train_controller(
     names = list(plants) or [inputs.plant.name]
     total = s.timesteps if timesteps is None else int(timesteps)
     kwargs = env_kwargs(inputs, base, s, names)
-    train_kwargs = dict(kwargs, reference=s.training_reference)
+    train_kwargs = dict(
+        kwargs,
+        reference=s.training_reference,
+        plant=training_plants(names, s),
+        randomize=training_randomize(inputs, s),
+    )
+    if len(train_kwargs["plant"]) == 1:
+        train_kwargs["plant"] = train_kwargs["plant"][0]  # fmt: skip
     if s.training_reference == "random":
         train_kwargs["episode_s"] = s.episode_s
     torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
@@ -242,6 +313,8 @@ def train_controller(
                                  names)  # fmt: skip
     history = [(0, base_cost)]
     best = (math.inf, 0)
+    refused: list[int] = []  # checkpoints better on validation whose probe loop swung
+    met_floor = False
     chunk = max(total // s.checkpoints, s.n_envs * s.n_steps)
     bar = progress_callback(total, f"rl-controller {'+'.join(names)} seed {seed}",
                             disable=not progress)  # fmt: skip
@@ -252,8 +325,17 @@ def train_controller(
         cost = validate_now()
         history.append((int(model.num_timesteps), cost))
         if cost < best[0]:
-            best = (cost, int(model.num_timesteps))
-            save_agent(agent, run_dir / "best", _facts(s, seed, names, model.num_timesteps))
+            venv.training = False
+            ok = not s.select_on_floor or meets_floor(agent, inputs, kwargs, names)
+            venv.training = True
+            if ok:
+                best, met_floor = (cost, int(model.num_timesteps)), True
+                save_agent(agent, run_dir / "best", _facts(s, seed, names, model.num_timesteps))
+            if not ok:
+                refused.append(int(model.num_timesteps))
+    if not met_floor:  # no better checkpoint kept the probe loop calm: the last one, flagged
+        best = (history[-1][1], int(model.num_timesteps))
+        save_agent(agent, run_dir / "best", _facts(s, seed, names, model.num_timesteps))
     wall = time.perf_counter() - start
     venv.close()
     facts = {
@@ -269,6 +351,8 @@ def train_controller(
         "base_validation_cost": base_cost,
         "best_validation_cost": best[0],
         "history": history,
+        "refused_checkpoints": refused,
+        "kept_checkpoint_meets_floor": met_floor or not s.select_on_floor,
         "train_wall_time_s": wall,
         "settings": s.model_dump(),
     }
@@ -406,6 +490,8 @@ def controller_study(
     wall = time.perf_counter() - t0
     study = _summarise(inputs, s, base, names, per_seed, base_eval, base_margins, wall)
     study["requested_timesteps"] = s.timesteps if timesteps is None else int(timesteps)
+    if inputs.objective.constraints.grasp:
+        add_grasp(study, inputs, folder)
     return study
 
 
@@ -474,8 +560,8 @@ def _summarise(
     wall: float,
 ) -> dict[str, Any]:
     """The study's figures: per plant and over the seeds; the learning curve."""
-    floor = measured_gm_floor_db(inputs.objective.constraints.ms_max)
-    per_plant = {}
+    floor = inputs.objective.constraints.measured_gm_min_db
+    per_plant: dict[str, Any] = {}
     for p in names:
         costs = np.array([[r["cost"] for r in e["plants"][p]["runs"]] for e in per_seed])
         pooled = [r for e in per_seed for r in e["plants"][p]["runs"]]
@@ -509,13 +595,9 @@ def _summarise(
                 ),
                 "required_gain_margin_db": floor,
             },
-            "deployable": all(
-                e["plants"][p]["stable_fraction"] == 1.0
-                and (e["plants"][p]["measured_margins"]["gain_margin_db"] is None
-                     or e["plants"][p]["measured_margins"]["gain_margin_db"] >= floor)
-                for e in per_seed
-            ),
         }  # fmt: skip
+        per_plant[p]["admission"] = policy_admission(inputs, pooled, gms)
+        per_plant[p]["deployable"] = per_plant[p]["admission"]["admitted"]
     curve = learning_curve(per_seed)
     return {
         "controller": f"PPO residual on {_ON[s.residual]} ({s.residual_deg:g} deg at |a| = 1)",
@@ -528,6 +610,57 @@ def _summarise(
         "wall_time_s": wall,
         "settings": s.model_dump(),
     }
+
+
+def policy_admission(
+    inputs: cli.Inputs, runs: list[dict[str, Any]], onsets_db: Sequence[float | None]
+) -> dict[str, Any]:
+    """The admission rule (:mod:`gripper_env.evaluation.admission`) for a learned controller on
+    one plant: the measured limit-cycle onset of every training seed's policy against the floor
+    that ``Ms <= ms_max`` guarantees a linear loop, and on its held-out runs (every seed's,
+    pooled) settled, no stall, the jaw inside the nearest stops the preset can draw."""
+    from gripper_env.evaluation.admission import Admission, checks_of_runs, nearest_stops_deg
+
+    checks = checks_of_runs(
+        grip_settling_s=[r["grip"]["settling_time_s"] for r in runs],
+        ungrip_settling_s=[r["ungrip"]["settling_time_s"] for r in runs],
+        stable=[bool(r["stable"]) for r in runs],
+        jaw_min_deg=[r.get("jaw_min_deg") for r in runs],
+        jaw_max_deg=[r.get("jaw_max_deg") for r in runs],
+        stall_s=[r.get("stall_s") for r in runs],
+        contact_s=[r.get("contact_s") for r in runs],
+        k=1,
+        stops_deg=nearest_stops_deg(inputs.disturbance, inputs.settings.randomize),
+    )
+    worst = min(math.inf if g is None else float(g) for g in onsets_db)
+    rule = Admission.build(inputs.objective.constraints.limits(), measured_gm_db=[worst],
+                           checks=checks)  # fmt: skip
+    return rule.row(0)
+
+
+def add_grasp(study: dict[str, Any], inputs: cli.Inputs, folder: Path) -> dict[str, Any]:
+    """The grasp scenario (:func:`tuners.rl.grasp.policy_grasp`) of every training seed's kept
+    policy on every plant's held-out seeds, added to the study's per-plant admission (the rule's
+    last constraint: a policy whose correction trips the servo on the object is refused)."""
+    from gripper_env.evaluation.admission import with_grasp
+    from tuners.rl.agents import load_agent
+    from tuners.rl.grasp import policy_grasp
+
+    seeds = inputs.settings.seeds.seeds()
+    agents = {e["seed"]: load_agent(folder / f"seed-{e['seed']}" / "best") for e in study["seeds"]}
+    for p, entry in study["per_plant"].items():
+        plant = load_plant(p)
+        per_seed = {}
+        for k, agent in agents.items():
+            kwargs = dict(agent.env_kwargs)
+            per_seed[str(k)] = policy_grasp(agent, kwargs, plant, inputs.disturbance, seeds,
+                                            randomize=inputs.settings.randomize)  # fmt: skip
+        worst = max(per_seed.values(), key=lambda g: g["lost"])
+        reason = f"{worst['reason']} on {p}" if worst["reason"] else ""
+        entry["grasp"] = {"per_seed": per_seed, "lost": worst["lost"], "reason": reason}
+        entry["admission"] = with_grasp(entry["admission"], worst["lost"], reason)
+        entry["deployable"] = entry["admission"]["admitted"]
+    return study
 
 
 def learning_curve(per_seed: list[dict[str, Any]]) -> dict[str, Any]:

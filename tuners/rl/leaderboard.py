@@ -153,7 +153,7 @@ def _main(argv: list[str] | None = None) -> int:
         default=Path("results/reference_scores.json"),
         help="the reference scores whose rows head each task (if present)",
     )
-    args = cli.parse(parser, argv)
+    args = cli.parse(parser, argv, out_is_file=True)
     rows = load_rows(args.rows)
     if not rows:
         raise ValueError(f"{args.rows}: no rows (python -m tuners.rl evaluate writes them)")

@@ -11,9 +11,13 @@ per-plant bandit. The recipe, chosen from learning curves over seeds (README, "R
   constraints on every tuning plant (:mod:`tuners.classical.constrained`; SIMC cannot on
   test2-test4 together, the PIDTUNE-style design can). The zero action is a deployable design;
   the box spans Optuna's optimum with room on every side.
-* **Reward** for training: ``-log(cost + penalty * violation)``
-  (:func:`tuners.rl.envs.LogExactPenalty`): the constraints as an exact penalty without the
-  cliff, in log scale.
+* **Reward** for training: ``-log(cost + penalty * violation)`` (:func:`admission_reward`), the
+  violation being the admission rule's (:mod:`gripper_env.evaluation.admission`) on each
+  episode: robustness with the hold on its plant, settled, no stall, and the jaw's envelope
+  inside the nearest stops the preset can draw. The constraints as an exact penalty without the
+  cliff, in log scale (as :func:`tuners.rl.envs.LogExactPenalty` does for robustness alone). The
+  grasp scenario is not in the reward (it would triple an episode's simulation); the
+  selection below scores it, with the rest of the rule.
 * **Algorithm**: PPO with ``gamma = 0`` (a bandit: no bootstrapping), 16 environments in one
   compiled call, 256 episodes per update, learning rate 1e-3, initial exploration ``std =
   exp(-1.5)`` in action units (a factor 1.4 on the gains).
@@ -39,17 +43,28 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from gripper_env.evaluation.admission import Admission
+from gripper_env.evaluation.objective import Objective
 from gripper_env.evaluation.scoring import GainScorer
 from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
 from gripper_env.io.files import write_result_json
+from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains
 from tuners import cli
 from tuners.rl.agents import save_model
-from tuners.rl.envs import ENV_IDS, LogExactPenalty, make_vec_env, progress_callback, require_rl
+from tuners.rl.envs import ENV_IDS, make_vec_env, progress_callback, require_rl
 from tuners.settings import ClassicalSettings, OptunaSettings, load_settings
 from tuners.tasks import make_scorer
 
-__all__ = ["RLTuneSettings", "TuneRun", "load_tune_settings", "train_seeds", "train_tuner"]
+__all__ = [
+    "RLTuneSettings",
+    "TuneRun",
+    "admission_reward",
+    "episode_admission",
+    "load_tune_settings",
+    "train_seeds",
+    "train_tuner",
+]
 
 #: An action this close to +/-1 (in any gain) is on the map's bound.
 BOUND_ACTION = 0.98
@@ -153,6 +168,71 @@ def design_center(
     raise ValueError("no centre design for the RL tuner: " + "; ".join(refusals))
 
 
+def episode_admission(
+    infos: Sequence[dict[str, Any]], objective: Objective, disturbance: Disturbance,
+    randomize: bool,
+) -> Admission:  # fmt: skip
+    """The admission rule on ``GripperPIDTune-v0`` episodes (one controller per episode), from
+    their ``info``: the loop's margins on the episode's plant, the run's settling, stall and jaw
+    envelope against the nearest stops ``disturbance`` can draw."""
+    from gripper_env.evaluation.admission import Admission, checks_of_runs, nearest_stops_deg
+
+    rb = [i["robustness"] for i in infos]
+
+    def col(key: str, default: float) -> np.ndarray:
+        return np.array([default if r.get(key) is None else r[key] for r in rb], dtype=float)
+
+    checks = checks_of_runs(
+        grip_settling_s=[(i.get("grip") or {}).get("settling_time_s") for i in infos],
+        ungrip_settling_s=[(i.get("ungrip") or {}).get("settling_time_s") for i in infos],
+        stable=[bool(i.get("stable", False)) for i in infos],
+        jaw_min_deg=[i.get("jaw_min_deg") for i in infos],
+        jaw_max_deg=[i.get("jaw_max_deg") for i in infos],
+        stall_s=[i.get("stall_s") for i in infos],
+        contact_s=[i.get("contact_s") for i in infos],
+        k=len(infos),
+        stops_deg=nearest_stops_deg(disturbance, randomize),
+    )
+    return Admission.build(
+        objective.constraints.limits(search=True), ms=col("ms", math.inf),
+        gm_db=col("gain_margin_db", math.inf), gm_lower_db=col("lower_gain_margin_db", -math.inf),
+        loop_stable=np.array([bool(r.get("stable")) for r in rb]),
+        spectral_radius=col("max_pole_magnitude", 1.0), checks=checks,
+    )  # fmt: skip
+
+
+def admission_reward(
+    venv: Any, objective: Objective, disturbance: Disturbance, randomize: bool
+) -> Any:
+    """``GripperPIDTune-v0`` with the PID tuner's training reward,
+    ``-log(cost + infeasible_penalty * violation)``, the violation being the admission rule's on
+    each episode (:func:`episode_admission`).
+
+    The environment's own reward folds in the robustness constraints with a cliff of
+    ``infeasible_penalty`` at their boundary, where the best gains lie; a Gaussian policy that
+    maximises the expected reward across a cliff keeps its mean away from it. The exact penalty
+    (no jump, growing with the violation, larger than the constraints' multipliers: one deg past
+    the stop clearance costs 10) lets the policy sit on the boundary, and the log keeps an
+    unstable loop's 10,000 from swamping the advantages of the gains that matter (costs 10-30).
+    """
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    penalty = float(objective.infeasible_penalty)
+
+    class _AdmissionReward(VecEnvWrapper):
+        def reset(self) -> Any:
+            return self.venv.reset()
+
+        def step_wait(self) -> Any:
+            obs, rewards, dones, infos = self.venv.step_wait()
+            rule = episode_admission(infos, objective, disturbance, randomize)
+            cost = np.array([i.get("cost", -r) for i, r in zip(infos, rewards, strict=True)])
+            shaped = -np.log(np.maximum(cost + penalty * rule.violation, 1e-6))
+            return obs, shaped.astype(np.float32), dones, infos
+
+    return _AdmissionReward(venv)
+
+
 def _context_free(venv: Any) -> Any:
     """The environment with its observation zeroed: one gain set for every plant (robust)."""
     from stable_baselines3.common.vec_env import VecEnvWrapper
@@ -221,9 +301,10 @@ def train_tuner(
     center, center_record = designed or design_center(inputs, s, names, scorer)
     kwargs = env_kwargs(inputs, names, s, center)
     torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
-    venv = LogExactPenalty(
-        make_vec_env("pid-tune", kwargs, s.n_envs, seed), scorer.task.objective.infeasible_penalty
-    )
+    venv = admission_reward(
+        make_vec_env("pid-tune", kwargs, s.n_envs, seed), scorer.task.objective,
+        inputs.disturbance, s.randomize,
+    )  # fmt: skip
     if robust:
         venv = _context_free(venv)
     model = PPO(
@@ -297,6 +378,7 @@ def train_tuner(
         best=best,
         settings=s.model_dump(),
         context_free=robust,
+        rule=rule_record(scorer.task.objective),
     )
     write_result_json(run_dir / "history.json", run)
     run["gains"] = None if best is None else PIDGains(*best["gains"])
@@ -369,7 +451,8 @@ def train_seeds(
     if reuse:
         wanted = json.loads(json.dumps(_plain(env_kwargs(inputs, names, s, center))))
         for k in seeds:
-            run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted)
+            run = _reusable_run(folder / f"seed-{k}" / "history.json", s, episodes, wanted,
+                                rule_record(scorer.task.objective))  # fmt: skip
             if run is not None:
                 done[int(k)] = run
     tasks = [_TuneTask(inputs, s, int(k), tuple(plants), episodes, optuna_settings,
@@ -382,10 +465,17 @@ def train_seeds(
     return [done[int(k)] for k in seeds]
 
 
+def rule_record(objective: Objective) -> dict[str, Any]:
+    """What the run's reward and selection judged by: the admission rule's limits (a run made
+    under another rule, or before the rule, is not reused)."""
+    return {"reward": "admission", **objective.constraints.model_dump()}
+
+
 def _reusable_run(
-    path: Path, s: RLTuneSettings, episodes: int | None, kwargs: dict[str, Any]
-) -> TuneRun | None:
-    """The run at ``path`` if it was made with these settings, budget and environment."""
+    path: Path, s: RLTuneSettings, episodes: int | None, kwargs: dict[str, Any],
+    rule: dict[str, Any],
+) -> TuneRun | None:  # fmt: skip
+    """The run at ``path`` if it was made with these settings, budget, environment and rule."""
     try:
         old = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -396,6 +486,7 @@ def _reusable_run(
     same = (
         {k: v for k, v in (old.get("settings") or {}).items() if k != "center"} == mine
         and old.get("env_kwargs") == kwargs
+        and old.get("rule") == json.loads(json.dumps(rule))
         and old.get("episodes", -1) >= budget > old.get("episodes", 0) - s.n_envs * s.n_steps
     )
     if not same:

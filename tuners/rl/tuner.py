@@ -102,21 +102,25 @@ class RLTuner:
 
 def _held_out(inputs: cli.Inputs, per_seed: list[dict[str, Any]], plants: list[str]) -> None:
     """Each seed's gains on the held-out seeds of the actual model (mean over ``plants``): the
-    cost a gains file of that seed would report, and its constraint verdict on every plant."""
+    cost a gains file of that seed would report, and the admission rule's verdict
+    (:mod:`gripper_env.evaluation.admission`) on every plant."""
     ideal_opts, actual_opts = inputs.settings.options(1)
     on = [inputs.for_plant(load_plant(p)) for p in plants]  # loaded once for every seed
     for e in per_seed:
-        e["held_out_cost"] = e["meets_constraints"] = None
+        e["held_out_cost"] = e["meets_constraints"] = e["admission_reason"] = None
         if e["gains"] is None:
             continue
-        costs, meets = [], True
+        costs, meets, reasons = [], True, []
         for plant_inputs in on:
             ev = cli.evaluate_inputs(plant_inputs, PIDGains(*e["gains"]), actual_opts,
                                      ideal_opts, cross=False)  # fmt: skip
             costs.append(float(ev.actual["mean"]["cost"]))
-            meets = meets and bool(ev.robustness["meets_constraints"])
+            meets = meets and bool(ev.admission["admitted"])
+            if not ev.admission["admitted"]:
+                reasons.append(f"on {plant_inputs.plant.name}: {ev.admission['reason']}")
         e["held_out_cost"] = float(np.mean(costs))
-        e["meets_constraints"] = meets
+        e["meets_constraints"] = meets  # the admission rule on the held-out runs, every plant
+        e["admission_reason"] = reasons[0] if reasons else None
 
 
 def _best_so_far(run: Mapping[str, Any]) -> list[tuple[int, float]]:
@@ -183,13 +187,21 @@ class RLControllerTuner:
         name = f"controller-{'+'.join(names)}"
         path = self.out / "rl" / name / "study.json"
         start = time.perf_counter()
-        study = _reusable(path, s.model_dump(), base, seeds, steps) if self.reuse else None
+        limits = inputs.objective.constraints.limits()
+        study = _reusable(path, s.model_dump(), base, seeds, steps, limits) if self.reuse else None
         if study is None:
             study = controller_study(inputs, base, seeds=seeds, settings=s, plants=self.plants,
                                      out=self.out, timesteps=steps, progress=False,
                                      log=lambda m: None, engine_spec=budget.engine)  # fmt: skip
             write_study(study, self.out, name)
             study = json.loads(path.read_text())
+        if inputs.objective.constraints.grasp and any(
+            "grasp" not in v for v in study["per_plant"].values()
+        ):  # a study trained before the grasp check: its saved policies run it now
+            from tuners.rl.controller import add_grasp
+
+            add_grasp(study, inputs, path.parent)
+            write_study(study, self.out, name)
         tuning = {
             "algo": "ppo",
             "base_row": self.base,
@@ -205,9 +217,12 @@ class RLControllerTuner:
 
 
 def _reusable(
-    path: Path, settings: dict[str, Any], base: PIDGains, seeds: list[int], steps: int
-) -> dict[str, Any] | None:
-    """The study at ``path`` if it was made with these settings, base, seeds and budget."""
+    path: Path, settings: dict[str, Any], base: PIDGains, seeds: list[int], steps: int,
+    limits: dict[str, float],
+) -> dict[str, Any] | None:  # fmt: skip
+    """The study at ``path`` if it was made with these settings, base, seeds and budget, and
+    judged by these limits of the admission rule (its checkpoints were chosen by the floor, its
+    verdicts recorded; the grasp scenario, if the study lacks it, runs afterwards)."""
     try:
         study = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -217,5 +232,10 @@ def _reusable(
         and np.allclose(study.get("base_gains") or [], [base.P, base.I, base.D, base.N])
         and [e["seed"] for e in study.get("seeds", [])] == seeds
         and study.get("requested_timesteps") == steps
-    )
+        and all(
+            {k: v for k, v in ((p.get("admission") or {}).get("limits") or {}).items()
+             if k in limits} == json.loads(json.dumps(limits))
+            for p in (study.get("per_plant") or {}).values()
+        )
+    )  # fmt: skip
     return study if same else None

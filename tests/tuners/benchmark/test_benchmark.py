@@ -79,6 +79,11 @@ def test_only_deployable_rows_are_ranked(quick):
         assert why_not_deployable(r) is None
         assert r["metrics"]["actual"]["stable_fraction"] == 1.0
         assert r["metrics"]["actual"]["mean"]["stall_s"] == 0
+        # the jaw inside the nearest stops actual.yaml can draw (9-15 and 97-103 deg), on
+        # every held-out run; the grasp scenario's object held
+        m = r["admission"]["measured"]
+        assert m["jaw_min_deg"] >= 15.0 and m["jaw_max_deg"] <= 97.0, name
+        assert r["admission"]["constraints"]["grasp"] <= 0.0, name
         if r["controller"] == "pid":
             rb = r["robustness"]
             assert rb["stable"] and rb["ms"] <= 1.6 and rb["gain_margin_db"] >= 6.0
@@ -142,7 +147,15 @@ def test_a_row_whose_runs_diverge_is_reported_not_a_crash(quick):
     for key in ("cost", "iae"):
         bad["metrics"]["actual"]["mean"][key] = None
     bad["metrics"]["actual"]["stable_fraction"] = 0.0
+    bad["admission"]["constraints"]["settled"] = 1.0  # what the rule records for such runs
+    bad["admission"].update(admitted=False, missed=["settled"], binding="settled",
+                            reason="10 of 10 runs diverge, swing from stop to stop or never "
+                            "settle within the settling band")  # fmt: skip
     rows["manual-paper-diverging"] = bad
+    data["leaderboard"] = leaderboard.rank(data)
+    why = data["leaderboard"]["per_plant"]["test2"]["not_ranked"]["manual-paper-diverging"]
+    assert "10 of 10 runs diverge" in why
+    del bad["admission"]  # a row recorded before the rule is judged on what it has
     data["leaderboard"] = leaderboard.rank(data)
     why = data["leaderboard"]["per_plant"]["test2"]["not_ranked"]["manual-paper-diverging"]
     assert "10 of 10 held-out runs diverge" in why

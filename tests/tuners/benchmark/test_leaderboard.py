@@ -22,6 +22,41 @@ def test_the_headline_admits_only_gain_sets_deployable_everywhere(quick):
     assert costs == sorted(costs)
 
 
+def test_the_headline_shows_the_best_admitted_row_of_each_family(quick):
+    """One row per family (every textbook rule on its own), the cheapest admitted of it; the
+    tests against the best textbook row are Holm-corrected over the headline."""
+    from tuners.statistics import holm
+
+    _, data = quick
+    h = data["leaderboard"]["headline"]
+    entries = h["entries"]
+
+    def slot(k):
+        e = entries[k]
+        return (e["family"], e["rule"]) if e["family"] == "textbook" else (e["family"],)
+
+    slots = [slot(k) for k in h["head"]]
+    assert len(set(slots)) == len(slots) and set(slots) == {slot(k) for k in h["order"]}
+    for k in h["head"]:
+        assert all(entries[o]["cost"] >= entries[k]["cost"] for o in h["order"]
+                   if slot(o) == slot(k))  # fmt: skip
+    family = h["holm_family"]
+    raw = [entries[k]["vs_best_baseline"]["p_value"] for k in family]
+    assert [entries[k]["vs_best_baseline"]["p_holm"] for k in family] == holm(raw)
+    assert h["best_baseline"] not in family and set(family) <= set(h["head"])
+    table = leaderboard.render_head(data)
+    assert table.count("\n") == len(h["head"]) + 1  # header, rule, one line per family
+
+
+def test_holm_by_hand():
+    from tuners.statistics import holm
+
+    # sorted 0.01, 0.02, 0.04 of 3 tests: x3, x2, x1 -> 0.03, 0.04, 0.04 (made monotone)
+    assert holm([0.04, 0.01, 0.02]) == pytest.approx([0.04, 0.03, 0.04])
+    assert holm([0.5, 0.6]) == pytest.approx([1.0, 1.0])
+    assert holm([]) == []
+
+
 def test_an_unstable_row_is_described_by_its_divergence_not_its_margins():
     row = {
         "kind": "search", "controller": "pid",
@@ -65,9 +100,13 @@ def _committed():
 def test_the_readme_head_is_the_committed_reports_head():
     repo, _ = _committed()
     readme = (repo / "README.md").read_text()
+    report = (repo / "results" / "benchmark.md").read_text()
     start = readme.index("\n", readme.index(leaderboard.README_START)) + 1
     block = readme[start : readme.index(leaderboard.README_END)].strip()
-    assert block == leaderboard.head_of((repo / "results" / "benchmark.md").read_text())
+    assert block == leaderboard.head_of(report)
+    start = readme.index("\n", readme.index(leaderboard.VERDICT_START)) + 1
+    block = readme[start : readme.index(leaderboard.VERDICT_END)].strip()
+    assert block == leaderboard.verdict_of(report)  # the verdict's words follow the numbers
 
 
 def test_every_committed_verdict_recomputes_from_the_per_seed_costs():
