@@ -25,7 +25,6 @@ import os
 import shlex
 import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -136,12 +135,18 @@ def _ignored(root: Path, paths: list[str]) -> set[str]:
     return set(proc.stdout.split())
 
 
-def _written_since(root: Path, start: float) -> list[str]:
-    """Files under results/ modified since ``start`` and not ignored by git."""
-    found = []
-    for path in (root / RESULTS).rglob("*"):
-        if path.is_file() and path.stat().st_mtime >= start and path.name != MANIFEST:
-            found.append(str(path.relative_to(root)))
+def _stamps(root: Path) -> dict[str, int]:
+    """Every file under results/ and its modification time (ns)."""
+    return {str(p.relative_to(root)): p.stat().st_mtime_ns
+            for p in (root / RESULTS).rglob("*") if p.is_file()}  # fmt: skip
+
+
+def _written_since(root: Path, before: dict[str, int]) -> list[str]:
+    """Files under results/ written since the snapshot ``before`` (new, or a changed
+    modification time: not a time window, which caught the previous command's last files) and
+    not ignored by git."""
+    found = [path for path, ns in _stamps(root).items()
+             if before.get(path) != ns and not path.endswith(MANIFEST)]  # fmt: skip
     ignored = _ignored(root, found)
     return sorted(p for p in found if p not in ignored)
 
@@ -165,12 +170,12 @@ def regenerate(names: list[str] | None = None) -> dict[str, list[str]]:
     wrote: dict[str, list[str]] = {}
     for c in chosen:
         print(f"[{c.name}] {c.line}", flush=True)
-        start = time.time() - 1.0
+        before = _stamps(root)
         argv = [sys.executable, *c.argv[1:]]
         proc = subprocess.run(argv, cwd=root, env=dict(os.environ, MPLBACKEND="Agg"))
         if proc.returncode != 0:
             raise ValueError(f"{c.line} exited {proc.returncode}; the manifest keeps its old list")
-        wrote[c.name] = _written_since(root, start)
+        wrote[c.name] = _written_since(root, before)
         manifest[c.name] = {"command": c.line, "about": c.about, "writes": wrote[c.name]}
         _write_manifest(root, manifest)
     return wrote

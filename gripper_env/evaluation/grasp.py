@@ -816,8 +816,8 @@ def grasp_admission(
             reasons.append("overload")
         else:
             reasons.append("force")
-    with np.errstate(invalid="ignore"):
-        slowest = np.where(np.isnan(ttg).any(axis=1), np.nan, np.nanmax(ttg, axis=1))
+    missed = np.isnan(ttg).any(axis=1)  # a run that never grasped: no time to grasp
+    slowest = np.where(missed, np.nan, np.where(np.isnan(ttg), -np.inf, ttg).max(axis=1))
     return GraspAdmission(
         held=np.all(held, axis=1), heat_margin=heat_margin, force_margin=force_margin,
         time_to_grasp_s=slowest, reason=tuple(reasons), steady_heat=steady.max(axis=1),

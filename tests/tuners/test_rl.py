@@ -266,8 +266,9 @@ def test_a_tuner_run_with_the_same_recipe_is_reused_not_retrained(tmp_path, smal
 
 
 def test_the_centre_rule_list_falls_back_to_a_rule_that_meets_the_constraints():
-    """SIMC cannot meet Ms <= 1.6 and GM >= 6 dB on test2-test4 at once (its row says so); the
-    robust RL tuner centres on the next rule of its list, whose knob the scan sets."""
+    """SIMC cannot meet the admission rule on test2-test4 at once (Ms; its row says so), nor can
+    PIDTUNE (the open stop); the robust RL tuner centres on the next rule of its list, AMIGO PI,
+    whose knob the scan sets (the benchmark's robust rows say the same)."""
     from tuners.rl.tune import RLTuneSettings, design_center
     from tuners.tasks import make_scorer
 
@@ -276,10 +277,11 @@ def test_the_centre_rule_list_falls_back_to_a_rule_that_meets_the_constraints():
         RLTuneSettings(center=["ziegler"])
     inputs = cli.resolve(rl.build_parser().parse_args(["export", "--plant", "test2"]))
     names = ["test2", "test3", "test4"]
-    s = RLTuneSettings(center=["simc", "pidtune"])
+    s = RLTuneSettings(center=["simc", "pidtune", "amigo-pi"])
     gains, record = design_center(inputs, s, names, make_scorer(inputs, None, names))
-    assert record["rule"] == "pidtune"
-    assert record["refused"][0].startswith("simc: no setting of tau_c_factor")
+    assert record["rule"] == "amigo-pi"
+    assert record["refused"][0].startswith("simc: infeasible: no setting of tau_c_factor")
+    assert record["refused"][1].startswith("pidtune: infeasible: no setting of pidtune_wc_hz")
     assert record["gains"][:3] == [gains.P, gains.I, gains.D]
 
 

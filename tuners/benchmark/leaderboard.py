@@ -223,7 +223,7 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
         "sign": first.get("sign", 1),
         "cost": float(np.mean([_cost(r) for r in rows])),
         "iae": float(np.mean([r["metrics"]["actual"]["mean"]["iae"] for r in rows])),
-        "to_limit": None if None in shares else float(np.mean(shares)),
+        "to_limit": None if None in shares else float(np.mean([float(x or 0.0) for x in shares])),
         "per_plant_cost": {p: _cost(per[p]) for p in plants},
         "per_seed_cost": [c for r in rows for c in r["per_seed_cost"]],
         "worst_step_overshoot_pct": _worst([_step_os(r) for r in rows], max),
@@ -649,7 +649,7 @@ def _stress_section(data: dict[str, Any]) -> list[str]:
 def _moved_verdict(sm: dict[str, Any], plants: list[str]) -> dict[str, Any]:
     """The headline's picks under the moved stops: admitted candidates and the best of each
     family (judged rows and the retuned ones)."""
-    entries = {}
+    entries: dict[tuple[str, str], dict[str, Any]] = {}
     for group in ("rows", "retuned"):
         for key, per in (sm.get(group) or {}).items():
             if set(per) != set(plants):

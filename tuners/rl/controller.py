@@ -633,7 +633,7 @@ def policy_admission(
         stops_deg=nearest_stops_deg(inputs.disturbance, inputs.settings.randomize),
     )
     worst = min(math.inf if g is None else float(g) for g in onsets_db)
-    rule = Admission.build(inputs.objective.constraints.limits(), measured_gm_db=[worst],
+    rule = Admission.build(inputs.objective.constraints.limits(), measured_gm_db=np.array([worst]),
                            checks=checks)  # fmt: skip
     return rule.row(0)
 
