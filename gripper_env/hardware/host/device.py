@@ -67,6 +67,9 @@ from gripper_env.model.pid import PIDGains, PIDOptions
 __all__ = ["BAUDRATE", "GripperDevice"]
 
 BAUDRATE = 1_000_000
+#: A request's wait widens per try (``timeout_s``, twice that, ...) up to this many times
+#: ``timeout_s``: 0.5, 1 and 2 s for the default three tries.
+REQUEST_WIDENING = 4.0
 #: The handshake sends HELLO again, every ``timeout_s``, for at least this long (s) before it
 #: gives up: the first answer after a port opens is the one a busy host or a slow USB bridge
 #: delays most (a virtual board on a loaded 2-core machine went 1.5 s without answering). A
@@ -183,7 +186,10 @@ class GripperDevice:
         self._session = False
         self.decoder.reset_sequence()
         self._hellos_sent = self._infos_seen = 0
-        tries = max(self.retries + 1, math.ceil(HANDSHAKE_PATIENCE_S / self.timeout_s))
+        tries, total = 0, 0.0  # as many widening tries as HANDSHAKE_PATIENCE_S takes
+        while tries < self.retries + 1 or (0 < self.timeout_s and total < HANDSHAKE_PATIENCE_S):
+            total += self.timeout_s * min(2.0**tries, REQUEST_WIDENING)
+            tries += 1
         info = self._request(proto.Hello(), proto.Info, tries=tries)
         # a board slower than the timeout answers the first HELLO after the host sent it again:
         # the INFOs still to come answer those HELLOs, which reached the board before anything
@@ -590,14 +596,21 @@ class GripperDevice:
         tries: int | None = None,
     ) -> Any:
         """Send ``msg`` and wait for its answer of type ``expect``; resend on silence (``tries``
-        sends in all, default ``retries + 1``)."""
+        sends in all, default ``retries + 1``). Each try waits twice as long as the one before,
+        up to :data:`REQUEST_WIDENING` times ``timeout_s`` (a busy host or board answers late, not
+        never), and an answer to any of the tries is taken."""
         timeout = self.timeout_s if timeout_s is None else timeout_s
         tries = self.retries + 1 if tries is None else tries
         name = type(msg).__name__.upper()
         rejected_before = self.decoder.stats.rejected
-        for _attempt in range(tries):
+        sent: set[int] = set()
+        waited = 0.0
+        for attempt in range(tries):
             seq = self._send(msg)
-            deadline = time.monotonic() + timeout
+            sent.add(seq)
+            wait = timeout * min(2.0**attempt, REQUEST_WIDENING)
+            waited += wait
+            deadline = time.monotonic() + wait
             while True:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
@@ -614,10 +627,10 @@ class GripperDevice:
                         and answer.code == ErrorCode.FRAMES_LOST
                     ):
                         continue  # a report on other frames, not an answer
-                    if isinstance(answer, proto.ErrorReport) and answer.seq == seq:
+                    if isinstance(answer, proto.ErrorReport) and answer.seq in sent:
                         self._refused(msg, answer)
                     if isinstance(answer, expect):
-                        if isinstance(answer, proto.Status) and answer.last_rx_seq != seq:
+                        if isinstance(answer, proto.Status) and answer.last_rx_seq not in sent:
                             continue  # a fault report or an answer to an earlier frame
                         if (
                             isinstance(msg, proto.Heartbeat)
@@ -627,7 +640,7 @@ class GripperDevice:
                             continue
                         return answer
         corrupted = self.decoder.stats.rejected - rejected_before
-        what = f"no answer to {name} from {self.port} after {tries} tries of {timeout:g} s"
+        what = f"no answer to {name} from {self.port} after {tries} tries over {waited:.3g} s"
         if corrupted:
             raise LinkError(
                 f"{what}: {corrupted} corrupted frames received (last: {self.decoder.last_error})"
