@@ -13,7 +13,10 @@ there. The honest figures are on data the estimator did not see:
 Order selection rule (:data:`FIT_TOLERANCE_PCT`): with validation data, the highest validation
 fit, except that a model with fewer parameters within ``FIT_TOLERANCE_PCT`` points of it wins
 (parsimony: such differences are within the noise of the fit); without validation data, the
-smallest AIC.
+smallest AIC. An order whose output-error search did not converge is listed but not chosen
+while any order converged: its figures are those of wherever the search stopped, and a
+record's noise decides whether a high order converges, so choosing it made the outcome of
+``--orders`` depend on the noise draw.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ __all__ = [
     "OrderRow",
     "OrderSelection",
     "Record",
+    "choose_order",
     "compare_orders",
     "parse_orders",
     "split_record",
@@ -254,19 +258,60 @@ def compare_orders(
             est = dataclasses.replace(est, validation=fit)
         done[order] = est
     rows = tuple(OrderRow(o[0], o[1], done[o]) for o in orders)
-    if validation is not None:
-        fits = [_validation_fit_pct(r.estimate) for r in rows]
-        best_fit = max(fits)
-        near = [i for i, fit in enumerate(fits) if fit >= best_fit - FIT_TOLERANCE_PCT]
-        chosen = min(near, key=lambda i: (rows[i].estimate.n_model_params, -fits[i]))
+    chosen, rule = choose_order(
+        n_params=[r.estimate.n_model_params for r in rows],
+        converged=[r.estimate.converged for r in rows],
+        aic=[r.estimate.aic for r in rows],
+        validation_fit_pct=None if validation is None else [
+            _validation_fit_pct(r.estimate) for r in rows
+        ],
+    )  # fmt: skip
+    return OrderSelection(rows, chosen, rule)
+
+
+def choose_order(
+    *,
+    n_params: Sequence[int],
+    converged: Sequence[bool],
+    aic: Sequence[float],
+    validation_fit_pct: Sequence[float] | None,
+) -> tuple[int, str]:
+    """The order selection rule of the module docstring, on each candidate's figures.
+
+    Parameters
+    ----------
+    n_params : sequence of int
+        Model parameters of each candidate.
+    converged : sequence of bool
+        Whether each candidate's output-error search converged.
+    aic : sequence of float
+        Akaike's criterion of each candidate.
+    validation_fit_pct : sequence of float, optional
+        Fit (%) of each candidate on validation data; without it the choice is by AIC.
+
+    Returns
+    -------
+    index : int
+        The chosen candidate.
+    rule : str
+        The rule as a report states it.
+    """
+    eligible = [i for i, ok in enumerate(converged) if ok] or list(range(len(converged)))
+    if validation_fit_pct is not None:
+        fits = list(validation_fit_pct)
+        best_fit = max(fits[i] for i in eligible)
+        near = [i for i in eligible if fits[i] >= best_fit - FIT_TOLERANCE_PCT]
+        chosen = min(near, key=lambda i: (n_params[i], -fits[i]))
         rule = (
             f"highest fit on validation data, the fewest parameters within "
             f"{FIT_TOLERANCE_PCT:g} points of it"
         )
     else:
-        chosen = min(range(len(rows)), key=lambda i: rows[i].estimate.aic)
+        chosen = min(eligible, key=lambda i: aic[i])
         rule = "smallest AIC (no validation data)"
-    return OrderSelection(rows, chosen, rule)
+    if len(eligible) < len(converged):
+        rule += "; orders that did not converge are not chosen"
+    return chosen, rule
 
 
 def _validation_fit_pct(estimate: TFEstimate) -> float:

@@ -90,3 +90,25 @@ def test_the_fit_on_validation_data_is_the_headline(flexible_log, capsys):
     assert lines[0].startswith("G(s) = ")
     assert lines[1].startswith("fit on validation data (last 30 % of flex.csv")
     assert lines[2].startswith("fit on the estimation data")
+
+
+def test_an_order_that_did_not_converge_is_listed_but_not_chosen():
+    # CI's README walk: 3/1 stopped at the iteration limit 1.1 points above 1/0 and 2/1, was
+    # chosen, and the command exited 1 on a record whose other orders converged
+    from gripper_env.sysid.orders import choose_order
+
+    figures = dict(n_params=[2, 4, 5], aic=[-100932.0, -101106.0, -150644.0])
+    chosen, rule = choose_order(
+        converged=[True, True, False], validation_fit_pct=[95.63, 95.67, 96.80], **figures
+    )
+    assert chosen == 0 and rule.endswith("orders that did not converge are not chosen")
+    # the parsimony rule among the converged: 2/1 is 0.6 points above 1/0, so it wins
+    assert choose_order(converged=[True, True, False], validation_fit_pct=[95.0, 95.6, 99.0],
+                        **figures)[0] == 1  # fmt: skip
+    # by AIC without validation data, again among the converged only
+    assert choose_order(converged=[True, True, False], validation_fit_pct=None, **figures)[0] == 1
+    # when none converged the rule is the plain one (and the command says so and exits 1)
+    chosen, rule = choose_order(
+        converged=[False] * 3, validation_fit_pct=[95.63, 95.67, 96.80], **figures
+    )
+    assert chosen == 2 and "not chosen" not in rule
