@@ -111,8 +111,9 @@ def pytest_configure(config):
     if not workers or getattr(config.option, "dist", "no") == "no":
         return
     started = time.perf_counter()
+    jobs = min(os.cpu_count() or 1, 4)
     result = subprocess.run(
-        [sys.executable, "-m", "tuners.compile", "--quiet"],
+        [sys.executable, "-m", "tuners.compile", "--quiet", "--jobs", str(jobs)],
         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, check=False,
     )  # fmt: skip
     if result.returncode != 0:

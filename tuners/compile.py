@@ -7,17 +7,22 @@ This runs each one once, serial and parallel, with the argument types the projec
 with, so that later processes only load them: the test run does it before its workers start
 (``tests/conftest.py``), so that two workers never compile the same kernel side by side, and
 CI or a user can do it ahead of time. Run again with a warm cache it only loads them (seconds).
+``--jobs N`` shares the work among N processes (the environments' kernels are most of it), each
+compiling its own share into the same cache.
 """
 
 from __future__ import annotations
 
+import argparse
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
+from functools import partial
 
 from tuners.conventions import command_parser
 
-__all__ = ["WARM_UPS", "main", "warm_up"]
+__all__ = ["main", "share", "warm_up"]
 
 
 def _core() -> None:
@@ -36,32 +41,30 @@ def _core() -> None:
     simulate("test2", "step", None, "actual")  # open loop
 
 
-def _envs() -> None:
+def _env(env_id: str) -> None:
     import gymnasium as gym
     import numpy as np
 
     import gripper_env  # noqa: F401  (registers the environments)
-    from gripper_env.envs import ENV_IDS
 
-    for env_id in ENV_IDS:
-        env = gym.make(env_id)
-        env.reset(seed=0)
-        for _ in range(2):
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            if terminated or truncated:
-                env.reset()
-        env.close()
-        spec = gym.spec(env_id)
-        if spec.vector_entry_point is None:
-            continue
-        for n, parallel in ((4, False), (64, True)):
-            venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
-            setter = getattr(venv.unwrapped, "set_parallel", None)
-            if setter is not None:  # the step-by-step ones; the PID tuner's runs the core
-                setter(parallel)
-            venv.reset(seed=0)
-            venv.step(np.stack([venv.single_action_space.sample() for _ in range(n)]))
-            venv.close()
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    for _ in range(2):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    env.close()
+    spec = gym.spec(env_id)
+    if spec.vector_entry_point is None:
+        return
+    for n, parallel in ((4, False), (64, True)):
+        venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
+        setter = getattr(venv.unwrapped, "set_parallel", None)
+        if setter is not None:  # the step-by-step ones; the PID tuner's runs the core
+            setter(parallel)
+        venv.reset(seed=0)
+        venv.step(np.stack([venv.single_action_space.sample() for _ in range(n)]))
+        venv.close()
 
 
 def _bus() -> None:
@@ -87,25 +90,64 @@ def _stability() -> None:
                      disturbance=load_disturbance("actual"))  # fmt: skip
 
 
-#: What is warmed, by name, in order (each a callable that runs it once).
-WARM_UPS: dict[str, Callable[[], None]] = {
-    "core and metrics": _core,
-    "environments": _envs,
-    "bus servo core": _bus,
-    "margins with the hold": _stability,
-}
+def _env_ids() -> tuple[str, ...]:
+    from gripper_env.envs import ENV_IDS
+
+    return tuple(ENV_IDS)
 
 
-def warm_up(log: Callable[[str], None] | None = None) -> dict[str, float]:
-    """Run every :data:`WARM_UPS` entry once; the seconds each took."""
+def _units() -> dict[str, Callable[[], None]]:
+    """What is warmed, by name, in order (each a callable that runs it once)."""
+    units: dict[str, Callable[[], None]] = {"core and metrics": _core}
+    units.update({f"environment {e}": partial(_env, e) for e in _env_ids()})
+    units["bus servo core"] = _bus
+    units["margins with the hold"] = _stability
+    return units
+
+
+def warm_up(
+    log: Callable[[str], None] | None = None, shard: tuple[int, int] = (0, 1)
+) -> dict[str, float]:
+    """Run every warm-up unit once, or the ``shard = (k, n)``-th of n shares: share 0 the core
+    and everything but the environments, the others the environments round-robin (with n = 2,
+    the environments are one share: they share their step kernels, so they compile best in one
+    process).
+
+    Returns
+    -------
+    dict of str to float
+        The seconds each unit took.
+    """
+    units = _units()
     times = {}
-    for name, run in WARM_UPS.items():
+    for name in share(list(units), *shard):
         start = time.perf_counter()
-        run()
+        units[name]()
         times[name] = time.perf_counter() - start
         if log is not None:
             log(f"  {name}: {times[name]:.1f} s")
     return times
+
+
+def share(names: Sequence[str], k: int, n: int) -> list[str]:
+    """The warm-up units of share ``k`` of ``n`` (see :func:`warm_up`), in their order."""
+    envs = [name for name in names if name.startswith("environment ")]
+    if n == 1:
+        return list(names)
+    if k == 0:
+        return [name for name in names if name not in envs]
+    return envs[k - 1 :: n - 1]
+
+
+def _shard(text: str) -> tuple[int, int]:
+    k, _, n = text.partition("/")
+    try:
+        shard = int(k), int(n)
+    except ValueError:
+        raise ValueError(f"--shard {text!r}: expected K/N, e.g. 0/2") from None
+    if not 0 <= shard[0] < shard[1]:
+        raise ValueError(f"--shard {text!r}: K must be 0..N-1")
+    return shard
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -116,10 +158,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         "them). With a warm cache it only loads them.",
     )
     parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    parser.add_argument("--jobs", type=int, default=1, metavar="N",
+                        help="share the compiling among N processes (default 1)")  # fmt: skip
+    parser.add_argument("--shard", default="0/1", metavar="K/N", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs {args.jobs}: must be at least 1")
+    try:
+        shard = _shard(args.shard)
+    except ValueError as exc:
+        parser.error(str(exc))
     start = time.perf_counter()
     log = None if args.quiet else (lambda line: print(line, flush=True))
-    warm_up(log)
+    if args.jobs == 1:
+        warm_up(log, shard)
+    else:
+        cmd = [sys.executable, "-m", "tuners.compile"] + (["--quiet"] if args.quiet else [])
+        procs = [subprocess.Popen([*cmd, "--shard", f"{k}/{args.jobs}"])
+                 for k in range(args.jobs)]  # fmt: skip
+        failed = [p.args for p in procs if p.wait() != 0]
+        if failed:
+            print(f"tuners.compile: error: a share failed: {' '.join(failed[0])}", file=sys.stderr)
+            return 1
     if not args.quiet:
         print(f"kernels ready in {time.perf_counter() - start:.1f} s")
     return 0
