@@ -174,11 +174,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         warm_up(log, shard)
     else:
         cmd = [sys.executable, "-m", "tuners.compile"] + (["--quiet"] if args.quiet else [])
-        procs = [subprocess.Popen([*cmd, "--shard", f"{k}/{args.jobs}"])
-                 for k in range(args.jobs)]  # fmt: skip
-        failed = [p.args for p in procs if p.wait() != 0]
+        procs = {k: subprocess.Popen([*cmd, "--shard", f"{k}/{args.jobs}"])
+                 for k in range(args.jobs)}  # fmt: skip
+        failed = [k for k, p in procs.items() if p.wait() != 0]
         if failed:
-            print(f"tuners.compile: error: a share failed: {' '.join(failed[0])}", file=sys.stderr)
+            print(f"tuners.compile: error: share {failed[0]}/{args.jobs} failed (its error is "
+                  "above)", file=sys.stderr)  # fmt: skip
             return 1
     if not args.quiet:
         print(f"kernels ready in {time.perf_counter() - start:.1f} s")

@@ -432,3 +432,35 @@ def test_an_infeasible_search_names_its_binding_constraint(
     line = next(x for x in out.splitlines() if "infeasible" in x)
     assert "no trial met the admission rule; binding constraint 'ms'" in line
     assert "Ms " in line and "> 1.01" in line
+
+
+@pytest.mark.postgres
+@pytest.mark.skipif(
+    not os.environ.get("GRIPPER_TEST_POSTGRES_URL"),
+    reason="set GRIPPER_TEST_POSTGRES_URL=postgresql://user:pw@127.0.0.1/db (see .ci/run)",
+)
+def test_a_trial_being_scored_keeps_its_heartbeat(fresh_postgres_database, small_optuna_config):
+    """CI beside two busy processes: a batch scored for longer than the grace period was failed
+    as stale by the other worker, whose fail then refused this worker's result (a traceback).
+    While a batch is scored its trials' heartbeats go on; a trial left alone goes stale."""
+    import optuna
+    from optuna.trial import TrialState
+
+    from tuners.optuna.storage import open_storage
+    from tuners.optuna.workers import Worker
+    from tuners.settings import OptunaSettings, load_settings
+
+    settings = load_settings(OptunaSettings, small_optuna_config).model_copy(
+        update={"heartbeat_interval_s": 1, "heartbeat_grace_s": 6}
+    )
+    storage = open_storage(fresh_postgres_database, settings)
+    study = optuna.create_study(storage=storage.optuna, study_name="beats")
+    with Worker(study, storage) as worker:
+        scored, alone = study.ask(), study.ask()
+        worker.mark(scored), worker.mark(alone)
+        with worker.beating([scored]):
+            time.sleep(9)  # longer than the grace period: the scoring of a slow batch
+            worker.fail_stale(study.get_trials(deepcopy=False))
+        states = {t.number: t.state for t in study.get_trials(deepcopy=False)}
+    assert states[scored.number] == TrialState.RUNNING
+    assert states[alone.number] == TrialState.FAIL

@@ -11,6 +11,7 @@ with no feasible trial says so in one line naming the constraint that binds.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 import time
@@ -277,7 +278,8 @@ def run_study(
                 time.sleep(WAIT_S)
                 continue
             gains = np.stack([space.gains(t.params, default_n).as_array() for _, t in pending])
-            scores = scorer.score(gains)
+            with worker.beating([stored for _, stored in pending]):
+                scores = scorer.score(gains)
             for i, (mine, stored) in enumerate(pending):
                 for key, limit in _constraints(scores.admission, i).items():
                     stored.set_constraint(key, limit)
@@ -293,8 +295,10 @@ def run_study(
                     value = [v if math.isfinite(v) else objective.unstable_cost for v in value]
                 else:
                     value = float(scores.penalised[i] if is_cmaes else scores.cost[i])
-                # skip_if_finished: a trial failed as stale meanwhile keeps that verdict
-                study.tell(stored, value, skip_if_finished=True)
+                # skip_if_finished: a trial failed as stale meanwhile keeps that verdict (the
+                # storage refuses the update when the other worker's fail came after the check)
+                with contextlib.suppress(optuna.exceptions.UpdateFinishedTrialError):
+                    study.tell(stored, value, skip_if_finished=True)
                 if mine is not None:
                     mirror.memory.tell(mine, value)
             run_here += len(pending)

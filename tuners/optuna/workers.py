@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import threading
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -150,6 +151,37 @@ class Worker:
             storage.record_heartbeat(
                 storage.get_trial_id_from_study_id_trial_number(study_id, trial.number)
             )
+
+    def beating(self, trials: Sequence[optuna.Trial]) -> contextlib.AbstractContextManager[Any]:
+        """While the block runs, keep the heartbeats of ``trials`` (on a server).
+
+        A batch is scored in one blocking call; with only the heartbeat recorded when the trials
+        were asked, a batch that took longer than the grace period (a loaded machine) was failed
+        as stale by another worker meanwhile, and this worker's result for it was lost. A thread
+        records each one every ``heartbeat_interval_s`` until the block ends (Optuna's public
+        ``record_heartbeat``, as the thread of ``Study.optimize`` does).
+        """
+        stack = contextlib.ExitStack()
+        if self.storage is None or not self.storage.heartbeat:
+            return stack
+        storage = self.storage.optuna
+        assert isinstance(storage, optuna.storages.RDBStorage)
+        study_id = storage.get_study_id_from_name(self.study.study_name)
+        ids = [storage.get_trial_id_from_study_id_trial_number(study_id, t.number) for t in trials]
+        interval = float(storage.get_heartbeat_interval() or 1)
+        done = threading.Event()
+
+        def beat() -> None:
+            while not done.wait(interval):
+                for trial_id in ids:
+                    with contextlib.suppress(Exception):  # a lost beat is the next one's
+                        storage.record_heartbeat(trial_id)
+
+        thread = threading.Thread(target=beat, name="heartbeats", daemon=True)
+        thread.start()
+        stack.callback(thread.join)
+        stack.callback(done.set)
+        return stack
 
     def fail_stale(self, trials: Sequence[optuna.trial.FrozenTrial]) -> set[int]:
         """Fail the RUNNING trials of dead workers among ``trials``; their numbers.
