@@ -460,8 +460,7 @@ def _anchor_shift(entry: dict[str, Any]) -> dict[str, Any]:
                 if move > worst:
                     worst, on = move, name
     n = int(a["episodes"])
-    return {"max": worst, "on": on,
-            "episodes_for_1_point": int(math.ceil(n * max(worst, 0.0) ** 2)) if on else None}
+    return {"max": worst, "on": on, "episodes_for_1_point": math.ceil(n * worst**2) if on else None}
 
 
 def aggregate(table: dict[str, Any], hard_only: bool = True) -> dict[str, Any]:
@@ -614,8 +613,10 @@ def _shift_sentence(a: dict[str, Any]) -> str:
         return "No published score is in [0, 100], so the anchors' SEs move none (anchor shift -)."
     if "shift_on" not in a:
         return f"Anchor shift {a['max_cell_shift']:.2f} points."
-    return (f"Anchor shift {a['max_cell_shift']:.2f} points, on the {a['shift_on']} score "
-            f"({a['episodes_for_1_point_shift']} episodes would make it 1 point).")
+    return (
+        f"Anchor shift {a['max_cell_shift']:.2f} points, on the {a['shift_on']} score "
+        f"({a['episodes_for_1_point_shift']} episodes would make it 1 point)."
+    )
 
 
 def _pid_line(pid: dict[str, Any]) -> str:
