@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from tuners.rl.leaderboard import leaderboard
-from tuners.rl.reference_scores import aggregate, load_reference, render
+from tuners.rl.reference_scores import _anchor_shift, aggregate, load_reference, render
 
 WORKTREE = Path(__file__).resolve().parents[2]
 
@@ -131,6 +131,58 @@ def test_aggregate_and_render_on_a_hand_made_table():
     md = render(table, agg)
     assert "| a | yes | 40.0 (admitted) | 25.0 [0.0, 1.0] (4/4)" in md
     assert "Over the hard tasks" in md
+
+
+def _hand_task(pid_score, cell_iqm, cell_ci, seed_scores):
+    """A task with trivial mean -20 (SE 1) and limit 0 (SE 0): span 20, a score v is the return
+    -20 + v / 5."""
+    per_seed = [{"seed": i, "score": s, "score_se": 0.5, "return_mean": -20 + s / 5,
+                 "admitted": False, "verdict": "x", "train_wall_time_s": 1.0}
+                for i, s in enumerate(seed_scores)]  # fmt: skip
+    cell = {"seeds": len(seed_scores), "iqm": cell_iqm, "ci95": list(cell_ci), "median": cell_iqm,
+            "per_seed": per_seed, "return_mean": -20 + cell_iqm / 5, "admitted_seeds": 0,
+            "max_eval_se": 0.5, "timesteps": 10, "train_wall_time_s": 1.0,
+            "objective_cost": None, "constraint_cost": None, "held_fraction": None,
+            "worst_margin_db": None}  # fmt: skip
+    return {"about": "t", "env_id": "e", "hard": True, "train_kwargs": {}, "eval_kwargs": {},
+            "limit_kind": "reward-lp", "max_score_seen": 60.0,
+            "pid": {"pid": "x", "score": pid_score, "score_se": 0.3,
+                    "return_mean": -20 + pid_score / 5, "return_sd": 1.0, "admitted": True,
+                    "verdict": "ok"},
+            "anchor_stats": {"trivial": {"mean": -20.0, "se": 1.0},
+                             "limit": {"mean": 0.0, "se": 0.0, "kind": "reward-lp"},
+                             "episodes": 8},
+            "cells": {"PPO": cell}}  # fmt: skip
+
+
+def test_the_anchor_shift_is_on_the_published_scores_in_0_to_100():
+    """Worked by hand: span 20, trivial SE 1. The PID at 50 (return -10) moves to 100 x 9 / 19
+    = 47.37 with the trivial at -19 (2.63 points); the IQM at 10 (return -18) to 100 x 1 / 19 =
+    5.26 (4.74 points), the largest; the interval's low bound (-2) and a seed at -2000 are not
+    published scores in [0, 100] and count for nothing (the seed alone, return -420, would move
+    to 100 x -401 / 19 = -2110.5: 110.5 points)."""
+    e = _hand_task(50.0, 10.0, (-2.0, 30.0), [-2000.0, 5.0, 10.0, 30.0])
+    shift = _anchor_shift(e)
+    assert shift["on"] == "PPO iqm"
+    assert shift["max"] == pytest.approx(10.0 - 100.0 / 19.0)
+    assert shift["episodes_for_1_point"] == int(np.ceil(8 * (10.0 - 100.0 / 19.0) ** 2))  # 180
+    # nothing published in [0, 100]: no shift
+    e = _hand_task(-5.0, -300.0, (-400.0, -1.0), [-400.0, -300.0, -200.0])
+    assert _anchor_shift(e) == {"max": 0.0, "on": None, "episodes_for_1_point": None}
+
+
+def test_a_published_score_below_0_is_printed_as_below_0_and_kept_unclipped_in_its_section():
+    e = _hand_task(-5.0, -300.0, (-400.0, 3.0), [-400.0, -300.0, -200.0, 3.0])
+    shift = _anchor_shift(e)
+    e["anchor_stats"].update(max_cell_shift=shift["max"], shift_on=shift["on"],
+                             episodes_for_1_point_shift=shift["episodes_for_1_point"])  # fmt: skip
+    table = {"t": e}
+    agg = aggregate(table)
+    md = render(table, agg)
+    assert "| t | yes | < 0 (admitted) | < 0 [< 0, 3.0] (0/4) | - | reward-lp |" in md
+    assert "| best PID (x) | -5.0 |" in md and "| PPO (4 seeds x 10 steps) | -300.0 [-400.0" in md
+    # the aggregate keeps the unclipped scores: the IQM of -400, -300, -200, 3 is -250
+    assert agg["PPO"]["iqm"] == pytest.approx(-250.0)
 
 
 def test_a_missing_or_old_reference_file_is_one_line_naming_the_command(tmp_path):

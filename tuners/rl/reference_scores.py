@@ -21,6 +21,13 @@ versions). For every task of ``configs/rl_zoo/tasks.yaml`` (:mod:`tuners.rl.suit
   stratified-bootstrap 95 % interval, and the figure the performance profiles over the hard
   tasks (rliable's protocol).
 
+A published score below 0 (worse than command = reference) is printed as "< 0" in the table,
+with its unclipped score and raw return in the task's section (:mod:`tuners.rl.scores` says
+why); the aggregates and the profiles use the unclipped scores. The anchor shift of a task is
+how far the anchors' own standard errors would move its published scores in [0, 100]
+(:func:`published_scores`); the evaluation sets of ``tasks.yaml`` are sized to keep it near 1
+point or below.
+
 Every row keeps its raw returns, the objective's cost, the constraint cost, the measured margins
 and the verdict beside its score. The seeds train where ``--engine`` says (``serial``,
 ``local:N`` worker processes, a Dask cluster: :mod:`tuners.engine`); each seed's row and agent
@@ -401,7 +408,10 @@ def reference_scores(
     for (name, algo), cell_rows in rows.items():
         table[name]["cells"][algo.upper()] = _cell(sorted(cell_rows, key=lambda r: r["seed"]))
     for entry in table.values():
-        entry["anchor_stats"]["max_cell_shift"] = _anchor_shift(entry)
+        shift = _anchor_shift(entry)
+        entry["anchor_stats"]["max_cell_shift"] = shift["max"]
+        entry["anchor_stats"]["shift_on"] = shift["on"]
+        entry["anchor_stats"]["episodes_for_1_point_shift"] = shift["episodes_for_1_point"]
         entry["max_score_seen"] = max(
             [entry["pid"]["score"]] + [s["score"] for c in entry["cells"].values()
                                        for s in c["per_seed"]])  # fmt: skip
@@ -416,22 +426,41 @@ def _train_command(name: str, cache: Path, seeds: int | None, timesteps: int | N
     return f"python -m tuners.rl.reference_scores --train-only --tasks {name}{extra}"
 
 
-def _anchor_shift(entry: dict[str, Any]) -> float:
-    """The largest move (points) of a published score if an anchor's mean moved by its standard
-    error with the row's return held (each anchor alone, the larger of the two): what the
-    anchors' own sampling noise could do, were they not paired with the rows."""
+def published_scores(entry: dict[str, Any]) -> dict[str, float]:
+    """The scores a task's table publishes, by name: the best PID's and each cell's IQM with its
+    interval bounds (``"PPO iqm"``, ``"PPO ci low"``, ...)."""
+    out = {"best PID": float(entry["pid"]["score"])}
+    for algo, c in entry["cells"].items():
+        out[f"{algo} iqm"] = float(c["iqm"])
+        out[f"{algo} ci low"], out[f"{algo} ci high"] = (float(x) for x in c["ci95"])
+    return out
+
+
+def _anchor_shift(entry: dict[str, Any]) -> dict[str, Any]:
+    """How far an anchor's own standard error would move a published score on the scale (points):
+    for each published score in [0, 100] (:func:`published_scores`; one below 0 is printed as
+    "< 0", so its distance below the trivial policy is not a ranking the scale carries), the
+    score recomputed with the trivial's mean moved by its SE, or the limit's by its SE (each
+    anchor alone, both signs, the row's return held); the largest move, the score it is on, and
+    the episodes that would bring it to 1 point (the SEs shrink as 1/sqrt(episodes)).
+
+    The IQM and its interval are order statistics of the seeds' scores, and a score is affine in
+    the return, so moving an anchor moves them as it moves a single score."""
     a = entry["anchor_stats"]
     r0, r100 = a["trivial"]["mean"], a["limit"]["mean"]
-    returns = [entry["pid"]["return_mean"]] + [
-        s_row["return_mean"] for c in entry["cells"].values() for s_row in c["per_seed"]
-        if "return_mean" in s_row]  # fmt: skip
-    worst = 0.0
-    for r in returns:
-        base = float(normalise(r, r0, r100))
+    span = r100 - r0
+    worst, on = 0.0, None
+    for name, v in published_scores(entry).items():
+        if not 0.0 <= v <= 100.0:
+            continue
+        r = r0 + v * span / 100.0
         for d0, d1 in ((a["trivial"]["se"], 0.0), (0.0, a["limit"]["se"])):
-            worst = max(worst, abs(float(normalise(r, r0 + d0, r100 + d1)) - base),
-                        abs(float(normalise(r, r0 - d0, r100 - d1)) - base))  # fmt: skip
-    return worst
+            for sign in (1.0, -1.0):
+                move = abs(float(normalise(r, r0 + sign * d0, r100 + sign * d1)) - v)
+                if move > worst:
+                    worst, on = move, name
+    n = int(a["episodes"])
+    return {"max": worst, "on": on, "episodes_for_1_point": math.ceil(n * worst**2) if on else None}
 
 
 def aggregate(table: dict[str, Any], hard_only: bool = True) -> dict[str, Any]:
@@ -460,8 +489,19 @@ def _cell_text(c: dict[str, Any] | None, missing: dict[str, Any] | None = None) 
         return f"not trained in this run ({len(missing['kept_seeds'])}/{missing['seeds']} seeds)"
     if not c:
         return "-"
-    return (f"{c['iqm']:.1f} [{c['ci95'][0]:.1f}, {c['ci95'][1]:.1f}] "
+    return (f"{_pub(c['iqm'])} [{_pub(c['ci95'][0])}, {_pub(c['ci95'][1])}] "
             f"({c['admitted_seeds']}/{c['seeds']})")  # fmt: skip
+
+
+def _pub(score: float) -> str:
+    """A published score: below 0 (worse than command = reference) it is "< 0", its distance
+    below the trivial policy not being a ranking the scale carries (the task's section gives
+    the unclipped score and the raw return)."""
+    return "< 0" if score < 0 else f"{score:.1f}"
+
+
+def _shift_text(a: dict[str, Any]) -> str:
+    return "-" if a.get("shift_on", "") is None else f"{a['max_cell_shift']:.2f}"
 
 
 def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
@@ -484,7 +524,13 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         "computed on the very episodes every policy runs, so they are exact constants of the "
         "set; `eval SE` is how far a score would move on another set of the same size "
         "(anchors and policy resampled together), `anchor shift` how far an anchor's own "
-        "standard error alone would move the farthest published score.",
+        "standard error (each task's section gives both) alone would move the farthest "
+        "published score in [0, 100] (the best PID's, each cell's IQM and its interval bounds; "
+        "`-`: none is in [0, 100]). **A published score below 0 is printed as `< 0`**: the "
+        "policy does worse than commanding the reference, and how far below is not a ranking "
+        "the scale is meant to carry (its span is the trivial policy to the limit); the task's "
+        "section gives the unclipped score and the raw return, and the aggregates over the hard "
+        "tasks and the performance profiles use the unclipped scores of every run.",
         "",
         "**The protocol** (Agarwal et al. 2021): PPO and SAC with the task's rl-zoo3 recipe "
         "(`configs/rl_zoo/tasks/`), one run per training seed; a cell is the **interquartile "
@@ -504,11 +550,11 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         untrained = e.get("untrained", {})
         se = max([pid["score_se"]] + [c["max_eval_se"] for c in cells.values()])
         lines.append(
-            f"| {name} | {'yes' if e['hard'] else 'no'} | {pid['score']:.1f} "
+            f"| {name} | {'yes' if e['hard'] else 'no'} | {_pub(pid['score'])} "
             f"({'admitted' if pid['admitted'] else 'not admitted'}) | "
             f"{_cell_text(cells.get('PPO'), untrained.get('PPO'))} | "
             f"{_cell_text(cells.get('SAC'), untrained.get('SAC'))} | "
-            f"{e['limit_kind']} | {se:.2f} | {e['anchor_stats']['max_cell_shift']:.2f} |"
+            f"{e['limit_kind']} | {se:.2f} | {_shift_text(e['anchor_stats'])} |"
         )
     if agg:
         overall = "; ".join(f"{a} {v['iqm']:.1f} [{v['ci95'][0]:.1f}, {v['ci95'][1]:.1f}] "
@@ -535,7 +581,7 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
             f"{a['episodes']} episodes. Trivial return {a['trivial']['mean']:.4g} (SE "
             f"{a['trivial']['se']:.2g}); limit ({e['limit_kind']}) {a['limit']['mean']:.4g} (SE "
             f"{a['limit']['se']:.2g}); the largest score any run reached: "
-            f"{e['max_score_seen']:.1f}.", "",
+            f"{e['max_score_seen']:.1f}. {_shift_sentence(a)}", "",
             "| row | score | eval SE | return (mean ± sd) | objective's cost | constraint cost "
             "| held | worst measured GM dB | verdict |",
             "|---|---|---|---|---|---|---|---|---|",
@@ -560,6 +606,17 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         lines.append(f"| limit ({e['limit_kind']}) | 100 | 0 | {a['limit']['mean']:.4g} | | | | "
                      "| |")  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def _shift_sentence(a: dict[str, Any]) -> str:
+    if a.get("shift_on", "") is None:
+        return "No published score is in [0, 100], so the anchors' SEs move none (anchor shift -)."
+    if "shift_on" not in a:
+        return f"Anchor shift {a['max_cell_shift']:.2f} points."
+    return (
+        f"Anchor shift {a['max_cell_shift']:.2f} points, on the {a['shift_on']} score "
+        f"({a['episodes_for_1_point_shift']} episodes would make it 1 point)."
+    )
 
 
 def _pid_line(pid: dict[str, Any]) -> str:

@@ -10,6 +10,18 @@ relative to it; what a score would do on another evaluation set of the same size
 *evaluation standard error* (:func:`paired_se`: the delta method over the episodes, anchors and
 policy resampled together).
 
+**Below 0.** A score below 0 means the policy did worse than commanding the reference. The
+scale's span is the trivial policy to the limit, and the trivial policy is the floor of anything
+worth deploying, so how far below 0 a policy falls (a diverged episode alone can put it at
+-2000) is not a ranking the scale is meant to carry: the published tables print such a score as
+"< 0" and give the unclipped score and the raw return beside it (a task's own section of
+``reference_scores.md``). Nothing here clips: the aggregates over tasks (:func:`iqm`,
+:func:`stratified_bootstrap_ci`) and the performance profiles use every run's unclipped score,
+so a run far below 0 weighs as any run below the IQM's quartile does. The anchors' own standard
+errors are judged on the published scores in [0, 100] only
+(``tuners.rl.reference_scores``: each task's evaluation set is large enough that they move
+none of those by more than about a point).
+
 **Over training seeds** (Agarwal et al., 2021, "Deep RL at the edge of the statistical
 precipice"): a cell is the interquartile mean (IQM) of its seeds' scores, with a 95 %
 percentile interval from the stratified bootstrap (seeds resampled with replacement within each
