@@ -38,7 +38,7 @@ from gripper_env.evaluation.bus_servo import loop_margins, tracking_goal
 from gripper_env.hardware.bus.link import BusCommError
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, simulate_bus
-from gripper_env.sysid.bus_servo import BusRecord
+from gripper_env.sysid.bus_servo import SLOW_FACTOR, SLOW_FLOOR_S, BusRecord
 
 if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
@@ -48,6 +48,7 @@ __all__ = [
     "BusRecorder",
     "GoalPlan",
     "check_plan",
+    "check_record",
     "check_settings",
     "record_plan",
     "settings_registers",
@@ -133,6 +134,50 @@ def check_plan(plan: GoalPlan, goal_range_deg: tuple[float, float], what: str) -
         )
 
 
+#: A record is refused when more than this fraction of its readings got no reply.
+MAX_DROPPED = 0.10
+#: A step counts as clipped when the jaw ends it farther from its goal than this fraction of the
+#: step or :data:`CLIP_FLOOR_DEG`, whichever is more (steps of at least
+#: :data:`CLIP_MIN_STEP_DEG`), so that a low P's dead band never looks like a clip (2.3 deg at
+#: P = 16 on a stiff STS3215).
+CLIP_FRACTION = 0.25
+CLIP_FLOOR_DEG = 3.0
+CLIP_MIN_STEP_DEG = 8.0
+
+
+def check_record(record: BusRecord, name: str = "the record") -> list[str]:
+    """What makes ``record`` unfit to identify from, in words (empty: nothing).
+
+    * **Clipped steps**: a step of the goal (held at least 0.3 s) whose end the jaw does not
+      come within :data:`CLIP_FRACTION` of it (at least :data:`CLIP_FLOOR_DEG`): a position
+      limit narrower than the plan, a stop, or an object in the jaws held it.
+    * **Dropped readings**: more than :data:`MAX_DROPPED` of the readings got no reply (the
+      recorder's counts, in the record).
+    """
+    problems = []
+    times, goals = record.goal_times_s, record.goal_values_deg
+    ends = np.r_[times[1:], record.t_s[-1]]
+    for k in range(1, times.size):
+        jump = goals[k] - goals[k - 1]
+        if abs(jump) < CLIP_MIN_STEP_DEG or ends[k] - times[k] < 0.3:
+            continue
+        tail = (record.t_s >= ends[k] - 0.1) & (record.t_s < ends[k])
+        if not np.any(tail):
+            continue
+        final = float(np.median(record.position_deg[tail]))
+        if abs(final - goals[k]) > max(CLIP_FRACTION * abs(jump), CLIP_FLOOR_DEG):
+            problems.append(
+                f"{name}: the step to {goals[k]:.1f} deg at {times[k]:.2f} s ended at "
+                f"{final:.1f} deg: clipped (a position limit, a stop or an object held the jaw)"
+            )
+    if record.dropped_fraction > MAX_DROPPED:
+        problems.append(
+            f"{name}: {100 * record.dropped_fraction:.0f} % of the readings got no reply (more "
+            f"than {100 * MAX_DROPPED:.0f} %): the bus or the host lost them"
+        )
+    return problems
+
+
 def settings_registers(
     model: BusServoModel, settings: Sequence[tuple[int, int, int]] | None = None
 ) -> list[RegisterSet]:
@@ -195,14 +240,6 @@ class BusRecorder:
         self.readings = 0
         self._run = 0
 
-    #: A reading is stamped at the middle of its round trip; one whose round trip took longer
-    #: than this many times the record's median (and at least :data:`SLOW_FLOOR_S`) has a time
-    #: stamp too uncertain to fit, and is dropped. A loaded host (or a USB adapter's latency
-    #: timer) delays some replies by several ms: the fit of the virtual XL330 under a full test
-    #: run took such readings and came out with ``kd`` far off.
-    SLOW_FACTOR = 3.0
-    SLOW_FLOOR_S = 0.002
-
     #: Consecutive readings that may be lost before a record fails.
     MAX_LOST_IN_A_ROW = 20
 
@@ -241,7 +278,9 @@ class BusRecorder:
         y_read: list[float] = []
         t_goal: list[float] = []
         y_goal: list[float] = []
+        rtt_goal: list[float] = []
         rtt: list[float] = []
+        lost_before = self.lost
         t0 = self.clock()
         k = 0
         next_read = 0.0
@@ -254,8 +293,10 @@ class BusRecorder:
                 # safe side for the margins (stamped at the round trip's middle instead, the
                 # STS3215's fitted loop delay fell from 3-4 ms to 2 against the truth's 4, and
                 # registers tuned on it had Ms 1.71 on the truth)
-                t_goal.append(self.clock() - t0)
+                sent = self.clock()
                 y_goal.append(g.goal_deg(float(plan.goals_deg[k])))  # sent again if lost
+                t_goal.append(sent - t0)
+                rtt_goal.append(self.clock() - sent)
                 k += 1
                 continue
             if now >= next_read:
@@ -277,15 +318,15 @@ class BusRecorder:
             wait = min(next_read, plan.times_s[k] if k < plan.times_s.size else math.inf) - now
             if wait > 2e-4:
                 time.sleep(wait - 1e-4)
+        slow = 0
         if rtt:
-            bound = max(self.SLOW_FACTOR * float(np.median(rtt)), self.SLOW_FLOOR_S)
-            keep = [i for i, r in enumerate(rtt) if r <= bound]
-            self.slow += len(rtt) - len(keep)
-            self.readings += len(rtt)
-            t_read = [t_read[i] for i in keep]
-            y_read = [y_read[i] for i in keep]
-        rec = _record(g.model, got, t_read, y_read, t_goal, y_goal)
-        return replace(rec, calibration=g.calibration)
+            bound = max(SLOW_FACTOR * float(np.median(rtt)), SLOW_FLOOR_S)
+            slow = sum(1 for r in rtt if r > bound)
+        self.slow += slow
+        self.readings += len(rtt)
+        stats = {"readings": len(rtt), "lost": self.lost - lost_before, "slow": slow}
+        rec = _record(g.model, got, t_read, y_read, t_goal, y_goal, rtt, rtt_goal)
+        return replace(rec, calibration=g.calibration, stats=stats)
 
 
 def simulate_record(
@@ -323,10 +364,14 @@ def _record(
     y_read: Sequence[float] | np.ndarray,
     t_goal: Sequence[float] | np.ndarray,
     y_goal: Sequence[float] | np.ndarray,
+    rtt_read: Sequence[float] | np.ndarray = (),
+    rtt_goal: Sequence[float] | np.ndarray = (),
 ) -> BusRecord:
     t = np.asarray(t_read, dtype=float)
     y = np.asarray(y_read, dtype=float)
     tg = np.asarray(t_goal, dtype=float)
     g = np.asarray(y_goal, dtype=float)
     idx = np.clip(np.searchsorted(tg, t, side="right") - 1, 0, None)
-    return BusRecord(model.family, registers, t, g[idx], y, tg, g)
+    return BusRecord(model.family, registers, t, g[idx], y, tg, g,
+                     rtt_s=np.asarray(rtt_read, dtype=float),
+                     goal_rtt_s=np.asarray(rtt_goal, dtype=float))  # fmt: skip

@@ -28,7 +28,8 @@ import io
 import json
 import math
 import os
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,6 +84,15 @@ class BusRecord:
     calibration : JawCalibration or None
         The jaw calibration of the servo recorded (its angles are in that calibration's model
         frame); None for a simulated record.
+    rtt_s : ndarray
+        Round trip of each reading (s): it was taken somewhere within ``t_s +- rtt_s / 2``
+        (zeros when not known).
+    goal_rtt_s : ndarray
+        Round trip of each goal write (s): the servo had it between ``goal_times_s`` and
+        ``goal_times_s + goal_rtt_s`` (zeros when not known).
+    stats : dict of str to int
+        What the recorder counted (``readings`` taken, ``lost`` replies, ``slow`` round trips);
+        empty when not known.
     """
 
     family: str
@@ -93,6 +103,24 @@ class BusRecord:
     goal_times_s: np.ndarray
     goal_values_deg: np.ndarray
     calibration: JawCalibration | None = None
+    rtt_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    goal_rtt_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stats: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, like in (("rtt_s", self.t_s), ("goal_rtt_s", self.goal_times_s)):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.size == 0:
+                value = np.zeros(like.shape)
+            if value.shape != like.shape:
+                raise ValueError(f"{name} has {value.size} entries for {like.size}")
+            object.__setattr__(self, name, value)
+
+    @property
+    def dropped_fraction(self) -> float:
+        """Readings lost (no reply) as a fraction of those asked for (0 when not known)."""
+        asked = self.stats.get("readings", 0) + self.stats.get("lost", 0)
+        return self.stats.get("lost", 0) / asked if asked else 0.0
 
     def goal_per_tick(self, delay_ticks: int = 0) -> np.ndarray:
         """The goal per 1 ms tick from the record's start, shifted by ``delay_ticks``."""
@@ -106,8 +134,10 @@ class BusRecord:
 def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
     """Write a record as CSV: a ``# family=... p=... i=...`` header line, the jaw calibration as
     a ``# calibration {...}`` line (JSON) when the record has one, then
-    ``t_s,goal_deg,position_deg,goal_written`` rows (``goal_written`` 1 where the goal was
-    written just before that reading)."""
+    a ``# stats readings=... lost=... slow=...`` line when the recorder counted, then
+    ``t_s,goal_deg,position_deg,goal_written,rtt_s`` rows (``goal_written`` 1 where the goal was
+    written just before that reading; ``rtt_s`` the reading's round trip), and the goal writes
+    as ``# t_s,goal_deg,rtt_s`` comment lines."""
     from gripper_env.io.files import write_atomic
 
     buf = io.StringIO()
@@ -118,17 +148,20 @@ def write_bus_record(path: str | os.PathLike[str], record: BusRecord) -> Path:
     buf.write("\n")
     if record.calibration is not None:
         buf.write(f"# calibration {record.calibration.model_dump_json()}\n")
+    if record.stats:
+        buf.write("# stats " + " ".join(f"{k}={v}" for k, v in record.stats.items()) + "\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["t_s", "goal_deg", "position_deg", "goal_written"])
+    w.writerow(["t_s", "goal_deg", "position_deg", "goal_written", "rtt_s"])
     written = set(np.searchsorted(record.t_s, record.goal_times_s).tolist())
-    rows = zip(record.t_s, record.goal_deg, record.position_deg, strict=True)
-    for k, (t, g, y) in enumerate(rows):
-        w.writerow([f"{t:.6f}", f"{g:.4f}", f"{y:.4f}", 1 if k in written else 0])
+    rows = zip(record.t_s, record.goal_deg, record.position_deg, record.rtt_s, strict=True)
+    for k, (t, g, y, rtt) in enumerate(rows):
+        w.writerow([f"{t:.6f}", f"{g:.4f}", f"{y:.4f}", 1 if k in written else 0, f"{rtt:.6f}"])
     # the exact write times (the fit's input) follow as comment lines, which CSV readers that
     # skip comments leave out
     buf.write("# goals\n")
-    for t, g in zip(record.goal_times_s, record.goal_values_deg, strict=False):
-        buf.write(f"# {t:.6f},{g:.4f}\n")
+    for t, g, rtt in zip(record.goal_times_s, record.goal_values_deg, record.goal_rtt_s,
+                         strict=True):  # fmt: skip
+        buf.write(f"# {t:.6f},{g:.4f},{rtt:.6f}\n")
     return write_atomic(path, buf.getvalue())
 
 
@@ -154,7 +187,15 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
     rows, goals = [], []
     in_goals = False
     calibration = None
+    stats: dict[str, int] = {}
     for n, line in enumerate(lines[1:], start=2):
+        if line.startswith("# stats "):
+            try:
+                stats = {k: int(v) for k, v in (item.split("=", 1)
+                                                 for item in line[8:].split())}  # fmt: skip
+            except ValueError:
+                raise ValueError(f"{p}: line {n}: expected '# stats name=count ...'") from None
+            continue
         if line.startswith("# calibration "):
             try:
                 data = json.loads(line.removeprefix("# calibration "))
@@ -171,19 +212,25 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
             continue
         if in_goals:
             try:
-                t, g = (float(x) for x in line[2:].split(","))
+                parts = [float(x) for x in line[2:].split(",")]
+                if len(parts) not in (2, 3):
+                    raise ValueError
             except ValueError:
-                raise ValueError(f"{p}: line {n}: expected '# t_s,goal_deg'") from None
-            goals.append((t, g))
+                raise ValueError(f"{p}: line {n}: expected '# t_s,goal_deg,rtt_s'") from None
+            goals.append((*parts, 0.0)[:3])
             continue
         if line.startswith("t_s") or not line.strip():
             continue
         parts = line.split(",")
         try:
-            rows.append([float(x) for x in parts[:3]])
-        except ValueError:
+            values = [float(x) for x in parts[:3]]
+            values.append(float(parts[4]) if len(parts) > 4 else 0.0)
+            if len(values) != 4:
+                raise ValueError
+        except (ValueError, IndexError):
             raise ValueError(f"{p}: line {n}: expected numbers, got {line[:60]!r}") from None
-    data = np.array(rows, dtype=float).reshape(-1, 3)
+        rows.append(values)
+    data = np.array(rows, dtype=float).reshape(-1, 4)
     if data.shape[0] < 10 or not goals:
         raise ValueError(f"{p}: too short ({data.shape[0]} readings, {len(goals)} goals)")
     if not np.all(np.isfinite(data)):
@@ -193,8 +240,11 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
         bad = int(np.flatnonzero(np.diff(data[:, 0]) <= 0)[0])
         raise ValueError(f"{p}: time stamps not increasing at reading {bad + 2}")
     writes = np.array(goals)
+    if np.any(data[:, 3] < 0) or np.any(writes[:, 2] < 0):
+        raise ValueError(f"{p}: a negative round trip")
     return BusRecord(family, regs, data[:, 0], data[:, 1], data[:, 2], writes[:, 0], writes[:, 1],
-                     calibration)  # fmt: skip
+                     calibration, rtt_s=data[:, 3], goal_rtt_s=writes[:, 2],
+                     stats=stats)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -206,7 +256,10 @@ class BusEstimate:
     model : BusServoModel
         The prior with the estimated parameters in.
     values, std : dict of str to float
-        Estimates and standard errors of :data:`FIT_NAMES` (``std`` inf: not determined).
+        Estimates and standard errors of :data:`FIT_NAMES` (``std`` inf: not determined). All
+        are positive and searched as logarithms, so the relative error ``std / value`` is the
+        logarithm's, and the 95 % ranges (:meth:`ranges_95`) are ``value * exp(+-1.96 std /
+        value)``: never below zero.
     delay_s, loop_delay_s : float
         The goal's delay and the loop's own delay (s, whole ticks).
     fit_pct : float
@@ -239,6 +292,15 @@ class BusEstimate:
         """Relative standard errors (``std / |value|``)."""
         return {k: self.std[k] / abs(v) if v else math.inf for k, v in self.values.items()}
 
+    def ranges_95(self) -> dict[str, tuple[float, float]]:
+        """95 % ranges of the determined parameters, on the logarithm's scale:
+        ``value * exp(+-1.96 rel_std)`` (positive, as the parameters are)."""
+        return {
+            k: (v * math.exp(-1.96 * r), v * math.exp(1.96 * r))
+            for (k, v), r in zip(self.values.items(), self.rel_std().values(), strict=True)
+            if math.isfinite(r)
+        }
+
     def dead_band_deg(self, p: int) -> float:
         """The friction dead band (deg) at proportional gain register ``p``."""
         return self.values["static"] / (self.values["kp"] * max(p, 1)) * self.model.deg_per_tick
@@ -251,11 +313,7 @@ class BusEstimate:
             "values": self.values,
             "std": {k: (v if math.isfinite(v) else None) for k, v in self.std.items()},
             "uncertainty": {k: v for k, v in rel.items() if math.isfinite(v)},
-            "ranges_95": {
-                k: [self.values[k] - 1.96 * s, self.values[k] + 1.96 * s]
-                for k, s in self.std.items()
-                if math.isfinite(s)
-            },
+            "ranges_95": {k: list(v) for k, v in self.ranges_95().items()},
             "delay_s": self.delay_s,
             "loop_delay_s": self.loop_delay_s,
             "fit_pct": self.fit_pct,
@@ -274,6 +332,7 @@ class _Problem:
         self.start_deg = [float(r.position_deg[0]) for r in records]
         self._base = bus_params(prior)
         self._cols = [_COLUMNS[name] for name in fit]
+        self.weights = np.concatenate([reading_weights(r) for r in self.records])
 
     def _rows(self, thetas: np.ndarray, loop_ticks: int | np.ndarray) -> np.ndarray:
         rows = np.repeat(self._base[None], thetas.shape[0], axis=0)
@@ -309,10 +368,37 @@ class _Problem:
     def residuals(
         self, thetas: np.ndarray, delay_ticks: int | np.ndarray, loop_ticks: int | np.ndarray
     ) -> np.ndarray:
+        """Model minus reading (deg), every record end to end, each reading weighted by how
+        sure its time stamp is (:func:`reading_weights`): shape (candidates, readings)."""
         sims = self.simulate(thetas, delay_ticks, loop_ticks)
-        return np.concatenate(
+        return self.weights * np.concatenate(
             [s - r.position_deg[None] for s, r in zip(sims, self.records, strict=False)], axis=1
         )
+
+
+#: A reading whose round trip took longer than this many times its record's median (and at
+#: least :data:`SLOW_FLOOR_S`) is left out of the fit (:func:`reading_weights`).
+SLOW_FACTOR = 3.0
+SLOW_FLOOR_S = 0.002
+
+
+def reading_weights(record: BusRecord) -> np.ndarray:
+    """Which readings of ``record`` the fit uses: 1, or 0 for a slow one.
+
+    A reading is stamped at the middle of its round trip, and a slow round trip (a loaded host,
+    a USB adapter's latency timer) does not say where in it the servo read its encoder. Weighted
+    by the jaw's travel in the extra time alone, such readings still biased the fit (under a
+    test suite's load, a quarter of the readings were slow: the loop delay came out 1 ms
+    against the servo's 4, ``kp`` 16 % high), because the servo tends to answer early in the
+    window and the reply to wait, not the other way round. So a reading whose round trip took
+    more than :data:`SLOW_FACTOR` times the record's median (and more than
+    :data:`SLOW_FLOOR_S`) is kept in the record but left out of the fit; a record whose round
+    trips are unknown uses every reading."""
+    rtt = np.asarray(record.rtt_s, dtype=float)
+    if rtt.size < 3 or not np.any(rtt > 0):
+        return np.ones(record.t_s.size)
+    bound = max(SLOW_FACTOR * float(np.median(rtt)), SLOW_FLOOR_S)
+    return (rtt <= bound).astype(float)
 
 
 def predict_record(model: BusServoModel, record: BusRecord) -> np.ndarray:
@@ -351,6 +437,7 @@ def identify_bus_servo(
     name: str = "mine",
     seed: int = 0,
     generations: int = 80,
+    log: Callable[[str], None] | None = None,
 ) -> BusEstimate:
     """Fit the bus servo's loop to records at several register settings.
 
@@ -367,6 +454,8 @@ def identify_bus_servo(
         Seed of the global search.
     generations : int
         Generations of the global search (16 candidates each).
+    log : callable, optional
+        Progress messages: each stage of the search, with the time it took.
 
     Raises
     ------
@@ -416,7 +505,17 @@ def identify_bus_servo(
     # sticking events switch as parameters move): CMA-ES over the log-parameters and the two
     # delays (rounded to ticks), each generation one batch through the core; then a
     # least-squares polish at the delays it found.
-    x, delay, loop = _global_search(problem, x0, lo, hi, seed=seed, generations=generations)
+    started = time.perf_counter()
+
+    def say(text: str) -> None:
+        if log is not None:
+            log(f"[{time.perf_counter() - started:5.0f} s] {text}")
+
+    say(f"global search: {len(_DELAY_STARTS)} CMA-ES runs of {generations} generations over "
+        f"{len(fit)} parameters and the two delays, {len(records)} records")  # fmt: skip
+    x, delay, loop = _global_search(problem, x0, lo, hi, seed=seed, generations=generations,
+                                    log=say)  # fmt: skip
+    say(f"global search done: goal delay {delay} ms, loop delay {loop} ms")
     # The delays are whole ticks the global search rounds, and each pair is a basin of its own,
     # which the continuous parameters partly make up for (a loop delay two ticks short with
     # ``kd`` 17 % high and ``tau_m`` 10 % long fits the STS3215's records nearly as well), and a
@@ -424,6 +523,7 @@ def identify_bus_servo(
     # pairs around the global search's: a short CMA-ES at every pair (all in one batch per
     # generation), then a polish of the best few; its fits at later loop delays are the
     # alternatives (below).
+    say("delay profile: a CMA-ES at every (goal, loop) delay pair around it")
     profile = _delay_profile(problem, x, delay, loop, lo, hi, seed=seed,
                              generations=max(generations // 2, 15))  # fmt: skip
     polished: set[tuple[int, int]] = set()
@@ -434,6 +534,7 @@ def identify_bus_servo(
         if cost_n < profile[pair][0]:
             profile[pair] = (cost_n, x_n)
 
+    say(f"delay profile done: {len(profile)} pairs; polishing the best {_PROFILE_POLISH}")
     for pair in sorted(profile, key=lambda p: profile[p][0])[:_PROFILE_POLISH]:
         polish(pair)
     # then walk from the best pair: each neighbouring pair searched again from the best fit (a
@@ -452,6 +553,7 @@ def identify_bus_servo(
             profile[pair] = (cost_n, x_n)
         return cost_n
 
+    say("walking to better neighbouring delay pairs")
     moved = True
     while moved:
         moved = False
@@ -468,6 +570,7 @@ def identify_bus_servo(
     # overshoot their margins on the servo (the README recipe's STS3215: 2 ms against the
     # truth's 4, ``kd`` 21 % low at 10 % stated, ``Ms`` 1.75 on the truth). The best fits one
     # and two ticks later are kept as alternatives the tuner's margins must also hold on.
+    say("later loop delays (the alternatives)")
     while True:
         (delay, loop), (cost, x) = min(profile.items(), key=lambda kv: kv[1][0])
         for ahead in range(1, _LATER_TICKS + 1):  # a later tick the profile's window left out
@@ -502,7 +605,9 @@ def identify_bus_servo(
     res = problem.residuals(thetas, delay, loop)
     r0 = res[0]
     jac = ((res[1 : 1 + len(fit)] - res[1 + len(fit) :]) / (2 * h[:, None])).T
-    sims = y + r0  # model output
+    sims = np.concatenate([s[0] for s in problem.simulate(x[None], delay, loop)])  # model output
+    used = problem.weights > 0
+    r0_plain = (sims - y)[used]
     rate = np.gradient(sims) / np.maximum(
         np.gradient(np.concatenate([r.t_s for r in records])), 1e-4
     )
@@ -521,6 +626,7 @@ def identify_bus_servo(
     # time stamp, a friction that is not quite Karnopp's, a cost with steps where sticking events
     # switch), which bias every record alike and show as disagreement between records: the
     # leave-one-record-out jackknife measures that, and the standard errors hold both.
+    say(f"standard errors: Jacobian, then a jackknife over the {len(records)} records")
     jack = _jackknife(prior, records, fit, x, delay, loop, lo, hi)
     if jack is not None:
         std = np.sqrt(np.where(np.isfinite(std), std**2, 0.0) + jack**2)
@@ -571,7 +677,8 @@ def identify_bus_servo(
     off = 0
     for r in records:
         n = r.position_deg.size
-        per.append(_fit_pct(r.position_deg, sims[off : off + n]))
+        keep = used[off : off + n]
+        per.append(_fit_pct(r.position_deg[keep], sims[off : off + n][keep]))
         off += n
     return BusEstimate(
         model=model,
@@ -579,8 +686,8 @@ def identify_bus_servo(
         std=stds,
         delay_s=delay * DT,
         loop_delay_s=loop * DT,
-        fit_pct=_fit_pct(y, sims),
-        rmse_deg=float(np.sqrt(np.mean(r0**2))),
+        fit_pct=_fit_pct(y[used], sims[used]),
+        rmse_deg=float(np.sqrt(np.mean(r0_plain**2))),
         per_record_fit=per,
         notes=notes,
         alternatives=alternatives,
@@ -723,6 +830,7 @@ def _global_search(
     *,
     seed: int,
     generations: int,
+    log: Callable[[str], None],
 ) -> tuple[np.ndarray, int, int]:
     """CMA-ES over ``log(theta)`` and the goal and loop delays (ticks)."""
     n = x0.size
@@ -730,6 +838,8 @@ def _global_search(
     for k, (d0, l0) in enumerate(_DELAY_STARTS):
         mean = np.concatenate([np.log(x0), [d0, l0]])
         cost, v = _cma(problem, mean, lo, hi, seed=seed + k, generations=generations)
+        log(f"  run {k + 1}/{len(_DELAY_STARTS)} (from delays {d0:.0f}, {l0:.0f} ms): cost "
+            f"{cost:.4g}")  # fmt: skip
         if cost < best[0]:
             best = (cost, v)
     v = best[1]

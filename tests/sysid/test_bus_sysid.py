@@ -93,10 +93,11 @@ def test_a_perturbed_sts3215_is_recovered(perturbed_sts3215):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 33 (open): since the virtual servo has 1 deg of backlash and the 7.4 V speed, "
-    "the fit's stated standard errors understate its error (kp 3.3 % off against a 0.15 % "
-    "standard error, 22 of them; 4.7 in another run); the rewrite with autocorrelation-robust "
-    "errors is on the wt-bus-int branch, not yet merged",
+    reason="issue 33 (open): with 1 deg of backlash the fit's cost has steps (sticking events; "
+    "which side of the gear play a step ends on) whose curvature the standard errors do not "
+    "see: kp 3.3 % off against 0.14 % stated (22 standard errors) on this servo. An expected "
+    "reading averaged over timing dithers was tried: smoother in the goal's delay, but it moved "
+    "static and ki 14-17 % low (one record is a realisation, not an expectation); not adopted",
 )
 def test_the_stated_standard_errors_cover_the_truth(perturbed_sts3215):
     _records, want, est = perturbed_sts3215
@@ -120,3 +121,63 @@ def test_a_malformed_record_names_its_line(tmp_path):
     bad.write_text("t_s,goal\n")
     with pytest.raises(ValueError, match="line 1"):
         read_bus_record(bad)
+
+
+def test_a_record_round_trips_its_round_trips_and_counts(tmp_path):
+    prior = load_bus_servo("sts3215")
+    rec = simulate_record(prior, prior.factory)
+    rtt = np.linspace(0.001, 0.004, rec.t_s.size)
+    rec = BusRecord(rec.family, rec.registers, rec.t_s, rec.goal_deg, rec.position_deg,
+                    rec.goal_times_s, rec.goal_values_deg, rtt_s=rtt,
+                    goal_rtt_s=np.full(rec.goal_times_s.size, 0.002),
+                    stats={"readings": 100, "lost": 12, "slow": 3})  # fmt: skip
+    back = read_bus_record(write_bus_record(tmp_path / "r.csv", rec))
+    assert np.allclose(back.rtt_s, rtt, atol=1e-6)
+    assert np.allclose(back.goal_rtt_s, 0.002)
+    assert back.stats == {"readings": 100, "lost": 12, "slow": 3}
+    assert back.dropped_fraction == pytest.approx(12 / 112)
+
+
+def test_an_older_record_without_round_trips_still_reads(tmp_path):
+    """Files written before round trips were kept: four columns, goals without one."""
+    old = tmp_path / "old.csv"
+    old.write_text("# family=sts3215 p=32 i=0 d=32 torque_limit=1000\n"
+                   "t_s,goal_deg,position_deg,goal_written\n"
+                   + "".join(f"{0.002 * k:.6f},240,240,0\n" for k in range(20))
+                   + "# goals\n# 0.000000,240.0000\n")  # fmt: skip
+    rec = read_bus_record(old)
+    assert np.all(rec.rtt_s == 0) and rec.goal_rtt_s.tolist() == [0.0] and rec.stats == {}
+
+
+def test_clipped_steps_and_lost_readings_make_a_record_unfit():
+    """``check_record``: the steps of the plan on a jaw whose closed stop lies 15 deg below open
+    (the 30 deg step stops at the stop), and a record that lost 12 % of its readings; the
+    shipped servo's records at every setting pass (their dead band is no clip)."""
+    from gripper_env.sysid.bus_experiments import check_record
+
+    prior = load_bus_servo("sts3215")
+    for regs in settings_registers(prior):
+        assert check_record(simulate_record(prior, regs)) == [], regs.label()
+    hi = prior.jaw.limits_deg[1]
+    narrow = prior.with_updates(jaw=prior.jaw.model_copy(
+        update={"limits_deg": (prior.jaw.open_deg - 15.0, hi)}))  # fmt: skip
+    problems = check_record(simulate_record(narrow, prior.factory), "r.csv")
+    assert len(problems) == 1 and "r.csv: the step to 210.0 deg" in problems[0], problems
+    assert "clipped" in problems[0]
+    rec = simulate_record(prior, prior.factory)
+    lossy = BusRecord(rec.family, rec.registers, rec.t_s, rec.goal_deg, rec.position_deg,
+                      rec.goal_times_s, rec.goal_values_deg,
+                      stats={"readings": 880, "lost": 120, "slow": 0})  # fmt: skip
+    (problem,) = check_record(lossy)
+    assert "12 % of the readings got no reply" in problem
+
+
+def test_the_95_percent_ranges_stay_positive(perturbed_sts3215):
+    """The ranges are on the logarithm's scale: positive even for a parameter the records pin
+    loosely, and equal to ``value * exp(+-1.96 std / value)``."""
+    _records, _want, est = perturbed_sts3215
+    for k, (lo, hi) in est.ranges_95().items():
+        rel = est.std[k] / est.values[k]
+        assert 0 < lo < est.values[k] < hi, k
+        assert lo == pytest.approx(est.values[k] * np.exp(-1.96 * rel))
+        assert hi == pytest.approx(est.values[k] * np.exp(1.96 * rel))

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gripper_env.io.files import safe_name, save_figure, write_json
-from tuners.bus.cli import run_cli
+from tuners.bus.cli import EXIT_FAILURE, run_cli
 from tuners.cli import check_output_folder
 from tuners.conventions import conform
 
@@ -60,6 +60,15 @@ def _parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=None, help="output folder (default: the records' folder)"
     )
     parser.add_argument("--no-plot", action="store_true", help="do not draw NAME_fit.png")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="identify from records with a clipped step or more than 10 %% of their readings "
+        "lost, and write a model whose fit to a record is under 90 %% (default: refuse, exit 1)",
+    )
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress lines (the result is printed)"
+    )
     return conform(parser, "tuners.bus.identify")
 
 
@@ -68,10 +77,11 @@ def format_estimate(est: BusEstimate) -> str:
     from gripper_env.sysid.bus_servo import FIT_NAMES
 
     lines = ["| parameter | value | std | 95 % range |", "|---|---|---|---|"]
+    ranges = est.ranges_95()
     for k in FIT_NAMES:
         v, s = est.values[k], est.std[k]
-        if math.isfinite(s):
-            rng = f"{v - 1.96 * s:.4g} to {v + 1.96 * s:.4g}"
+        if math.isfinite(s) and k in ranges:
+            rng = f"{ranges[k][0]:.4g} to {ranges[k][1]:.4g}"
             lines.append(f"| {k} | {v:.4g} | {s:.2g} ({100 * s / abs(v):.1f} %) | {rng} |")
         else:
             lines.append(f"| {k} | {v:.4g} | not identified | kept at the prior |")
@@ -110,9 +120,8 @@ def _run(args: argparse.Namespace) -> int:
     safe_name(args.name, "--name")  # it names the files: never a path
     out = args.out or args.records[0].parent
     check_output_folder(out, "--out" if args.out else "the records' folder")
-    import numpy as np
-
     from gripper_env.model.bus_servo import load_bus_servo
+    from gripper_env.sysid.bus_experiments import check_record
     from gripper_env.sysid.bus_servo import identify_bus_servo, read_bus_record
 
     prior = load_bus_servo(args.model)
@@ -126,10 +135,33 @@ def _run(args: argparse.Namespace) -> int:
                 "identify records of one servo and one calibration together"
             )
     prior = prior.calibrated(calibration)
+    problems = [p for path, rec in zip(args.records, records, strict=True)
+                for p in check_record(rec, str(path))]  # fmt: skip
+    if problems and not args.force:
+        return _refuse(problems, "these records are not fit to identify from: record again "
+                       "(the jaws empty, a quieter host), or pass --force")  # fmt: skip
+    for text in problems:
+        print(f"warning (--force): {text}", file=sys.stderr)
+
+    def progress(text: str) -> None:
+        if not args.quiet:
+            print(text, flush=True)
+
+    progress(f"identifying {args.name} from {len(records)} records (a few minutes on 2 cores)")
     est = identify_bus_servo(records, prior, name=args.name, seed=args.seed,
-                             generations=args.generations)  # fmt: skip
+                             generations=args.generations, log=progress)  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{args.name}_model"
+    fits = zip(args.records, est.per_record_fit, strict=True)
+    poor = [f"{path} fits only {fit:.1f} % (under 90 %)" for path, fit in fits if fit < 90]
+    if poor and not args.force:
+        if not args.no_plot:
+            figure = stem.with_name(f"{args.name}_fit.png")
+            _plot(est, records, [p.name for p in args.records], figure)
+            poor.append(f"look at {figure}")
+        return _refuse(poor, "the model is not written: the records do not fit the servo's "
+                       "model (an object in the jaws, a slipping horn, a loaded host); record "
+                       "again, or pass --force to write it anyway")  # fmt: skip
     doc = est.as_dict()
     doc["records"] = [str(p) for p in args.records]
     write_json(stem.with_suffix(".json"), doc)
@@ -140,15 +172,23 @@ def _run(args: argparse.Namespace) -> int:
         print(f"dead band at P = {p}: {est.dead_band_deg(p):.2f} deg")
     for note in est.notes:
         print(f"note: {note}")
-    worst = int(np.argmin(est.per_record_fit))
-    if est.per_record_fit[worst] < 90:
-        print(f"warning: {args.records[worst]} fits only {est.per_record_fit[worst]:.1f} %: "
-              "look at the figure before trusting the model", file=sys.stderr)  # fmt: skip
+    for text in poor:
+        print(f"warning (--force): {text}: look at the figure before trusting the model",
+              file=sys.stderr)  # fmt: skip
     if not args.no_plot:
         _plot(est, records, [p.name for p in args.records], stem.with_name(f"{args.name}_fit.png"))
     print(f"wrote {stem.with_suffix('.json')}; next: python -m tuners.bus.tune --model "
           f"{stem.with_suffix('.json')}")  # fmt: skip
     return 0
+
+
+def _refuse(problems: list[str], advice: str) -> int:
+    """Print the problems and the advice, one line each, and return exit status 1."""
+    prog = _parser().prog
+    for text in problems:
+        print(f"{prog}: error: {text}", file=sys.stderr)
+    print(f"{prog}: error: {advice}", file=sys.stderr, flush=True)
+    return EXIT_FAILURE
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from tuners.bus.cli import (
+    EXIT_FAILURE,
     BusArgumentParser,
     add_servo_arguments,
     load_jaw,
@@ -40,9 +41,6 @@ from tuners.bus.cli import (
 from tuners.conventions import conform
 
 __all__ = ["main", "parse_setting"]
-
-#: Readings dropped as slow beyond this fraction get a warning (the host is too loaded).
-SLOW_WARNING = 0.10
 
 
 def parse_setting(text: str) -> tuple[int, int, int]:
@@ -91,6 +89,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out", type=Path, default=Path("runs/bus"), help="records folder (default runs/bus)"
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="exit 0 even if a record has a clipped step or more than 10 %% of its readings "
+        "lost (python -m tuners.bus.identify then needs --force too)",
+    )
     return conform(parser, "tuners.bus.record")
 
 
@@ -102,6 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.sysid.bus_experiments import (
         BusRecorder,
         check_plan,
+        check_record,
         check_settings,
         record_plan,
         settings_registers,
@@ -126,32 +131,35 @@ def _run(args: argparse.Namespace) -> int:
         for regs in capped:
             jaw.register_values(regs)  # every setting checked before the first is written
         recorder = BusRecorder(jaw, sample_s=args.sample_ms / 1e3)
+        problems: list[str] = []
         for k, regs in enumerate(capped, start=1):
             rec = recorder.record(regs, plan)
             path = out / f"record_p{regs.p}_i{regs.i}_d{regs.d}.csv"
             write_bus_record(path, rec)
+            problems += check_record(rec, str(path))
             dt = (rec.t_s[-1] - rec.t_s[0]) / max(rec.t_s.size - 1, 1)
             print(
                 f"[{k}/{len(capped)}] {rec.registers.label()}: {rec.t_s.size} readings "
-                f"(every {dt * 1e3:.2f} ms), {rec.goal_times_s.size} goals, "
-                f"{recorder.lost} readings lost and {recorder.slow} slow ones dropped so far "
-                f"-> {path}",
+                f"(every {dt * 1e3:.2f} ms; {rec.stats['lost']} lost, {rec.stats['slow']} slow "
+                f"ones kept with their round trips), {rec.goal_times_s.size} goals -> {path}",
                 flush=True,
             )
         recorder.settle(model.jaw.open_deg, 0.2)
     assert jaw.restored is not None
     print(jaw.restored.describe())
-    slow = recorder.slow / max(recorder.readings, 1)
-    if slow > SLOW_WARNING:
-        print(
-            f"warning: {100 * slow:.0f} % of the readings came back slowly and were dropped: "
-            "the host is loaded (or the adapter's latency timer is long); record again on a "
-            "quieter host for a sharper fit",
-            file=sys.stderr,
-        )
     print(f"recorded {len(capped)} settings on {args.port} ({jaw.link.retried} replies lost and "
-          f"sent again); next: python -m tuners.bus.identify {out}/record_*.csv --model "
-          f"{args.model}")  # fmt: skip
+          f"sent again)")  # fmt: skip
+    if problems and not args.force:
+        for text in problems:
+            print(f"{_parser().prog}: error: {text}", file=sys.stderr)
+        print(f"{_parser().prog}: error: the records are written but not fit to identify "
+              "from: record again (the jaws empty, a quieter host), or pass --force here and "
+              "to identify", file=sys.stderr, flush=True)  # fmt: skip
+        return EXIT_FAILURE
+    for text in problems:
+        print(f"warning (--force): {text}", file=sys.stderr)
+    print(f"next: python -m tuners.bus.identify {out}/record_*.csv --model {args.model}"
+          + (" --force" if problems else ""))  # fmt: skip
     return 0
 
 
