@@ -100,6 +100,20 @@ def filled():
     return fill_disk
 
 
+#: Fixtures whose tests belong to the end-to-end tier (``pytest -m slow``; CI runs it after the
+#: suite): each runs a whole command or study once (the quick benchmark, a bus servo's full
+#: identification, an rl-zoo3 training).
+SLOW_FIXTURES = frozenset({"quick", "perturbed_sts3215", "zoo_run"})
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Mark the tests that use :data:`SLOW_FIXTURES` slow, before ``-m`` selects."""
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
+
 def pytest_configure(config):
     """Before parallel workers start (``-n N``, the default: pyproject's addopts), compile
     every simulation kernel once into numba's on-disk cache (``python -m tuners.compile``), so

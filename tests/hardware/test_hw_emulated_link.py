@@ -106,6 +106,7 @@ def test_no_configure_pulses_outside_the_hard_range(emulator_build) -> None:
     assert np.all(np.diff(everything["start"].astype(np.int64)) == FRAME_CYCLES)
 
 
+@pytest.mark.slow
 def test_100000_fuzzed_frames(emulator_build) -> None:
     image, harness = emulator_build
     r = fuzz_image(100_000, seed=21, image=image, harness=harness)

@@ -192,6 +192,7 @@ def test_saved_plant_loads_with_the_core_loader(tmp_path):
 # Issue 13, defect 6: the figures that were reported misled.
 
 
+@pytest.mark.slow
 def test_fit_from_rest_is_meaningful_for_slow_poles(tmp_path, capsys, paper_record):
     """Test 1's poles take ~20 s: main's zero-initial-state fit of the same model was 77 %
     (--offset mean) and 39 % (--offset none) beside 99 % with the state estimated, because the

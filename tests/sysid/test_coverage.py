@@ -22,6 +22,8 @@ from gripper_env.sysid.coverage import greybox_coverage, greybox_record, tf_cove
 
 from .cli_support import run, write_log
 
+pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
+
 RECORDS = 50
 REQUIRED = 0.90
 

@@ -139,6 +139,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_cli_quick_smoke(tmp_path):
     res = _cli("--quick", "--json", "--out", str(tmp_path), "--save-plants", str(tmp_path / "p"))
     assert res.returncode == 0, res.stderr

@@ -114,7 +114,9 @@ def test_all_methods_from_the_command_line(tmp_path, capsys, small_eval_config):
     assert printed.count("robustness constraints") == len(classical.METHODS)
 
 
-@pytest.mark.parametrize("method", ["simc", "amigo-pi", "pidtune"])
+@pytest.mark.parametrize(
+    "method", ["simc", "amigo-pi", pytest.param("pidtune", marks=pytest.mark.slow)]
+)
 def test_a_rules_knob_is_set_to_its_best_feasible_value(method):
     """The knob's chosen value meets the constraints on the loop as it runs (checked by the
     stability report, not the scan), is off the edges of its range, and is a local optimum of

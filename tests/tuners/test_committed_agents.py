@@ -11,6 +11,8 @@ pytest.importorskip("stable_baselines3")
 
 from tests.tuners.conftest import REPO
 
+pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
+
 STUDIES = sorted((REPO / "results" / "rl").glob("controller-*/study.json"))
 
 

@@ -40,6 +40,7 @@ def _study(tmp_path, engine_spec, small_eval_config):
     return histories, models
 
 
+@pytest.mark.slow
 def test_a_dask_cluster_gives_the_results_of_this_process(tmp_path, small_eval_config, capsys):
     """Two training seeds of the RL tuner in this process and on a Dask LocalCluster of two
     worker processes: the same histories and the same model bytes, in the same files."""

@@ -16,6 +16,8 @@ from optuna.trial import TrialState
 from tests.tuners.conftest import REPO
 from tuners.optuna.workers import is_gone, stream_seed, this_worker
 
+pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
+
 
 def load(storage, name):
     """The study as Optuna reads it from a journal file path or an RDB URL."""

@@ -131,6 +131,7 @@ def test_the_same_seed_gives_the_same_gains(tmp_path, small_eval_config):
     ]
 
 
+@pytest.mark.slow
 def test_the_controller_study_uses_three_disjoint_seed_sets_and_measures_margins(
     tmp_path, capsys, small_eval_config
 ):

@@ -16,6 +16,8 @@ if importlib.util.find_spec("rl_zoo3") is None:
 
 from gripper_env.io.config import CONFIG_DIR
 
+pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
+
 ZOO = CONFIG_DIR / "rl_zoo"
 IDS = ("gripper_env/GripperServo-v0", "gripper_env/GripperGainSchedule-v0",
        "gripper_env/GripperPIDTune-v0", "gripper_env/GripperBusServo-v0")  # fmt: skip

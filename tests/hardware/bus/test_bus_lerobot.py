@@ -25,11 +25,14 @@ from gripper_env.hardware.bus.unit import ServoUnit
 
 ROOT = Path(__file__).resolve().parents[3]
 LEROBOT_PYTHON = Path(os.environ.get("LEROBOT_PYTHON", ROOT / ".lerobot-venv" / "bin" / "python"))
-pytestmark = pytest.mark.skipif(
-    not LEROBOT_PYTHON.exists(),
-    reason=f"no LeRobot environment at {LEROBOT_PYTHON}: build it with bash scripts/lerobot-env.sh "
-    "(.ci/run does)",
-)
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        not LEROBOT_PYTHON.exists(),
+        reason=f"no LeRobot environment at {LEROBOT_PYTHON}: build it with bash "
+        "scripts/lerobot-env.sh (.ci/run does)",
+    ),
+]
 SERVO_ID = 6  # the gripper's ID on an SO-101 / Koch bus
 
 # A LeRobot user's session, run by LeRobot's interpreter: argv = port, family, goal (0-100).

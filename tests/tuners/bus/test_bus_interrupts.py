@@ -21,6 +21,8 @@ from bus_arm import (
     when_packets,
 )
 
+pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
+
 REGISTERS = {"sts3215": ROOT / "results/bus/sts3215_registers.json",
              "xl330": ROOT / "results/bus/xl330_registers.json"}  # fmt: skip
 

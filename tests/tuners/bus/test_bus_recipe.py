@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from bus_recipe import SETTINGS, check_deployed, check_identified, check_tuned, perturbed_truth
 
 from gripper_env.hardware.bus.server import VirtualBus
@@ -22,6 +23,7 @@ from tuners.bus import calibrate, deploy, identify, record, tune
 JAW = ["--closed-ticks", "1707", "--open-ticks", "2958"]
 
 
+@pytest.mark.slow
 def test_record_identify_tune_deploy_xl330(tmp_path):
     """The recipe on a lone XL330 at ID 1 (the STS3215's runs on ID 6 of an arm's bus:
     ``test_bus_shared_bus``, with the same checks)."""

@@ -34,6 +34,7 @@ def _memories(bus):
     return {i: bytes(bus.table(i).memory) for i in (*OTHERS, GRIPPER)}
 
 
+@pytest.mark.slow
 def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
     """The STS3215's end-to-end recipe (``bus_recipe``'s checks: the perturbed truth found, the
     tuned set better than the shipped ones and inside the margins on the truth, deployed and

@@ -30,6 +30,7 @@ def test_bad_arguments_are_one_line_errors(capsys):
     assert "--polish must be 0..100000, got -1" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
 def test_the_search_beats_the_shipped_registers_from_any_seed(family):
     """The tuned registers beat the factory and community sets on the cost, on tracking and on
