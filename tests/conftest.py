@@ -23,7 +23,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 sys.dont_write_bytecode = False
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
-from gripper_env.paper import PLANTS as PAPER_PLANTS
+from gripper_env.paper import PLANTS as PAPER_PLANTS  # noqa: E402  (after the bytecode setting)
 
 
 @pytest.fixture(params=sorted(PAPER_PLANTS))
