@@ -7,8 +7,10 @@ This runs each one once, serial and parallel, with the argument types the projec
 with, so that later processes only load them: the test run does it before its workers start
 (``tests/conftest.py``), so that two workers never compile the same kernel side by side, and
 CI or a user can do it ahead of time. Run again with a warm cache it only loads them (seconds).
-``--jobs N`` shares the work among N processes (the environments' kernels are most of it), each
-compiling its own share into the same cache.
+``--jobs N`` shares the work among N processes, each compiling its own share into the same
+cache: the units are dealt longest first to the least loaded share, by what each took from an
+empty cache (:data:`COMPILE_SECONDS`). The environments' parallel step kernels are most of it
+(numba's ``parallel=True`` compiles for a minute or more each).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from functools import partial
 
 from tuners.conventions import command_parser
 
-__all__ = ["main", "share", "warm_up"]
+__all__ = ["COMPILE_SECONDS", "main", "share", "warm_up"]
 
 
 def _core() -> None:
@@ -41,27 +43,32 @@ def _core() -> None:
     simulate("test2", "step", None, "actual")  # open loop
 
 
-def _env(env_id: str) -> None:
+def _env(env_id: str, parallel: bool = False) -> None:
+    """The environment's own step and its native vector env's serial kernel, or (``parallel``)
+    the vector env's parallel kernel alone."""
     import gymnasium as gym
     import numpy as np
 
     import gripper_env  # noqa: F401  (registers the environments)
 
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    for _ in range(2):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        if terminated or truncated:
-            env.reset()
-    env.close()
+    if not parallel:
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        for _ in range(2):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+        env.close()
     spec = gym.spec(env_id)
     if spec.vector_entry_point is None:
         return
-    for n, parallel in ((4, False), (64, True)):
+    for n, kind in ((4, False), (64, True)):
+        if kind != parallel:
+            continue
         venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
         setter = getattr(venv.unwrapped, "set_parallel", None)
         if setter is not None:  # the step-by-step ones; the PID tuner's runs the core
-            setter(parallel)
+            setter(kind)
         venv.reset(seed=0)
         venv.step(np.stack([venv.single_action_space.sample() for _ in range(n)]))
         venv.close()
@@ -98,20 +105,36 @@ def _env_ids() -> tuple[str, ...]:
 
 def _units() -> dict[str, Callable[[], None]]:
     """What is warmed, by name, in order (each a callable that runs it once)."""
+    import gymnasium as gym
+
+    import gripper_env  # noqa: F401  (registers the environments)
+
     units: dict[str, Callable[[], None]] = {"core and metrics": _core}
-    units.update({f"environment {e}": partial(_env, e) for e in _env_ids()})
+    for e in _env_ids():
+        units[f"environment {e}"] = partial(_env, e)
+        if gym.spec(e).vector_entry_point is not None:
+            units[f"environment {e} (parallel)"] = partial(_env, e, parallel=True)
     units["bus servo core"] = _bus
     units["margins with the hold"] = _stability
     return units
 
 
+#: What each unit took from an empty cache on 2 cores (s; the other share compiling beside it),
+#: the weights :func:`share` balances by; a unit not listed counts 5 s.
+COMPILE_SECONDS = {
+    "core and metrics": 70.0,
+    "environment gripper_env/GripperServo-v0": 30.0,
+    "environment gripper_env/GripperServo-v0 (parallel)": 61.0,
+    "environment gripper_env/GripperGainSchedule-v0": 36.0,
+    "environment gripper_env/GripperGainSchedule-v0 (parallel)": 79.0,
+    "bus servo core": 7.0,
+}
+
+
 def warm_up(
     log: Callable[[str], None] | None = None, shard: tuple[int, int] = (0, 1)
 ) -> dict[str, float]:
-    """Run every warm-up unit once, or the ``shard = (k, n)``-th of n shares: share 0 the core
-    and everything but the environments, the others the environments round-robin (with n = 2,
-    the environments are one share: they share their step kernels, so they compile best in one
-    process).
+    """Run every warm-up unit once, or the ``shard = (k, n)``-th of n shares (:func:`share`).
 
     Returns
     -------
@@ -130,13 +153,17 @@ def warm_up(
 
 
 def share(names: Sequence[str], k: int, n: int) -> list[str]:
-    """The warm-up units of share ``k`` of ``n`` (see :func:`warm_up`), in their order."""
-    envs = [name for name in names if name.startswith("environment ")]
+    """The warm-up units of share ``k`` of ``n``, in their order: the units dealt longest first
+    (:data:`COMPILE_SECONDS`) to the share with the least so far (ties to the lowest share)."""
     if n == 1:
         return list(names)
-    if k == 0:
-        return [name for name in names if name not in envs]
-    return envs[k - 1 :: n - 1]
+    load = [0.0] * n
+    owner = {}
+    for name in sorted(names, key=lambda m: -COMPILE_SECONDS.get(m, 5.0)):
+        j = min(range(n), key=lambda i: (load[i], i))
+        owner[name] = j
+        load[j] += COMPILE_SECONDS.get(name, 5.0)
+    return [name for name in names if owner[name] == k]
 
 
 def _shard(text: str) -> tuple[int, int]:

@@ -48,7 +48,7 @@ __all__ = ["COMPILE_ESTIMATE", "SOURCES", "Kernel", "compile_kernel", "source_st
 
 #: What the first use of the kernels costs, said when numba starts compiling one (once per
 #: process): measured by ``python -m tuners.compile`` from an empty cache.
-COMPILE_ESTIMATE = "about 1-2 minutes on 2 cores"
+COMPILE_ESTIMATE = "about 2-3 minutes on 2 cores"
 
 _LIBRARY = Path(__file__).resolve().parents[1]
 
