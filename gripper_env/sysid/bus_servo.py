@@ -221,10 +221,10 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
             continue
         if line.startswith("t_s") or not line.strip():
             continue
-        parts = line.split(",")
+        fields = line.split(",")
         try:
-            values = [float(x) for x in parts[:3]]
-            values.append(float(parts[4]) if len(parts) > 4 else 0.0)
+            values = [float(x) for x in fields[:3]]
+            values.append(float(fields[4]) if len(fields) > 4 else 0.0)
             if len(values) != 4:
                 raise ValueError
         except (ValueError, IndexError):
