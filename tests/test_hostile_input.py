@@ -289,6 +289,7 @@ def _one_line_no_space(proc):
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp_path):
     """The gains file and its plot are written together or not at all: a full disk leaves
     neither (nor a temporary file), and says so in one line."""
@@ -301,6 +302,7 @@ def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp
     assert list(tmp_path.iterdir()) == [disk]  # nothing beside --out (no runs/ in the cwd)
 
 
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_optuna_journal_readable(small_disk, filled, tmp_path):
     """The studies' journal on a disk that fills during the search: one line, exit 2, and the
     journal stays readable by Optuna itself, every record whole; with room again, the same

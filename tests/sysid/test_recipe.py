@@ -31,6 +31,7 @@ def configs(tmp_path, monkeypatch):
     return folder
 
 
+@pytest.mark.slow
 def test_record_identify_tune_deploy(configs, tmp_path, capsys):
     from tuners.optuna import command as optuna_tuner
     from tuners.rig import calibrate, deploy, record
@@ -49,14 +50,17 @@ def test_record_identify_tune_deploy(configs, tmp_path, capsys):
     found = json.loads(capsys.readouterr().out)
     # The virtual rig is test2 behind the actual preset (its board reads the sensor 1 ms late).
     # At speed 0 the slope reaches the board as a staircase whose treads depend on how quickly
-    # the host is scheduled, so the record (and the estimate) varies from run to run: the true
-    # friction must lie in the range the estimator calls consistent with the data, and the
-    # estimate within 15 % of it, both to the estimator's resolution (its fine grid step).
+    # the host is scheduled, so the record (and the estimate) varies from run to run: the
+    # estimate must lie within 15 % of the truth (to the estimator's fine grid step) and inside
+    # its own consistent range. That the range holds the truth is a frequency, not a property
+    # of one record: tests/sysid/test_coverage.py asks it of at least 90 % of 50 records (a
+    # fresh-clone CI run here drew a record whose S range was [2.76, 3.0] deg, the truth 2.5).
     for key in ("S_deg", "J_deg"):
         true, (lo, hi) = getattr(truth.friction, key), found["friction"][f"{key[0]}_range_deg"]
-        assert lo - FINE_STEP_DEG <= true <= hi + FINE_STEP_DEG, (key, lo, hi)
+        est = found["friction"][key]
+        assert lo <= est <= hi and hi > lo, (key, est, lo, hi)
         tol = max(0.15 * true, FINE_STEP_DEG) + 1e-9
-        assert found["friction"][key] == pytest.approx(true, abs=tol), key
+        assert est == pytest.approx(true, abs=tol), (key, est, lo, hi)
     assert found["sensor"]["noise_std_deg"] == pytest.approx(truth.sensor.noise_std_deg, rel=0.15)
     assert found["delay_s"] <= 5e-3  # 1 ms, known to a few ms from a slope
     assert load_plant("mine").is_stable and load_disturbance("mine").friction.model == "choudhury"

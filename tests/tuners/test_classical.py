@@ -98,6 +98,7 @@ def test_robust_designs_meet_the_constraints_on_the_loop_as_it_runs(method):
         assert stability_report(model, gains, disturbance=ACTUAL).meets(1.6, 6.0), (method, plant)
 
 
+@pytest.mark.slow
 def test_all_methods_from_the_command_line(tmp_path, capsys, small_eval_config):
     code = cli.run(
         classical_command.main,

@@ -57,6 +57,7 @@ def complete_trials(journal, name):
     return {t.number: t.values for t in stored_trials(journal, name) if t.state.name == "COMPLETE"}
 
 
+@pytest.mark.slow
 def test_study_writes_gains_file_and_resumes(
     tmp_path, capsys, small_optuna_config, small_eval_config
 ):
@@ -153,6 +154,7 @@ def test_malformed_and_overlapping_configs(tmp_path, capsys, small_optuna_config
     assert not out_dir.exists()
 
 
+@pytest.mark.slow
 def test_killed_worker_loses_no_finished_trial(tmp_path, small_optuna_config, small_eval_config):
     """``kill -9`` of the only worker: the rerun keeps every finished trial, fails the trials
     the killed worker had in flight (none stays RUNNING) and continues the study."""
@@ -330,6 +332,7 @@ def test_bound_flags_by_hand():
     assert "D = -0.099 is at its upper" in flags[2]  # the largest magnitude
 
 
+@pytest.mark.slow
 def test_robust_mode_and_search_seed_spread(
     tmp_path, capsys, small_optuna_config, small_eval_config
 ):

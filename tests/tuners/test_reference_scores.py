@@ -31,6 +31,7 @@ def smoke(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_it_writes_the_scale_the_rows_and_the_provenance(smoke):
     data = load_reference(smoke / "reference_scores.json")
     e = data["tasks"]["grasp"]
@@ -63,6 +64,7 @@ def _run(*args):
     return run
 
 
+@pytest.mark.slow
 def test_no_train_scores_only_cells_whose_seeds_are_all_kept(smoke, tmp_path):
     """--no-train trains nothing: with 2 seeds wanted and 1 kept per cell, no cell is scored and
     each is listed as not trained with the command that trains it; with 1 seed wanted, the kept

@@ -173,6 +173,7 @@ def test_binary_results_are_few_small_and_where_they_belong():
     assert len(binaries) <= 60 and sum(binaries) <= 3_500_000, (len(binaries), sum(binaries))
 
 
+@pytest.mark.slow
 def test_rerunning_a_results_command_leaves_no_diff(tmp_path):
     """The paper reproduction (about 10 s) rerun as the manifest says, into a copy of its
     committed files (a git repository of their own), leaves ``git diff --exit-code results/``

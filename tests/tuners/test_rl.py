@@ -213,6 +213,7 @@ def test_export_without_a_run_is_bad_input(tmp_path, capsys):
     assert code == 2 and "no trained tuner" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_policy_on_a_step_by_step_env_trains_and_reports(tmp_path, capsys, small_eval_config):
     code = rl.main(["train", "--plant", "test2", "--env", "gain-schedule", "--timesteps", "64",
                     "--out", str(tmp_path), "--eval-config", str(small_eval_config),
@@ -227,6 +228,7 @@ def test_a_policy_on_a_step_by_step_env_trains_and_reports(tmp_path, capsys, sma
     ).is_file()
 
 
+@pytest.mark.slow
 def test_play_runs_a_saved_agent_on_another_plant(tmp_path, capsys, small_eval_config):
     code = rl.main(["train", "--plant", "test2", "--env", "servo", "--timesteps", "64",
                     "--out", str(tmp_path), "--no-progress", "--json",
@@ -249,6 +251,7 @@ def test_subprocess_entry_point_reports_bad_input_in_one_line(tmp_path):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "nope" in proc.stderr
 
 
+@pytest.mark.slow
 def test_a_tuner_run_with_the_same_recipe_is_reused_not_retrained(tmp_path, small_eval_config):
     from tuners.rl.tune import load_tune_settings, train_seeds
 
@@ -266,6 +269,7 @@ def test_a_tuner_run_with_the_same_recipe_is_reused_not_retrained(tmp_path, smal
     assert history.stat().st_mtime_ns != stamp
 
 
+@pytest.mark.slow
 def test_the_centre_rule_list_falls_back_to_a_rule_that_meets_the_constraints():
     """SIMC cannot meet the admission rule on test2-test4 at once (Ms; its row says so), nor can
     PIDTUNE (the open stop); the robust RL tuner centres on the next rule of its list, AMIGO PI,

@@ -125,6 +125,7 @@ def test_a_pid_through_the_gain_maps_is_the_pid(name):
     assert got == pytest.approx([OPTUNA_TEST2.P, OPTUNA_TEST2.I, OPTUNA_TEST2.D], rel=1e-4)
 
 
+@pytest.mark.slow
 def test_the_margin_verdict_admits_the_robust_pi_and_refuses_a_pid_unstable_on_test4():
     """AMIGO's robust PI (its measured gain margin on test2 the linear one with the hold) is
     admitted on the servo task; Optuna's test2 PID, unstable on test4 with the hold, is not on the

@@ -73,6 +73,7 @@ def test_the_search_beats_the_shipped_registers_from_any_seed(family):
         assert not [n for n in judge(model, near) if n.feasible and n.cost < best.cost * (1 - 1e-3)]
 
 
+@pytest.mark.slow
 def test_the_koch_gripper_tunes_in_current_based_position_mode(tmp_path, capsys):
     """The XL330 in mode 5 (the Koch gripper's): P, I, D and the goal current are tuned; the
     result meets the margins of the current loop's plant (no back-EMF damping) and holds; a

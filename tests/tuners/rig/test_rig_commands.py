@@ -60,6 +60,7 @@ def test_record_writes_the_identification_csv(virtual, calibration_file, tmp_pat
     assert abs(data["actual_deg"][-1] - 21.0) < 2.0
 
 
+@pytest.mark.slow
 def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
     virtual, calibration_file, tmp_path
 ) -> None:
@@ -82,6 +83,7 @@ def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
     assert header == "t_s,reference_deg,command_deg,position_deg"
 
 
+@pytest.mark.slow
 def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
     virtual, calibration_file, tmp_path
 ) -> None:
