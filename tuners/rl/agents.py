@@ -50,6 +50,7 @@ __all__ = [
     "agent_kwargs",
     "load_agent",
     "load_any",
+    "quiet_logger",
     "reproducible_zip",
     "save_agent",
     "save_model",
@@ -106,6 +107,20 @@ def _json_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
             value = list(value)
         out[key] = value
     return out
+
+
+def quiet_logger(model: Any) -> Any:
+    """``model`` (a stable-baselines3 algorithm) with a logger that writes nothing.
+
+    Without a logger of its own (no ``tensorboard_log``), every ``learn`` makes an empty
+    ``SB3-<date-time>`` folder in the system's temporary directory (``configure(None)``), which
+    no one removes: a training command's folders piled up there by the hundred. The values the
+    algorithm records are still kept for its callbacks; only no file is written.
+    """
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    return model
 
 
 def save_agent(agent: Agent, folder: str | os.PathLike[str], facts: dict[str, Any]) -> Path:

@@ -63,7 +63,7 @@ from gripper_env.sim import Trajectory, simulate
 from tuners import cli
 from tuners.engine import engine, write_files
 from tuners.evaluation import summarize_runs, with_cost
-from tuners.rl.agents import Agent, save_agent
+from tuners.rl.agents import Agent, quiet_logger, save_agent
 from tuners.rl.envs import progress_callback, require_rl
 from tuners.settings import SeedRange
 
@@ -299,6 +299,7 @@ def train_controller(
         learning_rate=s.learning_rate, gamma=s.gamma, gae_lambda=s.gae_lambda, seed=seed,
         device="cpu", policy_kwargs={"net_arch": list(s.net_arch), "log_std_init": s.log_std_init},
     )  # fmt: skip
+    quiet_logger(model)
     agent = Agent(model, venv, SERVO, kwargs, base)
     validation = s.validation_seeds.seeds()
     run_dir = Path(run_dir)

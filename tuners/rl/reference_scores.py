@@ -78,7 +78,7 @@ def train_agent(t: Task, algo: str, seed: int, timesteps: int | None = None) -> 
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
-    from tuners.rl.agents import Agent
+    from tuners.rl.agents import Agent, quiet_logger
     from tuners.rl.envs import require_rl
 
     require_rl()
@@ -107,6 +107,7 @@ def train_agent(t: Task, algo: str, seed: int, timesteps: int | None = None) -> 
     cls = {"ppo": PPO, "sac": SAC}[algo]
     model = cls(params.pop("policy"), venv, seed=seed, device="cpu", verbose=0,
                 policy_kwargs=policy_kwargs, **params)  # fmt: skip
+    quiet_logger(model)
     model.learn(total)
     normalizer = venv if normalize else None
     if normalizer is not None:

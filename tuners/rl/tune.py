@@ -51,7 +51,7 @@ from gripper_env.io.files import write_result_json
 from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains
 from tuners import cli
-from tuners.rl.agents import save_model
+from tuners.rl.agents import quiet_logger, save_model
 from tuners.rl.envs import ENV_IDS, make_vec_env, progress_callback, require_rl
 from tuners.settings import ClassicalSettings, OptunaSettings, load_settings
 from tuners.tasks import make_scorer
@@ -313,6 +313,7 @@ def train_tuner(
         device="cpu", verbose=0,
         policy_kwargs={"net_arch": list(s.net_arch), "log_std_init": s.log_std_init},
     )  # fmt: skip
+    quiet_logger(model)
     nominal = gym.make(ENV_IDS["pid-tune"], **dict(kwargs, randomize=False))
     obs0, _ = nominal.reset(seed=0)
     nominal.close()

@@ -473,6 +473,7 @@ def ppo_run(kind: str, total_timesteps: int, num_envs: int = PPO_ENVS, seed: int
     from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
     from gripper_env.envs.sb3 import NativeVecEnv
+    from tuners.rl.agents import quiet_logger
 
     class TimedVecEnv(VecEnvWrapper):
         def __init__(self, venv: VecEnv) -> None:
@@ -499,7 +500,7 @@ def ppo_run(kind: str, total_timesteps: int, num_envs: int = PPO_ENVS, seed: int
         inner = DummyVecEnv([lambda: gym.make(SERVO) for _ in range(num_envs)])
         chooser = None
     venv = TimedVecEnv(inner)
-    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", **PPO_SETTINGS)
+    model = quiet_logger(PPO("MlpPolicy", venv, seed=seed, device="cpu", **PPO_SETTINGS))
     spent = {"train": 0.0, "forward": 0.0}
 
     def timed(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
