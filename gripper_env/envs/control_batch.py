@@ -58,9 +58,6 @@ class ControlBatch:
         Reward weights (see the environments' docstrings).
     residual : Residual, optional
         Size of the correction and the PID's gains of the residual modes.
-    record_true : bool
-        Also record the true jaw angle of each period in :attr:`out_yt` (for whole-episode
-        trajectories, :mod:`gripper_env.envs.rollout`; the environments leave it out).
     min_delay_steps : int
         A sensor delay (physics steps) the delay line must hold besides the settings' (rows
         given their own disturbance, :func:`gripper_env.envs.rollout.policy_trajectory`).
@@ -75,7 +72,6 @@ class ControlBatch:
         overshoot_weight: float,
         chatter_weight: float,
         residual: Residual | None = None,
-        record_true: bool = False,
         min_delay_steps: int = 0,
     ) -> None:
         self.settings = settings
@@ -142,12 +138,16 @@ class ControlBatch:
         self.truncated = np.zeros(n_rows, dtype=bool)
         self.obs = np.zeros((n_rows, self.n_obs), dtype=np.float32)
         self.drive = np.zeros((n_rows, s.n_sub))
-        # the period's recorded controller output and measured angle (the kernels leave the
-        # reference and the true angle unrecorded: nothing here needs them; in the open-loop
-        # modes the output is the drive itself)
+        # the period's recorded controller output, measured and true angle (the reference is
+        # left unrecorded: nothing here needs it; in the open-loop modes the output is the
+        # drive itself). The true angle is always recorded, though only whole-episode
+        # trajectories read it (gripper_env.envs.rollout, the grasp runs): None there would be
+        # a specialisation of its own of the step kernel (numba compiles one per argument
+        # type), 90-110 s of compiling on 2 cores the first time a rollout ran, for a store per
+        # physics step whose cost the step's timing does not show
         self.out_u = np.zeros((n_rows, s.n_sub)) if K.closed_loop(mode) else None
         self.out_y = np.zeros((n_rows, s.n_sub))
-        self.out_yt = np.zeros((n_rows, s.n_sub)) if record_true else None
+        self.out_yt = np.zeros((n_rows, s.n_sub))
         self.episodes: list[Episode | None] = [None] * n_rows
         self._counter = np.zeros(1, dtype=np.int64)  # the step kernel's scratch
         #: None: the kernel chosen by timing the calls (kernels.step_kernel); True or False

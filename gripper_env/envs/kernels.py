@@ -16,8 +16,9 @@ Layouts (columns):
 * ``rewards`` (float64, (B,)), ``terminated`` and ``truncated`` (bool, (B,)): the step's outputs.
 * ``out_u``, ``out_y`` (float64, (B, n_sub)): the period's controller output and measured
   angle, recorded by the core. ``out_u`` is ``None`` in the open-loop modes (servo, residual on
-  the reference), where the output is the drive itself; ``out_r`` and ``out_yt`` are ``None`` in
-  the environments (the core then compiles their recording away) or (B, n_sub) arrays.
+  the reference), where the output is the drive itself. ``out_r`` is ``None`` (the core then
+  compiles its recording away); ``out_yt``, the true angle, is always a (B, n_sub) array (the
+  rollouts read it, and ``None`` beside it would double the specialisations numba compiles).
 
 The helpers are inlined into the kernels (numba ``inline="always"``): a compiled call with a dozen
 array arguments, and the array views it would take, cost more than a control period's physics.

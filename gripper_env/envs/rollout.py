@@ -122,7 +122,7 @@ def policy_trajectory(
     batch = ControlBatch(
         s, n, env._mode, bool(observe_context),
         env_kwargs.get("overshoot_weight", 1.0), env_kwargs.get("chatter_weight", 0.1),
-        env._residual, record_true=True, min_delay_steps=longest,
+        env._residual, min_delay_steps=longest,
     )  # fmt: skip
     episodes = [Episode(plant_index[b], dists[b], s.reference, int(seed_arr[b])) for b in range(n)]
     batch.reset_rows(range(n), episodes)
@@ -130,7 +130,6 @@ def policy_trajectory(
     n_steps = int(batch.env[0, K.E_LEN])
     u, y, y_true = (np.full((n, n_steps), np.nan) for _ in range(3))
     out_u = batch.drive if batch.out_u is None else batch.out_u
-    assert batch.out_yt is not None
     for t in range(0, n_steps, n_sub):
         running = batch.env[:, K.E_DONE] == K.DONE_RUNNING
         if not running.any():

@@ -1,5 +1,8 @@
 """policy_trajectory: a policy's whole episodes as a Trajectory, equal to simulate()'s runs."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -52,3 +55,37 @@ def test_bad_inputs():
         policy_trajectory(zero, [0], reference="random")
     with pytest.raises(ValueError, match="not finite"):
         policy_trajectory(lambda obs: np.full((len(obs), 1), np.nan), [0])
+
+
+_WARM_THEN_ROLL = """
+import numpy as np
+from gripper_env.envs import kernels
+from gripper_env.envs.rollout import policy_trajectory
+from tuners.compile import _env
+
+for env_id in ("gripper_env/GripperServo-v0", "gripper_env/GripperGainSchedule-v0"):
+    _env(env_id)
+    _env(env_id, parallel=True)
+dispatchers = (kernels.step_serial, kernels.step_parallel)
+warmed = [set(d.signatures) for d in dispatchers]
+pid = {"residual": "pid", "pid_gains": (1.0, 9.0, -0.001), "residual_deg": 10.0}
+for kwargs in ({}, pid):
+    for seeds in ([0], list(range(64))):  # the serial kernel, and the parallel one
+        traj = policy_trajectory(lambda obs: np.zeros((len(obs), 1)), seeds, **kwargs)
+        assert np.isfinite(traj.y).all()
+new = [sorted(map(str, set(d.signatures) - w)) for d, w in zip(dispatchers, warmed)]
+print(new)
+"""
+
+
+def test_rollouts_step_with_the_kernels_the_warm_up_compiles():
+    """A whole-episode rollout (``policy_trajectory``: the probe, ``rl play``, the grasp runs)
+    calls the step kernel with the argument types the environments' own steps use, so
+    ``python -m tuners.compile`` has compiled it: a rollout that recorded into arrays the
+    environments leave out (``None``) was a specialisation of its own, 90-110 s of compiling
+    on 2 cores the first time it ran (numba compiles one per argument type). In a fresh
+    interpreter, so that no earlier test has loaded a signature."""
+    out = subprocess.run([sys.executable, "-c", _WARM_THEN_ROLL], capture_output=True,
+                         text=True, timeout=900, check=False)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "[[], []]", out.stdout

@@ -77,8 +77,7 @@ def policy_grasp(
     longest = max(round(d.sensor.delay_s / s.dt_s) for d in dists)
     batch = ControlBatch(
         s, n, env._mode, False, kwargs.get("overshoot_weight", 1.0),
-        kwargs.get("chatter_weight", 0.1), env._residual, record_true=True,
-        min_delay_steps=longest,
+        kwargs.get("chatter_weight", 0.1), env._residual, min_delay_steps=longest,
     )  # fmt: skip
     batch.reset_rows(range(n), [Episode(0, dists[b], ref, int(seed_arr[b])) for b in range(n)])
     n_sub = s.n_sub
@@ -87,7 +86,6 @@ def policy_grasp(
     sim = batch.sim
     push, touch, jaw = (np.zeros((n, periods)) for _ in range(3))
     force_before, contact_before = sim.force_sum.copy(), sim.contact_steps.copy()
-    assert batch.out_yt is not None
     for k in range(periods):
         actions = np.asarray(policy(batch.obs.copy()), dtype=np.float64)
         batch.actions[:] = actions.reshape(batch.actions.shape)
