@@ -109,8 +109,11 @@ def filled():
 
 #: Fixtures whose tests belong to the end-to-end tier (``pytest -m slow``; CI runs it after the
 #: suite): each runs a whole command or study once (the quick benchmark, a bus servo's full
-#: identification, an rl-zoo3 training).
-SLOW_FIXTURES = frozenset({"quick", "perturbed_sts3215", "zoo_run"})
+#: identification, an rl-zoo3 training, the paper's Table-1 identification pipeline, every
+#: hostile input as a command).
+SLOW_FIXTURES = frozenset(
+    {"quick", "perturbed_sts3215", "zoo_run", "actual_run", "ideal_run", "outcomes"}
+)
 
 
 @pytest.hookimpl(tryfirst=True)

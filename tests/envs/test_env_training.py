@@ -14,7 +14,13 @@ import gripper_env  # noqa: F401
     ("env_id", "kwargs", "n_steps", "total"),
     [
         (SERVO, {}, 256, 3072),
-        (PID_TUNE, {"plant": ["test2", "test3"], "randomize": True}, 128, 2048),
+        pytest.param(
+            PID_TUNE,
+            {"plant": ["test2", "test3"], "randomize": True},
+            128,
+            2048,
+            marks=pytest.mark.slow,
+        ),
     ],
 )
 def test_ppo_smoke_training(env_id, kwargs, n_steps, total):

@@ -229,6 +229,7 @@ def fresh_postgres_database():
     admin.close()
 
 
+@pytest.mark.slow
 @pytest.mark.postgres
 @pytest.mark.skipif(
     not os.environ.get("GRIPPER_TEST_POSTGRES_URL"),
@@ -437,6 +438,7 @@ def test_an_infeasible_search_names_its_binding_constraint(
     assert "Ms " in line and "> 1.01" in line
 
 
+@pytest.mark.slow
 @pytest.mark.postgres
 @pytest.mark.skipif(
     not os.environ.get("GRIPPER_TEST_POSTGRES_URL"),

@@ -93,6 +93,7 @@ def test_a_missing_rl_extra_is_one_line(monkeypatch, capsys):
     assert "torch" in err and "gripper-env[rl]" in err
 
 
+@pytest.mark.slow
 def test_the_tuner_exports_the_best_evaluated_gains(tmp_path, capsys, small_eval_config):
     common = ["--plant", "test2", "--out", str(tmp_path), "--eval-config", str(small_eval_config)]
     code = rl.main(["train", *common, "--timesteps", "1024", "--no-progress", "--json"])
@@ -117,6 +118,7 @@ def test_the_tuner_exports_the_best_evaluated_gains(tmp_path, capsys, small_eval
     assert stability_report(TEST2, PIDGains(*best["gains"]), disturbance=ACTUAL).meets(1.6, 6.0)
 
 
+@pytest.mark.slow
 def test_the_same_seed_gives_the_same_gains(tmp_path, small_eval_config):
     from tuners.rl.tune import load_tune_settings, train_tuner
 

@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from gripper_env.evaluation.stability import stability_report
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.gains_file import load_gains_file
@@ -41,6 +43,7 @@ def test_gains_stable_at_1ms_but_not_with_the_hold_are_refused(tmp_path):
     assert proc.stderr.count("\n") == 1 and not out.exists()
 
 
+@pytest.mark.slow
 def test_a_plant_tuned_from_a_users_file_is_gated_on_that_plant(tmp_path):
     """Gains evaluated on the user's own plant file carry its transfer function: deploy gates on
     it even after the plant file is gone (before, it looked the name up and failed)."""
