@@ -500,7 +500,8 @@ def ppo_run(kind: str, total_timesteps: int, num_envs: int = PPO_ENVS, seed: int
         inner = DummyVecEnv([lambda: gym.make(SERVO) for _ in range(num_envs)])
         chooser = None
     venv = TimedVecEnv(inner)
-    model = quiet_logger(PPO("MlpPolicy", venv, seed=seed, device="cpu", **PPO_SETTINGS))
+    model = PPO("MlpPolicy", venv, seed=seed, device="cpu", **PPO_SETTINGS)
+    quiet_logger(model)
     spent = {"train": 0.0, "forward": 0.0}
 
     def timed(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
