@@ -82,7 +82,7 @@ def test_a_perturbed_sts3215_is_recovered(perturbed_sts3215):
         assert est.values[k] == pytest.approx(v, rel=rel), k
     # I and D were recorded: nothing left at the prior (the notes say only what the delay
     # profile found)
-    assert all(n.startswith("loop delay") for n in est.notes), est.notes
+    assert all(n.startswith(("loop delay", "delay pairs")) for n in est.notes), est.notes
     # the alternatives are fits at later loop delays, each nearly as good as the estimate
     for alt in est.alternatives:
         assert est.loop_delay_s < alt.physics.loop_delay_s <= est.loop_delay_s + 2 * DT + 1e-9
@@ -93,13 +93,17 @@ def test_a_perturbed_sts3215_is_recovered(perturbed_sts3215):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 33 (open): with 1 deg of backlash the fit's cost has steps (sticking events; "
-    "which side of the gear play a step ends on) whose curvature the standard errors do not "
-    "see: kp 3.3 % off against 0.14 % stated (22 standard errors) on this servo. An expected "
-    "reading averaged over timing dithers was tried: smoother in the goal's delay, but it moved "
-    "static and ki 14-17 % low (one record is a realisation, not an expectation); not adopted",
+    reason="a known limitation (README, the bus recipe's identify): the records share an error the "
+    "fit does not model (each reading up to 0.5 ms older than its stamp) and the backlash "
+    "gives the cost steps; the standard errors now hold the jackknife's CMA-ES refits and the"
+    " spread of the fits at the delay pairs the cost cannot tell apart, which covers it on "
+    "these records before the file round trip (every parameter within 2.3 standard errors; kd"
+    " 6.5 % off at 3.0 % stated), but not after it: kp 0.73 % off at 0.15 % stated (4.7 "
+    "standard errors): the file's rounding moves the fit, and nothing in these records shows "
+    "by how much",
 )
 def test_the_stated_standard_errors_cover_the_truth(perturbed_sts3215):
+    """Every parameter within 3.5 of its stated standard errors of the truth."""
     _records, want, est = perturbed_sts3215
     for k, v in want.items():
         assert abs(est.values[k] - v) <= 3.5 * est.std[k], (k, est.values[k], v, est.std[k])
