@@ -644,8 +644,7 @@ def identify_bus_servo(
     jack = _jackknife(problem, x, delay, loop, lo, hi, seed=seed,
                       generations=max(generations // 4, 10))  # fmt: skip
     if jack is not None:
-        std = np.sqrt(np.where(np.isfinite(std), std**2, 0.0) + jack**2)
-        std[~seen] = math.inf
+        std = _in_quadrature(std, jack, seen)
     # Neither the noise nor the records' disagreement sees an error every record shares (a
     # reading taken before its time stamp, backlash, a friction that is not quite Karnopp's),
     # and the whole-tick delays are where such an error goes: it moves the best pair, and the
@@ -658,9 +657,7 @@ def identify_bus_servo(
                   if p != (delay, loop) and profile[p][0] <= _ALTERNATIVE_COST * cost)  # fmt: skip
     if near:
         dev = np.array([profile[p][1] - x for p in near])
-        spread = np.sqrt(np.sum(dev**2, axis=0) / (len(near) + 1))
-        std = np.sqrt(np.where(np.isfinite(std), std**2, 0.0) + spread**2)
-        std[~seen] = math.inf
+        std = _in_quadrature(std, np.sqrt(np.sum(dev**2, axis=0) / (len(near) + 1)), seen)
         pairs = ", ".join(f"({d}, {lp})" for d, lp in near)
         notes.append(
             f"delay pairs (goal, loop ms) {pairs} fit within {100 * (_ALTERNATIVE_COST - 1):.0f} "
@@ -729,6 +726,14 @@ def identify_bus_servo(
     )
 
 
+def _in_quadrature(std: np.ndarray, extra: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """``std`` with ``extra`` added in quadrature (a non-finite ``std`` counts as 0); the
+    columns not ``seen`` stay undetermined (inf)."""
+    out = np.sqrt(np.where(np.isfinite(std), std**2, 0.0) + extra**2)
+    out[~seen] = math.inf
+    return out
+
+
 def _fitted_model(
     prior: BusServoModel, name: str, values: dict[str, float], delay: int, loop: int
 ) -> BusServoModel:
@@ -761,27 +766,18 @@ def _jackknife(
     of the gear play a step ends on) and so measured the records' disagreement as nearly none
     (on a perturbed STS3215, ``kp`` 3.3 % off at 0.14 % stated); the search steps over them,
     and what it cannot settle is part of the estimate's uncertainty too."""
-    from cmaes import CMA
-
     n = len(problem.records)
     if n < 3:
         return None
-    bounds = np.column_stack([np.log(lo), np.log(hi)])
-    mean = np.clip(np.log(x), bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
-    opts = [CMA(mean=mean, sigma=_JACK_SIGMA, bounds=bounds, seed=seed + 101 + k,
-                population_size=_JACK_POP) for k in range(n)]  # fmt: skip
+
+    def left_out_costs(flat: np.ndarray) -> np.ndarray:
+        per = problem.record_costs(flat, delay, loop).reshape(n, _JACK_POP, n)
+        return per.sum(axis=2) - per[np.arange(n), :, np.arange(n)]
+
     start = problem.record_costs(x[None], delay, loop)[0]
-    best = [(float(start.sum() - start[k]), x) for k in range(n)]
-    for _ in range(generations):
-        cands = np.array([[o.ask() for _ in range(_JACK_POP)] for o in opts])
-        per = problem.record_costs(np.exp(cands.reshape(-1, x.size)), delay, loop)
-        per = per.reshape(n, _JACK_POP, n)
-        for k, o in enumerate(opts):
-            costs = per[k].sum(axis=1) - per[k][:, k]
-            o.tell(list(zip(cands[k], costs, strict=True)))
-            m = int(np.argmin(costs))
-            if costs[m] < best[k][0]:
-                best[k] = (float(costs[m]), np.exp(cands[k, m]))
+    best = _batched_cma(left_out_costs, x, lo, hi, sigma=_JACK_SIGMA, population=_JACK_POP,
+                        seeds=[seed + 101 + k for k in range(n)], generations=generations,
+                        best=[(float(start.sum() - start[k]), x) for k in range(n)])  # fmt: skip
     est = []
     for k in range(n):
         sub = _Problem(problem.prior, [r for j, r in enumerate(problem.records) if j != k],
@@ -841,9 +837,6 @@ def _delay_profile(
     """The best ``(cost, theta)`` found at each delay pair around ``(delay, loop)``: a CMA-ES
     over ``log(theta)`` from ``x`` per pair, every pair's candidates in one batch per
     generation. The window moves while its best pair lies on an edge (not a bound)."""
-    from cmaes import CMA
-
-    bounds = np.column_stack([np.log(lo), np.log(hi)])
     found: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
     centre = (delay, loop)
     for _shift in range(3):
@@ -857,26 +850,22 @@ def _delay_profile(
         if not pairs:
             break
         start = min(found.values(), key=lambda v: v[0])[1] if found else x
-        mean = np.clip(np.log(start), bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
-        opts = [CMA(mean=mean, sigma=0.1, bounds=bounds, seed=seed + k,
-                    population_size=_PROFILE_POP) for k in range(len(pairs))]  # fmt: skip
         d_of = np.array([p[0] for p in pairs])
         l_of = np.array([p[1] for p in pairs])
         costs0 = np.sum(problem.residuals(np.repeat(start[None], len(pairs), 0), d_of, l_of) ** 2,
                         axis=1)  # fmt: skip
-        for p, c in zip(pairs, costs0, strict=True):
-            found[p] = (float(c), start)
-        for _ in range(generations):
-            cands = np.array([[o.ask() for _ in range(_PROFILE_POP)] for o in opts])
-            flat = np.exp(cands.reshape(-1, lo.size))
+
+        def pair_costs(flat: np.ndarray, d_of: np.ndarray = d_of,
+                       l_of: np.ndarray = l_of) -> np.ndarray:  # fmt: skip
             res = problem.residuals(flat, np.repeat(d_of, _PROFILE_POP),
                                     np.repeat(l_of, _PROFILE_POP))  # fmt: skip
-            costs = np.sum(res**2, axis=1).reshape(len(pairs), _PROFILE_POP)
-            for i, (o, p) in enumerate(zip(opts, pairs, strict=True)):
-                o.tell(list(zip(cands[i], costs[i], strict=True)))
-                k = int(np.argmin(costs[i]))
-                if costs[i, k] < found[p][0]:
-                    found[p] = (float(costs[i, k]), np.exp(cands[i, k]))
+            return np.sum(res**2, axis=1).reshape(len(d_of), _PROFILE_POP)
+
+        searched = _batched_cma(pair_costs, start, lo, hi, sigma=0.1, population=_PROFILE_POP,
+                                seeds=[seed + k for k in range(len(pairs))],
+                                generations=generations,
+                                best=[(float(c), start) for c in costs0])  # fmt: skip
+        found.update(zip(pairs, searched, strict=True))
         best = min(found, key=lambda p: found[p][0])
         on_edge = [
             abs(best[0] - centre[0]) == wd and 0 < best[0] < _MAX_DELAY_TICKS,
@@ -886,6 +875,33 @@ def _delay_profile(
             break
         centre = best
     return found
+
+
+def _batched_cma(
+    evaluate: Callable[[np.ndarray], np.ndarray], x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+    *, sigma: float, population: int, seeds: Sequence[int], generations: int,
+    best: list[tuple[float, np.ndarray]],
+) -> list[tuple[float, np.ndarray]]:  # fmt: skip
+    """Several CMA-ES over ``log(theta)`` from ``x``, one per seed, all of a generation's
+    candidates evaluated in one call: ``evaluate`` takes them stacked (optimiser by optimiser,
+    ``population`` each) and returns their costs shaped (optimisers, population). ``best``
+    holds each optimiser's best (cost, theta) so far and is returned updated."""
+    from cmaes import CMA
+
+    bounds = np.column_stack([np.log(lo), np.log(hi)])
+    mean = np.clip(np.log(x), bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
+    opts = [CMA(mean=mean, sigma=sigma, bounds=bounds, seed=s, population_size=population)
+            for s in seeds]  # fmt: skip
+    best = list(best)
+    for _ in range(generations):
+        cands = np.array([[o.ask() for _ in range(population)] for o in opts])
+        costs = evaluate(np.exp(cands.reshape(-1, x.size)))
+        for i, o in enumerate(opts):
+            o.tell(list(zip(cands[i], costs[i], strict=True)))
+            k = int(np.argmin(costs[i]))
+            if costs[i, k] < best[i][0]:
+                best[i] = (float(costs[i, k]), np.exp(cands[i, k]))
+    return best
 
 
 def _global_search(
