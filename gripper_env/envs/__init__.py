@@ -27,9 +27,10 @@ one), host in the loop at 50 Hz; it needs ``port=...`` at ``gym.make`` and is no
 
 ``gym.make("gripper_env:gripper_env/GripperServo-v0")`` works without importing the package
 first; ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` gives the
-native vector environment (:mod:`gripper_env.envs.vector`; stable-baselines3 steps it through
-:class:`gripper_env.envs.sb3.NativeVecEnv`), for every simulated id but ``GripperBusServo-v0``,
-which has none (``gym.make_vec`` gives it a ``SyncVectorEnv``). The step-by-step ids are
+native vector environment (:mod:`gripper_env.envs.vector`, :mod:`~gripper_env.envs.robust_vector`;
+stable-baselines3 steps it through :class:`gripper_env.envs.sb3.NativeVecEnv`) for the servo,
+gain-schedule, PID-tuning and robust ids; the bus servo and the grasp ids have none
+(``gym.make_vec`` gives them a ``SyncVectorEnv``). The step-by-step ids are
 registered with a ``TimeLimit`` of 1000 steps; ``GripperPIDTune-v0`` without one (its one step
 ends the episode, terminated).
 The classes are imported lazily, so importing :mod:`gripper_env` does not compile the
@@ -37,7 +38,7 @@ environments' kernels.
 
 Modules: one per environment (``servo``, ``gain_schedule``, ``pid_tune``, ``servo_hardware``,
 ``bus_servo``, ``bus_servo_hardware``, ``robust``, ``grasp``, ``bus_grasp``) and their native
-vector forms (``vector``);
+vector forms (``vector``, ``robust_vector``);
 ``bus_settings`` (what the two bus-servo environments share: arguments, references, reward,
 observation); ``control_env`` (the base of the step-by-step ones), ``control_batch`` (a batch
 of them on one core simulator), ``kernels`` (its compiled step),
@@ -66,6 +67,7 @@ __all__ = [
     "GripperServoEnv",
     "GripperServoHardwareEnv",
     "GripperServoRobustEnv",
+    "GripperServoRobustVectorEnv",
     "GripperServoVectorEnv",
     "register_envs",
 ]
@@ -123,7 +125,7 @@ _SPECS: dict[str, tuple[str, str | None, int | None, dict[str, Any]]] = {
     ),
     "gripper_env/GripperServoRobust-v0": (
         "gripper_env.envs.robust:GripperServoRobustEnv",
-        None,
+        "gripper_env.envs.robust_vector:GripperServoRobustVectorEnv",
         500,  # 10 s at 20 ms
         {},
     ),
@@ -163,6 +165,7 @@ _LAZY = {
     "GripperServoVectorEnv": "gripper_env.envs.vector",
     "GripperPIDTuneVectorEnv": "gripper_env.envs.vector",
     "GripperGainScheduleVectorEnv": "gripper_env.envs.vector",
+    "GripperServoRobustVectorEnv": "gripper_env.envs.robust_vector",
 }
 
 

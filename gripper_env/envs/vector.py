@@ -168,7 +168,7 @@ class _ControlVectorEnv(_SeededVectorEnv):
     ) -> None:
         self._setup(num_envs, max_episode_steps, render_mode, render_envs)
         # the single environment validates the arguments the same way
-        single = _SINGLE[self._mode](
+        single = self._single_class()(
             observe_context=observe_context, overshoot_weight=overshoot_weight,
             chatter_weight=chatter_weight, **kwargs,
         )  # fmt: skip
@@ -176,6 +176,7 @@ class _ControlVectorEnv(_SeededVectorEnv):
         self.metadata = {**self.metadata, "render_fps": single.metadata["render_fps"]}
         self.single_action_space = single.action_space
         self.single_observation_space = single.observation_space
+        self._keep_from_single(single)
         single.close()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -191,6 +192,14 @@ class _ControlVectorEnv(_SeededVectorEnv):
             if render_mode is None
             else [RowRenderer(self._batch, i, single._name, render_mode) for i in self.render_envs]
         )
+
+    @classmethod
+    def _single_class(cls) -> Callable[..., ControlEnv]:
+        """The single environment this one batches (it checks the arguments)."""
+        return _SINGLE[cls._mode]
+
+    def _keep_from_single(self, single: Any) -> None:
+        """What a subclass keeps of the single environment made to check the arguments."""
 
     def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
         """Reset ``rows`` (new episodes from their generators); their reset ``info``."""

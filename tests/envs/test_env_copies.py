@@ -8,7 +8,7 @@ import cloudpickle
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import ENV_IDS, PID_TUNE, RANDOMIZED, SERVO
+from helpers import ENV_IDS, PID_TUNE, RANDOMIZED, ROBUST, SERVO
 
 import gripper_env  # noqa: F401
 
@@ -60,7 +60,7 @@ def test_copy_plays_the_original_trajectory(env_id, kwargs, how):
     np.testing.assert_array_equal(rollout(original, n), expected)
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", [*ENV_IDS, ROBUST])
 def test_native_vector_env_pickles(env_id):
     def make():
         return gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point",

@@ -31,12 +31,12 @@ def test_ids_registered_with_time_limits():
     # grasp scenarios' 4.5 s and 4.2 s at the 20 ms control period
     limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 500,
               PID_TUNE_RELATIVE: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210}  # fmt: skip
-    no_vector = {BUS_SERVO, ROBUST, GRASP, BUS_GRASP}
+    no_vector = {BUS_SERVO, GRASP, BUS_GRASP}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == limit
-        # the bus servo and the benchmark's task ids have no native vector form (gym.make_vec
-        # makes a SyncVectorEnv)
+        # the bus servo and the grasp ids have no native vector form (gym.make_vec makes a
+        # SyncVectorEnv)
         assert (spec.vector_entry_point is None) == (env_id in no_vector)
         env = gym.make(env_id)
         assert isinstance(env, gym.wrappers.TimeLimit) == (limit is not None)

@@ -7,6 +7,7 @@ from helpers import (
     GAIN_SCHEDULE,
     PID_TUNE,
     RANDOMIZED,
+    ROBUST,
     SERVO,
     assert_same_info,
     step_native_and_singles,
@@ -67,6 +68,43 @@ def test_vector_equals_single_envs_randomized(env_id):
     # 1 s random references: episodes of 50 steps end by themselves (truncation)
     resets = compare(env_id, 4, 110, seed=3, observe_context=True, **RANDOMIZED)
     assert resets >= 8
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"episode_s": 4.0}, {"episode_s": 6.0, "max_episode_steps": 160},
+     {"residual": "reference", "episode_s": 3.0}],
+)  # fmt: skip
+def test_vector_robust_equals_single_envs_with_its_costs(kwargs):
+    """GripperServoRobust-v0's vector form: observations, rewards, ends and every info (the
+    swing and stop costs, margin_episode, the reset infos) equal SyncVectorEnv's through
+    autoresets, under actions that swing the jaw on holds and drive it into the stops."""
+    n = 6
+    native = gym.make_vec(ROBUST, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    sync = gym.make_vec(ROBUST, num_envs=n, vectorization_mode="sync", **kwargs)
+    obs_n, info_n = native.reset(seed=3)
+    obs_s, info_s = sync.reset(seed=3)
+    np.testing.assert_array_equal(obs_n, obs_s)
+    assert_same_info(info_n, info_s)
+    assert "margin_episode" in info_n
+    rng = np.random.default_rng(0)
+    sums = {"cost_swing": 0.0, "cost_stop": 0.0}
+    margin_rows = set()
+    for k in range(400):
+        actions = rng.uniform(-1.1, 1.1, native.action_space.shape).astype(np.float32)
+        if k % 50 < 25:  # a square wave of 6 steps' half period: the jaw swings
+            actions[:] = 0.9 * np.sign(np.sin(k / 3.0))
+        out_n, out_s = native.step(actions), sync.step(actions)
+        for a, b in zip(out_n[:4], out_s[:4], strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert_same_info(out_n[4], out_s[4])
+        for key in sums:
+            sums[key] += float(np.sum(out_n[4].get(key, 0.0)))
+        margin_rows |= set(np.flatnonzero(out_n[4].get("margin_episode", [])).tolist())
+    assert sums["cost_swing"] > 0 and sums["cost_stop"] > 0  # both costs were exercised
+    assert margin_rows  # some episodes had their gain raised
+    native.close()
+    sync.close()
 
 
 def test_vector_pid_tune_equals_single_envs():

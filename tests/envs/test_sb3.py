@@ -17,6 +17,7 @@ from gripper_env.envs.sb3 import NativeVecEnv
 SERVO = "gripper_env/GripperServo-v0"
 PID_TUNE = "gripper_env/GripperPIDTune-v0"
 GAIN_SCHEDULE = "gripper_env/GripperGainSchedule-v0"
+ROBUST = "gripper_env/GripperServoRobust-v0"
 
 
 def dummy(env_id, n, **kwargs):
@@ -41,6 +42,7 @@ def assert_same_infos(a, b):
         (GAIN_SCHEDULE, {"max_episode_steps": 5}),
         (SERVO, {"max_episode_steps": 6, "residual": "reference"}),
         (PID_TUNE, {"plant": ["test2", "test3"], "randomize": True}),
+        (ROBUST, {"max_episode_steps": 7, "episode_s": 0.5}),
     ],
 )
 def test_steps_equal_dummy_vec_env(env_id, kwargs):

@@ -170,7 +170,27 @@ def test_the_anchor_shift_is_on_the_published_scores_in_0_to_100():
     assert shift["episodes_for_1_point"] == int(np.ceil(8 * (10.0 - 100.0 / 19.0) ** 2))  # 180
     # nothing published in [0, 100]: no shift
     e = _hand_task(-5.0, -300.0, (-400.0, -1.0), [-400.0, -300.0, -200.0])
-    assert _anchor_shift(e) == {"max": 0.0, "on": None, "episodes_for_1_point": None}
+    assert _anchor_shift(e) == {"max": 0.0, "on": None, "by": None, "episodes_for_1_point": None}
+
+
+def test_the_anchor_shift_counts_the_episodes_of_the_anchor_that_moves_it():
+    """The limit on 4 of the 8 episodes, SE 2, the trivial's SE 0: the PID at 50 (return -10)
+    moves to 100 x 10 / 18 = 55.56 with the limit at -2 (5.56 points; 4.55 at +2), the IQM at
+    10 to 100 x 2 / 18 = 11.11 (1.11); the largest is the PID's, by the limit, whose 4 episodes
+    would need 4 x 5.56^2 = 124 for 1 point (the trivial's 8 do not count)."""
+    e = _hand_task(50.0, 10.0, (5.0, 30.0), [5.0, 10.0, 30.0])
+    e["anchor_stats"]["trivial"] = {"mean": -20.0, "se": 0.0, "episodes": 8}
+    e["anchor_stats"]["limit"] = {"mean": 0.0, "se": 2.0, "episodes": 4, "kind": "reward-lp"}
+    shift = _anchor_shift(e)
+    assert (shift["on"], shift["by"]) == ("best PID", "limit")
+    assert shift["max"] == pytest.approx(1000.0 / 18.0 - 50.0)
+    assert shift["episodes_for_1_point"] == int(np.ceil(4 * (1000.0 / 18.0 - 50.0) ** 2)) == 124
+    e["anchor_stats"].update(max_cell_shift=shift["max"], shift_on=shift["on"],
+                             shift_by=shift["by"],
+                             episodes_for_1_point_shift=shift["episodes_for_1_point"])  # fmt: skip
+    md = render({"t": e}, aggregate({"t": e}))
+    assert "limit (reward-lp) 0 (SE 2, on the first 4 episodes)" in md
+    assert "by the limit's SE (124 episodes of the limit would make it 1 point)" in md
 
 
 def test_a_published_score_below_0_is_printed_as_below_0_and_kept_unclipped_in_its_section():

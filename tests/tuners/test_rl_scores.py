@@ -66,3 +66,37 @@ def test_paired_se_matches_the_bootstrap_of_the_ratio():
     assert paired_se(r, r0, r100) == pytest.approx(boot.std(), rel=0.05)
     # pairing matters: the anchors' own spread (sd 5) is much larger than the score's
     assert paired_se(r, r0, r100) < 100 * 5 / np.sqrt(n) / 28
+
+
+def test_paired_se_with_the_limit_on_a_subsample_is_the_spread_over_drawn_sets():
+    """The limit computed on the first m of N episodes: over many evaluation sets drawn from
+    the same episode distribution, the score's standard deviation is what paired_se states
+    (on average over the sets), and the limit's fewer episodes widen it beyond the paired SE
+    of the full set; with m = N it is the full set's."""
+    rng = np.random.default_rng(5)
+    n, m, sets = 400, 50, 3000
+
+    def draw_set():
+        difficulty = rng.standard_t(4, n) * 5.0  # heavy-tailed, as the robust task's
+        r0 = -30.0 + difficulty
+        r100 = -2.0 + 0.1 * difficulty + rng.normal(0.0, 1.0, n)
+        r = -12.0 + 0.5 * difficulty + rng.normal(0.0, 2.0, n)
+        return r, r0, r100
+
+    scores, stated, full = [], [], []
+    for _ in range(sets):
+        r, r0, r100 = draw_set()
+        scores.append(100 * (r.mean() - r0.mean()) / (r100[:m].mean() - r0.mean()))
+        stated.append(paired_se(r, r0, r100[:m]))
+        full.append(paired_se(r, r0, r100))
+    assert np.mean(stated) == pytest.approx(np.std(scores), rel=0.08)
+    assert np.mean(stated) > 1.25 * np.mean(full)
+    r, r0, r100 = draw_set()
+    # the judge's interval (the two strata resampled apart) is about +-1.96 of it
+    from tuners.rl.judge import _episode_interval
+
+    lo, hi = _episode_interval(r, r0, r100[:m])
+    assert (hi - lo) / (2 * 1.96) == pytest.approx(paired_se(r, r0, r100[:m]), rel=0.15)
+    assert paired_se(r, r0, r100[:n]) == paired_se(r, r0, r100)
+    with pytest.raises(ValueError, match="2 to N"):
+        paired_se(r, r0, r100[:1])

@@ -165,3 +165,66 @@ def test_run_episodes_returns_the_environments_returns():
             infos.append(info)
         assert ret == total
         assert trip == infos[-1]["trip"] and not held  # command = reference: a full stall
+
+
+@pytest.mark.parametrize(
+    ("name", "iface"),
+    [("robust", {"residual": "reference"}), ("servo", {}), ("gain-schedule", {})],
+)
+def test_run_episodes_on_the_vector_env_equals_the_single_envs(name, iface, monkeypatch):
+    """The ids with a native vector form run their evaluation episodes on it: returns,
+    lengths, ends and the summed constraint costs equal one gym.make per episode."""
+    t = small(name, 6)
+    kwargs = t.kwargs_with(iface)
+    rng = np.random.default_rng(1)
+    weights = rng.normal(0.0, 0.8, (gym.make(t.env_id, **kwargs).observation_space.shape[0], 3))
+
+    def policy(obs):
+        n_act = 3 if "GainSchedule" in t.env_id else 1
+        return np.tanh(obs @ weights[:, :n_act]).astype(np.float32)
+
+    fast = run_episodes(t.env_id, kwargs, policy, t.eval_seeds, batch=4)
+    spec = gym.spec(t.env_id)
+    assert spec.vector_entry_point is not None
+    monkeypatch.setattr(spec, "vector_entry_point", None)
+    slow = run_episodes(t.env_id, kwargs, policy, t.eval_seeds, batch=4)
+    np.testing.assert_array_equal(fast.returns, slow.returns)
+    np.testing.assert_array_equal(fast.lengths, slow.lengths)
+    np.testing.assert_array_equal(fast.terminated, slow.terminated)
+    assert fast.sums.keys() == slow.sums.keys() == ({"cost", "cost_swing", "cost_stop"}
+                                                   if name == "robust" else set())  # fmt: skip
+    for key in fast.sums:
+        np.testing.assert_array_equal(fast.sums[key], slow.sums[key])
+
+
+def test_the_limit_may_cover_the_first_episodes_of_the_set(tmp_path, monkeypatch):
+    """limit_episodes: the limit's seeds are the set's first ones, a quick look keeps at most
+    as many, and a value outside 2..episodes is one line naming the key."""
+    t = task("robust")
+    assert t.limit_episodes < t.episodes
+    assert t.limit_seeds == t.eval_seeds[: t.limit_episodes]
+    short = t.first(64)
+    assert short.limit_seeds == t.eval_seeds[:64]
+    assert task("worn").limit_seeds == task("worn").eval_seeds
+    import gripper_env.io.config as config
+    from gripper_env.io.config import ConfigError
+    from tuners.rl import suite
+
+    root = tmp_path / "configs"
+    (root / "rl_zoo" / "tasks").mkdir(parents=True)
+    src = config.CONFIG_DIR / "rl_zoo"
+    for f in ("robust-ppo.yml", "robust-sac.yml"):
+        (root / "rl_zoo" / "tasks" / f).write_text((src / "tasks" / f).read_text())
+    import yaml
+
+    entry = yaml.safe_load((src / "tasks.yaml").read_text())["robust"]
+    entry["limit_episodes"] = entry["episodes"] + 1
+    (root / "rl_zoo" / "tasks.yaml").write_text(yaml.safe_dump({"robust": entry}))
+    monkeypatch.setattr(suite, "CONFIG_DIR", root)
+    suite.load_tasks.cache_clear()
+    try:
+        with pytest.raises(ConfigError, match="limit_episodes must be an int from 2 to episodes"):
+            suite.load_tasks()
+    finally:
+        monkeypatch.undo()
+        suite.load_tasks.cache_clear()

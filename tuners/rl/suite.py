@@ -43,6 +43,8 @@ _LIMITS = ("reward-lp", "objective-lp", "oracle")
 _VERDICTS = ("margin", "feasible", "held")
 _KEYS = {"about", "env_id", "hard", "evaluate", "episodes", "limit", "trivial", "pid",
          "verdict", "interface", "seeds"}  # fmt: skip
+#: Keys a task may leave out.
+_OPTIONAL = {"limit_episodes"}
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,7 @@ class Task:
     hard : bool
         One of the tasks where a PID is structurally short.
     episodes : int
-        Size of the evaluation set.
+        Size of the evaluation set (the trivial policy and every policy run all of it).
     limit, trivial, verdict : str
         The 100 and the 0 of the scale; how an agent is admitted.
     pid : dict
@@ -72,6 +74,11 @@ class Task:
         Arguments an agent may bring (its action map, the PID it corrects).
     timesteps, seeds : dict
         Per algorithm, the reference rows' budget per seed and training seeds.
+    limit_episodes : int
+        The limit is computed on the first ``limit_episodes`` episodes of the set (its linear
+        programs take seconds each; the first episodes are a simple random sample of the set,
+        their mean an estimate of the set's with the standard error the reference scores
+        publish); ``0``: on all of them.
     """
 
     name: str
@@ -88,6 +95,7 @@ class Task:
     interface: tuple[str, ...]
     timesteps: dict[str, int] = field(default_factory=dict)
     seeds: dict[str, int] = field(default_factory=dict)
+    limit_episodes: int = 0
 
     @property
     def eval_kwargs(self) -> dict[str, Any]:
@@ -98,6 +106,12 @@ class Task:
     def eval_seeds(self) -> list[int]:
         """The evaluation set: one ``reset`` seed per episode."""
         return [EVAL_SEED + i for i in range(self.episodes)]
+
+    @property
+    def limit_seeds(self) -> list[int]:
+        """The episodes the limit is computed on: the first :attr:`limit_episodes` of the set."""
+        n = self.limit_episodes or self.episodes
+        return self.eval_seeds[: min(n, self.episodes)]
 
     @property
     def selection_seeds(self) -> list[int]:
@@ -114,7 +128,8 @@ class Task:
         if not 2 <= episodes <= self.episodes:
             raise ValueError(f"--episodes must be 2 to {self.episodes} (task {self.name}'s "
                              f"set), got {episodes}")  # fmt: skip
-        return dataclasses.replace(self, episodes=episodes)
+        limit = min(self.limit_episodes, episodes) if self.limit_episodes else 0
+        return dataclasses.replace(self, episodes=episodes, limit_episodes=limit)
 
     @property
     def family(self) -> str:
@@ -165,9 +180,9 @@ def load_tasks() -> dict[str, Task]:
     tasks = {}
     for name, entry in data.items():
         where = f"{path}: task {name}"
-        if not isinstance(entry, dict) or set(entry) != _KEYS:
+        if not isinstance(entry, dict) or not _KEYS <= set(entry) <= _KEYS | _OPTIONAL:
             missing = _KEYS - set(entry or {})
-            extra = set(entry or {}) - _KEYS
+            extra = set(entry or {}) - _KEYS - _OPTIONAL
             raise ConfigError(f"{where}: keys {sorted(missing)} missing, {sorted(extra)} unknown")
         if entry["limit"] not in _LIMITS or entry["verdict"] not in _VERDICTS:
             raise ConfigError(f"{where}: limit must be one of {_LIMITS}, verdict one of "
@@ -183,6 +198,11 @@ def load_tasks() -> dict[str, Task]:
                               "training arguments (env_kwargs beyond the interface)")  # fmt: skip
         if not (isinstance(entry["episodes"], int) and entry["episodes"] >= 2):
             raise ConfigError(f"{where}: episodes must be an int >= 2")
+        limit_episodes = entry.get("limit_episodes", 0)
+        if not (isinstance(limit_episodes, int) and (limit_episodes == 0 or 2 <= limit_episodes
+                                                     <= entry["episodes"])):  # fmt: skip
+            raise ConfigError(f"{where}: limit_episodes must be an int from 2 to episodes "
+                              f"({entry['episodes']}), or 0 for all of them")  # fmt: skip
         tasks[name] = Task(
             name=name, about=str(entry["about"]), env_id=str(entry["env_id"]),
             train_kwargs=kwargs[0], eval_overrides=dict(entry["evaluate"] or {}),
@@ -191,6 +211,7 @@ def load_tasks() -> dict[str, Task]:
             interface=interface,
             timesteps={a: int(r["n_timesteps"]) for a, r in recipes.items()},
             seeds={a: int(v) for a, v in entry["seeds"].items()},
+            limit_episodes=0 if limit_episodes == entry["episodes"] else limit_episodes,
         )  # fmt: skip
     return tasks
 
