@@ -72,6 +72,8 @@ class GripperServoRobustVectorEnv(_ControlVectorEnv):
         self._starts = np.zeros((n, 1), dtype=np.int64)
         self._last = np.zeros(n, dtype=np.int64)
         self._started_rows: list[int] = []
+        # the last step's costs, unbatched into env_infos only when asked (NativeVecEnv does)
+        self._step_infos: tuple[np.ndarray, ...] | None = None
 
     def _start(self, rows: list[int]) -> dict[int, dict[str, Any]]:
         infos = super()._start(rows)
@@ -93,16 +95,8 @@ class GripperServoRobustVectorEnv(_ControlVectorEnv):
             self._margin[i] = ep.plant_index >= self.n_nominal
             infos[i]["margin_episode"] = bool(self._margin[i])
         self._started_rows = list(rows)
+        self._step_infos = None  # a reset's infos are the base class's
         return infos
-
-    def reset(
-        self,
-        *,
-        seed: int | list[int | None] | None = None,
-        options: dict[str, Any] | None = None,
-    ) -> tuple[np.ndarray, dict[str, Any]]:
-        self._started_rows = []
-        return super().reset(seed=seed, options=options)
 
     def step(
         self, actions: Any
@@ -115,24 +109,30 @@ class GripperServoRobustVectorEnv(_ControlVectorEnv):
         swing, stop = self._costs(stepped, terminated)
         cost = swing + stop
         infos: dict[str, Any] = {}
-        per_env: dict[int, dict[str, Any]] = {}
         if stepped.any():
             for key, value in zip(_COSTS, (cost, swing, stop), strict=True):
                 infos[key] = np.where(stepped, value, 0.0)
                 infos[f"_{key}"] = stepped.copy()
             infos["margin_episode"] = self._margin & stepped
             infos["_margin_episode"] = stepped.copy()
+        for i in started:  # the reset infos the base class kept in self._infos
+            infos = self._add_info(infos, self._infos[i], i)
+        self._step_infos = (stepped, cost, swing, stop, self._margin.copy())
+        return obs, rewards, terminated, truncated, infos
+
+    @property
+    def env_infos(self) -> list[dict[str, Any]]:
+        """Each environment's ``info`` of the last ``reset`` or ``step``, unbatched (built from
+        the step's cost arrays on first read, not on every step)."""
+        if self._step_infos is not None:
+            stepped, cost, swing, stop, margin = self._step_infos
+            per_env = {i: self._infos[i] for i in self._started_rows}
             for i in np.flatnonzero(stepped).tolist():
                 per_env[i] = {"cost": float(cost[i]), "cost_swing": float(swing[i]),
                               "cost_stop": float(stop[i]),
-                              "margin_episode": bool(self._margin[i])}  # fmt: skip
-        if started:
-            fresh = dict(self._infos)  # the reset infos the base class kept
-            for i in started:
-                infos = self._add_info(infos, fresh[i], i)
-                per_env[i] = fresh[i]
-        self._infos = per_env
-        return obs, rewards, terminated, truncated, infos
+                              "margin_episode": bool(margin[i])}  # fmt: skip
+            self._infos, self._step_infos = per_env, None
+        return super().env_infos
 
     def _costs(self, stepped: np.ndarray, terminated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per row, this step's swing and stop costs (0 for the rows that started an episode)."""
