@@ -53,7 +53,7 @@ from gripper_env.sysid.data import (
     Offset,
     prepare_data,
 )
-from gripper_env.sysid.defaults import ESTIMATE
+from gripper_env.sysid.defaults import ESTIMATE, MAX_NFEV
 from gripper_env.sysid.delay import DelayCandidate, default_max_delay, scan_delay
 from gripper_env.sysid.diagnostics import (
     IdentificationWarning,
@@ -226,7 +226,7 @@ def tfest(
     start_from: Sequence[TFEstimate] = (),
     max_iter_srivc: int = 30,
     srivc_tol: float = 1e-7,
-    max_nfev: int = 200,
+    max_nfev: int = MAX_NFEV,
     tol: float | None = None,
     max_jitter: float = DEFAULT_MAX_JITTER,
     max_gap: float = DEFAULT_MAX_GAP,

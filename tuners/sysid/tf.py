@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gripper_env.sysid.data import OFFSET_MODES, prepare_data
-from gripper_env.sysid.defaults import ESTIMATE
+from gripper_env.sysid.defaults import ESTIMATE, MAX_NFEV
 from gripper_env.sysid.error_model import LOSSES
 from tuners.sysid.common import (
     BAD_INPUT,
@@ -155,9 +155,9 @@ def _add_fit_arguments(p: argparse.ArgumentParser) -> None:
     fit.add_argument(
         "--max-iterations",
         type=int,
-        default=200,
+        default=MAX_NFEV,
         metavar="N",
-        help="most residual evaluations of the output-error search (default: 200)",
+        help=f"most residual evaluations of the output-error search (default: {MAX_NFEV})",
     )
     fit.add_argument(
         "--loss",
