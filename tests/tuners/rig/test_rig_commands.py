@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 from gripper_env.hardware.host.calibration import load_calibration
+from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.virtual import VirtualDevice
-from tests.hardware.virtual_support import gains_file, run_cli, short_step_csv
+from tests.hardware.virtual_support import REPO, gains_file, run_cli, short_step_csv
 from tuners.rig import calibrate, deploy, record
 from tuners.rig.virtual import board_parser as virtual_parser
 
@@ -101,6 +106,31 @@ def test_deploy_gate_refuses_unstable_gains_and_the_override_runs_them(
     # the jaw clamp held whatever the PID asked
     data = np.genfromtxt(tmp_path / "out" / "response.csv", delimiter=",", names=True)
     assert np.nanmin(data["command_deg"]) >= 21.0 and np.nanmax(data["command_deg"]) <= 92.0
+
+
+def test_record_runs_again_when_frames_are_lost_and_keeps_the_gapped_log(
+    virtual, calibration_file, tmp_path
+) -> None:
+    out = tmp_path / "ramp.csv"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tuners.rig.record", "--port", virtual.path, *SPEED,
+         "--calibration", calibration_file, "--profile", "ramp3", "--output", str(out)],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    # lose telemetry once the first run streams its profile (the first open-loop tick)
+    deadline = time.monotonic() + 120.0
+    while virtual.firmware.mode != Mode.OPEN_LOOP and time.monotonic() < deadline:
+        time.sleep(0.002)
+    virtual.drop_frames(3)
+    stdout, stderr = proc.communicate(timeout=240)
+    assert proc.returncode == 0, stderr
+    assert "samples missing from the record" in stderr and "recording again (run 2" in stderr
+    gapped = tmp_path / "ramp.attempt1.csv"
+    for path, gaps in ((gapped, True), (out, False)):
+        t = np.genfromtxt(path, delimiter=",", names=True)["t_s"]
+        assert bool(np.any(np.diff(t) > 0.0015)) == gaps, path
+    assert "recorded ramp3" in stdout and "ramp.attempt2" not in stderr
 
 
 def test_bad_input_is_one_line_and_status_2(tmp_path) -> None:
