@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from gripper_env.hardware.host.errors import DeviceError
 from gripper_env.io.files import write_csv
 from gripper_env.model.disturbances import Disturbance, describe, load_disturbance
 from gripper_env.model.plants import Plant, load_plant
@@ -57,6 +58,7 @@ __all__ = [
     "Experiment",
     "IdentifiedExperiment",
     "Recorder",
+    "RecordingGaps",
     "SimulatedRecorder",
     "identify_log",
     "step_t63",
@@ -203,6 +205,10 @@ class SimulatedRecorder:
         )
 
 
+class RecordingGaps(DeviceError):
+    """Every run of a recording had samples missing: telemetry frames lost on the link."""
+
+
 @dataclass
 class DeviceRecorder:
     """The board as a :data:`Recorder`: each run streams the profile open loop through
@@ -223,9 +229,16 @@ class DeviceRecorder:
     boot_wait_s, timeout_s : float
         Seconds to let the board boot after opening the port, and to wait for an answer.
     progress : callable, optional
-        Called with a line after each run.
+        Called with a line after each run (and before each run again).
     fraction : callable, optional
         Called with the fraction of the profile done, as it runs (each host period).
+    attempts : int
+        Runs of the profile at most: a run that completes with samples missing
+        (:meth:`~gripper_env.hardware.host.experiment.Recording.gaps`, telemetry frames lost on
+        the link; identification refuses gaps) is run again, its log kept beside the log as
+        ``LOG.attemptK.csv``; after the last, :class:`RecordingGaps`.
+    warn : callable, optional
+        Called with a line when a run is recorded again (default: ``progress``).
     """
 
     port: str
@@ -234,19 +247,56 @@ class DeviceRecorder:
     timeout_s: float = 0.5
     progress: Callable[[str], None] | None = None
     fraction: Callable[[float], None] | None = None
+    attempts: int = 3
+    warn: Callable[[str], None] | None = None
+
+    def __post_init__(self) -> None:
+        if self.attempts < 1:
+            raise ValueError(f"attempts must be at least 1, got {self.attempts}")
 
     def __call__(self, reference: Reference, path: Path, run: int = 0) -> Path:
         self.record(reference, path)
         return Path(path)
 
     def record(self, reference: Reference, path: str | os.PathLike[str]) -> Recording:
-        """Run ``reference`` open loop on the board, logging to ``path``.
+        """Run ``reference`` open loop on the board, logging to ``path``; again while a run
+        has samples missing, up to :attr:`attempts` runs.
 
         Returns
         -------
         Recording
             The samples, frames lost and where the log is (``extra["log"]``).
+
+        Raises
+        ------
+        RecordingGaps
+            Every run had samples missing (the last one's log is at ``path``).
         """
+        path = Path(path)
+        for attempt in range(1, self.attempts + 1):
+            rec = self._run(reference, path)
+            gaps = rec.gaps()
+            if not gaps:
+                return rec
+            at_s, worst = max(gaps, key=lambda g: g[1])
+            what = (f"{sum(n for _, n in gaps)} samples missing from the record ({len(gaps)} "
+                    f"gaps, the longest {worst} samples at {at_s:.3f} s: frames lost on the "
+                    "link)")  # fmt: skip
+            if attempt == self.attempts:
+                raise RecordingGaps(
+                    f"{what} in each of {attempt} runs; the last one is {rec.extra['log']} "
+                    "(identification refuses gaps beyond its --max-gap)"
+                )
+            kept = path.with_name(f"{path.stem}.attempt{attempt}{path.suffix}")
+            os.replace(str(rec.extra["log"]), kept)
+            warn = self.warn or self.progress
+            if warn is not None:
+                warn(f"warning: {what}; that run is kept as {kept}; recording again (run "
+                     f"{attempt + 1} of at most {self.attempts})")  # fmt: skip
+        raise AssertionError("unreachable")  # the loop returns or raises
+
+    def _run(self, reference: Reference, path: Path) -> Recording:
+        """One run of the profile."""
         from gripper_env.hardware.host.calibration import load_calibration
         from gripper_env.hardware.host.device import GripperDevice
         from gripper_env.hardware.host.experiment import CsvLog, run_profile

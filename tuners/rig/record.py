@@ -9,23 +9,20 @@ reads. The log is written as it goes (flushed every 20 ms) under ``LOG.partial.c
 to ``LOG.csv`` when the profile completes; a run that fails keeps its partial log. A run that
 completes with samples missing (telemetry frames lost on the link: identification refuses a
 record with gaps) is recorded again, up to ``--attempts`` runs in all; each gapped log is kept
-beside it as ``LOG.attemptK.csv``. ``desired_deg`` is the command the board applied (the host's
-setpoint as the board saw it), ``actual_deg`` the potentiometer through the calibration. The
-recording is the library's (:class:`gripper_env.sysid.experiments.DeviceRecorder`, which
-``python -m tuners.sysid experiments --port P`` runs once per Table-1 experiment).
+beside it as ``LOG.attemptK.csv``, and after the last the command fails naming the gaps.
+``desired_deg`` is the command the board applied (the host's setpoint as the board saw it),
+``actual_deg`` the potentiometer through the calibration. The recording is the library's
+(:class:`gripper_env.sysid.experiments.DeviceRecorder`, which ``python -m tuners.sysid
+experiments --port P`` runs once per Table-1 experiment).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
-
-import numpy as np
 
 from gripper_env.io.files import path_in
 from gripper_env.model.references import PROFILES, load_reference
@@ -33,10 +30,7 @@ from tuners.cli import DEFAULT_OUT, check_output_file
 from tuners.conventions import command_parser
 from tuners.rig.cli import add_device_arguments, run_cli
 
-if TYPE_CHECKING:
-    from gripper_env.hardware.host.experiment import Recording
-
-__all__ = ["main", "missing_samples"]
+__all__ = ["main"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -84,21 +78,9 @@ def every_s(period_s: float, duration_s: float) -> Callable[[float], None]:
     return show
 
 
-def missing_samples(rec: Recording) -> list[tuple[float, int]]:
-    """The gaps in a recording's device time: ``(time of the last sample before it (s, on the
-    profile's axis), samples missing)`` each."""
-    from gripper_env.hardware.host.experiment import s_decimation
-
-    t_s = (np.asarray(rec.samples.t_us, dtype=np.int64) - rec.t0_us) / 1e6
-    t_s = t_s[t_s >= -1e-9]
-    period_s = rec.reference.dt_s * s_decimation(rec.samples)
-    steps = np.round(np.diff(t_s) / period_s).astype(np.int64)
-    return [(float(t_s[i]), int(steps[i] - 1)) for i in np.flatnonzero(steps > 1)]
-
-
 def _run(args: argparse.Namespace) -> int:
     if args.attempts < 1:
-        raise ValueError(f"--attempts must be at least 1, got {args.attempts}")
+        raise ValueError(f"--attempts must be at least 1, got {args.attempts}")  # before the port
     reference = load_reference(args.profile)
     default = path_in(DEFAULT_OUT / "hardware", f"record_{reference.name}.csv", what="profile")
     output = Path(args.output) if args.output else default
@@ -108,27 +90,10 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.sysid.experiments import DeviceRecorder  # after parsing: --help is light
 
     recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout,
-                              fraction=every_s(10.0, reference.duration_s))  # fmt: skip
-    for attempt in range(1, args.attempts + 1):
-        rec = recorder.record(reference, output)
-        gaps = missing_samples(rec)
-        if not gaps:
-            break
-        missing = sum(n for _, n in gaps)
-        at_s, worst = max(gaps, key=lambda g: g[1])
-        what = (f"{missing} samples missing from the record ({len(gaps)} gaps, the longest "
-                f"{worst} samples at {at_s:.3f} s: frames lost on the link)")  # fmt: skip
-        if attempt == args.attempts:
-            last = rec.extra["log"]
-            print(f"error: {what} in each of {attempt} runs; the last one is {last} "
-                  "(identification refuses gaps beyond its --max-gap)",
-                  file=sys.stderr)  # fmt: skip
-            return 1
-        kept = output.with_name(f"{output.stem}.attempt{attempt}{output.suffix}")
-        os.replace(str(rec.extra["log"]), kept)
-        print(f"warning: {what}; that run is kept as {kept}; recording again "
-              f"(run {attempt + 1} of at most {args.attempts})", file=sys.stderr,
-              flush=True)  # fmt: skip
+                              fraction=every_s(10.0, reference.duration_s),
+                              attempts=args.attempts,
+                              warn=lambda m: print(m, file=sys.stderr, flush=True))  # fmt: skip
+    rec = recorder.record(reference, output)
     print(
         f"recorded {reference.name}: {len(rec.samples)} samples over "
         f"{reference.duration_s:g} s, {rec.frames_lost} frames lost -> {rec.extra['log']}"

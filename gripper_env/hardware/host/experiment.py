@@ -147,6 +147,15 @@ class Recording:
     commands_resent: int = 0
     extra: dict[str, object] = field(default_factory=dict)
 
+    def gaps(self) -> list[tuple[float, int]]:
+        """Where device time skips samples (telemetry frames lost on the link): ``(time of the
+        last sample before the gap (s, on the profile's axis), samples missing)`` each."""
+        t_s = (np.asarray(self.samples.t_us, dtype=np.int64) - self.t0_us) / 1e6
+        t_s = t_s[t_s >= -1e-9]
+        period_s = self.reference.dt_s * s_decimation(self.samples)
+        steps = np.round(np.diff(t_s) / period_s).astype(np.int64)
+        return [(float(t_s[i]), int(steps[i] - 1)) for i in np.flatnonzero(steps > 1)]
+
     def trajectory(self) -> RecordedTrajectory:
         """The run resampled on a 1 ms grid from 0 to its last sample (gaps interpolated)."""
         s = self.samples
