@@ -41,7 +41,7 @@ import os
 from dataclasses import dataclass, field
 from types import TracebackType
 
-from gripper_env.hardware.bus.interrupts import signals_held
+from gripper_env.hardware.bus.interrupts import signals_held, transaction
 from gripper_env.hardware.bus.link import (
     BusAlertError,
     BusError,
@@ -263,6 +263,17 @@ class Restored:
         Registers the session wrote and could not restore (with ``error``).
     held_signals : list of str
         Signals that came during the restore (deferred, not raised).
+    has_flash : bool
+        The servo keeps EEPROM-area writes in flash only under ``Lock`` = 0 (an STS), so what
+        the session did to its flash is part of the outcome.
+    flash_rewritten : list of str
+        ``name value`` of the EEPROM registers written back to flash under ``Lock`` = 0 (a save
+        that did not finish: the values found when the session began), read back.
+    flash_left : list of str
+        ``name value`` of what the flash may hold after a failed restore (the values a save sent
+        under ``Lock`` = 0), with ``error``.
+    flash_saved : list of str
+        ``name value`` of the registers a finished save keeps in flash.
     """
 
     servo_id: int
@@ -274,25 +285,49 @@ class Restored:
     error: str | None = None
     left_changed: list[str] = field(default_factory=list)
     held_signals: list[str] = field(default_factory=list)
+    has_flash: bool = False
+    flash_rewritten: list[str] = field(default_factory=list)
+    flash_left: list[str] = field(default_factory=list)
+    flash_saved: list[str] = field(default_factory=list)
 
     def describe(self) -> str:
         """One line for the user, from what was read back."""
         who = f"servo {self.servo_id}"
         if self.error is not None:
             left = ", ".join(self.left_changed) or "none"
-            return f"{who} could not be restored ({self.error}); written and not restored: {left}"
+            text = f"{who} could not be restored ({self.error}); written and not restored: {left}"
+            if self.flash_left:
+                text += (
+                    f"; its flash may hold {', '.join(self.flash_left)} (saved under Lock 0: "
+                    "kept after a power cycle)"
+                )
+            elif self.has_flash:
+                text += "; nothing was saved to its flash"
+            return text
         torque = {True: "on", False: "off", None: "unknown"}[self.torque_on]
         found = "as found" if self.torque_as_found else "not as found"
+        flash = ""
+        if self.flash_rewritten:
+            flash = (
+                f"; flash written back to the values found ({', '.join(self.flash_rewritten)}, "
+                "under Lock 0, read back)"
+            )
+        elif self.flash_saved:
+            flash = f"; flash keeps the saved {', '.join(self.flash_saved)}"
+        elif self.has_flash:
+            flash = "; flash untouched"
         if not self.ok:
             return (
-                f"{who} restored except {', '.join(self.mismatches)} (read back); torque reads "
-                f"{torque} ({found})"
+                f"{who} restored except {', '.join(self.mismatches)} (read back){flash}; torque "
+                f"reads {torque} ({found})"
             )
         if self.written:
             what = f"restored and read back (written back: {', '.join(self.written)})"
+        elif self.flash_saved:
+            what = "as the save leaves it, read back (nothing to write back)"
         else:
             what = "as found and read back (nothing to write back)"
-        return f"{who} {what}; torque reads {torque} ({found})"
+        return f"{who} {what}{flash}; torque reads {torque} ({found})"
 
 
 class BusGripper:
@@ -378,6 +413,10 @@ class BusGripper:
         self.keep_torque = False
         self._own = link is None
         self._written: set[str] = set()
+        # EEPROM role -> value a save sent under Lock 0 that the flash may hold; cleared once the
+        # flash holds what the session leaves (the save finished, or the found values went back)
+        self._flash_dirty: dict[str, int] = {}
+        self._flash_saved: dict[str, int] = {}  # what a finished save keeps in flash
         self.link = link or BusLink(
             port,
             base.family,
@@ -481,10 +520,12 @@ class BusGripper:
         """Write back every register that differs from its target (the snapshot, or what
         :meth:`keep` set), read them all back.
 
-        The torque goes off first when anything else must be written, then the registers (on
-        an STS with ``Lock`` = 1, so nothing is saved to flash), the goal, the torque as found
-        (or ``torque_on``), and the lock as found. Signals are deferred meanwhile; alerts do not
-        stop it.
+        The torque goes off first when anything else must be written. On an STS whose flash a
+        save did not finish writing (an error, a signal or a lost port in :meth:`save`), the
+        values found go back to flash first, under ``Lock`` = 0, one write per adjacent group;
+        then the registers (under ``Lock`` = 1, so nothing more is saved), the goal, the torque
+        as found (or ``torque_on``), and the lock as found. Signals are deferred meanwhile;
+        alerts do not stop it.
 
         Returns
         -------
@@ -494,7 +535,8 @@ class BusGripper:
         target = dict(self.target)
         if torque_on is not None:
             target["torque_enable"] = 1 if torque_on else 0
-        out = Restored(self.servo_id)
+        spec = self.link.spec
+        out = Restored(self.servo_id, has_flash=spec.has_role("lock"))
         link = self.link
         alerts, link.raise_on_alert = link.raise_on_alert, False
         try:
@@ -508,9 +550,11 @@ class BusGripper:
                         else (f"the port {link.port} is gone")
                     )
                     out.left_changed = sorted(_LABELS[r] for r in self._written if r in target)
+                    out.flash_left = self._describe(self._flash_dirty)
             out.held_signals = came
         finally:
             link.raise_on_alert = alerts
+        out.flash_saved = self._describe(self._flash_saved)
         self.restored = out
         return out
 
@@ -521,10 +565,23 @@ class BusGripper:
         if torque_final and not self.found["torque_enable"]:
             target["goal_position"] = now["goal_position"]  # kept on: it holds where it is
         changes = [r for r in _SNAPSHOT_ROLES if spec.has_role(r) and now[r] != target[r]]
-        if changes and now["torque_enable"] != 0:
+        flash = {r: self._flash_saved.get(r, self.found[r]) for r in self._flash_dirty}
+        if (changes or flash) and now["torque_enable"] != 0:
             self._write("torque_enable", 0)
+        if flash:  # a save did not finish: the flash gets the values found back
+            self._write("lock", 0)
+            for group in self._adjacent_groups(flash):
+                self._written.update(group)
+                self.link.write_block(
+                    self.servo_id, {spec.role(r).name: v for r, v in group.items()}
+                )
+            self._write("lock", 1)
+            self._flash_dirty.clear()
+            out.flash_rewritten = self._describe(flash)
+            now.update(self._read_roles(list(flash)))
+            changes = [r for r in _SNAPSHOT_ROLES if spec.has_role(r) and now[r] != target[r]]
         eeprom = [r for r in changes if spec.role(r).area == "EEPROM"]
-        if eeprom and spec.has_role("lock"):
+        if eeprom and spec.has_role("lock") and not flash:  # (after the flash's, Lock is 1)
             self._write("lock", 1)  # an STS: the EEPROM-area writes take effect, not saved
         for role in changes:
             self._write(role, target[role])
@@ -532,7 +589,7 @@ class BusGripper:
         if spec.has_role("lock"):
             self._write("lock", target["lock"], only_if_changed=True)
         back = self._read_roles()
-        out.written = [_LABELS[r] for r in changes]
+        out.written = [_LABELS[r] for r in dict.fromkeys([*flash, *changes])]
         out.mismatches = [
             f"{_LABELS[r]} {back[r]} (wanted {target[r]})" for r in back if back[r] != target[r]
         ]
@@ -540,6 +597,22 @@ class BusGripper:
         out.torque_as_found = back["torque_enable"] == self.found["torque_enable"]
         out.ok = not out.mismatches
         self._written.clear()
+
+    def _adjacent_groups(self, values: dict[str, int]) -> list[dict[str, int]]:
+        """``values`` (EEPROM role -> value) cut into runs of adjacent registers, in address
+        order: one WRITE each, so one flash save each."""
+        spec = self.link.spec
+        groups: list[dict[str, int]] = []
+        for role in sorted(values, key=lambda r: spec.role(r).address):
+            if groups and spec.role(next(reversed(groups[-1]))).end == spec.role(role).address:
+                groups[-1][role] = values[role]
+            else:
+                groups.append({role: values[role]})
+        return groups
+
+    @staticmethod
+    def _describe(values: dict[str, int]) -> list[str]:
+        return [f"{_LABELS[r]} {v}" for r, v in values.items()]
 
     # ---- registers -------------------------------------------------------------------------------
 
@@ -610,19 +683,20 @@ class BusGripper:
         written when the servo was found unlocked (its flash holds it already). A Dynamixel's
         gains are RAM registers: kept until power-off.
 
+        A save that does not finish (an error, a signal, the port gone) is undone by
+        :meth:`restore`, flash included: the values found are written back to flash under
+        ``Lock`` = 0 (a lost port leaves the flash as it is, and the restore says what it may
+        hold).
+
         Returns the names of the registers saved to flash (none on a Dynamixel).
         """
         values = self.register_values(regs)
         spec = self.link.spec
         saved: list[str] = []
-        eeprom = {r: v for r, v in values.items() if spec.role(r).area == "EEPROM"}
         groups: list[dict[str, int]] = []  # adjacent EEPROM registers, one write (save) each
         if spec.has_role("lock"):
-            for role in sorted(eeprom, key=lambda r: spec.role(r).address):
-                if groups and spec.role(next(reversed(groups[-1]))).end == spec.role(role).address:
-                    groups[-1][role] = eeprom[role]
-                else:
-                    groups.append({role: eeprom[role]})
+            eeprom = {r: v for r, v in values.items() if spec.role(r).area == "EEPROM"}
+            groups = self._adjacent_groups(eeprom)
             if self.found.get("lock") == 0:  # found unlocked: its flash holds what was found
                 groups = [g for g in groups if any(v != self.found[r] for r, v in g.items())]
         if groups:
@@ -631,6 +705,8 @@ class BusGripper:
             self._written.add("lock")
             try:
                 for group in groups:
+                    self._flash_dirty.update(group)  # before it is sent: a lost reply hides it
+                    self._written.update(group)
                     self.link.write_block(
                         self.servo_id, {spec.role(r).name: v for r, v in group.items()}
                     )
@@ -639,7 +715,11 @@ class BusGripper:
                 self._write("lock", 1)
         for role, value in values.items():
             self._write(role, value, only_if_changed=True)
-        self.keep(values)
+        with transaction():  # one step: a signal comes before it or after it, never inside
+            self.keep(values)
+            for group in groups:
+                self._flash_saved.update(group)
+            self._flash_dirty.clear()
         return saved
 
     def torque(self, on: bool) -> None:
@@ -687,6 +767,13 @@ class BusGripper:
     def position_deg(self, retries: int | None = None) -> float:
         """The jaw's present position (deg, model frame)."""
         return self.calibration.deg(self._read("present_position", retries))
+
+    def duty(self) -> float:
+        """The loop's present output as a signed fraction of full drive: an STS's and an
+        XL430's ``Present_Load`` (0.1 %), an XL330's ``Present_PWM`` (885 = 100 %)."""
+        if self.link.spec.has_role("present_load"):
+            return self._read("present_load") / 1000.0
+        return self.link.read(self.servo_id, "present_pwm") / 885.0
 
     def status(self) -> dict[str, object]:
         """Error bits, temperature, load (or current) and torque state, by name."""

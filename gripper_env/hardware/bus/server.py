@@ -146,6 +146,10 @@ class VirtualBus(PtyDevice):
     bytes_received, bytes_sent : int
     error : BaseException or None
         What stopped the thread (a physics that raised, for example); :meth:`stop` re-raises it.
+    on_packet : callable or None
+        Called in the bus thread with each instruction packet (its ``id``, ``code`` and
+        ``params``) once the servos have acted on it and before any reply is sent: a test's
+        observation point (a signal sent to the host at a given write, for example).
     """
 
     def __init__(
@@ -202,6 +206,7 @@ class VirtualBus(PtyDevice):
         self.packets_received = self.replies_sent = 0
         self.packets_to: Counter[int] = Counter()
         self.bytes_received = self.bytes_sent = 0
+        self.on_packet: Callable[[scs.Packet | dxl.Packet], None] | None = None
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
@@ -357,6 +362,8 @@ class VirtualBus(PtyDevice):
                 replies = self._feetech(packet)
             else:
                 replies = self._dynamixel(packet)
+        if self.on_packet is not None:
+            self.on_packet(packet)
         for servo, reply in replies:
             self._send(master, servo, reply)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 
 import pytest
@@ -236,3 +237,125 @@ def test_keep_torque_holds_where_it_is_and_an_unchanged_group_is_not_saved_again
         assert restored is not None and restored.ok and restored.torque_on
         assert not restored.torque_as_found and "torque reads on (not as found)" in (
             restored.describe())  # fmt: skip
+
+
+# ---- a save that does not finish ----------------------------------------------------------------
+
+#: The owner's registers, in flash and RAM alike (as LeRobot's configure leaves them: it writes
+#: under Lock 0), and the registers a deploy saves.
+_OWNERS = {"p_coefficient": 20, "d_coefficient": 30, "i_coefficient": 0, "cw_dead_zone": 1,
+           "ccw_dead_zone": 1}  # fmt: skip
+_TUNED = RegisterSet(p=122, i=2, d=119, torque_limit=700, deadband=3)
+
+
+def _owners_table(lock: int) -> ControlTable:
+    table = _table("sts3215")
+    for name, value in _OWNERS.items():
+        table.store(name, value)
+    table.set("lock", lock)
+    table.set("torque_enable", 1)
+    table.set_role("goal_position", 2600)
+    return table
+
+
+def _flash(table: ControlTable) -> bytes:
+    return bytes(table._saved)  # the flash image a power cycle loads
+
+
+def _writes_to_six(packet) -> bool:
+    return packet.id == 6 and packet.code == 0x03  # Feetech WRITE
+
+
+def _save_writes(lock: int) -> int:
+    """The WRITE packets a whole save sends (counted on a servo found with ``lock``)."""
+    table = _owners_table(lock)
+    count = [0]
+    with VirtualBus("sts3215", ids=[table]) as bus:
+        with BusGripper(bus.path, "sts3215", 6, calibration=_jaw("sts3215")) as jaw:
+            jaw.write_registers(_TUNED)
+            bus.on_packet = lambda p: count.__setitem__(0, count[0] + _writes_to_six(p))
+            jaw.save(_TUNED)
+            bus.on_packet = None
+    return count[0]
+
+
+@pytest.mark.parametrize("lock", [1, 0])
+def test_a_save_cut_short_at_any_write_leaves_the_flash_as_found(lock):
+    """SIGINT and SIGTERM at each WRITE a save sends (the lock, each adjacent group under
+    Lock 0, the lock again, the RAM registers): after a power cycle the flash holds the owner's
+    registers, the lock reads as found, and the restore's message says what it did to the flash,
+    as read back."""
+    writes = _save_writes(lock)
+    assert writes >= 4  # Lock 0, two groups (gains, dead zones), Lock 1
+    for k in range(writes):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            table = _owners_table(lock)
+            flash, saves = _flash(table), table.eeprom_saves
+            seen = [0]
+
+            def at_kth_write(packet, k=k, sig=sig, seen=seen):
+                if _writes_to_six(packet):
+                    if seen[0] == k:
+                        os.kill(os.getpid(), sig)  # comes while the host waits for the reply
+                    seen[0] += 1
+
+            with VirtualBus("sts3215", ids=[table]) as bus, handle_signals():
+                with pytest.raises(BusInterrupted, match=signal.Signals(sig).name):
+                    with BusGripper(bus.path, "sts3215", 6, calibration=_jaw("sts3215")) as jaw:
+                        jaw.write_registers(_TUNED)
+                        bus.on_packet = at_kth_write
+                        jaw.save(_TUNED)
+                bus.on_packet = None
+                restored = jaw.restored
+                assert restored is not None and restored.ok, (k, sig, restored)
+                said = restored.describe()
+                assert table.get("lock") == lock and table.torque_on, (k, sig, said)
+                if k == 0:  # Lock 0 was written, no group yet: the flash was never written
+                    assert "flash untouched" in said and table.eeprom_saves == saves, said
+                else:  # the groups sent so far (the gains', then the dead zones') go back
+                    back = "P 20, D 30, I 0" + (
+                        ", CW dead zone 1, CCW dead zone 1" if k > 1 else ""
+                    )
+                    assert (
+                        f"flash written back to the values found ({back}, under Lock 0, "
+                        "read back)" in said
+                    ), (k, said)
+                bus.power_cycle(6)
+                assert _flash(table) == flash, (k, sig, said)
+                assert {n: table.get(n) for n in _OWNERS} == _OWNERS, (k, sig)
+
+
+def test_a_finished_save_is_kept_and_says_so():
+    table = _owners_table(1)
+    with VirtualBus("sts3215", ids=[table]) as bus:
+        with BusGripper(bus.path, "sts3215", 6, calibration=_jaw("sts3215")) as jaw:
+            jaw.write_registers(_TUNED)
+            jaw.save(_TUNED)
+        said = jaw.restored.describe()
+        assert "flash keeps the saved P 122, D 119, I 2, CW dead zone 3, CCW dead zone 3" in said
+        bus.power_cycle(6)
+        assert (table.get("p_coefficient"), table.get("d_coefficient")) == (122, 119)
+
+
+def test_a_port_lost_during_a_save_names_what_the_flash_may_hold():
+    table = _owners_table(1)
+    seen = [0]
+    with VirtualBus("sts3215", ids=[table]) as bus:
+
+        def vanish_after_the_first_group(packet):
+            if _writes_to_six(packet):
+                seen[0] += 1
+                if seen[0] == 2:  # Lock 0, then the gains' group: the adapter is unplugged
+                    threading.Thread(target=bus.stop).start()
+
+        with pytest.raises(BusPortLostError) as caught:
+            with BusGripper(bus.path, "sts3215", 6, calibration=_jaw("sts3215")) as jaw:
+                jaw.write_registers(_TUNED)
+                bus.on_packet = vanish_after_the_first_group
+                jaw.save(_TUNED)
+    said = jaw.restored.describe()
+    assert said in caught.value.__notes__
+    assert "could not be restored (the port" in said and "lock" in said, said
+    assert "its flash may hold P 122, D 119, I 2 (saved under Lock 0" in said, said
+    table.power_cycle()
+    assert (table.get("p_coefficient"), table.get("d_coefficient")) == (122, 119)  # as it said

@@ -35,7 +35,8 @@ CLOSED, OPEN = 1760, 2940
 HOLDING = 2731
 
 #: The gripper's registers as found (by role): a LeRobot follower's (P 16, Acceleration 254,
-#: the torque on and locked) on the STS3215; a Koch-like set on the XL330.
+#: the torque on and locked; the gains in flash too, since LeRobot writes them with the torque
+#: off, under Lock 0) on the STS3215; a Koch-like set on the XL330.
 FOUND = {
     "sts3215": {"p_gain": 16, "d_gain": 32, "i_gain": 0, "torque_limit": 500,
                 "acceleration": 254, "lock": 1},
@@ -52,8 +53,8 @@ def gripper_table(family: str) -> ControlTable:
     for role, value in (("min_position", LIMITS[0]), ("max_position", LIMITS[1])):
         f = spec.role(role)
         assert table.write(f.address, f.encode(value)) == 0
-    for role, value in FOUND[family].items():
-        table.set_role(role, value)
+    for role, value in FOUND[family].items():  # as LeRobot writes them: under Lock 0, saved
+        table.store(spec.role(role).name, value)
     table.set_role("goal_position", HOLDING)
     table.set_role("torque_enable", 1)
     return table

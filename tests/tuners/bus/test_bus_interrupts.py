@@ -8,6 +8,7 @@ before. Nothing is saved to its flash, and the one line the command prints is wh
 from __future__ import annotations
 
 import signal
+import threading
 
 import pytest
 from bus_arm import (
@@ -108,3 +109,90 @@ def test_a_vanished_port_ends_in_one_line_saying_what_was_left_changed(which, tm
     assert f"error: the port {bus.path} is gone" in line, line
     assert "servo 6 could not be restored" in line, line
     assert "torque" in line.split("written and not restored:")[1], line  # turned off to write
+
+
+# ---- deploy --save cut short: the flash ----------------------------------------------------------
+
+_WRITE, _LOCK = 0x03, 55  # Feetech's WRITE instruction; the STS3215's Lock register
+
+
+def _at_save_write(bus, at: int, act) -> dict[str, int]:
+    """Call ``act`` when the gripper receives the ``at``-th WRITE of the save (0: the save's
+    ``Lock`` = 0; then the gains' group, the dead zones' group, ``Lock`` = 1), in the bus thread,
+    before the reply goes out."""
+    state = {"seen": -1, "acted": 0}
+
+    def watch(packet) -> None:
+        if packet.id != GRIPPER or packet.code != _WRITE or state["acted"]:
+            return
+        if state["seen"] < 0 and packet.params[:2] == bytes([_LOCK, 0]):
+            state["seen"] = 0
+        if state["seen"] >= 0:
+            if state["seen"] == at:
+                state["acted"] = 1
+                act()
+            state["seen"] += 1
+
+    bus.on_packet = watch
+    return state
+
+
+def _eeprom(table) -> bytes:
+    return bytes(table.memory[: table.spec.ram_start])
+
+
+@pytest.mark.parametrize(
+    ("at", "sig"),
+    [(0, signal.SIGINT), (1, signal.SIGINT), (1, signal.SIGTERM), (2, signal.SIGTERM),
+     (3, signal.SIGINT), (3, signal.SIGTERM)],
+)  # fmt: skip
+def test_a_save_cut_short_leaves_the_flash_as_found(at, sig, tmp_path, jaw_file):
+    """SIGINT or SIGTERM at a write of ``deploy --save`` (the library's test takes every write
+    with both): the command exits 128 + the signal, says what it did to the flash, and after a
+    power cycle the servo comes up with the owner's gains; every register reads as found."""
+    family = "sts3215"
+    with arm_bus(family) as bus:
+        jaw = jaw_file(bus, family)
+        table = bus.table(GRIPPER)
+        before = sdk_registers(bus.path, family)
+        eeprom = _eeprom(table)
+        proc = command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+                       bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--no-plot", "--save",
+                       "--out", str(tmp_path / "out"))  # fmt: skip
+        state = _at_save_write(bus, at, lambda: proc.send_signal(sig))
+        code, out, err = finish(proc)
+        bus.on_packet = None
+        assert state["acted"], (out, err)
+        line = _one_line(err)
+        assert code == 128 + sig, (out, err)
+        if at == 0:  # Lock 0 written, no group yet
+            assert "; flash untouched; torque reads on (as found)" in line, line
+        else:
+            back = "P 16, D 32, I 0" + (", CW dead zone 1, CCW dead zone 1" if at > 1 else "")
+            assert f"; flash written back to the values found ({back}, under Lock 0, read " \
+                "back); torque reads on (as found)" in line, line  # fmt: skip
+        assert sdk_registers(bus.path, family) == before  # RAM, Lock included, as found
+        bus.power_cycle(GRIPPER)
+        assert _eeprom(table) == eeprom  # the flash: the owner's
+        assert all(bus.packets_to[i] == 0 for i in OTHERS)
+
+
+def test_a_port_lost_during_a_save_says_what_the_flash_may_hold(tmp_path, jaw_file):
+    family = "sts3215"
+    with arm_bus(family) as bus:
+        jaw = jaw_file(bus, family)
+        proc = command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+                       bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--no-plot", "--save",
+                       "--out", str(tmp_path / "out"))  # fmt: skip
+        state = _at_save_write(bus, 2, lambda: threading.Thread(target=bus.stop).start())
+        code, out, err = finish(proc)
+        table = bus.table(GRIPPER)
+    assert state["acted"], (out, err)
+    line = _one_line(err)
+    assert code == 1, (out, err)
+    assert f"error: the port {bus.path} is gone" in line, line
+    assert "its flash may hold P 78, D 91, I 0, CW dead zone 1, CCW dead zone 1 (saved under " \
+        "Lock 0: kept after a power cycle)" in line, line  # fmt: skip
+    assert "lock" in line.split("written and not restored:")[1], line
+    table.power_cycle()  # what it said: the gains the save sent
+    assert (table.get("p_coefficient"), table.get("d_coefficient")) == (78, 91)
