@@ -44,6 +44,7 @@ from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded, v
 
 __all__ = [
     "DEG_PER_TICK",
+    "GRIPPER_MOTOR",
     "MIN_SPAN_DEG",
     "OBJECT_FRACTION",
     "OPEN_FRACTION",
@@ -67,6 +68,8 @@ OPEN_FRACTION = 90.0 / 110.0
 OBJECT_FRACTION = 35.0 / 110.0
 #: The least angle between the closed and the open position a calibration may have (deg).
 MIN_SPAN_DEG = 5.0
+#: The gripper's motor name in LeRobot's calibration files (SO-100/SO-101, Koch, LeKiwi).
+GRIPPER_MOTOR = "gripper"
 
 
 class ServoRegisters(BaseModel):
@@ -132,6 +135,14 @@ class JawCalibration(BaseModel):
         (gripper)"``).
     servo : ServoRegisters or None
         The servo's registers at calibration time (None: read when the servo is opened).
+    motor : str or None
+        The motor's name in LeRobot's calibration file (None: calibrated by hand or from
+        given positions). Anything but ``"gripper"`` is an arm joint, which the commands drive
+        only when ``risk_arm_joint`` is set.
+    risk_arm_joint : bool
+        The owner said the servo may be an arm joint rather than a gripper's jaw
+        (``python -m tuners.bus.calibrate --risk-arm-joint``): the commands then drive it over
+        its calibrated range although its motor name or its load says it is not a gripper.
     """
 
     model_config = _STRICT
@@ -142,6 +153,24 @@ class JawCalibration(BaseModel):
     open_ticks: int
     source: str = ""
     servo: ServoRegisters | None = None
+    motor: str | None = None
+    risk_arm_joint: bool = False
+
+    @model_validator(mode="before")
+    @classmethod
+    def _motor_of_older_files(cls, data: Any) -> Any:
+        """A calibration written before ``motor`` existed names its LeRobot motor in
+        ``source`` (``lerobot: FILE (NAME)``)."""
+        if isinstance(data, dict) and data.get("motor") is None:
+            source = str(data.get("source", ""))
+            if source.startswith("lerobot:") and source.endswith(")") and "(" in source:
+                data = {**data, "motor": source[source.rindex("(") + 1 : -1]}
+        return data
+
+    @property
+    def arm_joint(self) -> bool:
+        """The calibration is of a LeRobot motor other than the gripper."""
+        return self.motor is not None and self.motor != GRIPPER_MOTOR
 
     @model_validator(mode="after")
     def _consistent(self) -> JawCalibration:
@@ -213,6 +242,10 @@ class JawCalibration(BaseModel):
             f"closed {self.closed_ticks} ticks, open {self.open_ticks} ticks "
             f"({hi - lo:.1f} deg of travel)"
         )
+        if self.arm_joint:
+            text += f"; LeRobot's motor {self.motor!r}, not the gripper"
+        if self.risk_arm_joint:
+            text += " (the owner accepted driving an arm joint: --risk-arm-joint)"
         if self.servo is not None:
             s = self.servo
             limits = f"[{s.min_position}, {s.max_position}]" if s.limited else "none"

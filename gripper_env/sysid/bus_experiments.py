@@ -44,9 +44,13 @@ if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
 
 __all__ = [
+    "PROBE_DEG",
     "RECORD_SETTINGS",
+    "STEADY_LOAD_LIMIT",
     "BusRecorder",
     "GoalPlan",
+    "LoadProbe",
+    "check_load",
     "check_plan",
     "check_record",
     "check_settings",
@@ -72,6 +76,13 @@ CREEP_PERIOD_S = 0.02
 CREEP_TICKS = 60
 _SETTLE_S = 0.5  # at the open position before the record starts
 _TAIL_S = 0.3  # after the last goal
+#: The load probe's reach (deg): a creep this far from where the servo holds, and back.
+PROBE_DEG = 3.0
+#: The steady load (fraction of full drive) above which the servo is taken for an arm joint:
+#: a gripper's jaw moves with its friction alone, which the probe's two directions cancel
+#: (see :class:`LoadProbe`); an SO-101's shoulder and elbow carry 10-50 % of an STS3215's
+#: stall torque against gravity, its wrist with the gripper a few percent.
+STEADY_LOAD_LIMIT = 0.03
 
 
 @dataclass(frozen=True)
@@ -208,6 +219,77 @@ def check_settings(model: BusServoModel, registers: Sequence[RegisterSet]) -> No
             )
 
 
+@dataclass(frozen=True)
+class LoadProbe:
+    """What a slow creep away from where the servo holds, and back, shows of its load.
+
+    While the goal creeps at a steady pace the loop's output balances the friction, whose sign
+    follows the motion, and any steady load (gravity on an arm joint, a spring), whose sign does
+    not: the mean of the two directions is the steady load, half their difference the friction.
+
+    Attributes
+    ----------
+    at_deg : float
+        Where the servo held when the probe began (deg, model frame).
+    reach_deg : float
+        How far the goal crept, signed (deg).
+    forth, back : float
+        Mean output (signed fraction of full drive) over the second half of each creep.
+    readings : int
+    """
+
+    at_deg: float
+    reach_deg: float
+    forth: float
+    back: float
+    readings: int
+
+    @property
+    def steady(self) -> float:
+        """The steady load (fraction of full drive, signed)."""
+        return 0.5 * (self.forth + self.back)
+
+    @property
+    def friction(self) -> float:
+        """The friction's share (fraction of full drive)."""
+        return 0.5 * abs(self.forth - self.back)
+
+    def describe(self, stall_torque_nm: float) -> str:
+        """One line: the steady load and the friction, in % and N m."""
+        return (
+            f"steady load {100 * abs(self.steady):.1f} % of full drive "
+            f"({abs(self.steady) * stall_torque_nm:.2f} N m), friction "
+            f"{100 * self.friction:.1f} %, creeping {abs(self.reach_deg):.1f} deg each way from "
+            f"{self.at_deg:.1f} deg ({self.readings} readings)"
+        )
+
+
+def check_load(probe: LoadProbe, model: BusServoModel, risk_arm_joint: bool = False) -> str:
+    """Refuse (ValueError) a servo whose :class:`LoadProbe` shows a steady load above
+    :data:`STEADY_LOAD_LIMIT`: an arm joint under gravity (or a jaw on a spring), which the
+    gripper's model does not describe and which a record's steps would drive at its torque
+    limit. With ``risk_arm_joint`` the same finding is returned as a warning instead.
+
+    Returns
+    -------
+    str
+        A warning, or ``""``.
+    """
+    if abs(probe.steady) <= STEADY_LOAD_LIMIT:
+        return ""
+    what = (
+        f"the servo carries a {probe.describe(model.physics.stall_torque_nm)}: a gripper's jaw "
+        f"moves with its friction alone (steady load at most {100 * STEADY_LOAD_LIMIT:g} %); "
+        "this looks like an arm joint under gravity, or a jaw on a spring"
+    )
+    if risk_arm_joint:
+        return f"{what} (recorded anyway: the calibration says --risk-arm-joint)"
+    raise ValueError(
+        f"{what}: refusing to record it (calibrate the gripper's own servo; for a joint you mean "
+        "to drive, python -m tuners.bus.calibrate --risk-arm-joint)"
+    )
+
+
 class BusRecorder:
     """Records the plan on a servo over the bus.
 
@@ -262,6 +344,49 @@ class BusRecorder:
             else:
                 self._run = 0
             time.sleep(0.01)
+
+    def probe_load(self, registers: RegisterSet, reach_deg: float | None = None) -> LoadProbe:
+        """Before anything larger: write ``registers`` (read back), turn the torque on where the
+        servo is, and creep the goal ``reach_deg`` towards the middle of the calibrated range,
+        one tick per :data:`CREEP_PERIOD_S`, and back, reading the loop's output at each goal
+        (:class:`LoadProbe`). The torque stays on, holding where it began.
+
+        The default reach is :data:`PROBE_DEG`, or three times the loop's dead band on the
+        model (``static / (kp P)``) if that is more: the jaw must slide, not just wind the
+        loop's error up inside its friction, for the two directions to cancel the friction."""
+        g = self.gripper
+        if reach_deg is None:
+            m = g.model
+            band = m.physics.static / (m.scale.kp * max(registers.p, 1)) * m.deg_per_tick
+            reach_deg = max(PROBE_DEG, 3.0 * band)
+        g.write_registers(registers)
+        g.torque(True)  # holds where it is, within the goal range
+        lo, hi = g.goal_range_deg()
+        here = min(max(g.position_deg(), lo), hi)
+        sense = 1.0 if here <= 0.5 * (lo + hi) else -1.0
+        tick = g.model.deg_per_tick
+        n = max(2, round(min(reach_deg, 0.5 * (hi - lo)) / tick))
+        means = []
+        for steps in (range(1, n + 1), range(n - 1, -1, -1)):  # forth, then back
+            duties = []
+            for i, k in enumerate(steps):
+                g.goal_deg(here + sense * k * tick)
+                end = self.clock() + CREEP_PERIOD_S
+                while (left := end - self.clock()) > 0:
+                    time.sleep(left)
+                if i < len(steps) // 2:  # the first half: the backlash, the profile's start
+                    continue
+                try:
+                    duties.append(g.duty())
+                except BusCommError as exc:
+                    self._lost(exc)
+                else:
+                    self._run = 0
+            if not duties:
+                raise BusCommError("the load probe got no reading of the servo's output")
+            means.append((float(np.mean(duties)), len(duties)))
+        (forth, n_forth), (back, n_back) = means
+        return LoadProbe(here, sense * n * tick, forth, back, n_forth + n_back)
 
     def record(self, registers: RegisterSet, plan: GoalPlan | None = None) -> BusRecord:
         """Write ``registers`` (read back), turn the torque on, settle open, run ``plan``.

@@ -16,7 +16,9 @@ Three ways to give the positions:
   ``--motor gripper``), read as data: its ``range_min`` and ``range_max`` are the jaw's ends
   (LeRobot's 0 % is taken as closed: ``range_min``, or ``range_max`` with ``drive_mode`` 1;
   ``--closed-at`` says otherwise), and its ``id``, ``homing_offset`` and range must be what the
-  servo holds.
+  servo holds. Only the motor named ``gripper`` is taken: another (``--motor shoulder_pan``) is
+  an arm joint, refused before the port is opened unless ``--risk-arm-joint`` says the owner
+  means it (the calibration then says so, and every later command with it).
 
 Positions beyond the servo's own position limits are brought inside them (the servo never gets
 a goal outside). Nothing of the servo's calibration is ever written.
@@ -49,6 +51,7 @@ from gripper_env.hardware.bus.interrupts import signals_held
 from gripper_env.hardware.bus.link import BusError, BusLink
 from gripper_env.io.files import write_json
 from gripper_env.model.bus_calibration import (
+    GRIPPER_MOTOR,
     JawCalibration,
     LeRobotMotor,
     ServoRegisters,
@@ -91,7 +94,17 @@ def _parser() -> argparse.ArgumentParser:
         "robots/<robot>/<name>.json), read as data",
     )
     parser.add_argument(
-        "--motor", default="gripper", help="the motor's name in --lerobot (default gripper)"
+        "--motor",
+        default="gripper",
+        help="the motor's name in --lerobot (default gripper; another motor is an arm joint, "
+        "taken only with --risk-arm-joint)",
+    )
+    parser.add_argument(
+        "--risk-arm-joint",
+        action="store_true",
+        help="the servo may be an arm joint, not a gripper's jaw: record, tune and deploy "
+        "will drive it over its calibrated range, at their torque limits, although its "
+        "motor name (--motor) or the load it carries says it is not a gripper",
     )
     parser.add_argument(
         "--closed-at",
@@ -119,6 +132,15 @@ def _check_options(args: argparse.Namespace) -> str:
         raise ValueError("--lerobot and --closed-ticks/--open-ticks exclude each other")
     if args.closed_at is not None and args.lerobot is None:
         raise ValueError("--closed-at goes with --lerobot")
+    if args.motor != GRIPPER_MOTOR:
+        if args.lerobot is None:
+            raise ValueError("--motor names a motor of --lerobot's file: give --lerobot too")
+        if not args.risk_arm_joint:
+            raise ValueError(
+                f"--motor {args.motor}: refusing a motor that is not the gripper (record would "
+                f"drive it over its whole calibrated range); calibrate --motor {GRIPPER_MOTOR}, "
+                "or pass --risk-arm-joint if you mean to drive this joint"
+            )
     if args.out is not None:  # before the servo is read: a folder, under a file, read-only
         from tuners.cli import check_output_file
 
@@ -267,6 +289,8 @@ def _run(args: argparse.Namespace) -> int:
                 open_ticks=opened,
                 source=source,
                 servo=regs,
+                motor=args.motor if how == "lerobot" else None,
+                risk_arm_joint=args.risk_arm_joint,
             )
         except ValueError as exc:
             raise ValueError(f"the jaw calibration of servo {args.id} is refused: {exc}") from None

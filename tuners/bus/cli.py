@@ -153,6 +153,13 @@ def load_jaw(path: str | None, model: BusServoModel, servo: int | None) -> JawCa
         raise ValueError(f"--jaw: the calibration is of a {cal.family}, not a {model.family}")
     if cal.servo_id is not None and servo is not None and cal.servo_id != servo:
         raise ValueError(f"--id {servo}: the jaw calibration was taken on servo {cal.servo_id}")
+    if cal.arm_joint and not cal.risk_arm_joint:
+        where = f"--jaw {path}" if from_file is not None else f"the model {model.name!r}"
+        raise ValueError(
+            f"{where} is a calibration of LeRobot's motor {cal.motor!r}, an arm joint, not the "
+            "gripper: refusing to drive it (calibrate the gripper's motor, or calibrate this one "
+            "again with --risk-arm-joint if you mean it)"
+        )
     return cal
 
 

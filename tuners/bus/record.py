@@ -5,7 +5,13 @@ Before anything is written: every setting is checked stable on the family's mode
 checked to lie inside the jaw calibration's goal range (``--jaw``, from ``python -m
 tuners.bus.calibrate``), the servo of ``--id`` is found on the bus (a broadcast ping lists the
 others; nothing is sent to them), and its calibration registers are read and compared with the
-jaw file's. Then, for each setting (P, I, D; default
+jaw file's. A **load probe** comes first, with the stiffest setting's registers: the torque on
+where the servo holds, the goal creeping 3 deg (or three dead bands) towards the middle of
+the calibrated range and back
+(:meth:`gripper_env.sysid.bus_experiments.BusRecorder.probe_load`); a steady load above 3 % of
+full drive, which a gripper's jaw does not carry, marks an arm joint under gravity and stops
+the command (exit 2, the servo restored) unless the calibration says ``--risk-arm-joint``. Then,
+for each setting (P, I, D; default
 :data:`gripper_env.sysid.bus_experiments.RECORD_SETTINGS` of the family; the torque limit at
 most what the servo was found with and its maximum torque limit), the registers are written (on
 an STS3215 with ``Lock`` = 1: nothing is saved to its flash) and read back, the torque goes on,
@@ -105,6 +111,7 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.model.bus_servo import load_bus_servo
     from gripper_env.sysid.bus_experiments import (
         BusRecorder,
+        check_load,
         check_plan,
         check_record,
         check_settings,
@@ -131,6 +138,13 @@ def _run(args: argparse.Namespace) -> int:
         for regs in capped:
             jaw.register_values(regs)  # every setting checked before the first is written
         recorder = BusRecorder(jaw, sample_s=args.sample_ms / 1e3)
+        # before the plan's large steps: a small creep where the servo holds, both ways; a
+        # steady load (gravity on an arm joint) stops the command here
+        probe = recorder.probe_load(max(capped, key=lambda r: r.p))  # the stiffest setting
+        print(f"load probe: {probe.describe(model.physics.stall_torque_nm)}", flush=True)
+        warning = check_load(probe, model, calibration.risk_arm_joint)
+        if warning:
+            print(f"warning: {warning}", file=sys.stderr, flush=True)
         problems: list[str] = []
         for k, regs in enumerate(capped, start=1):
             rec = recorder.record(regs, plan)

@@ -148,3 +148,43 @@ def test_given_positions_are_checked_against_the_servos_limits(tmp_path, capsys)
         assert calibrate.main([*base, "--closed-ticks", str(CLOSED), "--open-ticks",
                                str(OPEN)]) == 0  # fmt: skip
         assert "nothing was written to the servo" in capsys.readouterr().out
+
+
+def test_a_motor_that_is_not_the_gripper_is_refused_before_anything_is_sent(tmp_path, capsys):
+    """LeRobot's file names every joint of the arm: only ``gripper`` is taken. Another motor is
+    refused in one line, exit 2, before the port is opened (not a packet on the bus); with
+    ``--risk-arm-joint`` it is taken, the calibration says so, and record and deploy carry it.
+    A calibration of an arm joint written without the flag (an older file) is refused by the
+    commands that drive the servo."""
+    entry = {"id": GRIPPER, "drive_mode": 0, "homing_offset": 0,
+             "range_min": LIMITS[0], "range_max": LIMITS[1]}  # fmt: skip
+    arm = tmp_path / "so101_follower.json"
+    arm.write_text(json.dumps({"shoulder_pan": entry, "gripper": {**entry, "id": 7}}))
+    out = tmp_path / "jaw.json"
+    with _arm("sts3215", HandPhysics(HOLDING)) as bus:
+        args = ["--port", bus.path, "--id", "6", "--lerobot", str(arm), "--motor", "shoulder_pan",
+                "--out", str(out)]  # fmt: skip
+        assert calibrate.main(args) == 2
+        err = capsys.readouterr().err
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1, err
+        assert lines[0].startswith("python -m tuners.bus.calibrate: error: --motor shoulder_pan: "
+                                   "refusing a motor that is not the gripper")  # fmt: skip
+        assert "--risk-arm-joint" in lines[0] and "nothing was written" in lines[0]
+        assert bus.packets_received == 0 and not out.exists()
+        assert calibrate.main([*args, "--risk-arm-joint"]) == 0
+        cal = read_jaw_file(out)
+        assert cal.motor == "shoulder_pan" and cal.arm_joint and cal.risk_arm_joint
+        assert "not the gripper" in capsys.readouterr().out
+    older = json.loads(out.read_text())  # written before the flag existed: motor in its source
+    del older["calibration"]["motor"], older["calibration"]["risk_arm_joint"]
+    (tmp_path / "older.json").write_text(json.dumps(older))
+    assert read_jaw_file(tmp_path / "older.json").motor == "shoulder_pan"
+    from tuners.bus import record
+
+    with _arm("sts3215", HandPhysics(HOLDING)) as bus:
+        code = record.main(["--port", bus.path, "--id", "6", "--jaw", str(tmp_path / "older.json"),
+                            "--out", str(tmp_path / "rec")])  # fmt: skip
+        line = capsys.readouterr().err.strip()
+        assert code == 2 and "is a calibration of LeRobot's motor 'shoulder_pan'" in line, line
+        assert bus.packets_received == 0
