@@ -93,6 +93,15 @@ class ServoRegisters(BaseModel):
     max_torque_limit : int
         STS ``Max_Torque_Limit`` (0.1 %, EEPROM; LeRobot's SO gripper: 500), Dynamixel
         ``PWM_Limit`` (0.113 %): the torque-limit register of a tuned set stays at or below it.
+    protection : dict of str to int
+        The servo's protection registers by field name
+        (:data:`~gripper_env.model.bus_servo.PROTECTION_REGISTERS`: an STS's
+        ``Overload_Torque``, ``Protection_Time``, ``Protection_Current``..., a Dynamixel's
+        ``Shutdown`` mask and temperature limit, the XL330's ``Current_Limit``): what the
+        servo does when it is overloaded, which a tuned set's hold must not trip. Empty in a
+        calibration written before they were read. Not part of the calibration's identity
+        (:meth:`differences`): an owner may change them; the tuner and the deploy's gate judge
+        under what the servo holds.
     """
 
     model_config = _STRICT
@@ -104,6 +113,7 @@ class ServoRegisters(BaseModel):
     operating_mode: int = Field(ge=0, le=255)
     drive_mode: int = Field(0, ge=0, le=255)
     max_torque_limit: int = Field(ge=0)
+    protection: dict[str, int] = Field(default_factory=dict)
 
     @property
     def limited(self) -> bool:
@@ -111,13 +121,27 @@ class ServoRegisters(BaseModel):
         return not (self.min_position == 0 and self.max_position == 0)
 
     def differences(self, other: ServoRegisters) -> list[str]:
-        """``name: <self> here, <other> there`` for every register that differs."""
+        """``name: <self> here, <other> there`` for every calibration register that differs
+        (the protection registers aside: :meth:`protection_changes`)."""
         out = []
         for name in type(self).model_fields:
+            if name == "protection":
+                continue
             a, b = getattr(self, name), getattr(other, name)
             if a != b:
                 out.append(f"{name} {b} (the calibration says {a})")
         return out
+
+    def protection_changes(self, other: ServoRegisters) -> list[str]:
+        """``name <other> (was <self>)`` for every protection register ``other`` holds
+        otherwise (none when either has none read)."""
+        if not self.protection or not other.protection:
+            return []
+        return [
+            f"{name} {other.protection.get(name)} (was {value})"
+            for name, value in self.protection.items()
+            if other.protection.get(name) != value
+        ]
 
 
 class JawCalibration(BaseModel):

@@ -277,7 +277,7 @@ PROTECTION_REGISTERS: dict[str, tuple[str, ...]] = {
         "unloading_condition",
         "max_temperature_limit",
     ),
-    "xl330": ("shutdown", "temperature_limit"),
+    "xl330": ("shutdown", "temperature_limit", "current_limit"),
     "xl430": ("shutdown", "temperature_limit"),
 }
 #: Error bits by cause: the STS ``Unloading_Condition`` / status byte and the Dynamixel
@@ -441,8 +441,9 @@ class BusServoModel(BaseModel):
     def calibrated(self, calibration: JawCalibration | None) -> BusServoModel:
         """This model with a real servo's jaw: the stops at the calibration's closed and open
         positions, the open position and the object at their fractions
-        (:meth:`~gripper_env.model.bus_calibration.JawCalibration.jaw_angles`); ``None`` returns
-        the model unchanged.
+        (:meth:`~gripper_env.model.bus_calibration.JawCalibration.jaw_angles`), and the
+        protection the servo's own registers set when the calibration read them
+        (:func:`protection_from_registers`); ``None`` returns the model unchanged.
 
         Raises
         ------
@@ -460,7 +461,10 @@ class BusServoModel(BaseModel):
         jaw = self.jaw.model_copy(
             update={"limits_deg": limits, "open_deg": open_deg, "object_deg": object_deg}
         )
-        return self.with_updates(jaw=jaw, calibration=calibration)
+        update: dict[str, Any] = {"jaw": jaw, "calibration": calibration}
+        if calibration.servo is not None and calibration.servo.protection:
+            update["protection"] = protection_from_registers(self, calibration.servo.protection)
+        return self.with_updates(**update)
 
     @model_validator(mode="after")
     def _current_mode_needs_units(self) -> BusServoModel:

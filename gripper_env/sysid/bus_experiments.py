@@ -38,7 +38,12 @@ from gripper_env.evaluation.bus_servo import loop_margins, tracking_goal
 from gripper_env.hardware.bus.link import BusCommError
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, simulate_bus
-from gripper_env.sysid.bus_servo import SLOW_FACTOR, SLOW_FLOOR_S, BusRecord
+from gripper_env.sysid.bus_servo import (
+    SLOW_FACTOR,
+    SLOW_FLOOR_S,
+    SLOW_RECORD_FACTOR,
+    BusRecord,
+)
 
 if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
@@ -164,6 +169,9 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
       limit narrower than the plan, a stop, or an object in the jaws held it.
     * **Dropped readings**: more than :data:`MAX_DROPPED` of the readings got no reply (the
       recorder's counts, in the record).
+    * **Slow readings**: the median interval more than
+      :data:`~gripper_env.sysid.bus_servo.SLOW_RECORD_FACTOR` times the period asked (a busy
+      host), which identification refuses outright.
     """
     problems = []
     times, goals = record.goal_times_s, record.goal_values_deg
@@ -180,6 +188,15 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
             problems.append(
                 f"{name}: the step to {goals[k]:.1f} deg at {times[k]:.2f} s ended at "
                 f"{final:.1f} deg: clipped (a position limit, a stop or an object held the jaw)"
+            )
+    asked = record.stats.get("sample_us", 0) * 1e-6
+    if asked > 0 and record.t_s.size > 1:
+        every = float(np.median(np.diff(record.t_s)))
+        if every > SLOW_RECORD_FACTOR * asked:
+            problems.append(
+                f"{name}: readings came every {every * 1e3:.1f} ms (median) against the "
+                f"{asked * 1e3:g} ms asked, more than {SLOW_RECORD_FACTOR:g}x slower: the host "
+                "was too busy (identify refuses it)"
             )
     if record.dropped_fraction > MAX_DROPPED:
         problems.append(
@@ -449,7 +466,8 @@ class BusRecorder:
             slow = sum(1 for r in rtt if r > bound)
         self.slow += slow
         self.readings += len(rtt)
-        stats = {"readings": len(rtt), "lost": self.lost - lost_before, "slow": slow}
+        stats = {"readings": len(rtt), "lost": self.lost - lost_before, "slow": slow,
+                 "sample_us": round(self.sample_s * 1e6)}  # fmt: skip
         rec = _record(g.model, got, t_read, y_read, t_goal, y_goal, rtt, rtt_goal)
         return replace(rec, calibration=g.calibration, stats=stats)
 

@@ -190,6 +190,7 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{p}: line 1: bad registers ({exc})") from None
     rows, goals = [], []
+    row_lines, goal_lines = [], []
     in_goals = False
     calibration = None
     stats: dict[str, int] = {}
@@ -223,6 +224,7 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
             except ValueError:
                 raise ValueError(f"{p}: line {n}: expected '# t_s,goal_deg,rtt_s'") from None
             goals.append((*parts, 0.0)[:3])
+            goal_lines.append(n)
             continue
         if line.startswith("t_s") or not line.strip():
             continue
@@ -235,21 +237,65 @@ def read_bus_record(path: str | os.PathLike[str]) -> BusRecord:
         except (ValueError, IndexError):
             raise ValueError(f"{p}: line {n}: expected numbers, got {line[:60]!r}") from None
         rows.append(values)
+        row_lines.append(n)
     data = np.array(rows, dtype=float).reshape(-1, 4)
     if data.shape[0] < 10 or not goals:
         raise ValueError(f"{p}: too short ({data.shape[0]} readings, {len(goals)} goals)")
-    if not np.all(np.isfinite(data)):
-        bad = int(np.flatnonzero(~np.isfinite(data).all(axis=1))[0])
-        raise ValueError(f"{p}: reading {bad + 1} is not finite")
-    if np.any(np.diff(data[:, 0]) <= 0):
-        bad = int(np.flatnonzero(np.diff(data[:, 0]) <= 0)[0])
-        raise ValueError(f"{p}: time stamps not increasing at reading {bad + 2}")
-    writes = np.array(goals)
-    if np.any(data[:, 3] < 0) or np.any(writes[:, 2] < 0):
-        raise ValueError(f"{p}: a negative round trip")
+    writes = np.array(goals, dtype=float).reshape(-1, 3)
+    _check_columns(p, data, row_lines, "reading", ("t_s", "goal_deg", "position_deg", "rtt_s"))
+    _check_columns(p, writes, goal_lines, "goal write", ("t_s", "goal_deg", "rtt_s"))
+    for times, where, what in ((data[:, 0], row_lines, "readings"),
+                               (writes[:, 0], goal_lines, "goal writes")):  # fmt: skip
+        back = np.flatnonzero(np.diff(times) <= 0)
+        if back.size:
+            k = int(back[0]) + 1
+            raise ValueError(
+                f"{p}: line {where[k]}: time {times[k]:.6f} s does not follow {times[k - 1]:.6f} "
+                f"s: the {what}' time stamps must increase (a record is one run, in order)"
+            )
+    asked = stats.get("sample_us", 0) * 1e-6
+    if asked > 0:  # how often the recorder asked for a reading
+        gaps = np.diff(data[:, 0])
+        every = float(np.median(gaps))
+        if every > SLOW_RECORD_FACTOR * asked:
+            k = int(np.flatnonzero(gaps > SLOW_RECORD_FACTOR * asked)[0]) + 1
+            raise ValueError(
+                f"{p}: line {row_lines[k]}: readings came every {every * 1e3:.1f} ms (median) "
+                f"against the {asked * 1e3:g} ms asked, more than {SLOW_RECORD_FACTOR:g}x "
+                "slower: the host was too busy to record the loop; record again on a quieter "
+                "host (or with a longer --sample-ms)"
+            )
     return BusRecord(family, regs, data[:, 0], data[:, 1], data[:, 2], writes[:, 0], writes[:, 1],
                      calibration, rtt_s=data[:, 3], goal_rtt_s=writes[:, 2],
                      stats=stats)  # fmt: skip
+
+
+#: A record whose readings came more than this many times slower than asked (the median
+#: interval against the recorder's ``sample_us``) is refused: its time stamps cannot resolve
+#: the loop's milliseconds.
+SLOW_RECORD_FACTOR = 5.0
+#: What a record's columns may hold: a time (s) within a day, an angle (deg) within three turns
+#: of the encoder's range either way (a mirrored jaw's frame runs below 0), a round trip (s)
+#: within 10 s. Anything else is not a servo's record.
+_PHYSICAL = {"t_s": (0.0, 86_400.0), "goal_deg": (-1080.0, 1440.0),
+             "position_deg": (-1080.0, 1440.0), "rtt_s": (0.0, 10.0)}  # fmt: skip
+
+
+def _check_columns(
+    path: Path, values: np.ndarray, lines: list[int], what: str, names: Sequence[str]
+) -> None:
+    """Refuse (ValueError naming the file, the line and the column) a value that is not finite
+    or lies outside :data:`_PHYSICAL`."""
+    for j, name in enumerate(names):
+        lo, hi = _PHYSICAL[name]
+        column = values[:, j]
+        bad = np.flatnonzero(~np.isfinite(column) | (column < lo) | (column > hi))
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(
+                f"{path}: line {lines[k]}: {what} {name} = {column[k]:g} is outside what a "
+                f"servo's record holds ({lo:g} to {hi:g})"
+            )
 
 
 @dataclass(frozen=True)

@@ -49,9 +49,12 @@ from gripper_env.hardware.bus.gripper import (
 )
 from gripper_env.hardware.bus.interrupts import signals_held
 from gripper_env.hardware.bus.link import BusError, BusLink
+from gripper_env.io.config import validate
 from gripper_env.io.files import write_json
 from gripper_env.model.bus_calibration import (
+    DEG_PER_TICK,
     GRIPPER_MOTOR,
+    MIN_SPAN_DEG,
     JawCalibration,
     LeRobotMotor,
     ServoRegisters,
@@ -128,6 +131,12 @@ def _check_options(args: argparse.Namespace) -> str:
     given = (args.closed_ticks, args.open_ticks)
     if (given[0] is None) != (given[1] is None):
         raise ValueError("--closed-ticks and --open-ticks go together")
+    if given[0] is not None and abs(given[1] - given[0]) * DEG_PER_TICK < MIN_SPAN_DEG:
+        raise ValueError(
+            f"--closed-ticks {given[0]} and --open-ticks {given[1]} are "
+            f"{abs(given[1] - given[0]) * DEG_PER_TICK:.1f} deg apart; a jaw needs at least "
+            f"{MIN_SPAN_DEG:g} deg"
+        )
     if args.lerobot is not None and given[0] is not None:
         raise ValueError("--lerobot and --closed-ticks/--open-ticks exclude each other")
     if args.closed_at is not None and args.lerobot is None:
@@ -281,19 +290,11 @@ def _run(args: argparse.Namespace) -> int:
         source = {"hand": "hand-guided", "given": "given"}.get(
             how, f"lerobot: {args.lerobot} ({args.motor})"
         )
-        try:
-            cal = JawCalibration(
-                family=family,
-                servo_id=args.id,
-                closed_ticks=closed,
-                open_ticks=opened,
-                source=source,
-                servo=regs,
-                motor=args.motor if how == "lerobot" else None,
-                risk_arm_joint=args.risk_arm_joint,
-            )
-        except ValueError as exc:
-            raise ValueError(f"the jaw calibration of servo {args.id} is refused: {exc}") from None
+        fields = {"family": family, "servo_id": args.id, "closed_ticks": closed,
+                  "open_ticks": opened, "source": source, "servo": regs.model_dump(),
+                  "motor": args.motor if how == "lerobot" else None,
+                  "risk_arm_joint": args.risk_arm_joint}  # fmt: skip
+        cal = validate(JawCalibration, fields, f"the jaw calibration of servo {args.id}")
     (lo_deg, hi_deg), open_deg, object_deg = cal.jaw_angles()
     output_folder(out.parent, "--out's folder")
     write_json(out, {

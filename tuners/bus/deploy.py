@@ -7,12 +7,15 @@ Recipe:
    were tuned on, with its uncertainties and the owner's jaw calibration, or ``--jaw``);
 2. **gate**: judge the registers on that model (:func:`gripper_env.evaluation.bus_servo.judge`:
    the loop's margins, free and on an object, over the model's uncertainty corners; the grasp and
-   hold without a protection trip). Refuse (exit 2) registers that fail: an unstable loop always,
-   the rest unless ``--allow-infeasible``; refuse a verification (or hold) that leaves the
-   calibrated jaw's goal range;
+   hold without tripping the protection the servo's registers set, as read at calibration).
+   Refuse (exit 2) registers that fail: an unstable loop always, the rest unless
+   ``--allow-infeasible``; refuse a verification (or hold) that leaves the calibrated jaw's goal
+   range;
 3. find the servo of ``--id`` (nothing is sent to the others), check its calibration against
-   the jaw calibration's and its maximum torque limit against the tuned torque limit, and
-   snapshot the registers the deploy writes;
+   the jaw calibration's and its maximum torque limit against the tuned torque limit, read its
+   protection registers (``Overload_Torque``, ``Protection_Time``, ``Protection_Current``...;
+   a Dynamixel's ``Shutdown``), judge again if the owner changed them since, and snapshot the
+   registers the deploy writes;
 4. write the registers with the torque off (an STS3215's with ``Lock`` = 1: not saved to flash)
    and read each back;
 5. run the verification: the tuner's tracking steps (4 to 44 deg, both ways), the position read
@@ -222,6 +225,13 @@ def _run(args: argparse.Namespace) -> int:
     rel_std = relative_uncertainties(doc, "uncertainty_rel_std", source)
     alternatives = alternative_models(doc, "alternative_models", source)
     calibration = load_jaw(args.jaw, model, args.id)
+    top = calibration.servo.max_torque_limit if calibration.servo else None
+    if top is not None and regs.torque_limit > top:
+        raise ValueError(
+            f"refusing to deploy {regs.label()}: its torque limit is above the servo's maximum "
+            f"torque limit {top} (its own protection, read at calibration; tune on a model "
+            "identified from records of this servo, which keeps within it)"
+        )
     model = model.calibrated(calibration)
     alternatives = [m.calibrated(calibration) for m in alternatives]
     score = gate(model, regs, rel_std, args.allow_infeasible, alternatives)
@@ -230,17 +240,15 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.sysid.bus_servo import write_bus_record
 
     plan = _check_plans(model, args.hold > 0)
-    top = calibration.servo.max_torque_limit if calibration.servo else None
-    if top is not None and regs.torque_limit > top:
-        raise ValueError(
-            f"refusing to deploy {regs.label()}: its torque limit is above the servo's maximum "
-            f"torque limit {top} (its own protection, read at calibration; tune on a model "
-            "identified from records of this servo, which keeps within it)"
-        )
     out = output_folder(args.out or Path(args.registers).parent / f"deploy_{model.name}")
     hold = None
     saved: list[str] = []
     with open_gripper(args, model, calibration) as jaw:
+        if jaw.model.protection != model.protection:  # the owner changed it since: judge again
+            print(f"note: {_protection_change(model, jaw)}: the registers are judged again "
+                  "under the servo's", flush=True)  # fmt: skip
+            fresh = [a.with_updates(protection=jaw.model.protection) for a in alternatives]
+            score = gate(jaw.model, regs, rel_std, args.allow_infeasible, fresh)
         written = jaw.write_registers(regs)
         if written != regs:
             raise BusError(f"registers read back as {written.label()}, not {regs.label()}")
@@ -276,6 +284,18 @@ def _run(args: argparse.Namespace) -> int:
     )
     print(f"{kept}; {restored}")
     return 0
+
+
+def _protection_change(model: BusServoModel, jaw: BusGripper) -> str:
+    """What differs between the protection ``model`` was tuned under and the servo's own."""
+    was = model.calibration.servo if model.calibration is not None else None
+    changes = was.protection_changes(jaw.servo_registers) if was is not None else []
+    if changes:
+        return f"servo {jaw.servo_id}'s protection registers changed: {', '.join(changes)}"
+    return (
+        f"servo {jaw.servo_id}'s protection registers are not the {model.family} defaults the "
+        "registers were tuned under"
+    )
 
 
 def _kept(jaw: BusGripper, saved: list[str]) -> str:

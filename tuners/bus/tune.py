@@ -72,7 +72,8 @@ def search_space(
     current-based position mode :data:`CURRENT_SEARCH_SPACE` (without the goal current when it
     is ``goal_current``, given). The torque limit is capped at the servo's own maximum torque
     limit when the model carries a real servo's calibration (LeRobot's SO gripper:
-    ``Max_Torque_Limit`` 500): a tuned set never asks more than the owner allows."""
+    ``Max_Torque_Limit`` 500), and the goal current at an XL330's ``Current_Limit``: a tuned set
+    never asks more than the owner allows."""
     if not model.current_mode:
         space = dict(SEARCH_SPACE[model.family])
     else:
@@ -84,6 +85,10 @@ def search_space(
         lo, hi = space["torque_limit"]
         top = cal.servo.max_torque_limit
         space["torque_limit"] = (min(lo, top), min(hi, top))
+    current_limit = cal.servo.protection.get("current_limit") if cal and cal.servo else None
+    if current_limit is not None and "goal_current" in space:  # an XL330's Current_Limit
+        lo, hi = space["goal_current"]
+        space["goal_current"] = (min(lo, current_limit), min(hi, current_limit))
     return space
 
 
@@ -486,7 +491,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{len(study.trials) - args.trials} of local search, seed {args.seed}"
     )
     print(table)
-    for note in bounds:
+    for note in [*bounds, *protection_notes(model, best)]:
         print(f"note: {note}")
     args.out.mkdir(parents=True, exist_ok=True)
     stem = args.out / f"{model.name}_registers"
@@ -515,6 +520,32 @@ def main(argv: Sequence[str] | None = None) -> int:
             plot_registers(model, rows, stem.with_suffix(".png"))
     print(f"wrote {stem.with_suffix('.json')}")
     return 0
+
+
+def protection_notes(model: BusServoModel, best: BusScore) -> list[str]:
+    """What the servo's own protection did to the tuned set, in words: the registers it was
+    read from, and the overload threshold capping the torque limit when it does."""
+    cal = model.calibration
+    if cal is None or cal.servo is None or not cal.servo.protection:
+        return [
+            f"the hold is judged under the {model.family}'s factory protection (overload at "
+            f"{model.protection.overload_duty:.0%} of full drive for "
+            f"{model.protection.overload_time_s:g} s): a model identified from records of your "
+            "servo carries its own"
+        ]
+    pr = model.protection
+    read = ", ".join(f"{k} {v}" for k, v in cal.servo.protection.items())
+    notes = [f"the hold is judged under servo {cal.servo_id}'s own protection registers ({read})"]
+    limit = model.limit_fraction(best.registers)
+    top = search_space(model).get("torque_limit", (0, 0))[1] / model.scale.duty_full
+    if 0.0 < pr.overload_duty < top and limit <= pr.overload_duty:
+        notes.append(
+            f"its overload threshold ({pr.overload_duty:.0%} of full drive for "
+            f"{pr.overload_time_s:g} s) caps the hold: torque limit {best.registers.torque_limit} "
+            f"({limit:.0%}) holds {best.hold.holding_force_n:.1f} N without tripping it, where "
+            f"a limit above {pr.overload_duty * model.scale.duty_full:.0f} would trip in a hold"
+        )
+    return notes
 
 
 def identified_extras(

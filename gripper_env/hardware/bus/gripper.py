@@ -52,7 +52,12 @@ from gripper_env.hardware.bus.link import (
     BusVerifyError,
 )
 from gripper_env.model.bus_calibration import JawCalibration, ServoRegisters
-from gripper_env.model.bus_servo import BusServoModel, RegisterSet, load_bus_servo
+from gripper_env.model.bus_servo import (
+    PROTECTION_REGISTERS,
+    BusServoModel,
+    RegisterSet,
+    load_bus_servo,
+)
 
 __all__ = [
     "FACTORY_BAUD",
@@ -223,7 +228,8 @@ def select_servo(link: BusLink, servo_id: int | None) -> list[FoundServo]:
 
 
 def read_servo_registers(link: BusLink, servo_id: int) -> ServoRegisters:
-    """The calibration and limits servo ``servo_id`` holds (read, nothing written)."""
+    """The calibration, limits and protection registers servo ``servo_id`` holds (read,
+    nothing written)."""
     spec = link.spec
 
     def role(name: str) -> int:
@@ -237,6 +243,7 @@ def read_servo_registers(link: BusLink, servo_id: int) -> ServoRegisters:
         operating_mode=role("operating_mode"),
         drive_mode=link.read(servo_id, "drive_mode") if spec.has_field("drive_mode") else 0,
         max_torque_limit=role("max_torque_limit"),
+        protection={n: link.read(servo_id, n) for n in PROTECTION_REGISTERS[spec.family]},
     )
 
 

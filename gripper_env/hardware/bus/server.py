@@ -147,7 +147,7 @@ class VirtualBus(PtyDevice):
     error : BaseException or None
         What stopped the thread (a physics that raised, for example); :meth:`stop` re-raises it.
     on_packet : callable or None
-        Called in the bus thread with each instruction packet (its ``id``, ``code`` and
+        Called in the bus thread with each instruction packet (its ``id``, ``instruction`` and
         ``params``) once the servos have acted on it and before any reply is sent: a test's
         observation point (a signal sent to the host at a given write, for example).
     """

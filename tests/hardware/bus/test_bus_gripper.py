@@ -263,7 +263,7 @@ def _flash(table: ControlTable) -> bytes:
 
 
 def _writes_to_six(packet) -> bool:
-    return packet.id == 6 and packet.code == 0x03  # Feetech WRITE
+    return packet.id == 6 and packet.instruction == 0x03  # Feetech WRITE
 
 
 def _save_writes(lock: int) -> int:

@@ -5,12 +5,13 @@ as the independent reader of every register; the commands as subprocesses."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -38,11 +39,30 @@ HOLDING = 2731
 #: the torque on and locked; the gains in flash too, since LeRobot writes them with the torque
 #: off, under Lock 0) on the STS3215; a Koch-like set on the XL330.
 FOUND = {
-    "sts3215": {"p_gain": 16, "d_gain": 32, "i_gain": 0, "torque_limit": 500,
-                "acceleration": 254, "lock": 1},
+    "sts3215": {"p_gain": 16, "d_gain": 32, "i_gain": 0, "max_torque_limit": 500,
+                "torque_limit": 500, "acceleration": 254, "lock": 1},
     "xl330": {"p_gain": 800, "d_gain": 200, "i_gain": 0, "torque_limit": 600,
               "acceleration": 0},
 }  # fmt: skip
+
+
+#: The gripper's protection as LeRobot's SO follower configures it (``Overload_Torque`` 25 %,
+#: ``Protection_Current`` 250 x 6.5 mA), in flash, by field name.
+PROTECTION_FOUND = {"sts3215": {"overload_torque": 25, "protection_current": 250}, "xl330": {}}
+
+
+def registers_within_protection(family: str, folder: Path) -> Path:
+    """The committed tuned registers of ``family`` (``results/bus``, tuned on the shipped model)
+    with the torque limit cut to hold under :data:`PROTECTION_FOUND` (LeRobot's
+    ``Overload_Torque`` 25 % on the STS3215), written into ``folder``: what a deploy on the
+    arm's gripper passes the gate with."""
+    doc = json.loads((ROOT / f"results/bus/{family}_registers.json").read_text())
+    overload = PROTECTION_FOUND[family].get("overload_torque")
+    if overload is not None:
+        doc["registers"]["torque_limit"] = min(doc["registers"]["torque_limit"], overload * 10 - 10)
+    path = folder / f"{family}_registers.json"
+    path.write_text(json.dumps(doc))
+    return path
 
 
 def gripper_table(family: str) -> ControlTable:
@@ -55,6 +75,8 @@ def gripper_table(family: str) -> ControlTable:
         assert table.write(f.address, f.encode(value)) == 0
     for role, value in FOUND[family].items():  # as LeRobot writes them: under Lock 0, saved
         table.store(spec.role(role).name, value)
+    for name, value in PROTECTION_FOUND[family].items():
+        table.store(name, value)
     table.set_role("goal_position", HOLDING)
     table.set_role("torque_enable", 1)
     return table
@@ -115,14 +137,30 @@ def command(
     )
 
 
-def when_packets(bus: VirtualBus, proc: subprocess.Popen, count: int, since: int) -> None:
-    """Wait until ``count`` more packets than ``since`` went to the gripper (or the command
-    ended: a failure)."""
-    while bus.packets_to[GRIPPER] < since + count:
-        if proc.poll() is not None:
-            out, err = proc.communicate()
-            pytest.fail(f"the command ended after {bus.packets_to[GRIPPER]} packets:\n{out}\n{err}")
-        time.sleep(0.001)
+def at_packet(bus: VirtualBus, kind: str, count: int, act: Callable[[], None]) -> dict[str, int]:
+    """Call ``act`` in the bus thread when the gripper receives its ``count``-th (1-based)
+    instruction of ``kind`` from now on: ``"packet"`` (any), ``"write"`` (a WRITE) or
+    ``"goal"`` (a WRITE of the goal position), before the reply goes out. An observable event,
+    so the moment does not depend on how fast a loaded host runs. Returns the counts
+    (``acted`` is 1 once ``act`` ran)."""
+    goal = bus.spec.role("goal_position").address
+    feetech = bus.spec.protocol == "feetech"
+    state = {"seen": 0, "acted": 0}
+
+    def watch(packet) -> None:
+        if packet.id != GRIPPER or state["acted"]:
+            return
+        write = packet.instruction == 0x03 and len(packet.params) > 2  # WRITE on both protocols
+        if write:
+            address = packet.params[0] if feetech else int.from_bytes(packet.params[:2], "little")
+        if kind == "packet" or (write and (kind == "write" or address == goal)):
+            state["seen"] += 1
+            if state["seen"] == count:
+                state["acted"] = 1
+                act()
+
+    bus.on_packet = watch
+    return state
 
 
 def finish(proc: subprocess.Popen, timeout_s: float = 300.0) -> tuple[int, str, str]:

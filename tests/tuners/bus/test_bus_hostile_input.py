@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
@@ -89,7 +89,54 @@ CASES = [
          ("--name", "../escaped")),
     Case("identify --out naming a file", "tuners.bus.identify",
          ("{missing}/record.csv", "--out", "{a_file}"), ("--out", "a_file")),
+    # records out of what a servo gives: one line naming the file and the line, at once
+    Case("identify a record holding 1e308", "tuners.bus.identify",
+         ("{rec_huge}", "{rec_good}", "--generations", "1", "--out", "{out}"),
+         ("rec_huge.csv", "line 10", "position_deg = 1e+308")),
+    Case("identify a record whose time runs backwards", "tuners.bus.identify",
+         ("{rec_good}", "{rec_back}", "--out", "{out}"),
+         ("rec_back.csv", "line 12", "must increase")),
+    Case("identify a record whose goal writes run backwards", "tuners.bus.identify",
+         ("{rec_good}", "{rec_goal_back}", "--out", "{out}"),
+         ("rec_goal_back.csv", "goal writes' time stamps must increase")),
+    Case("identify a record read 9x slower than asked", "tuners.bus.identify",
+         ("{rec_good}", "{rec_slow}", "--out", "{out}"),
+         ("rec_slow.csv", "against the 2 ms asked", "more than 5x slower")),
+    Case("calibrate --closed-ticks 2000 --open-ticks 2000", "tuners.bus.calibrate",
+         ("--port", NO_PORT, "--id", "6", "--closed-ticks", "2000", "--open-ticks", "2000"),
+         ("--closed-ticks 2000 and --open-ticks 2000 are 0.0 deg apart",)),
 ]  # fmt: skip
+
+
+def _records(write) -> None:
+    """A record of the shipped STS3215 (simulated, read every 2-4 ms as asked) and copies of
+    it spoilt one way each."""
+    from gripper_env.sysid.bus_experiments import simulate_record
+    from gripper_env.sysid.bus_servo import write_bus_record
+
+    model = load_bus_servo("sts3215")
+    for key, sample in (("good", (0.002, 0.004)), ("slow", (0.016, 0.020))):
+        rec = simulate_record(model, model.factory, sample_s=sample)
+        rec = replace(rec, stats={"readings": rec.t_s.size, "lost": 0, "slow": 0,
+                                  "sample_us": 2000})  # fmt: skip
+        path = write_bus_record(write("rec_" + key, f"rec_{key}.csv", ""), rec)
+        lines = path.read_text().splitlines()
+        if key == "good":
+            good = lines
+    rows = [k for k, line in enumerate(good) if line[:1].isdigit()]
+    huge = list(good)
+    t, g, _y, *rest = huge[rows[6]].split(",")  # file line 10 (3 lines before the rows)
+    huge[rows[6]] = ",".join([t, g, "1e308", *rest])
+    write("rec_huge", "rec_huge.csv", "\n".join(huge) + "\n")
+    back = list(good)
+    back[rows[7]], back[rows[8]] = back[rows[8]], back[rows[7]]  # file lines 11 and 12
+    write("rec_back", "rec_back.csv", "\n".join(back) + "\n")
+    goal_lines = [k for k, line in enumerate(good) if line.startswith("# ") and
+                  line[2:3].isdigit()]  # fmt: skip
+    goal_back = list(good)
+    goal_back[goal_lines[2]], goal_back[goal_lines[3]] = (goal_back[goal_lines[3]],
+                                                          goal_back[goal_lines[2]])  # fmt: skip
+    write("rec_goal_back", "rec_goal_back.csv", "\n".join(goal_back) + "\n")
 
 
 def _files(folder):
@@ -98,6 +145,7 @@ def _files(folder):
     def write(key, name, text):
         paths[key] = p = folder / name
         p.write_text(text)
+        return p
 
     model = load_bus_servo("sts3215")
     cal = JawCalibration(family="sts3215", servo_id=6, closed_ticks=1760, open_ticks=2940)
@@ -133,6 +181,7 @@ def _files(folder):
             }
         ),
     )
+    _records(write)
     return {k: str(v) for k, v in paths.items()}
 
 

@@ -14,18 +14,15 @@ import pytest
 from bus_arm import (
     GRIPPER,
     OTHERS,
-    ROOT,
     arm_bus,
+    at_packet,
     command,
     finish,
+    registers_within_protection,
     sdk_registers,
-    when_packets,
 )
 
 pytestmark = pytest.mark.slow  # the end-to-end tier (pytest -m slow)
-
-REGISTERS = {"sts3215": ROOT / "results/bus/sts3215_registers.json",
-             "xl330": ROOT / "results/bus/xl330_registers.json"}  # fmt: skip
 
 
 def _record(bus, family, jaw, out):
@@ -36,7 +33,8 @@ def _record(bus, family, jaw, out):
 
 
 def _deploy(bus, family, jaw, out):
-    return command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+    registers = registers_within_protection(family, out.parent)
+    return command("tuners.bus.deploy", "--registers", str(registers), "--port",
                    bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--hold", "3",
                    "--no-plot", "--out", str(out))  # fmt: skip
 
@@ -47,40 +45,43 @@ def _one_line(err: str) -> str:
     return lines[0]
 
 
-# packets to the gripper before the signal: 12 while its registers are read (nothing written
-# yet: 19 packets open it), 30 while the registers are written, 400 and 600 in the motion
+# when the signal comes: at the 12th packet to the gripper (its registers are being read: 26
+# packets open an STS3215, 19 of them its calibration and protection), at the 3rd WRITE (the
+# registers are being written), at the 5th, 20th or 100th goal written (the motion: the load
+# probe's creep, then the record's plan)
 @pytest.mark.parametrize(
-    ("family", "which", "after", "sig"),
+    ("family", "which", "at", "sig"),
     [
-        ("sts3215", "record", 12, signal.SIGINT),
-        ("sts3215", "record", 30, signal.SIGINT),
-        ("sts3215", "record", 400, signal.SIGINT),
-        ("sts3215", "record", 400, signal.SIGTERM),
-        ("sts3215", "deploy", 30, signal.SIGINT),
-        ("sts3215", "deploy", 600, signal.SIGINT),
-        ("xl330", "record", 400, signal.SIGINT),
-        ("xl330", "deploy", 600, signal.SIGTERM),
+        ("sts3215", "record", ("packet", 12), signal.SIGINT),
+        ("sts3215", "record", ("write", 3), signal.SIGINT),
+        ("sts3215", "record", ("goal", 20), signal.SIGINT),
+        ("sts3215", "record", ("goal", 100), signal.SIGTERM),
+        ("sts3215", "deploy", ("write", 3), signal.SIGINT),
+        ("sts3215", "deploy", ("goal", 5), signal.SIGINT),
+        ("xl330", "record", ("goal", 20), signal.SIGINT),
+        ("xl330", "deploy", ("goal", 5), signal.SIGTERM),
     ],
+    ids=lambda v: "-".join(map(str, v)) if isinstance(v, tuple) else None,
 )
-def test_every_register_is_restored_after_a_signal(family, which, after, sig, tmp_path, jaw_file):
+def test_every_register_is_restored_after_a_signal(family, which, at, sig, tmp_path, jaw_file):
     with arm_bus(family) as bus:
         jaw = jaw_file(bus, family)
         before = sdk_registers(bus.path, family)
         saves = bus.table(GRIPPER).eeprom_saves
         others = {i: bytes(bus.table(i).memory) for i in OTHERS}
         run = _record if which == "record" else _deploy
-        since = bus.packets_to[GRIPPER]
         proc = run(bus, family, jaw, tmp_path / "out")
-        when_packets(bus, proc, after, since)
-        proc.send_signal(sig)
+        state = at_packet(bus, *at, lambda: proc.send_signal(sig))
         code, out, err = finish(proc)
+        bus.on_packet = None
+        assert state["acted"], (out, err)
         line = _one_line(err)
         name = signal.Signals(sig).name
         assert code == 128 + sig, (out, err)
         head = f"python -m tuners.bus.{which}: interrupted ({name}); "
         said = line.removeprefix(head)
         assert said != line, line
-        if not (after < 19 and said == "nothing was written to the servo"):  # opening: reads only
+        if not (at[0] == "packet" and said == "nothing was written to the servo"):  # opening
             assert said.startswith("servo 6 restored and read back (written back: "), line
             assert said.endswith("; torque reads on (as found)"), line
         assert sdk_registers(bus.path, family) == before  # every writable register
@@ -99,11 +100,11 @@ def test_a_vanished_port_ends_in_one_line_saying_what_was_left_changed(which, tm
     with arm_bus(family) as bus:
         jaw = jaw_file(bus, family)
         run = _record if which == "record" else _deploy
-        since = bus.packets_to[GRIPPER]
         proc = run(bus, family, jaw, tmp_path / "out")
-        when_packets(bus, proc, 400, since)
-        bus.stop()  # the adapter unplugged: the pty's other side is gone
+        # at the 5th goal of the motion, the adapter unplugged: the pty's other side is gone
+        state = at_packet(bus, "goal", 5, lambda: threading.Thread(target=bus.stop).start())
         code, out, err = finish(proc)
+        assert state["acted"], (out, err)
     line = _one_line(err)
     assert code == 1, (out, err)
     assert f"error: the port {bus.path} is gone" in line, line
@@ -123,7 +124,7 @@ def _at_save_write(bus, at: int, act) -> dict[str, int]:
     state = {"seen": -1, "acted": 0}
 
     def watch(packet) -> None:
-        if packet.id != GRIPPER or packet.code != _WRITE or state["acted"]:
+        if packet.id != GRIPPER or packet.instruction != _WRITE or state["acted"]:
             return
         if state["seen"] < 0 and packet.params[:2] == bytes([_LOCK, 0]):
             state["seen"] = 0
@@ -156,7 +157,8 @@ def test_a_save_cut_short_leaves_the_flash_as_found(at, sig, tmp_path, jaw_file)
         table = bus.table(GRIPPER)
         before = sdk_registers(bus.path, family)
         eeprom = _eeprom(table)
-        proc = command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+        registers = registers_within_protection(family, tmp_path)
+        proc = command("tuners.bus.deploy", "--registers", str(registers), "--port",
                        bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--no-plot", "--save",
                        "--out", str(tmp_path / "out"))  # fmt: skip
         state = _at_save_write(bus, at, lambda: proc.send_signal(sig))
@@ -181,7 +183,8 @@ def test_a_port_lost_during_a_save_says_what_the_flash_may_hold(tmp_path, jaw_fi
     family = "sts3215"
     with arm_bus(family) as bus:
         jaw = jaw_file(bus, family)
-        proc = command("tuners.bus.deploy", "--registers", str(REGISTERS[family]), "--port",
+        registers = registers_within_protection(family, tmp_path)
+        proc = command("tuners.bus.deploy", "--registers", str(registers), "--port",
                        bus.path, "--id", str(GRIPPER), "--jaw", str(jaw), "--no-plot", "--save",
                        "--out", str(tmp_path / "out"))  # fmt: skip
         state = _at_save_write(bus, 2, lambda: threading.Thread(target=bus.stop).start())

@@ -10,7 +10,17 @@ import json
 import re
 
 import pytest
-from bus_arm import CLOSED, FOUND, GRIPPER, LIMITS, OPEN, OTHERS, arm_bus, sdk_registers
+from bus_arm import (
+    CLOSED,
+    FOUND,
+    GRIPPER,
+    LIMITS,
+    OPEN,
+    OTHERS,
+    arm_bus,
+    registers_within_protection,
+    sdk_registers,
+)
 from bus_recipe import SETTINGS as RECIPE_SETTINGS
 from bus_recipe import check_deployed, check_identified, check_tuned, perturbed_truth
 
@@ -68,16 +78,24 @@ def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
         assert cal is not None and (cal.servo_id, cal.closed_ticks, cal.open_ticks) == (
             GRIPPER, CLOSED, OPEN)  # fmt: skip
         assert (cal.servo.min_position, cal.servo.max_position) == LIMITS
+        # the servo's own protection (LeRobot's Overload_Torque 25 %) came with the records
+        assert cal.servo.protection["overload_torque"] == 25
+        assert model.protection.overload_duty == 0.25
+        capsys.readouterr()
         assert tune.main(["--model", str(model_file), "--trials", "100", "--polish", "200",
                           "--out", str(out), "--no-plot", "--no-progress"]) == 0  # fmt: skip
+        printed = capsys.readouterr().out
+        assert "note: the hold is judged under servo 6's own protection registers (" in printed
         tuned = json.loads((out / "arm6_registers.json").read_text())
         regs = RegisterSet(**tuned["registers"])
         assert tuned["model"]["calibration"] == cal.model_dump()
+        assert regs.torque_limit <= 250, regs  # held under the servo's overload threshold
         check_tuned(tuned, model_file, truth)
-        capsys.readouterr()
-        assert deploy.main(["--registers", str(out / "arm6_registers.json"), "--port", bus.path,
-                            "--id", "6", "--hold", "2", "--no-plot", "--save"]) == 0  # fmt: skip
+        deploy_args = ["--registers", str(out / "arm6_registers.json"), "--port", bus.path,
+                       "--id", "6", "--hold", "10", "--no-plot"]  # fmt: skip
+        assert deploy.main([*deploy_args, "--save"]) == 0
         printed = capsys.readouterr().out
+        assert "hold 10 s: no trip" in printed
         assert "saved p_coefficient, d_coefficient, i_coefficient" in printed
         # kept: the tuned gains (saved to flash, once: one write per adjacent group) ...
         assert (table.get_role("p_gain"), table.get_role("i_gain"), table.get_role("d_gain")) == (
@@ -94,8 +112,12 @@ def test_the_recipe_on_id_6_of_a_six_servo_bus(tmp_path, jaw_file, capsys):
         bus.power_cycle(GRIPPER)  # the gains survive it; the RAM torque limit is the flash's
         assert (table.get_role("p_gain"), table.get_role("d_gain")) == (regs.p, regs.d)
         assert table.get_role("torque_limit") == table.get_role("max_torque_limit")
-    report = json.loads((out / "deploy_arm6" / "report.json").read_text())
-    assert report["hold"]["tripped"] is False and report["kept"] is True
+        report = json.loads((out / "deploy_arm6" / "report.json").read_text())
+        assert report["hold"]["tripped"] is False and report["kept"] is True
+        for k in range(4):  # 5 holds of 10 s in all, under Overload_Torque 25: none trips
+            assert deploy.main([*deploy_args, "--out", str(out / f"again{k}")]) == 0
+            again = json.loads((out / f"again{k}" / "report.json").read_text())
+            assert again["hold"]["tripped"] is False, again["hold"]
     assert report["jaw"]["servo_id"] == GRIPPER
     check_deployed(report, tuned["registers"], OBJECT_DEG)
 
@@ -159,23 +181,47 @@ def test_refusals_before_a_byte_is_written(tmp_path, jaw_file, capsys):
                             str(tmp_path / "d")]) == 2  # fmt: skip
         assert "above the servo's maximum torque limit 500" in _one_line(capsys.readouterr().err)
         assert _memories(bus) == memories
+        # registers that hold under the protection read at calibration (Overload_Torque 25 %)
+        # but not under what the owner set since (10 %): judged again when the servo is opened
+        registers = registers_within_protection(FAMILY, tmp_path)
+        bus.table(GRIPPER).store("overload_torque", 10)
+        memories = _memories(bus)
+        assert deploy.main(["--registers", str(registers), "--port", bus.path, "--id", "6",
+                            "--jaw", str(jaw), "--hold", "5", "--out",
+                            str(tmp_path / "d2")]) == 2  # fmt: skip
+        printed, line = capsys.readouterr()
+        assert "note: servo 6's protection registers changed: overload_torque 10 (was 25): the " \
+            "registers are judged again under the servo's" in printed, printed  # fmt: skip
+        line = _one_line(line)
+        assert "refusing to deploy P=78 I=0 D=91 limit=240" in line and "overload" in line, line
+        assert line.endswith("servo 6 as found and read back (nothing to write back); flash "
+                             "untouched; torque reads on (as found)"), line  # fmt: skip
+        assert _memories(bus) == memories
 
 
 def test_an_overload_during_the_hold_stops_the_deploy_with_the_torque_off(tmp_path, jaw_file,
                                                                           capsys):  # fmt: skip
-    """The servo trips sooner than its model says (its overload protection at 30 % for 1 s):
-    TRIPPED is an error, the torque goes off, the registers come back, the report is kept."""
+    """The servo trips sooner than its model says (its overload protection lowered to 15 % for
+    1 s as the hold begins, after the gate judged the registers under the 25 % it read): TRIPPED
+    is an error, the torque goes off, the registers come back, the report is kept."""
     out = tmp_path / "d"
     with arm_bus(FAMILY, object_deg=190.0) as bus:
-        # the servo's own protection registers (the virtual servo runs what they say): an
-        # overload above 30 % duty for 1 s trips it
-        bus.table(GRIPPER).set("overload_torque", 30)
-        bus.table(GRIPPER).set("protection_time", 100)
         jaw = jaw_file(bus, FAMILY)
         found = sdk_registers(bus.path, FAMILY)
-        code = deploy.main(["--registers", "results/bus/sts3215_registers.json", "--port",
-                            bus.path, "--id", "6", "--jaw", str(jaw), "--hold", "3",
-                            "--no-plot", "--save", "--out", str(out)])  # fmt: skip
+        table = bus.table(GRIPPER)
+
+        def lower_at_the_hold(packet) -> None:  # the hold's goal: the closed position
+            if packet.id == GRIPPER and packet.instruction == 0x03 and packet.params[0] == 42:
+                if int.from_bytes(packet.params[1:3], "little") == CLOSED:
+                    table.set("overload_torque", 15)  # what the virtual servo runs by
+                    table.set("protection_time", 100)
+
+        bus.on_packet = lower_at_the_hold
+        registers = registers_within_protection(FAMILY, tmp_path)
+        code = deploy.main(["--registers", str(registers), "--port", bus.path, "--id", "6",
+                            "--jaw", str(jaw), "--hold", "3", "--no-plot", "--save", "--out",
+                            str(out)])  # fmt: skip
+        bus.on_packet = None
         line = _one_line(capsys.readouterr().err)
         assert code == 1, line
         assert "servo 6 TRIPPED during the hold: overload at" in line, line
@@ -184,6 +230,8 @@ def test_an_overload_during_the_hold_stops_the_deploy_with_the_torque_off(tmp_pa
         after = sdk_registers(bus.path, FAMILY)
         assert after.pop("torque_enable") == b"\x00"
         found.pop("torque_enable")
+        for name in ("overload_torque", "protection_time"):  # changed by the test, not the deploy
+            after.pop(name), found.pop(name)
         assert after == found  # not saved: the trip came first
     report = json.loads((out / "report.json").read_text())
     assert report["hold"]["tripped"] and report["hold"]["first_error"]["errors"] == ["overload"]
