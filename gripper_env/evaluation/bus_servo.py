@@ -36,6 +36,7 @@ from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, MAX_LAG, TRIP_NAMES, TRIP_NONE, BusRun, simulate_bus
 
 __all__ = [
+    "D_KICK_MAX",
     "GM_MIN_DB",
     "HOLD_FORCE_FRAC",
     "HOLD_S",
@@ -45,10 +46,12 @@ __all__ = [
     "Margins",
     "TrackingMetrics",
     "corner_models",
+    "d_kick",
     "hold_goal",
     "hold_metrics",
     "judge",
     "loop_margins",
+    "loop_margins_many",
     "tracking_goal",
     "tracking_metrics",
 ]
@@ -77,6 +80,24 @@ _GRASP_AT_S = 0.2  # when the grasp's goal jumps to the closed stop
 #: The tracking term is the IAE of each step over its size, summed (s): a 4 deg step counts as much
 #: as a 40 deg one, so the dead band of small moves weighs as much as the slew of large ones.
 WEIGHTS = {"iae_per_deg": 5.0, "overshoot": 0.5, "settled": 2.0, "chatter": 0.05, "grasp": 1.0}
+
+
+#: The most the D term may swing the output (fraction of full drive) when the encoder's reading
+#: changes by one tick: a shaft at rest on a tick's edge makes the reading flicker, and each
+#: flicker kicks the output by ``kd D`` for a millisecond (the worst case of the 1-tick
+#: quantisation in the D path, whatever the position). Feetech ships the STS3215 at 13 % (D 32)
+#: and ROBOTIS the XL430 at 28 % (D 4000, the highest of the vendors' defaults); the README
+#: recipe's STS3215 tuned to D 91-119 (36-48 %), where users hear the servo buzz.
+D_KICK_MAX = 0.30
+
+
+def d_kick(model: BusServoModel, registers: Sequence[RegisterSet]) -> np.ndarray:
+    """The output's step (fraction of full drive, or of the current command's stall current in
+    current-based position mode) when the reading moves one tick, through the D term alone:
+    ``kd D``, per register set."""
+    sc, ph = model.scale, model.physics
+    g = sc.duty_full * sc.current_unit_a / ph.stall_current_a if model.current_mode else 1.0
+    return np.array([g * sc.kd * r.d for r in registers], dtype=float)
 
 
 def tracking_goal(model: BusServoModel) -> tuple[np.ndarray, np.ndarray]:
@@ -264,32 +285,117 @@ def loop_margins(model: BusServoModel, regs: RegisterSet) -> Margins:
     """Peak sensitivity, gain and phase margins of the servo's loop, free and on the object.
 
     The worse of the two is returned (largest ``Ms``, smallest margins); an unstable closed loop
-    gives ``Ms = inf``.
+    gives ``Ms = inf``. One register set of :func:`loop_margins_many`.
     """
-    worst_ms, worst_gm, worst_pm, stable = 0.0, math.inf, math.inf, True
+    return loop_margins_many(model, [regs])[0]
+
+
+def _controllers(model: BusServoModel, registers: Sequence[RegisterSet]) -> tuple[np.ndarray, ...]:
+    """The register PIDs' numerators and denominators in ``z`` (rows; see :func:`_open_loop`),
+    padded to three coefficients, and their gains ``kp``, ``kd``, ``ki T`` (duty per tick):
+    ``C = kp + kd (1 - 1/z) + ki T / (1 - 1/z)``."""
+    ph, sc = model.physics, model.scale
+    g = sc.duty_full * sc.current_unit_a / ph.stall_current_a if model.current_mode else 1.0
+    p = np.array([r.p for r in registers], dtype=float)
+    d = np.array([r.d for r in registers], dtype=float)
+    i = np.array([r.i for r in registers], dtype=float)
+    kp, kd, ki = g * sc.kp * p, g * sc.kd * d, g * sc.ki * i * DT
+    cn = np.zeros((len(registers), 3))
+    cd = np.zeros((len(registers), 3))
+    integ = ki > 0.0
+    cn[integ] = (kp[integ, None] * [1.0, -1.0, 0.0] + kd[integ, None] * [1.0, -2.0, 1.0]
+                 + ki[integ, None] * [1.0, 0.0, 0.0])  # fmt: skip
+    cd[integ] = [1.0, -1.0, 0.0]
+    cn[~integ, 1], cn[~integ, 2] = kp[~integ] + kd[~integ], -kd[~integ]
+    cd[~integ, 1] = 1.0
+    return cn, cd, kp, kd, ki
+
+
+#: The unit circle at the margins' frequencies, and the PID's difference and sum there.
+_Z = np.exp(1j * _W * DT)
+_DIFF = 1.0 - 1.0 / _Z
+_SUM = 1.0 / _DIFF
+
+
+@lru_cache(maxsize=256)
+def _plant_response(
+    tau_m_s: float, omega0_deg_s: float, k_contact: float, deg_per_tick: float, current: bool,
+    lag: int,
+) -> np.ndarray:  # fmt: skip
+    """``G(z) / z^(1 + lag)`` at :data:`_Z`: the plant and the loop's delay, the part of the
+    loop every register set shares (cached, read-only)."""
+    gn, gd = _plant_z(tau_m_s, omega0_deg_s, k_contact, deg_per_tick, current)
+    out = np.polyval(gn, _Z) / np.polyval(gd, _Z) / _Z ** (1 + lag)
+    out.setflags(write=False)
+    return out
+
+
+def loop_margins_many(model: BusServoModel, registers: Sequence[RegisterSet]) -> list[Margins]:
+    """:func:`loop_margins` of several register sets on one model: the loop's frequency
+    response for every set at once (the PIDs' responses times the plant's, which they share),
+    and its closed-loop poles as the eigenvalues of a stack of companion matrices (what
+    ``np.roots`` solves one at a time): a search judges thousands of sets on a dozen models."""
+    n = len(registers)
+    worst_ms, worst_gm = np.zeros(n), np.full(n, math.inf)
+    worst_pm, stable = np.full(n, math.inf), np.ones(n, dtype=bool)
+    if n == 0:
+        return []
+    cn, cd, kp, kd, ki = _controllers(model, registers)
+    ph = model.physics
+    delay = np.eye(1, 2 + _lag(model)).ravel()  # z^(1 + lag)
     for k in (0.0, model.jaw.contact_stiffness):
-        ln, ld = _open_loop(model, regs, k)
-        roots = np.roots(np.trim_zeros(np.polyadd(ld, ln), "f"))  # of 1 + L(z)
-        if not np.all(np.abs(roots) < 1.0 - 1e-9):
-            return Margins(ms=math.inf, gm_db=-math.inf, pm_deg=-math.inf, stable=False)
-        z = np.exp(1j * _W * DT)
-        loop = np.polyval(ln, z) / np.polyval(ld, z)
-        worst_ms = max(worst_ms, float(np.max(1.0 / np.abs(1.0 + loop))))
-        ang = np.unwrap(np.angle(loop))
+        gn, gd = _plant_z(ph.tau_m_s, ph.omega0_deg_s, k, model.deg_per_tick, model.current_mode)
+        ln = np.stack([np.convolve(c, gn) for c in cn])
+        ld = np.stack([np.convolve(np.convolve(c, gd), delay) for c in cd])
+        char = np.zeros((n, max(ln.shape[1], ld.shape[1])))
+        char[:, char.shape[1] - ld.shape[1] :] += ld
+        char[:, char.shape[1] - ln.shape[1] :] += ln
+        stable &= _roots_inside(char)
+        plant = _plant_response(ph.tau_m_s, ph.omega0_deg_s, k, model.deg_per_tick,
+                                model.current_mode, _lag(model))  # fmt: skip
+        loop = (kp[:, None] + kd[:, None] * _DIFF + ki[:, None] * _SUM) * plant
+        worst_ms = np.maximum(worst_ms, np.max(1.0 / np.abs(1.0 + loop), axis=1))
+        ang = np.unwrap(np.angle(loop), axis=1)
         mag = np.abs(loop)
         # gain margin: where the phase crosses -180 deg (mod 360)
-        cross = np.flatnonzero(np.diff(np.floor((ang + math.pi) / (2 * math.pi))) != 0)
-        for i in cross:
-            if model.current_mode and mag[i] > 1.0:
-                # a double integrator's phase starts at -180 deg: grazing it at low frequency,
-                # where the gain is large, is no gain margin (lowering the gain keeps it stable)
-                continue
-            worst_gm = min(worst_gm, -20 * math.log10(max(mag[i], 1e-300)))
-        up = np.flatnonzero((mag[:-1] >= 1.0) & (mag[1:] < 1.0))
-        for i in up:
-            pm = math.degrees(math.pi + ang[i]) % 360.0
-            worst_pm = min(worst_pm, pm)
-    return Margins(ms=worst_ms, gm_db=worst_gm, pm_deg=worst_pm, stable=stable)
+        turns = np.floor((ang + math.pi) / (2 * math.pi))
+        crossing = np.diff(turns, axis=1) != 0
+        if model.current_mode:
+            # a double integrator's phase starts at -180 deg: grazing it at low frequency,
+            # where the gain is large, is no gain margin (lowering the gain keeps it stable)
+            crossing &= mag[:, :-1] <= 1.0
+        gm = np.where(crossing, -20 * np.log10(np.maximum(mag[:, :-1], 1e-300)), math.inf)
+        worst_gm = np.minimum(worst_gm, gm.min(axis=1))
+        up = (mag[:, :-1] >= 1.0) & (mag[:, 1:] < 1.0)
+        pm = np.where(up, np.degrees(math.pi + ang[:, :-1]) % 360.0, math.inf)
+        worst_pm = np.minimum(worst_pm, pm.min(axis=1))
+    return [
+        Margins(ms=float(worst_ms[b]), gm_db=float(worst_gm[b]), pm_deg=float(worst_pm[b]),
+                stable=True) if stable[b]
+        else Margins(ms=math.inf, gm_db=-math.inf, pm_deg=-math.inf, stable=False)
+        for b in range(n)
+    ]  # fmt: skip
+
+
+def _roots_inside(char: np.ndarray) -> np.ndarray:
+    """Per row of ``char`` (characteristic polynomials, highest power first, zero-padded in
+    front): are all its roots strictly inside the unit circle? Leading zeros are dropped as
+    ``np.roots`` drops them; the roots are the eigenvalues of the companion matrices, solved
+    in one batch per degree."""
+    out = np.ones(char.shape[0], dtype=bool)
+    lead = np.argmax(char != 0.0, axis=1)
+    for first in np.unique(lead):
+        rows = np.flatnonzero(lead == first)
+        poly = char[rows, first:]
+        deg = poly.shape[1] - 1
+        if deg < 1:
+            continue
+        comp = np.zeros((rows.size, deg, deg))
+        comp[:, 0, :] = -poly[:, 1:] / poly[:, :1]
+        comp[:, np.arange(1, deg), np.arange(deg - 1)] = 1.0
+        roots = np.linalg.eigvals(comp)
+        out[rows] = np.all(np.abs(roots) < 1.0 - 1e-9, axis=1)
+    return out
 
 
 def corner_models(
@@ -351,6 +457,7 @@ class BusScore:
     hold: HoldMetrics
     margins: Margins
     robust_margins: Margins
+    d_kick: float = 0.0
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready dict."""
@@ -363,6 +470,7 @@ class BusScore:
             "hold": asdict(self.hold),
             "margins": asdict(self.margins),
             "robust_margins": asdict(self.robust_margins),
+            "d_kick": self.d_kick,
         }
 
 
@@ -378,8 +486,9 @@ def judge(
     Cost (lower is better): ``5 sum(IAE / step size) + 0.5 overshoot + 2 settled error + 0.05
     chatter + time to grasp`` (s, deg, deg, 1/s, s). Constraints: the loop's margins
     (``Ms <= 1.6``, gain margin
-    ``>= 6 dB``) on the model and on its uncertainty corners (:func:`corner_models`), and the
-    hold: grasp within 1 s, hold at least 20 % of stall force for 10 s without a trip.
+    ``>= 6 dB``) on the model and on its uncertainty corners (:func:`corner_models`), the D
+    term's kick per encoder tick at most :data:`D_KICK_MAX` (:func:`d_kick`), and the hold:
+    grasp within 1 s, hold at least 20 % of stall force for 10 s without a trip.
     ``alternatives`` are models the margins must hold on too (an identification's fits at
     later loop delays).
     """
@@ -388,12 +497,15 @@ def judge(
     track = simulate_bus(model, regs, track_goal)
     grasp = simulate_bus(model, regs, hold_goal(model), with_object=True)
     corners = corner_models(model, rel_std, alternatives=alternatives)[1:]
+    on_model = loop_margins_many(model, regs)
+    on_corners = [loop_margins_many(c, regs) for c in corners]
+    kicks = d_kick(model, regs)
     scores = []
     for i, r in enumerate(regs):
         tm = tracking_metrics(model, track, i)
         hm = hold_metrics(model, grasp, i)
-        mg = loop_margins(model, r)
-        robust = [mg, *(loop_margins(c, r) for c in corners)]
+        mg = on_model[i]
+        robust = [mg, *(c[i] for c in on_corners)]
         worst = Margins(
             ms=max(m.ms for m in robust),
             gm_db=min(m.gm_db for m in robust),
@@ -408,6 +520,11 @@ def judge(
                 violations.append(f"Ms {worst.ms:.2f} > {MS_MAX}")
             if worst.gm_db < GM_MIN_DB - 1e-9:
                 violations.append(f"gain margin {worst.gm_db:.1f} dB < {GM_MIN_DB}")
+        if kicks[i] > D_KICK_MAX + 1e-12:
+            violations.append(
+                f"D kick {kicks[i]:.0%} of full drive per encoder tick > {D_KICK_MAX:.0%} "
+                "(a reading flickering between two ticks buzzes)"
+            )
         if hm.overload:
             violations.append(f"{hm.trip} trips at {hm.trip_at_s:.2f} s of the hold")
         elif not hm.held:
@@ -433,6 +550,7 @@ def judge(
                 hold=hm,
                 margins=mg,
                 robust_margins=worst,
+                d_kick=float(kicks[i]),
             )
         )
     return scores

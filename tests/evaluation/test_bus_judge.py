@@ -105,8 +105,8 @@ def test_the_robust_margins_hold_on_the_alternative_models():
     time constant) are constraints too: the judged margins are no better than on any of them,
     and a set that breaks Ms on one is infeasible."""
     model = load_bus_servo("sts3215")
-    # feasible on the model (the 7.4 V sheet's speed: P and D 0.86 x what they were at 270 deg/s)
-    regs = RegisterSet(p=69, i=0, d=86, torque_limit=790, deadband=1)
+    # feasible on the model, its D kick (kd D = 0.296) under the 30 % bound
+    regs = RegisterSet(p=75, i=0, d=74, torque_limit=790, deadband=1)
     alt = model.with_updates(
         name="alt",
         physics=model.physics.model_copy(update={"loop_delay_s": 0.006, "tau_m_s": 0.03}),
@@ -118,3 +118,18 @@ def test_the_robust_margins_hold_on_the_alternative_models():
         max(plain[0].robust_margins.ms, on_alt.ms), rel=1e-12
     )
     assert on_alt.ms > 1.6 and not with_alt[0].feasible and plain[0].feasible
+
+
+def test_a_d_term_that_kicks_more_than_the_bound_is_infeasible():
+    """The D term's step for one tick of the reading (kd D, worked by hand: 0.004 x 91 = 0.364
+    of full drive on the shipped STS3215) is bounded by D_KICK_MAX, whatever the margins say."""
+    model = load_bus_servo("sts3215")
+    ok, buzzing = judge(model, [RegisterSet(p=78, i=0, d=75, torque_limit=790),
+                                RegisterSet(p=78, i=0, d=91, torque_limit=790)])  # fmt: skip
+    assert ok.d_kick == pytest.approx(0.004 * 75) and buzzing.d_kick == pytest.approx(0.364)
+    assert buzzing.robust_margins.feasible()  # the margins alone would take it
+    assert not buzzing.feasible and buzzing.violations == (
+        "D kick 36% of full drive per encoder tick > 30% (a reading flickering between two "
+        "ticks buzzes)",
+    )
+    assert "D kick" not in " ".join(ok.violations)

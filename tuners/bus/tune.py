@@ -4,10 +4,12 @@ The search space is the registers themselves, integers in the servo's units: P, 
 torque limit (:data:`SEARCH_SPACE`, per family). Every candidate is judged on the model
 (:func:`gripper_env.evaluation.bus_servo.judge`): the cost is tracking (IAE, overshoot, settled
 error, chatter) plus the time to grasp; the constraints are the loop's margins (``Ms <= 1.6``,
-gain margin >= 6 dB, on the model and its uncertainty corners) and the hold (grasp within 1 s,
-hold 20 % of stall force for 10 s, no overload or thermal trip). The sampler is Optuna's
-multivariate TPE with those constraints (``Trial.set_constraint``), started from the factory
-and community registers, then an integer pattern search from its best sets
+gain margin >= 6 dB, on the model, its uncertainty corners and every delay pair the
+identification could not rule out), the D term's kick per encoder tick (at most 30 % of full
+drive: a reading flickering between two ticks buzzes) and the hold (grasp within 1 s, hold 20 %
+of stall force for 10 s, no trip of the protection the servo's own registers set). The sampler
+is Optuna's multivariate TPE with those constraints (``Trial.set_constraint``), started from
+the factory and community registers, then an integer pattern search from its best sets
 (:func:`tune_registers`). The result - the best feasible registers, the baselines judged on the
 same terms, the margins - goes to a JSON file that ``python -m tuners.bus.deploy`` takes, with a
 figure of tracking and hold.
@@ -33,7 +35,7 @@ from pathlib import Path
 import optuna
 from tqdm.auto import tqdm
 
-from gripper_env.evaluation.bus_servo import GM_MIN_DB, MS_MAX, BusScore, judge
+from gripper_env.evaluation.bus_servo import D_KICK_MAX, GM_MIN_DB, MS_MAX, BusScore, judge
 from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import (
@@ -97,7 +99,7 @@ def constraint_value(score: BusScore) -> float:
     if score.feasible:
         return 0.0
     m, h = score.robust_margins, score.hold
-    v = 0.0
+    v = max(score.d_kick - D_KICK_MAX, 0.0) / D_KICK_MAX
     if not m.stable:
         v += 10.0
     else:
@@ -350,8 +352,8 @@ def format_table(rows: dict[str, BusScore]) -> str:
         "| registers | cost | IAE (deg s) | IAE/step (s) | overshoot (deg) | settled error (deg) "
         "| chatter (1/s) "
         "| grasp (s) | hold force (N) | least force (N) | trip | Ms | GM (dB) | PM (deg) "
-        "| robust Ms / GM | feasible |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| robust Ms / GM | D kick | feasible |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in rows.items():
         t, h, m, r = s.tracking, s.hold, s.margins, s.robust_margins
@@ -361,7 +363,7 @@ def format_table(rows: dict[str, BusScore]) -> str:
             f"| {t.overshoot_deg:.2f} "
             f"| {t.settled_error_deg:.2f} | {t.chatter:.1f} | {h.time_to_grasp_s:.2f} "
             f"| {h.holding_force_n:.1f} | {h.min_force_n:.1f} | {trip} | {m.ms:.2f} "
-            f"| {m.gm_db:.1f} | {m.pm_deg:.0f} | {r.ms:.2f} / {r.gm_db:.1f} "
+            f"| {m.gm_db:.1f} | {m.pm_deg:.0f} | {r.ms:.2f} / {r.gm_db:.1f} | {s.d_kick:.0%} "
             f"| {'yes' if s.feasible else 'no: ' + '; '.join(s.violations)} |"
         )
     return "\n".join(lines)
