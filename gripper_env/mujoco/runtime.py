@@ -36,7 +36,7 @@ from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.mujoco import require_mujoco
 from gripper_env.sim import bus_servo as core
 
-__all__ = ["ExactServo", "RegisterLoop", "control_callback"]
+__all__ = ["ExactServo", "RegisterLoop", "control_callback", "installed", "step_servos"]
 
 DT = core.DT
 #: Below this speed (deg/s) a joint counts as sticking for the friction switch.
@@ -239,12 +239,13 @@ class ExactServo:
         self._omega0 = ph.omega0_deg_s
         self._half_gap = 0.5 * ph.backlash_deg
         self.m.dof_frictionloss[self._dof] = 0.0  # the runtime applies the friction
+        self._gear = float(mj_model.actuator_gear[self._act, 0])
         self._output = self.motor_deg
         self.loop = RegisterLoop(model, registers, self.angle_deg)
         self.goal_deg = self.angle_deg
         self._acting = 0.0
         self.sticking = True
-        self._direction = 0.0
+        self._net = self._q0 = self._w0 = 0.0
 
     @property
     def motor_deg(self) -> float:
@@ -297,45 +298,44 @@ class ExactServo:
         slow = abs(self.speed_deg_s) < STICK_DEG_S
         self.m.dof_frictionloss[self._dof] = self._static_nm if slow else self._coulomb_nm
 
-    def _net_torque(self) -> float:
-        """The joint's net torque but friction, at the last step's start (N m)."""
-        return float(self.d.qfrc_smooth[self._dof] + self.d.qfrc_constraint[self._dof])
-
-    def _substep(self) -> None:
-        """One MuJoCo step with Karnopp friction, as the core's: a sticking joint stays put
-        while the net torque is within the static friction; a sliding one feels the Coulomb
-        friction and sticks again where its speed crosses zero within the static band."""
-        mujoco = require_mujoco()
-        d, q, v = self.d, self._qadr, self._dof
+    def _before_step2(self) -> None:
+        """Between ``mj_step1`` and ``mj_step2``: Karnopp friction, as the core's. The net
+        torque but friction (the motor, the joint's damping, gravity and the bias forces)
+        decides: a sticking joint stays put while it is within the static friction (the friction
+        takes it all); a sliding one feels the Coulomb friction against its motion."""
+        d, v = self.d, self._dof
+        motor = float(d.ctrl[self._act]) * self._gear
+        net = motor + float(d.qfrc_passive[v]) - float(d.qfrc_bias[v])
+        self._net = net
+        self._q0 = float(d.qpos[self._qadr])
+        self._w0 = w0 = float(d.qvel[v])
         if self.sticking:
-            d.qfrc_applied[v] = 0.0
-            q0 = float(d.qpos[q])
-            mujoco.mj_step(self.m, d)
-            net = self._net_torque()
             if abs(net) <= self._static_nm:
-                d.qpos[q], d.qvel[v] = q0, 0.0
-            else:
-                self.sticking = False
-                self._direction = 1.0 if net > 0.0 else -1.0
+                d.qfrc_applied[v] = -net  # held: no acceleration, no motion
+                return
+            self.sticking = False
+        direction = (1.0 if w0 > 0.0 else -1.0) if w0 != 0.0 else (1.0 if net > 0.0 else -1.0)
+        d.qfrc_applied[v] = -self._coulomb_nm * direction
+
+    def _after_step2(self) -> None:
+        """After ``mj_step2``: a sliding joint whose speed crossed zero with the net torque
+        within the static band sticks where it was; a held one is at rest."""
+        d, v = self.d, self._dof
+        if self.sticking:
+            d.qvel[v] = 0.0
         else:
-            w0 = float(d.qvel[v])
-            if w0 != 0.0:
-                self._direction = 1.0 if w0 > 0.0 else -1.0
-            d.qfrc_applied[v] = -self._coulomb_nm * self._direction
-            mujoco.mj_step(self.m, d)
-            w1 = float(d.qvel[v])
-            if w1 * self._direction <= 0.0 and abs(self._net_torque()) <= self._static_nm:
-                d.qvel[v] = 0.0
+            w0, w1 = self._w0, float(d.qvel[v])
+            crossed = (w0 != 0.0 and w1 * w0 <= 0.0) or w1 == 0.0
+            if crossed and abs(self._net) <= self._static_nm:
+                d.qpos[self._qadr], d.qvel[v] = self._q0, 0.0
                 self.sticking = True
+        d.qfrc_applied[v] = 0.0
         self._update_output()
 
     def step(self) -> int:
         """One 1 ms tick: the loop, then MuJoCo to the next tick; the encoder's reading (ticks)
         at the tick's start."""
-        meas, _ = self.control()
-        for _ in range(self.substeps):
-            self._substep()
-        return meas
+        return step_servos([self])[0]
 
     def run(self, goal_deg: Sequence[float] | np.ndarray) -> np.ndarray:
         """Run a goal per tick (deg); the encoder's readings (ticks), one per tick."""
@@ -344,6 +344,27 @@ class ExactServo:
             self.goal_deg = float(g)
             out[k] = self.step()
         return out
+
+
+def step_servos(servos: Sequence[ExactServo]) -> list[int]:
+    """One 1 ms tick of several servos on one MuJoCo model (an arm): each loop, then MuJoCo's
+    steps to the next tick with each joint's friction; the encoders' readings (ticks) at the
+    tick's start."""
+    mujoco = require_mujoco()
+    if not servos:
+        return []
+    m, d = servos[0].m, servos[0].d
+    if any(s.d is not d for s in servos):
+        raise ValueError("step_servos: the servos must share one MjData")
+    readings = [s.control()[0] for s in servos]
+    for _ in range(servos[0].substeps):
+        mujoco.mj_step1(m, d)
+        for s in servos:
+            s._before_step2()
+        mujoco.mj_step2(m, d)
+        for s in servos:
+            s._after_step2()
+    return readings
 
 
 def control_callback(servos: Sequence[ExactServo]) -> Callable[[Any, Any], None]:

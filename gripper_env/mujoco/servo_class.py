@@ -74,7 +74,7 @@ __all__ = [
 TICKS_PER_RAD = TICKS_PER_REV / (2.0 * math.pi)
 #: The test models' time steps (s): the exact runtime steps MuJoCo 4 times per 1 ms tick.
 NATIVE_TIMESTEP_S = 0.001
-EXACT_TIMESTEP_S = 0.00025
+EXACT_TIMESTEP_S = 0.000125
 #: Soft-constraint time constant of the joint's dry friction (s; MuJoCo's ``solreffriction``):
 #: short, so that a sticking joint creeps little, and at least twice the exact model's step.
 FRICTION_SOLREF_S = 0.002
@@ -230,18 +230,24 @@ def servo_mjcf(
         klass = exact_class_mjcf(model, name)
         actuator = f'    <motor name="servo" class="{name}" joint="shaft"/>\n'
         step = EXACT_TIMESTEP_S
+    # the exact form integrates as the core does: semi-implicit Euler at 1/8 ms, the back-EMF
+    # damping explicit; the native form as a MuJoCo user would (implicit damping)
+    integrator = 'integrator="Euler"' if form == "exact" else 'integrator="implicitfast"'
+    flag = '    <flag eulerdamp="disable"/>\n' if form == "exact" else ""
     return (
         f'<mujoco model="{model.name}_{form}">\n'
         f"  <!-- {model.family} '{model.name}', registers {registers.label()}: written by "
         "python -m tuners.bus.export -->\n"
         '  <compiler angle="radian" autolimits="true"/>\n'
-        f'  <option timestep="{_fmt(step)}" integrator="implicitfast" gravity="0 0 0"/>\n'
+        f'  <option timestep="{_fmt(step)}" {integrator} gravity="0 0 0">\n'
+        f"{flag}"
+        "  </option>\n"
         "  <default>\n"
         f"{klass}"
         "  </default>\n"
         "  <worldbody>\n"
         '    <body name="horn">\n'
-        '      <inertial pos="0 0 0" mass="1e-3" diaginertia="1e-9 1e-9 1e-9"/>\n'
+        '      <inertial pos="0 0 0" mass="1e-6" diaginertia="1e-12 1e-12 1e-12"/>\n'
         f'      <joint name="shaft" class="{name}" axis="0 0 1" '
         f'range="{_fmt(lo)} {_fmt(hi)}"/>\n'
         "    </body>\n"
