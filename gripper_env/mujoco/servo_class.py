@@ -64,6 +64,7 @@ __all__ = [
     "MENAGERIE_STS3215",
     "NATIVE_TIMESTEP_S",
     "NativeServo",
+    "fill_history",
     "fit_native_gains",
     "native_servo",
     "physical_terms",
@@ -282,7 +283,7 @@ def rollout_native(
         d.ctrl[0] = rad[0]
         mujoco.mj_forward(m, d)
         # a delayed actuator starts from its history: fill it with the first goal
-        _fill_history(m, d, rad[0])
+        fill_history(m, d, rad[0])
         size = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         state = np.empty(size)
         mujoco.mj_getState(m, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -294,7 +295,7 @@ def rollout_native(
     return out
 
 
-def _fill_history(m: object, d: object, value: float) -> None:
+def fill_history(m: object, d: object, value: float) -> None:
     """Fill each delayed actuator's history with ``value`` (MuJoCo starts it at 0): the servo
     has held that goal for long."""
     from gripper_env.mujoco import require_mujoco

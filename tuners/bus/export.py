@@ -79,6 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("runs/mujoco"),
                         help="output folder (default runs/mujoco)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="--verify: the records' seed")
+    parser.add_argument("--generations", type=int, default=80,
+                        help="--verify: the identification's search (default 80)")  # fmt: skip
     parser.add_argument("--no-plot", action="store_true",
                         help="--verify: no figure (FAMILY_mujoco.png)")  # fmt: skip
     parser.add_argument("--no-fit", action="store_true",
@@ -245,18 +247,21 @@ def _verify(args: argparse.Namespace) -> int:
     from gripper_env.mujoco.verify import verify_family
 
     check_output_folder(args.out, "--out")
+    if not 1 <= args.generations <= 10_000:
+        raise ValueError(f"--generations must be 1..10000, got {args.generations}")
     start = time.monotonic()
     started = time.perf_counter()
 
     def say(text: str) -> None:
-        print(f"[{time.monotonic() - start:5.0f} s] {text}", flush=True)
+        stamped = text.startswith("[")  # the identification's lines carry their own time
+        print(text if stamped else f"[{time.monotonic() - start:5.0f} s] {text}", flush=True)
 
     say(f"verifying the {args.verify} export: identification (2-4 minutes on 2 cores), then "
         "MuJoCo (about a minute)")  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     stem = args.out / f"{args.verify}_mujoco"
     command = " ".join(["python -m tuners.bus.export", *sys.argv[1:]])
-    result = verify_family(args.verify, seed=args.seed, log=say)
+    result = verify_family(args.verify, seed=args.seed, generations=args.generations, log=say)
     with collect_provenance(args.out, stem.name, command=command, started=started):
         doc: dict[str, Any] = result.as_dict()
         write_json(stem.with_suffix(".json"), doc)
