@@ -24,8 +24,8 @@ degrees(q)`` (the calibrated middle at 2048 ticks, as LeRobot's calibration writ
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from functools import lru_cache
+from collections.abc import Mapping, Sequence
+from functools import cached_property, lru_cache
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -169,21 +169,23 @@ class Arm:
             out[b.name] = (p, r)
         return out
 
-    def _outboard(self, joint: str) -> list[str]:
-        """The bodies the joint moves: its own and every one beyond it."""
-        root = self._joint(joint).name
-        moved = {root}
-        for b in self.spec.bodies:
-            if b.parent in moved:
-                moved.add(b.name)
-        return [b.name for b in self.spec.bodies if b.name in moved]
+    @cached_property
+    def _outboard_sets(self) -> dict[str, frozenset[str]]:
+        """The bodies each joint moves: its own and every one beyond it."""
+        out = {}
+        for joint, root in self.joints.items():
+            moved = {root.name}
+            for b in self.spec.bodies:
+                if b.parent in moved:
+                    moved.add(b.name)
+            out[joint] = frozenset(moved)
+        return out
 
     def _masses(
-        self, pose: Mapping[str, float], payload_kg: float
+        self, frames: dict[str, tuple[np.ndarray, np.ndarray]], payload_kg: float
     ) -> list[tuple[str, float, np.ndarray, np.ndarray]]:
         """``(body, mass, centre in the world, inertia in the world)`` of every body and the
         payload (a point at the payload site, counted with its body)."""
-        frames = self.frames(pose)
         out = []
         for b in self.spec.bodies:
             p, r = frames[b.name]
@@ -195,23 +197,29 @@ class Arm:
             out.append((site.body, payload_kg, p + r @ np.asarray(site.pos), np.zeros((3, 3))))
         return out
 
-    def _axis(self, joint: str, pose: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    def _axis(
+        self, joint: str, frames: dict[str, tuple[np.ndarray, np.ndarray]]
+    ) -> tuple[np.ndarray, np.ndarray]:
         b = self._joint(joint)
-        p, r = self.frames(pose)[b.name]
+        p, r = frames[b.name]
         a = r @ np.asarray(b.joint.axis, float)  # type: ignore[union-attr]
         return p, a / np.linalg.norm(a)
 
     def gravity_torques(
-        self, pose: Mapping[str, float], payload_kg: float = 0.0
+        self,
+        pose: Mapping[str, float],
+        payload_kg: float = 0.0,
+        joints: Sequence[str] | None = None,
     ) -> dict[str, float]:
-        """The torque gravity exerts on each joint at ``pose`` (N m, positive turning ``q``
-        up), with a payload at the gripper's frame."""
+        """The torque gravity exerts on each joint (or those of ``joints``) at ``pose`` (N m,
+        positive turning ``q`` up), with a payload at the gripper's frame."""
         g = np.array([0.0, 0.0, -GRAVITY])
-        masses = self._masses(pose, payload_kg)
+        frames = self.frames(pose)
+        masses = self._masses(frames, payload_kg)
         out = {}
-        for joint in self.joints:
-            p, a = self._axis(joint, pose)
-            moved = set(self._outboard(joint))
+        for joint in self.joints if joints is None else joints:
+            p, a = self._axis(joint, frames)
+            moved = self._outboard_sets[joint]
             tau = sum(float(np.cross(c - p, m * g) @ a) for b, m, c, _ in masses if b in moved)
             out[joint] = tau
         return out
@@ -219,10 +227,11 @@ class Arm:
     def axis_inertia(self, joint: str, pose: Mapping[str, float], payload_kg: float = 0.0) -> float:
         """The inertia about ``joint``'s axis of everything it moves, the other joints held
         (kg m^2)."""
-        p, a = self._axis(joint, pose)
-        moved = set(self._outboard(joint))
+        frames = self.frames(pose)
+        p, a = self._axis(joint, frames)
+        moved = self._outboard_sets[joint]
         total = 0.0
-        for b, m, c, inertia in self._masses(pose, payload_kg):
+        for b, m, c, inertia in self._masses(frames, payload_kg):
             if b in moved:
                 total += float(a @ inertia @ a) + m * float(np.sum(np.cross(a, c - p) ** 2))
         return total
@@ -241,12 +250,13 @@ class Arm:
 
         def amp_hang(payload: float) -> tuple[float, float]:
             # tau(q) = a cos q + b sin q = -A sin(q - q_h): a = A sin q_h, b = -A cos q_h
-            base = self.gravity_torques({**pose, joint: 0.0}, payload)[joint]
-            quarter = self.gravity_torques({**pose, joint: math.pi / 2}, payload)[joint]
+            only = (joint,)
+            base = self.gravity_torques({**pose, joint: 0.0}, payload, only)[joint]
+            quarter = self.gravity_torques({**pose, joint: math.pi / 2}, payload, only)[joint]
             empty = (0.0, 0.0)
             if payload:
-                e0 = self.gravity_torques({**pose, joint: 0.0}, 0.0)[joint]
-                e1 = self.gravity_torques({**pose, joint: math.pi / 2}, 0.0)[joint]
+                e0 = self.gravity_torques({**pose, joint: 0.0}, 0.0, only)[joint]
+                e1 = self.gravity_torques({**pose, joint: math.pi / 2}, 0.0, only)[joint]
                 empty = (e0, e1)
             a, b = base - empty[0], quarter - empty[1]
             return math.hypot(a, b), math.degrees(math.atan2(a, -b))
