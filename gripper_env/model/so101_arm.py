@@ -205,6 +205,21 @@ class Arm:
         a = r @ np.asarray(b.joint.axis, float)  # type: ignore[union-attr]
         return p, a / np.linalg.norm(a)
 
+    def _torque(
+        self,
+        joint: str,
+        frames: dict[str, tuple[np.ndarray, np.ndarray]],
+        masses: list[tuple[str, float, np.ndarray, np.ndarray]],
+    ) -> float:
+        """Gravity's torque on ``joint`` (N m) from the bodies it moves."""
+        p, a = self._axis(joint, frames)
+        moved = self._outboard_sets[joint]
+        rows = [(m, c) for b, m, c, _ in masses if b in moved]
+        m = np.array([r[0] for r in rows])
+        c = np.array([r[1] for r in rows]) - p
+        # (c x m g) . a with g = (0, 0, -G): G m (c_x a_y - c_y a_x)
+        return float(GRAVITY * np.sum(m * (c[:, 0] * a[1] - c[:, 1] * a[0])))
+
     def gravity_torques(
         self,
         pose: Mapping[str, float],
@@ -213,16 +228,11 @@ class Arm:
     ) -> dict[str, float]:
         """The torque gravity exerts on each joint (or those of ``joints``) at ``pose`` (N m,
         positive turning ``q`` up), with a payload at the gripper's frame."""
-        g = np.array([0.0, 0.0, -GRAVITY])
         frames = self.frames(pose)
         masses = self._masses(frames, payload_kg)
-        out = {}
-        for joint in self.joints if joints is None else joints:
-            p, a = self._axis(joint, frames)
-            moved = self._outboard_sets[joint]
-            tau = sum(float(np.cross(c - p, m * g) @ a) for b, m, c, _ in masses if b in moved)
-            out[joint] = tau
-        return out
+        return {
+            j: self._torque(j, frames, masses) for j in (self.joints if joints is None else joints)
+        }
 
     def axis_inertia(self, joint: str, pose: Mapping[str, float], payload_kg: float = 0.0) -> float:
         """The inertia about ``joint``'s axis of everything it moves, the other joints held
@@ -248,21 +258,16 @@ class Arm:
         inertia of the links about the axis (the payload's is added as a point mass)."""
         pose = dict(pose or {})
 
-        def amp_hang(payload: float) -> tuple[float, float]:
-            # tau(q) = a cos q + b sin q = -A sin(q - q_h): a = A sin q_h, b = -A cos q_h
-            only = (joint,)
-            base = self.gravity_torques({**pose, joint: 0.0}, payload, only)[joint]
-            quarter = self.gravity_torques({**pose, joint: math.pi / 2}, payload, only)[joint]
-            empty = (0.0, 0.0)
-            if payload:
-                e0 = self.gravity_torques({**pose, joint: 0.0}, 0.0, only)[joint]
-                e1 = self.gravity_torques({**pose, joint: math.pi / 2}, 0.0, only)[joint]
-                empty = (e0, e1)
-            a, b = base - empty[0], quarter - empty[1]
+        # tau(q) = a cos q + b sin q = -A sin(q - q_h): a = A sin q_h, b = -A cos q_h
+        at = [self.frames({**pose, joint: q}) for q in (0.0, math.pi / 2)]
+        links = [self._torque(joint, f, self._masses(f, 0.0)) for f in at]
+        loaded = [self._torque(joint, f, self._masses(f, 1.0)) for f in at]
+
+        def amp_hang(a: float, b: float) -> tuple[float, float]:
             return math.hypot(a, b), math.degrees(math.atan2(a, -b))
 
-        links_a, links_h = amp_hang(0.0)
-        per_kg, pay_h = amp_hang(1.0)
+        links_a, links_h = amp_hang(links[0], links[1])
+        per_kg, pay_h = amp_hang(loaded[0] - links[0], loaded[1] - links[1])
         links_inertia = self.axis_inertia(joint, {**pose, joint: 0.0})
         return JointLoad(
             joint=joint,

@@ -20,7 +20,12 @@ import numpy as np
 from gripper_env.model.bus_load import GRAVITY
 from gripper_env.model.bus_servo import BusServoModel
 from gripper_env.model.so101_arm import Arm, load_arm, shaft_deg
-from gripper_env.mujoco.servo_class import EXACT_TIMESTEP_S, exact_class_mjcf
+from gripper_env.mujoco.servo_class import (
+    EXACT_TIMESTEP_S,
+    NativeServo,
+    exact_class_mjcf,
+    native_class_mjcf,
+)
 
 __all__ = ["arm_mjcf"]
 
@@ -37,12 +42,14 @@ def arm_mjcf(
     free: Sequence[str] | None = None,
     arm: Arm | None = None,
     timestep_s: float = EXACT_TIMESTEP_S,
+    native: NativeServo | None = None,
 ) -> str:
     """The arm's MJCF: the joints in ``free`` (default all) of the servo's exact class (joint
     ``NAME``, motor actuator ``NAME``), the others fixed where ``pose`` puts them (rad), gravity
     on, a payload of ``payload_kg`` (kg; a body ``payload`` at the gripper's frame) when above
     0, no meshes and no contacts. A joint's ``qpos`` is the published model's ``q`` (rad; its
-    servo's shaft at ``180 + degrees(q)``)."""
+    servo's shaft at ``180 + degrees(q)``). With ``native``, the joints are of that native class
+    instead and their actuators MuJoCo's position servos (``ctrl``: the goal's ``q``, rad)."""
     arm = arm or load_arm()
     pose = dict(pose or {})
     moving = set(arm.joint_names if free is None else free)
@@ -56,7 +63,11 @@ def arm_mjcf(
         '    <flag eulerdamp="disable" contact="disable"/>',
         "  </option>",
         "  <default>",
-        exact_class_mjcf(servo, cls).rstrip("\n"),
+        (
+            exact_class_mjcf(servo, cls)
+            if native is None
+            else native_class_mjcf(native, cls, timestep_s)
+        ).rstrip("\n"),
         "  </default>",
         "  <worldbody>",
     ]
@@ -91,8 +102,9 @@ def arm_mjcf(
     for root in children.get("world", []):
         emit(root, depth["world"])
     lines += ["  </worldbody>", "  <actuator>"]
+    kind = "motor" if native is None else "position"
     for joint in (j for j in arm.joint_names if j in moving):
-        lines.append(f'    <motor name="{joint}" class="{cls}" joint="{joint}"/>')
+        lines.append(f'    <{kind} name="{joint}" class="{cls}" joint="{joint}"/>')
     lines += ["  </actuator>", "</mujoco>", ""]
     return "\n".join(lines)
 

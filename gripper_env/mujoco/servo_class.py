@@ -176,10 +176,11 @@ def _fmt(x: float) -> str:
     return f"{x:.6g}"
 
 
-def native_class_mjcf(servo: NativeServo, name: str) -> str:
-    """The ``<default class=name>`` of a native class (joint and position actuator)."""
+def native_class_mjcf(servo: NativeServo, name: str, timestep_s: float = NATIVE_TIMESTEP_S) -> str:
+    """The ``<default class=name>`` of a native class (joint and position actuator; its delay's
+    history sized for ``timestep_s``)."""
     d = servo
-    nsample = max(2, math.ceil(d.delay_s / NATIVE_TIMESTEP_S) + 2)
+    nsample = max(2, math.ceil(d.delay_s / timestep_s) + 2)
     delay = f' delay="{_fmt(d.delay_s)}" nsample="{nsample}"' if d.delay_s > 0 else ""
     return (
         f'    <default class="{name}">\n'

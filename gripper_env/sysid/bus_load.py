@@ -24,8 +24,9 @@ with its error propagated.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -44,6 +45,7 @@ __all__ = [
     "identify_load",
     "load_plan",
     "load_settings",
+    "record_load",
 ]
 
 #: Steps around each held pose (deg) and how long each is held (s).
@@ -124,6 +126,74 @@ def check_load_plan(
         if not m.stable:
             raise ValueError(f"refusing to record {regs.label()}: its loop is unstable on the "
                              f"loaded {load.joint} (choose smaller gains)")  # fmt: skip
+
+
+def record_load(
+    port: str,
+    servo: BusServoModel,
+    servo_id: int | None,
+    joint: str,
+    *,
+    payload_max_kg: float = 0.1,
+    baudrate: int | None = None,
+    log: Callable[[str], None] = print,
+    opened: Callable[[Any], None] | None = None,
+) -> list[BusRecord]:
+    """Record a loaded joint's load on a bus (see the module): open servo ``servo_id`` only
+    (a broadcast PING finds it; nothing goes to any other ID), take its range from its own
+    position limits, hold where it is, check the plan (:func:`check_load_plan`) with the
+    published links' load and a payload up to ``payload_max_kg``, record at
+    :func:`load_settings`, and restore every register it wrote (read back) on the way out,
+    error or not. ``opened`` gets the open servo (a command keeps it for its last word).
+
+    Raises
+    ------
+    ValueError
+        An unsafe plan (nothing was sent).
+    gripper_env.hardware.bus.link.BusError
+        The bus failed, or the servo reported an error bit (an overload): the recording stops.
+    """
+    from gripper_env.hardware.bus.gripper import (
+        FACTORY_BAUD,
+        BusGripper,
+        read_servo_registers,
+        select_servo,
+    )
+    from gripper_env.hardware.bus.link import BusLink
+    from gripper_env.model.bus_calibration import JawCalibration
+    from gripper_env.model.so101_arm import joint_model, q_of_shaft
+    from gripper_env.sysid.bus_experiments import BusRecorder
+
+    link = BusLink(port, servo.family, baudrate or FACTORY_BAUD[servo.family],
+                   ids=() if servo_id is None else (servo_id,))  # fmt: skip
+    try:
+        select_servo(link, servo_id)  # BusSelectError without an ID: the list, nothing written
+        assert servo_id is not None
+        regs = read_servo_registers(link, servo_id)
+    except BaseException:
+        link.close()
+        raise
+    cal = JawCalibration(family=servo.family, servo_id=servo_id, closed_ticks=regs.min_position,
+                         open_ticks=regs.max_position, source="the servo's position limits",
+                         servo=regs)  # fmt: skip
+    records = []
+    with BusGripper(port, servo, servo_id, link=link, calibration=cal) as g:
+        if opened is not None:
+            opened(g)
+        held = g.position_deg()
+        settings = load_settings(g.read_registers())
+        prior = joint_model(servo, joint, {joint: q_of_shaft(held)},
+                            payload_range_kg=(0.0, payload_max_kg))  # fmt: skip
+        prior = prior.with_updates(jaw=prior.jaw.model_copy(update={"open_deg": held}))
+        plan = load_plan(held)
+        check_load_plan(plan, g.goal_range_deg(), prior, settings)
+        log(f"servo {servo_id} ({joint}) holds {held:.1f} deg; recording {len(settings)} "
+            f"settings of {plan.duration_s:.0f} s around it")  # fmt: skip
+        recorder = BusRecorder(g)
+        for regs_k in settings:
+            records.append(recorder.record(regs_k, plan))
+            log(f"  {regs_k.label()}: {records[-1].t_s.size} readings")
+    return records
 
 
 @dataclass(frozen=True)

@@ -142,18 +142,8 @@ def _virtual(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from gripper_env.hardware.bus.gripper import (
-        FACTORY_BAUD,
-        BusGripper,
-        read_servo_registers,
-        select_servo,
-    )
-    from gripper_env.hardware.bus.link import BusLink
-    from gripper_env.model.bus_calibration import JawCalibration
     from gripper_env.model.bus_servo import load_bus_servo
-    from gripper_env.model.so101_arm import joint_model, q_of_shaft
-    from gripper_env.sysid.bus_experiments import BusRecorder
-    from gripper_env.sysid.bus_load import check_load_plan, load_plan, load_settings
+    from gripper_env.sysid.bus_load import record_load
     from gripper_env.sysid.bus_servo import write_bus_record
     from tuners.bus.cli import output_folder
 
@@ -164,36 +154,16 @@ def _record(args: argparse.Namespace) -> int:
         raise ValueError(f"--payload-max must be 0..1 kg, got {args.payload_max}")
     out = output_folder(args.out)
     servo = load_bus_servo(args.model)
-    link = BusLink(args.port, servo.family, args.baudrate or FACTORY_BAUD[servo.family],
-                   ids=() if args.id is None else (args.id,))  # fmt: skip
-    try:
-        select_servo(link, args.id)  # BusSelectError without --id: the list, nothing written
-        regs = read_servo_registers(link, args.id)
-    except BaseException:
-        link.close()
-        raise
-    # the joint's range: the servo's own calibrated position limits
-    cal = JawCalibration(family=servo.family, servo_id=args.id, closed_ticks=regs.min_position,
-                         open_ticks=regs.max_position, source="the servo's position limits",
-                         servo=regs)  # fmt: skip
-    with BusGripper(args.port, servo, args.id, link=link, calibration=cal) as g:
-        args.gripper = g
-        held = g.position_deg()
-        found = g.read_registers()
-        settings = load_settings(found)
-        prior = joint_model(servo, args.joint, {args.joint: q_of_shaft(held)},
-                            payload_range_kg=(0.0, args.payload_max))  # fmt: skip
-        prior = prior.with_updates(jaw=prior.jaw.model_copy(update={"open_deg": held}))
-        plan = load_plan(held)
-        check_load_plan(plan, g.goal_range_deg(), prior, settings)
-        print(f"servo {args.id} ({args.joint}) holds {held:.1f} deg; recording "
-              f"{len(settings)} settings of {plan.duration_s:.0f} s around it")  # fmt: skip
-        recorder = BusRecorder(g)
-        for k, regs_k in enumerate(settings):
-            rec = recorder.record(regs_k, plan)
-            path = write_bus_record(out / f"{args.joint}_load_{k}.csv", rec)
-            print(f"  {regs_k.label()}: {rec.t_s.size} readings -> {path}", flush=True)
-    print(g.restored.describe() if g.restored else "restored")
+
+    def opened(g: Any) -> None:
+        args.gripper = g  # the last word says what the servo reads back
+
+    records = record_load(args.port, servo, args.id, args.joint, payload_max_kg=args.payload_max,
+                          baudrate=args.baudrate, log=lambda t: print(t, flush=True),
+                          opened=opened)  # fmt: skip
+    for k, rec in enumerate(records):
+        print(f"wrote {write_bus_record(out / f'{args.joint}_load_{k}.csv', rec)}")
+    print(args.gripper.restored.describe() if args.gripper.restored else "restored")
     return 0
 
 

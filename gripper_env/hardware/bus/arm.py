@@ -37,9 +37,10 @@ SO101_IDS: dict[int, str] = {
     6: "gripper",
 }  # fmt: skip
 #: A neighbour must move this far (deg) before a joint's load is computed again, and at most
-#: this often (s of device time): the coupling is quasi-static, a 50 Hz update is ample.
-_COUPLING_DEG = 0.05
-_COUPLING_PERIOD_S = 0.02
+#: this often (s of device time): the coupling is quasi-static, and a load computed costs some
+#: milliseconds of the bus's thread, which must answer every packet promptly.
+_COUPLING_DEG = 0.3
+_COUPLING_PERIOD_S = 0.1
 _MIDDLE_TICKS = 2048
 
 
@@ -92,6 +93,7 @@ class VirtualArm:
         self.units: dict[str, ServoUnit] = {}
         self._seen: dict[str, dict[str, float]] = {}
         self._when: dict[str, float] = {}
+        self._busy_at = -math.inf
         for joint in SO101_IDS.values():
             model = joint_model(self.servo, joint, {}, payload_range_kg=(payload_kg, payload_kg),
                                 payload_kg=payload_kg, arm=self.arm)  # fmt: skip
@@ -105,11 +107,13 @@ class VirtualArm:
 
     def couple(self, joint: str, now_s: float = math.inf) -> None:
         """Put on ``joint`` the load of the links beyond it where the others are now (device
-        time ``now_s``, s: at most every 20 ms)."""
+        time ``now_s``, s: at most every 100 ms)."""
         if joint not in LOADED_JOINTS:
             return
         with self._lock:
             if now_s - self._when.get(joint, -math.inf) < _COUPLING_PERIOD_S:
+                return
+            if self._busy_at == now_s:  # one joint's load per packet: the others' next time
                 return
             self._when[joint] = now_s
             pose = self.pose()
@@ -118,6 +122,7 @@ class VirtualArm:
             if last is not None and all(abs(pose[j] - last[j]) < tol for j in pose if j != joint):
                 return
             self._seen[joint] = pose
+            self._busy_at = now_s
             load = self.arm.joint_load(joint, pose, (self.payload_kg, self.payload_kg),
                                        self.payload_kg)  # fmt: skip
         self.units[joint].set_load(load)
@@ -148,8 +153,13 @@ class VirtualArm:
         return out
 
     def physics(self) -> dict[int, ArmJoint]:
-        """Each ID's physics for :class:`~gripper_env.hardware.bus.server.VirtualBus`."""
-        return {i: ArmJoint(self, j, self.units[j]) for i, j in SO101_IDS.items()}
+        """The physics of the loaded joints' IDs for
+        :class:`~gripper_env.hardware.bus.server.VirtualBus`: the pan (a vertical axis), the
+        wrist roll and the gripper carry no gravity load and hold their pose; their tables mirror
+        their goals (every servo's physics runs before each packet the bus answers, in the bus's
+        thread: three keep it prompt)."""
+        return {i: ArmJoint(self, j, self.units[j]) for i, j in SO101_IDS.items()
+                if j in LOADED_JOINTS}  # fmt: skip
 
     def bus(self, registers: RegisterSet | None = None) -> VirtualBus:
         """The arm's bus (not started: use it in a ``with`` block)."""
