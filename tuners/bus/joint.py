@@ -231,9 +231,29 @@ def loaded_model(args: argparse.Namespace) -> Any:
     return joint_model(load_bus_servo(args.servo), args.joint, {}, payload_range_kg=(lo, hi))
 
 
+def format_table(rows: dict[str, Any]) -> str:
+    """A markdown table of register sets judged on a loaded joint (the worst payload's
+    tracking, the hold, the loaded loop's margins)."""
+    lines = [
+        "| registers | cost | IAE/step (s) | overshoot (deg) | settled error (deg) | hold 10 s "
+        "| Ms | GM (dB) | robust Ms / GM | feasible |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, sc in rows.items():
+        t, h, m, r = sc.tracking, sc.hold, sc.margins, sc.robust_margins
+        hold = "no trip" if not h.overload else f"{h.trip} at {h.trip_at_s:.2f} s"
+        ok = "yes" if sc.feasible else "no: " + "; ".join(sc.violations)
+        lines.append(
+            f"| {name}: {sc.registers.label()} | {sc.cost:.2f} | {t.iae_per_deg_s:.3f} "
+            f"| {t.overshoot_deg:.2f} | {t.settled_error_deg:.2f} | {hold} | {m.ms:.2f} "
+            f"| {m.gm_db:.1f} | {r.ms:.2f} / {r.gm_db:.1f} | {ok} |"
+        )
+    return "\n".join(lines)
+
+
 def _tune(args: argparse.Namespace) -> int:
     from gripper_env.evaluation.bus_load import judge_loaded
-    from tuners.bus.tune import format_table, tune_registers
+    from tuners.bus.tune import tune_registers
 
     if not 1 <= args.trials <= 100_000 or not 0 <= args.polish <= 100_000:
         raise ValueError("--trials must be 1..100000 and --polish 0..100000")
