@@ -41,8 +41,9 @@ from gripper_env.evaluation.bus_servo import (
     tracking_metrics,
 )
 from gripper_env.evaluation.bus_servo import _open_loop as open_loop
+from gripper_env.model.bus_load import JointLoad
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
-from gripper_env.sim.bus_servo import DT, TRIP_NAMES, TRIP_NONE, simulate_bus
+from gripper_env.sim.bus_servo import DT, TRIP_NAMES, TRIP_NONE, BusRun, simulate_bus
 
 __all__ = [
     "HOLD_S",
@@ -60,7 +61,7 @@ N_PAYLOADS = 3
 _SETTLE_S = 0.5  # the hold's last part: its settled error
 
 
-def _load(model: BusServoModel):  # type: ignore[no-untyped-def]
+def _load(model: BusServoModel) -> JointLoad:
     if model.load is None:
         raise ValueError(f"{model.name}: the model carries no load (an arm's joint)")
     return model.load
@@ -137,7 +138,7 @@ def _worst(margins: Sequence[Margins]) -> Margins:
     )
 
 
-def _hold_metrics(model: BusServoModel, run_row: int, run) -> tuple[HoldMetrics, float]:  # type: ignore[no-untyped-def]
+def _hold_metrics(model: BusServoModel, run_row: int, run: BusRun) -> tuple[HoldMetrics, float]:
     """The hold's metrics (:class:`HoldMetrics`, its force fields 0: no object) and its settled
     error (deg)."""
     y = run.position[run_row] * model.deg_per_tick
