@@ -5,9 +5,10 @@
 velocity registers), the encoder's reading in whole ticks, the dead band, the integer PID in
 register units with its integrator clamp, the output limit (torque limit, or the protective
 torque after a trip), the overload, over-current and thermal protections, and the loop's delay
-line. It is the core's firmware part written out in Python, because MuJoCo, not the core,
-integrates the joint here; ``tests/mujoco/test_runtime.py`` replays the core's encoder readings
-through it and gets the core's duties back.
+line. It is the core's firmware part written out in Python (the goal profile is the core's own
+compiled function), because MuJoCo, not the core, integrates the joint here;
+``tests/mujoco/test_servo_export.py`` replays the core's encoder readings through it and gets
+the core's duties back.
 
 :class:`ExactServo` binds one loop to one MuJoCo joint and its ``motor`` actuator (the exact
 class of :mod:`gripper_env.mujoco.servo_class`, gear = the stall torque). Each 1 ms tick it
@@ -35,6 +36,7 @@ import numpy as np
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.mujoco import require_mujoco
 from gripper_env.sim import bus_servo as core
+from gripper_env.sim.bus_servo import _profile as core_profile  # the firmware's own, compiled
 
 __all__ = ["ExactServo", "RegisterLoop", "control_callback", "installed", "step_servos"]
 
@@ -105,7 +107,7 @@ class RegisterLoop:
         goal = self._goals[0]
         meas = math.floor(angle_deg / degtick + 0.5)
         acc_t, vel_t = r[core.RB_ACC] / degtick, r[core.RB_VEL] / degtick
-        self.setpoint, self.setpoint_speed = _profile(
+        self.setpoint, self.setpoint_speed = core_profile(
             self.setpoint, self.setpoint_speed, goal, acc_t, vel_t
         )
         e = float(math.floor(self.setpoint + 0.5) - meas)
@@ -165,29 +167,6 @@ class RegisterLoop:
                 self.first_trip = code
             if acts > 0 and self.tripped == 0:
                 self.tripped = code
-
-
-def _profile(sp: float, spv: float, goal: float, acc: float, vel: float) -> tuple[float, float]:
-    """One tick of the goal profile (ticks, ticks/s), as the core's."""
-    d = goal - sp
-    if acc <= 0.0 and vel <= 0.0:
-        return goal, 0.0
-    direction = 1.0 if d > 0 else -1.0
-    want = abs(d) / DT
-    if acc > 0.0:
-        want = min(want, math.sqrt(2.0 * acc * abs(d)))
-    if vel > 0.0:
-        want = min(want, vel)
-    want *= direction
-    if acc > 0.0:
-        dv = acc * DT
-        spv = min(max(want, spv - dv), spv + dv)
-    else:
-        spv = want
-    nxt = sp + spv * DT
-    if (goal - nxt) * direction <= 0.0:
-        return goal, 0.0
-    return nxt, spv
 
 
 class ExactServo:
