@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
 #: The scripts, each run by a test below.
-SCRIPTS = ("deploy_virtual.py", "identify.py", "train_rl.py", "tune_optuna.py")
+SCRIPTS = ("deploy_virtual.py", "identify.py", "joint_mujoco.py", "train_rl.py", "tune_optuna.py")
 
 
 def _git_status() -> str | None:
@@ -111,6 +112,19 @@ def test_identify(tmp_path, checkout_unchanged):
     out = run_example("identify.py", cwd=tmp_path)
     assert "identified: (" in out and "fit on a validation record: identified" in out, out
     assert not list(tmp_path.iterdir()), "wrote files without being asked to"
+
+
+def test_joint_mujoco(tmp_path, checkout_unchanged):
+    """The SO-101 elbow identified on the virtual bus, tuned, exported and run in MuJoCo: no
+    packet to another joint, the payload found, the exact runtime within a tick of the virtual
+    servo, and the plot written."""
+    pytest.importorskip("mujoco")
+    out = run_example("joint_mujoco.py", "--trials", "20", "--polish", "20", "--out", "out",
+                      cwd=tmp_path)  # fmt: skip
+    assert "packets to the other joints: 0" in out
+    rms = re.search(r"exact runtime ([\d.]+) deg, native class ([\d.]+) deg", out)
+    assert rms and float(rms.group(1)) < 0.088, out
+    assert (tmp_path / "out" / "joint_mujoco.png").stat().st_size > 10_000
 
 
 def test_train_rl(tmp_path, checkout_unchanged):

@@ -78,6 +78,10 @@ COMMANDS: tuple[Command, ...] = (
             "integer registers under the margins and the hold"),
     Command("bus-deploy", "tuners.bus.deploy", "tuners.bus.deploy:main",
             "tuned registers on the servo behind the gate, read back, verified"),
+    Command("bus-joint", "tuners.bus.joint", "tuners.bus.joint:main",
+            "an arm's loaded joint: virtual arm, safe record, the load, registers against it"),
+    Command("bus-export", "tuners.bus.export", "tuners.bus.export:main",
+            "an identified servo as MuJoCo classes (native, exact) and their verification"),
 )  # fmt: skip
 
 #: ``gripper list KIND``: the configuration folder each kind lists (``profiles``: built in).

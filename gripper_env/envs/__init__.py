@@ -37,8 +37,8 @@ The classes are imported lazily, so importing :mod:`gripper_env` does not compil
 environments' kernels.
 
 Modules: one per environment (``servo``, ``gain_schedule``, ``pid_tune``, ``servo_hardware``,
-``bus_servo``, ``bus_servo_hardware``, ``robust``, ``grasp``, ``bus_grasp``) and their native
-vector forms (``vector``, ``robust_vector``);
+``bus_servo``, ``bus_servo_hardware``, ``bus_joint``, ``robust``, ``grasp``, ``bus_grasp``) and
+their native vector forms (``vector``, ``robust_vector``);
 ``bus_settings`` (what the two bus-servo environments share: arguments, references, reward,
 observation); ``control_env`` (the base of the step-by-step ones), ``control_batch`` (a batch
 of them on one core simulator), ``kernels`` (its compiled step),
@@ -69,6 +69,7 @@ __all__ = [
     "GripperServoRobustEnv",
     "GripperServoRobustVectorEnv",
     "GripperServoVectorEnv",
+    "SO101JointEnv",
     "register_envs",
 ]
 
@@ -123,6 +124,12 @@ _SPECS: dict[str, tuple[str, str | None, int | None, dict[str, Any]]] = {
         500,
         {},
     ),
+    "gripper_env/SO101Joint-v0": (
+        "gripper_env.envs.bus_joint:SO101JointEnv",
+        None,
+        500,  # 10 s at 20 ms, as GripperBusServo-v0
+        {},
+    ),
     "gripper_env/GripperServoRobust-v0": (
         "gripper_env.envs.robust:GripperServoRobustEnv",
         "gripper_env.envs.robust_vector:GripperServoRobustVectorEnv",
@@ -155,6 +162,7 @@ _BUS_HARDWARE_ENTRY = "gripper_env.envs.bus_servo_hardware:GripperBusServoHardwa
 _LAZY = {
     "GripperServoEnv": "gripper_env.envs.servo",
     "GripperBusServoEnv": "gripper_env.envs.bus_servo",
+    "SO101JointEnv": "gripper_env.envs.bus_joint",
     "GripperBusGraspEnv": "gripper_env.envs.bus_grasp",
     "GripperGraspEnv": "gripper_env.envs.grasp",
     "GripperServoRobustEnv": "gripper_env.envs.robust",

@@ -50,6 +50,7 @@ from gripper_env.io.config import (
 )
 from gripper_env.io.files import safe_name
 from gripper_env.model.bus_calibration import JawCalibration
+from gripper_env.model.bus_load import JointLoad
 
 __all__ = [
     "FAMILIES",
@@ -396,6 +397,9 @@ class BusServoModel(BaseModel):
         output is a PWM duty), or the Dynamixel's current-based position control (mode 5, the
         Koch gripper's: the loop's output is a current, limited by ``goal_current``, that a
         current loop drives within the PWM limit).
+    load : JointLoad or None
+        The servo drives an arm's joint: gravity on the links outboard of it, a payload, their
+        inertia (:mod:`gripper_env.model.bus_load`); None for a gripper (no load).
     """
 
     model_config = _STRICT
@@ -410,6 +414,7 @@ class BusServoModel(BaseModel):
     community: dict[str, RegisterSet] = Field(default_factory=dict)
     calibration: JawCalibration | None = None
     operating_mode: Literal["position", "current_position"] = "position"
+    load: JointLoad | None = None
 
     @field_validator("name")
     @classmethod

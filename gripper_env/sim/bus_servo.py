@@ -56,9 +56,9 @@ SUBSTEPS = 8
     PB_KP, PB_KI, PB_KD, PB_W0, PB_TAUM, PB_FC, PB_FS, PB_DEGTICK, PB_LO, PB_HI, PB_OBJ, PB_KOBJ,
     PB_OVL_DUTY, PB_OVL_TIME, PB_TRIP_DUTY, PB_TAMB, PB_TRISE, PB_TAUTH, PB_TMAX, PB_LAG,
     PB_EXACT, PB_BACKLASH, PB_CURMODE, PB_CURGAIN, PB_OC_FRAC, PB_OC_TIME, PB_ACT_OVL,
-    PB_ACT_OC, PB_ACT_HEAT, PB_FLAG_ALL,
-) = range(30)  # fmt: skip
-BUS_PARAMS = 30
+    PB_ACT_OC, PB_ACT_HEAT, PB_FLAG_ALL, PB_GRAV, PB_HANG, PB_INERTIA,
+) = range(33)  # fmt: skip
+BUS_PARAMS = 33
 #: Longest loop delay (ticks) the duty's delay line holds.
 MAX_LAG = 15
 # register columns (physical units: duty fractions, deg/s^2, deg/s, ticks)
@@ -115,6 +115,13 @@ def bus_params(model: BusServoModel, *, with_object: bool = False) -> np.ndarray
     # an STS reports a trip it does not act on in its status byte; a Dynamixel does not detect
     # an error outside its Shutdown bits
     row[PB_FLAG_ALL] = 1.0 if model.family == "sts3215" else 0.0
+    if model.load is not None:  # an arm's joint: gravity on the outboard links and the payload
+        amp, hang = model.load.gravity()
+        row[PB_GRAV] = amp / ph.stall_torque_nm
+        row[PB_HANG] = hang
+        # the load's inertia over the motor's own (stall torque x tau_m / no-load speed)
+        own = ph.stall_torque_nm * ph.tau_m_s / math.radians(ph.omega0_deg_s)
+        row[PB_INERTIA] = model.load.inertia() / own
     return row
 
 
@@ -187,7 +194,9 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp, torque):
     kp, ki, kd = p[PB_KP], p[PB_KI], p[PB_KD]
     w0, taum, fc, fs = p[PB_W0], p[PB_TAUM], p[PB_FC], p[PB_FS]
     degtick, lo, hi, obj, kobj = p[PB_DEGTICK], p[PB_LO], p[PB_HI], p[PB_OBJ], p[PB_KOBJ]
-    gain = w0 / taum  # deg/s^2 per unit of net torque (fractions of stall)
+    # deg/s^2 per unit of net torque (fractions of stall), with a joint's load inertia
+    gain = w0 / (taum * (1.0 + p[PB_INERTIA]))
+    grav, hang = p[PB_GRAV], p[PB_HANG]  # gravity on an arm's joint: -grav sin(th - hang)
     cobj = 2.0 * 0.7 * math.sqrt(kobj * taum / w0)  # contact damping, ~0.7 of critical
     kstop = 4.0 * kobj
     cstop = 2.0 * 0.7 * math.sqrt(kstop * taum / w0)
@@ -274,6 +283,11 @@ def _run_row(p, r, s, goal, pos, duty, force, trip, temp, torque):
                 tau_m = ua - w / w0
             tau = tau_m
             th = _output(thm, th, bl, lo, hi, obj)
+            if grav != 0.0:
+                # the load's weight keeps the gear's play closed on its side
+                tg = -grav * math.sin((th - hang) * (math.pi / 180.0))
+                tau += tg
+                th = thm + bl if tg > 0.0 else thm - bl
             engaged = bl == 0.0 or th == thm + bl or th == thm - bl
             fobj = 0.0
             if th < obj:

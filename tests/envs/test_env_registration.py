@@ -25,13 +25,17 @@ import gripper_env
 WORKTREE = Path(__file__).resolve().parents[2]
 
 
+SO101_JOINT = "gripper_env/SO101Joint-v0"
+
+
 def test_ids_registered_with_time_limits():
-    assert set(gripper_env.ENV_IDS) == {*ENV_IDS, BUS_SERVO, *BENCHMARK_IDS}
+    assert set(gripper_env.ENV_IDS) == {*ENV_IDS, BUS_SERVO, SO101_JOINT, *BENCHMARK_IDS}
     # each TimeLimit is its default episode's length: 20 s, 10 s (bus: 500; robust: 500), the
     # grasp scenarios' 4.5 s and 4.2 s at the 20 ms control period
     limits = {SERVO: 1000, PID_TUNE: None, GAIN_SCHEDULE: 1000, BUS_SERVO: 500,
-              PID_TUNE_RELATIVE: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210}  # fmt: skip
-    no_vector = {BUS_SERVO, GRASP, BUS_GRASP}
+              PID_TUNE_RELATIVE: None, ROBUST: 500, GRASP: 225, BUS_GRASP: 210,
+              SO101_JOINT: 500}  # fmt: skip
+    no_vector = {BUS_SERVO, GRASP, BUS_GRASP, SO101_JOINT}
     for env_id, limit in limits.items():
         spec = gym.spec(env_id)
         assert spec.max_episode_steps == limit

@@ -124,6 +124,7 @@ def tune_registers(
     batch: int = 16,
     polish: int = 600,
     goal_current: int | None = None,
+    judge_fn: Callable[..., list[BusScore]] = judge,
 ) -> tuple[BusScore, optuna.Study]:
     """The best feasible registers for ``model``: ``trials`` TPE trials, then local searches of
     at most ``polish`` judged candidates each.
@@ -150,6 +151,10 @@ def tune_registers(
 
     In current-based position mode (:attr:`BusServoModel.operating_mode`) the goal current is
     searched in the torque limit's place, or kept at ``goal_current`` when given.
+
+    ``judge_fn`` judges the candidates (default
+    :func:`~gripper_env.evaluation.bus_servo.judge`; an arm's loaded joint:
+    :func:`~gripper_env.evaluation.bus_load.judge_loaded`), same arguments, same scores.
 
     Raises
     ------
@@ -184,7 +189,7 @@ def tune_registers(
                 for key, (lo, hi) in space.items()
             }
             asked.append((trial, base.model_copy(update=values)))
-        scores = judge(model, [r for _t, r in asked], rel_std=rel_std, alternatives=alternatives)
+        scores = judge_fn(model, [r for _t, r in asked], rel_std=rel_std, alternatives=alternatives)
         for (trial, _r), score in zip(asked, scores, strict=True):
             violation = constraint_value(score)
             trial.set_constraint("margins_and_hold", violation)
@@ -225,7 +230,7 @@ def tune_registers(
     finally:
         bar.close()
     regs = base.model_copy(update=x)
-    return judge(model, [regs], rel_std=rel_std, alternatives=alternatives)[0], study
+    return judge_fn(model, [regs], rel_std=rel_std, alternatives=alternatives)[0], study
 
 
 def _param(key: str) -> str:

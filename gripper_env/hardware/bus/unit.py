@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gripper_env.model.bus_load import JointLoad
 from gripper_env.model.bus_servo import (
     PROTECTION_REGISTERS,
     BusServoModel,
@@ -120,6 +121,14 @@ class ServoUnit:
         """Put an object in the jaws at ``object_deg`` (deg), or take it away (``None``)."""
         with self._lock:
             self._object = object_deg
+            self._params = self._make_params()
+
+    def set_load(self, load: JointLoad | None) -> None:
+        """Put a load on the shaft (an arm's joint: :class:`~gripper_env.model.bus_load.
+        JointLoad`), or take it off (``None``): it acts from the next tick."""
+        with self._lock:
+            self.model = self.model.with_updates(load=load)
+            self._running = self._running.with_updates(load=load)
             self._params = self._make_params()
 
     @property
