@@ -29,6 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from gripper_env.evaluation.bus_servo import (
+    D_KICK_MAX,
     GM_MIN_DB,
     MS_MAX,
     WEIGHTS,
@@ -37,6 +38,7 @@ from gripper_env.evaluation.bus_servo import (
     Margins,
     TrackingMetrics,
     corner_models,
+    d_kick,
     tracking_goal,
     tracking_metrics,
 )
@@ -172,8 +174,9 @@ def judge_loaded(
 
     Cost: ``5 sum(IAE / step size) + 0.5 overshoot + 2 settled error + 0.05 chatter`` of the
     worst payload's tracking, plus ``2 x`` the hold's settled error (deg). Constraints: ``Ms <=
-    1.6`` and gain margin ``>= 6 dB`` at every payload and uncertainty corner, and no protection
-    firing over the hold with the heaviest payload."""
+    1.6`` and gain margin ``>= 6 dB`` at every payload and uncertainty corner, the D term's kick
+    per encoder tick at most :data:`~gripper_env.evaluation.bus_servo.D_KICK_MAX` (the gripper's
+    rule), and no protection firing over the hold with the heaviest payload."""
     regs = list(registers)
     payloads = payload_grid(model)
     goal, _ = tracking_goal(model)
@@ -181,6 +184,7 @@ def judge_loaded(
     heavy = with_payload(model, max(payloads))
     held = simulate_bus(heavy, regs, np.full(round(HOLD_S / DT), model.jaw.open_deg))
     corners = corner_models(model, rel_std, alternatives=alternatives)
+    kicks = d_kick(model, regs)
     scores = []
     for i, r in enumerate(regs):
         per = [tracking_metrics(with_payload(model, m), run, i)
@@ -198,6 +202,11 @@ def judge_loaded(
                 violations.append(f"Ms {robust.ms:.2f} > {MS_MAX}")
             if robust.gm_db < GM_MIN_DB - 1e-9:
                 violations.append(f"gain margin {robust.gm_db:.1f} dB < {GM_MIN_DB}")
+        if kicks[i] > D_KICK_MAX + 1e-12:
+            violations.append(
+                f"D kick {kicks[i]:.0%} of full drive per encoder tick > {D_KICK_MAX:.0%} "
+                "(a reading flickering between two ticks buzzes)"
+            )
         if hm.overload:
             violations.append(f"{hm.trip} trips at {hm.trip_at_s:.2f} s of the hold")
         cost = _tracking_cost(tm) + WEIGHTS["settled"] * hold_settled
@@ -213,6 +222,7 @@ def judge_loaded(
                 hold=hm,
                 margins=nominal,
                 robust_margins=robust,
+                d_kick=float(kicks[i]),
             )
         )
     return scores

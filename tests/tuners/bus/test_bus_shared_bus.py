@@ -262,3 +262,51 @@ def test_an_error_bit_during_the_record_stops_it(family, tmp_path, jaw_file, cap
         found.pop("torque_enable")
         assert after == found
         assert not bus.table(GRIPPER).torque_on
+
+
+@pytest.mark.parametrize(("servo", "joint"), [(2, "shoulder_lift"), (3, "elbow_flex")])
+def test_a_joint_under_gravity_is_refused_before_its_record(servo, joint, tmp_path, capsys):
+    """The SO-101's shoulder and elbow on the virtual arm's bus (each under the links beyond it),
+    calibrated by given positions as if it were the gripper: record's load probe finds the steady
+    load gravity puts on it, and stops in one line (exit 2) before the record's large steps, the
+    servo restored; the other joints get no packet."""
+    from gripper_env.hardware.bus.arm import VirtualArm
+
+    arm = VirtualArm()
+    with arm.bus() as bus:
+        table = bus.table(servo)
+        lo, hi = table.get_role("min_position"), table.get_role("max_position")
+        jaw = tmp_path / "jaw.json"
+        assert calibrate.main(["--port", bus.path, "--id", str(servo), "--closed-ticks",
+                               str(lo + 100), "--open-ticks", str(hi - 100), "--out",
+                               str(jaw)]) == 0  # fmt: skip
+        capsys.readouterr()
+        before = sdk_registers(bus.path, FAMILY, servo)
+        goals = [0]
+        watch = at_packet_of(bus, servo, goals)
+        bus.on_packet = watch
+        code = record.main(["--port", bus.path, "--id", str(servo), "--jaw", str(jaw), "--out",
+                            str(tmp_path / "r")])  # fmt: skip
+        bus.on_packet = None
+        printed, err = capsys.readouterr()
+        line = _one_line(err)
+        assert code == 2, (printed, err)
+        assert "load probe: steady load" in printed
+        assert "this looks like an arm joint under gravity" in line, line
+        assert "--risk-arm-joint" in line and f"servo {servo} restored and read back" in line
+        assert sdk_registers(bus.path, FAMILY, servo) == before
+        assert all(bus.packets_to[i] == 0 for i in range(1, 7) if i != servo)
+        assert 0 < goals[0] < 100  # the probe's creep only, never the record's plan
+        assert not list((tmp_path / "r").glob("record_*.csv"))
+
+
+def at_packet_of(bus, servo, goals):
+    """Count the goal writes ``servo`` receives into ``goals[0]``."""
+    address = bus.spec.role("goal_position").address
+
+    def watch(packet) -> None:
+        if packet.id == servo and packet.instruction == 0x03 and packet.params[:1] == bytes(
+                [address]):  # fmt: skip
+            goals[0] += 1
+
+    return watch
