@@ -39,7 +39,10 @@ BLOCK = [
     "--id 6 --hold 10 --save --no-plot",
 ]
 VIRTUAL = ("python -m tuners.bus.virtual --model {family} --id 6 --others 1 2 3 4 5 "
-           "--limits 1750 2950 --object 185 --link {link}")  # fmt: skip
+           "--limits 1750 2950 {lerobot}--object 185 --link {link}")  # fmt: skip
+#: The README's arm is an SO-101 as LeRobot leaves it (``--lerobot``: the gripper's
+#: ``Overload_Torque`` 25 %); LeRobot's SO follower is built on STS3215s.
+LEROBOT = {"sts3215": "--lerobot "}
 
 
 def _run(cmd: str, log) -> tuple[int, float]:
@@ -67,7 +70,8 @@ def one_run(family: str, out: Path, busy: int) -> dict:
     result: dict = {"family": family, "out": str(out), "steps": []}
     with open(out / "log.txt", "w") as log:
         virtual = subprocess.Popen([sys.executable if a == "python" else a for a in
-                                    shlex.split(VIRTUAL.format(family=family, link=link))],
+                                    shlex.split(VIRTUAL.format(family=family, link=link,
+                                                               lerobot=LEROBOT.get(family, "")))],
                                    stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
         try:
             for _ in range(200):

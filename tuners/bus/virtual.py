@@ -7,13 +7,15 @@ to ``python -m tuners.bus.calibrate``, ``record`` and ``deploy`` (or to the vend
 ``--object DEG`` puts an object in the jaws; ``--model FILE`` runs another model than the
 family's (a servo whose parameters the identification must find). ``--others 1 2 3 4 5`` puts
 more servos of the family on the bus (the other joints of an arm; they only mirror their goal),
-and ``--limits MIN MAX`` writes the gripper's position limits as LeRobot's calibration does: the
-bus an SO-101 owner has, with the gripper at ``--id 6``. Stops on Ctrl-C or SIGTERM.
+and ``--limits MIN MAX`` writes the gripper's position limits as LeRobot's calibration does, and
+``--lerobot`` the registers LeRobot's configure leaves on the gripper (its overload protection at
+25 %): the bus an SO-101 owner has, with the gripper at ``--id 6``. Stops on Ctrl-C or SIGTERM.
 
 Examples
 --------
 ``python -m tuners.bus.virtual --model sts3215 --link /tmp/sts3215``
-``python -m tuners.bus.virtual --id 6 --others 1 2 3 4 5 --limits 1750 2950 --link /tmp/so101``
+``python -m tuners.bus.virtual --id 6 --others 1 2 3 4 5 --limits 1750 2950 --lerobot --link
+/tmp/so101``
 """
 
 from __future__ import annotations
@@ -66,6 +68,13 @@ def _parser() -> argparse.ArgumentParser:
         "calibration does (default: the factory's, the whole turn)",
     )
     parser.add_argument(
+        "--lerobot",
+        action="store_true",
+        help="the gripper's registers as LeRobot's SO follower configures them (STS3215: P 16, "
+        "I 0, D 32, Acceleration 254, Max_Torque_Limit 500, Protection_Current 250, "
+        "Overload_Torque 25), kept in its flash as LeRobot's writes are",
+    )
+    parser.add_argument(
         "--object",
         type=float,
         default=None,
@@ -94,9 +103,30 @@ def _check_link(path: str | None) -> str | None:
     return link
 
 
-def _gripper_table(family: str, servo: int, limits: list[int] | None) -> ControlTable:
-    """The gripper servo's table, its position limits written as the host would (saved)."""
+#: The gripper's registers as LeRobot's SO-100/SO-101 follower configures them (field names):
+#: every motor P 16, I 0, D 32 and Acceleration 254; the gripper's torque cut to 50 % and its
+#: overload protection at 25 % (LeRobot's ``so101_follower.configure``, written with the torque
+#: off, under Lock 0: saved to flash).
+LEROBOT_GRIPPER = {
+    "sts3215": {"p_coefficient": 16, "i_coefficient": 0, "d_coefficient": 32, "acceleration": 254,
+                "max_torque_limit": 500, "torque_limit": 500, "protection_current": 250,
+                "overload_torque": 25},
+}  # fmt: skip
+
+
+def _gripper_table(
+    family: str, servo: int, limits: list[int] | None, lerobot: bool = False
+) -> ControlTable:
+    """The gripper servo's table, its position limits written as the host would (saved), and
+    with ``lerobot`` the registers LeRobot's configure leaves (:data:`LEROBOT_GRIPPER`)."""
     table = ControlTable(family, servo)
+    if lerobot:
+        if family not in LEROBOT_GRIPPER:
+            raise ValueError(
+                f"--lerobot: LeRobot's SO follower is built on STS3215s, not the {family}"
+            )
+        for name, value in LEROBOT_GRIPPER[family].items():
+            table.store(name, value)
     if limits is not None:
         lo, hi = limits
         spec = table.spec
@@ -123,8 +153,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         lo, hi = model.jaw.limits_deg
         if args.object is not None and not lo <= args.object <= hi:
             raise ValueError(f"--object must lie in the jaw's range [{lo:g}, {hi:g}] deg")
-        gripper = _gripper_table(model.family, args.id, args.limits)  # checked before the
-        unit = ServoUnit(model, object_deg=args.object)  # physics (which compiles its kernels)
+        gripper = _gripper_table(model.family, args.id, args.limits, args.lerobot)  # checked
+        # before the physics (which compiles its kernels)
+        unit = ServoUnit(model, object_deg=args.object)
         ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
         bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
     except (ConfigError, ValueError, OSError) as exc:
@@ -150,6 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(
                 f"virtual {model.family} ({model.name}), ID {args.id}{others}"
                 + (f", position limits {args.limits}" if args.limits else "")
+                + (", LeRobot's gripper registers (Overload_Torque 25 %)" if args.lerobot else "")
                 + (f", object at {args.object:g} deg" if args.object is not None else "")
                 + (f", linked at {link}" if link else "")
                 + "; Ctrl-C to stop",

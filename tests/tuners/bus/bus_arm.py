@@ -24,6 +24,7 @@ from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.tables import get_spec
 from gripper_env.hardware.bus.unit import ServoUnit
 from gripper_env.model.bus_servo import BusServoModel, load_bus_servo
+from tuners.bus.virtual import LEROBOT_GRIPPER
 
 ROOT = Path(__file__).resolve().parents[3]
 GRIPPER = 6
@@ -35,29 +36,25 @@ CLOSED, OPEN = 1760, 2940
 #: The open position a session finds the gripper holding (ticks; 240 deg, the shipped jaw's).
 HOLDING = 2731
 
-#: The gripper's registers as found (by role): a LeRobot follower's (P 16, Acceleration 254,
-#: the torque on and locked; the gains in flash too, since LeRobot writes them with the torque
-#: off, under Lock 0) on the STS3215; a Koch-like set on the XL330.
+#: The gripper's registers as found, by field name: on the STS3215 LeRobot's SO follower's
+#: (``python -m tuners.bus.virtual --lerobot``'s: P 16, Acceleration 254, the torque limit cut to
+#: 50 %, ``Overload_Torque`` 25 %, ``Protection_Current`` 250, in flash too, since LeRobot
+#: writes them with the torque off, under Lock 0; the torque on and locked); a Koch-like set on
+#: the XL330.
 FOUND = {
-    "sts3215": {"p_gain": 16, "d_gain": 32, "i_gain": 0, "max_torque_limit": 500,
-                "torque_limit": 500, "acceleration": 254, "lock": 1},
-    "xl330": {"p_gain": 800, "d_gain": 200, "i_gain": 0, "torque_limit": 600,
-              "acceleration": 0},
+    "sts3215": {**LEROBOT_GRIPPER["sts3215"], "lock": 1},
+    "xl330": {"position_p_gain": 800, "position_d_gain": 200, "position_i_gain": 0,
+              "goal_pwm": 600, "profile_acceleration": 0},
 }  # fmt: skip
-
-
-#: The gripper's protection as LeRobot's SO follower configures it (``Overload_Torque`` 25 %,
-#: ``Protection_Current`` 250 x 6.5 mA), in flash, by field name.
-PROTECTION_FOUND = {"sts3215": {"overload_torque": 25, "protection_current": 250}, "xl330": {}}
 
 
 def registers_within_protection(family: str, folder: Path) -> Path:
     """The committed tuned registers of ``family`` (``results/bus``, tuned on the shipped model)
-    with the torque limit cut to hold under :data:`PROTECTION_FOUND` (LeRobot's
-    ``Overload_Torque`` 25 % on the STS3215), written into ``folder``: what a deploy on the
-    arm's gripper passes the gate with."""
+    with the torque limit cut to hold under the found ``Overload_Torque`` (LeRobot's 25 % on
+    the STS3215), written into ``folder``: what a deploy on the arm's gripper passes the gate
+    with."""
     doc = json.loads((ROOT / f"results/bus/{family}_registers.json").read_text())
-    overload = PROTECTION_FOUND[family].get("overload_torque")
+    overload = FOUND[family].get("overload_torque")
     if overload is not None:
         doc["registers"]["torque_limit"] = min(doc["registers"]["torque_limit"], overload * 10 - 10)
     path = folder / f"{family}_registers.json"
@@ -73,9 +70,7 @@ def gripper_table(family: str) -> ControlTable:
     for role, value in (("min_position", LIMITS[0]), ("max_position", LIMITS[1])):
         f = spec.role(role)
         assert table.write(f.address, f.encode(value)) == 0
-    for role, value in FOUND[family].items():  # as LeRobot writes them: under Lock 0, saved
-        table.store(spec.role(role).name, value)
-    for name, value in PROTECTION_FOUND[family].items():
+    for name, value in FOUND[family].items():  # as LeRobot writes them: under Lock 0, saved
         table.store(name, value)
     table.set_role("goal_position", HOLDING)
     table.set_role("torque_enable", 1)
