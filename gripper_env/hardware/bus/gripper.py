@@ -164,9 +164,14 @@ class FoundServo:
 
 def find_servos(link: BusLink) -> list[FoundServo]:
     """The servos answering a broadcast PING, each with its model number and present position
-    (read-only reads of each; a read that fails leaves the value unknown)."""
+    (read-only reads of each; a read that fails leaves the value unknown). Two broadcast
+    windows, their union: a reply that came late to one (a busy host) is not a missing servo."""
     found = []
+    answered = link.scan()
     for servo_id, model in link.scan().items():
+        if answered.get(servo_id) is None:
+            answered[servo_id] = model
+    for servo_id, model in sorted(answered.items()):
         position = None
         try:
             if model is None:
