@@ -415,7 +415,7 @@ def run_bus(
         raise ValueError("goal positions must be finite (ticks)")
     t = goal.shape[1]
     out = [np.empty((n, t)) for _ in range(6)]
-    kernel = _RUN.parallel if n * t >= 200_000 and n > 1 else _RUN.serial
+    kernel = _RUN.parallel if n * t >= 20_000 and n > 1 else _RUN.serial
     kernel(params, regs, state, goal, *out)
     return BusRun(*out)
 

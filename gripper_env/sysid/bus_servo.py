@@ -39,13 +39,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from gripper_env.io.config import ConfigError, read_bounded, validate
 from gripper_env.model.bus_calibration import JawCalibration
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim import bus_servo as core
 from gripper_env.sim.bus_servo import DT, bus_params, bus_registers, bus_state, run_bus
+from gripper_env.sysid import bus_search as search
 from gripper_env.sysid.error_model import parameter_covariance
 
 __all__ = [
@@ -59,13 +59,19 @@ __all__ = [
 
 #: The fitted continuous parameters, in the order of the estimate's vectors.
 FIT_NAMES: tuple[str, ...] = ("kp", "kd", "ki", "tau_m_s", "omega0_deg_s", "coulomb", "static")
-_MAX_DELAY_TICKS = 8
 #: The parameter-row column of each fitted parameter.
 _COLUMNS = {
     "kp": core.PB_KP, "kd": core.PB_KD, "ki": core.PB_KI, "tau_m_s": core.PB_TAUM,
     "omega0_deg_s": core.PB_W0, "coulomb": core.PB_FC, "static": core.PB_FS,
 }  # fmt: skip
 _MAX_RECORD_BYTES = 50_000_000
+#: The fits up to this many ticks of loop delay later than the best are kept as alternatives
+#: when their cost is within this factor of the best's. The factor is the search's own spread,
+#: not a statistical threshold: on noise-free records of a known servo the fits' costs at one
+#: delay pair vary by up to 2x between starts (the sticking events make the cost jagged), so a
+#: likelihood-ratio test on these costs would rule out delays the data cannot.
+_LATER_TICKS = 2
+_ALTERNATIVE_COST = 1.25
 
 
 @dataclass(frozen=True)
@@ -554,12 +560,7 @@ def identify_bus_servo(
     y = np.concatenate([r.position_deg for r in records])
 
     def solve(x_start: np.ndarray, delay: int, loop: int) -> tuple[np.ndarray, float]:
-        def fun(th: np.ndarray) -> np.ndarray:
-            return problem.residuals(th[None], delay, loop)[0]
-
-        res = least_squares(fun, x_start, bounds=(lo, hi), x_scale=x_start, diff_step=0.05,
-                            max_nfev=40 * len(fit))  # fmt: skip
-        return res.x, float(np.sum(res.fun**2))
+        return search.polish(problem, x_start, delay, loop, lo, hi)
 
     # Global search first (the cost is flat in places and has many basins: the friction's
     # sticking events switch as parameters move): CMA-ES over the log-parameters and the two
@@ -571,10 +572,11 @@ def identify_bus_servo(
         if log is not None:
             log(f"[{time.perf_counter() - started:5.0f} s] {text}")
 
-    say(f"global search: {len(_DELAY_STARTS)} CMA-ES runs of {generations} generations over "
-        f"{len(fit)} parameters and the two delays, {len(records)} records")  # fmt: skip
-    x, delay, loop = _global_search(problem, x0, lo, hi, seed=seed, generations=generations,
-                                    log=say)  # fmt: skip
+    say(f"global search: {len(search.DELAY_STARTS)} CMA-ES runs side by side, at most "
+        f"{generations} generations, over {len(fit)} parameters and the two delays, "
+        f"{len(records)} records")  # fmt: skip
+    x, delay, loop = search.global_search(problem, x0, lo, hi, seed=seed,
+                                          generations=generations, log=say)  # fmt: skip
     say(f"global search done: goal delay {delay} ms, loop delay {loop} ms")
     # The delays are whole ticks the global search rounds, and each pair is a basin of its own,
     # which the continuous parameters partly make up for (a loop delay two ticks short with
@@ -584,8 +586,8 @@ def identify_bus_servo(
     # generation), then a polish of the best few; its fits at later loop delays are the
     # alternatives (below).
     say("delay profile: a CMA-ES at every (goal, loop) delay pair around it")
-    profile = _delay_profile(problem, x, delay, loop, lo, hi, seed=seed,
-                             generations=max(generations // 2, 15))  # fmt: skip
+    profile = search.delay_profile(problem, x, delay, loop, lo, hi, seed=seed,
+                                   generations=max(generations // 2, 15))  # fmt: skip
     polished: set[tuple[int, int]] = set()
 
     def polish(pair: tuple[int, int]) -> None:
@@ -594,8 +596,8 @@ def identify_bus_servo(
         if cost_n < profile[pair][0]:
             profile[pair] = (cost_n, x_n)
 
-    say(f"delay profile done: {len(profile)} pairs; polishing the best {_PROFILE_POLISH}")
-    for pair in sorted(profile, key=lambda p: profile[p][0])[:_PROFILE_POLISH]:
+    say(f"delay profile done: {len(profile)} pairs; polishing the best {search.PROFILE_POLISH}")
+    for pair in sorted(profile, key=lambda p: profile[p][0])[: search.PROFILE_POLISH]:
         polish(pair)
     # then walk from the best pair: each neighbouring pair searched again from the best fit (a
     # short local CMA-ES and the polish), moving while one is better
@@ -605,10 +607,9 @@ def identify_bus_servo(
         """A short local CMA-ES at ``pair`` from ``x_start``, then the polish; its cost."""
         walked.add(pair)
         polished.add(pair)
-        mean = np.concatenate([np.log(x_start), pair])
-        _c, v = _cma(problem, mean, lo, hi, seed=seed, generations=max(generations // 4, 10),
-                     sigma=0.05, fixed_delays=pair)  # fmt: skip
-        x_n, cost_n = solve(np.exp(v[: x_start.size]), *pair)
+        _c, theta = search.local_search(problem, x_start, pair, lo, hi, seed=seed,
+                                        generations=max(generations // 4, 10))  # fmt: skip
+        x_n, cost_n = solve(theta, *pair)
         if cost_n < profile.get(pair, (math.inf,))[0]:
             profile[pair] = (cost_n, x_n)
         return cost_n
@@ -620,7 +621,7 @@ def identify_bus_servo(
         (delay, loop), (cost, x) = min(profile.items(), key=lambda kv: kv[1][0])
         for dd, dl in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, 1), (1, -1), (-1, -1), (1, 1)):
             pair = (delay + dd, loop + dl)
-            if pair in walked or not all(0 <= v <= _MAX_DELAY_TICKS for v in pair):
+            if pair in walked or not all(0 <= v <= search.MAX_DELAY_TICKS for v in pair):
                 continue
             if search_from(pair, x) < cost * (1 - 1e-6):
                 moved = True
@@ -634,7 +635,8 @@ def identify_bus_servo(
     while True:
         (delay, loop), (cost, x) = min(profile.items(), key=lambda kv: kv[1][0])
         for ahead in range(1, _LATER_TICKS + 1):  # a later tick the profile's window left out
-            if loop + ahead <= _MAX_DELAY_TICKS and not any(p[1] == loop + ahead for p in profile):
+            if loop + ahead <= search.MAX_DELAY_TICKS and all(p[1] != loop + ahead
+                                                               for p in profile):  # fmt: skip
                 search_from((delay, loop + ahead), x)
         later = [
             min((p for p in profile if p[1] == loop + k), key=lambda p: profile[p][0])
@@ -687,8 +689,8 @@ def identify_bus_servo(
     # switch), which bias every record alike and show as disagreement between records: the
     # leave-one-record-out jackknife measures that, and the standard errors hold both.
     say(f"standard errors: Jacobian, then a jackknife over the {len(records)} records")
-    jack = _jackknife(problem, x, delay, loop, lo, hi, seed=seed,
-                      generations=max(generations // 4, 10))  # fmt: skip
+    jack = search.jackknife(problem, x, delay, loop, lo, hi, seed=seed,
+                            generations=max(generations // 4, 10))  # fmt: skip
     if jack is not None:
         std = _in_quadrature(std, jack, seen)
     # Neither the noise nor the records' disagreement sees an error every record shares (a
@@ -711,9 +713,10 @@ def identify_bus_servo(
         )
     values = {k: float(v) for k, v in zip(fit, x, strict=False)}
     stds = {k: float(s) for k, s in zip(fit, std, strict=False)}
-    sigma2 = float(r0 @ r0) / max(r0.size - len(fit), 1) * corr
+    least = float(r0 @ r0)
+    sigma2 = least / max(r0.size - len(fit), 1) * corr
     for j in np.flatnonzero(~seen).tolist():
-        lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
+        lo_j, hi_j = search.profile_range(problem, x, j, delay, loop, least, sigma2, lo, hi)
         stds[fit[j]] = (hi_j - lo_j) / 3.92
         notes.append(
             f"{fit[j]}: no reading changes within +-5 % of {x[j]:.4g}; the records are "
@@ -724,7 +727,7 @@ def identify_bus_servo(
     for friction in ("static", "coulomb"):
         j = fit.index(friction)
         if seen[j]:
-            lo_j, hi_j = _profile_range(problem, x, j, delay, loop, float(r0 @ r0), sigma2, lo, hi)
+            lo_j, hi_j = search.profile_range(problem, x, j, delay, loop, least, sigma2, lo, hi)
             stds[friction] = max(stds[friction], (hi_j - lo_j) / 3.92)
     for k in FIT_NAMES:
         if k not in values:
@@ -801,220 +804,6 @@ def _fitted_model(
     scale = prior.scale.model_copy(update={"kp": values["kp"], "kd": values["kd"],
                                            "ki": values["ki"]})  # fmt: skip
     return prior.with_updates(name=name, physics=physics, scale=scale)
-
-
-def _jackknife(
-    problem: _Problem, x: np.ndarray, delay: int, loop: int, lo: np.ndarray, hi: np.ndarray,
-    *, seed: int, generations: int,
-) -> np.ndarray | None:  # fmt: skip
-    """Jackknife standard errors of ``x``: the fit refitted leaving out one record at a time
-    (same delays), ``None`` with fewer than three records.
-
-    Each refit is a short CMA-ES over ``log(theta)`` from ``x`` (every left-out record's
-    candidates in one batch per generation) and then a least-squares polish from its best. A
-    polish alone stalls where the cost has steps (a sticking event that comes or goes, the side
-    of the gear play a step ends on) and so measured the records' disagreement as nearly none
-    (on a perturbed STS3215, ``kp`` 3.3 % off at 0.14 % stated); the search steps over them,
-    and what it cannot settle is part of the estimate's uncertainty too."""
-    n = len(problem.records)
-    if n < 3:
-        return None
-
-    def left_out_costs(flat: np.ndarray) -> np.ndarray:
-        per = problem.record_costs(flat, delay, loop).reshape(n, _JACK_POP, n)
-        return per.sum(axis=2) - per[np.arange(n), :, np.arange(n)]
-
-    start = problem.record_costs(x[None], delay, loop)[0]
-    best = _batched_cma(left_out_costs, x, lo, hi, sigma=_JACK_SIGMA, population=_JACK_POP,
-                        seeds=[seed + 101 + k for k in range(n)], generations=generations,
-                        best=[(float(start.sum() - start[k]), x) for k in range(n)])  # fmt: skip
-    est = []
-    for k in range(n):
-        sub = _Problem(problem.prior, [r for j, r in enumerate(problem.records) if j != k],
-                       problem.fit)  # fmt: skip
-        res = least_squares(
-            lambda th, pr=sub: pr.residuals(th[None], delay, loop)[0], best[k][1],
-            bounds=(lo, hi), x_scale=best[k][1], diff_step=0.02, max_nfev=20 * x.size,
-        )  # fmt: skip
-        est.append(res.x if float(np.sum(res.fun**2)) < best[k][0] else best[k][1])
-    e = np.array(est)
-    return np.sqrt((n - 1) / n * np.sum((e - e.mean(axis=0)) ** 2, axis=0))
-
-
-#: The jackknife's refits: CMA-ES population and step (log scale) per left-out record.
-_JACK_POP = 10
-_JACK_SIGMA = 0.05
-
-
-def _profile_range(
-    problem: _Problem, x: np.ndarray, j: int, delay: int, loop: int, cost: float,
-    sigma2: float, lo: np.ndarray, hi: np.ndarray,
-) -> tuple[float, float]:  # fmt: skip
-    """The values of parameter ``j`` (others held) whose cost stays within the 95 % threshold
-    ``cost + 3.84 sigma2`` of the optimum: one batch over a log grid."""
-    grid = np.unique(np.concatenate([
-        np.geomspace(max(lo[j], x[j] / 4), min(hi[j], x[j] * 4), 41),
-        x[j] * np.linspace(0.7, 1.3, 61),
-    ]))  # fmt: skip
-    grid = grid[(grid >= lo[j]) & (grid <= hi[j])]
-    thetas = np.repeat(x[None], grid.size, axis=0)
-    thetas[:, j] = grid
-    costs = np.sum(problem.residuals(thetas, delay, loop) ** 2, axis=1)
-    ok = grid[costs <= cost + 3.84 * sigma2]
-    if ok.size == 0:
-        return float(x[j]), float(x[j])
-    return float(min(ok.min(), x[j])), float(max(ok.max(), x[j]))
-
-
-#: The delay profile: the pairs within this many ticks of the global search's (goal delay, loop
-#: delay), each searched by a CMA-ES of this population, and the best few polished.
-_PROFILE_WINDOW = (2, 3)
-_PROFILE_POP = 10
-_PROFILE_POLISH = 3
-#: The fits up to this many ticks of loop delay later than the best are kept as alternatives
-#: when their cost is within this factor of the best's. The factor is the search's own spread,
-#: not a statistical threshold: on noise-free records of a known servo the fits' costs at one
-#: delay pair vary by up to 2x between starts (the sticking events make the cost jagged), so a
-#: likelihood-ratio test on these costs would rule out delays the data cannot.
-_LATER_TICKS = 2
-_ALTERNATIVE_COST = 1.25
-
-
-def _delay_profile(
-    problem: _Problem, x: np.ndarray, delay: int, loop: int, lo: np.ndarray, hi: np.ndarray, *,
-    seed: int, generations: int,
-) -> dict[tuple[int, int], tuple[float, np.ndarray]]:  # fmt: skip
-    """The best ``(cost, theta)`` found at each delay pair around ``(delay, loop)``: a CMA-ES
-    over ``log(theta)`` from ``x`` per pair, every pair's candidates in one batch per
-    generation. The window moves while its best pair lies on an edge (not a bound)."""
-    found: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
-    centre = (delay, loop)
-    for _shift in range(3):
-        wd, wl = _PROFILE_WINDOW
-        pairs = [
-            (d, lp)
-            for d in range(max(centre[0] - wd, 0), min(centre[0] + wd, _MAX_DELAY_TICKS) + 1)
-            for lp in range(max(centre[1] - wl, 0), min(centre[1] + wl, _MAX_DELAY_TICKS) + 1)
-            if (d, lp) not in found
-        ]
-        if not pairs:
-            break
-        start = min(found.values(), key=lambda v: v[0])[1] if found else x
-        d_of = np.array([p[0] for p in pairs])
-        l_of = np.array([p[1] for p in pairs])
-        costs0 = np.sum(problem.residuals(np.repeat(start[None], len(pairs), 0), d_of, l_of) ** 2,
-                        axis=1)  # fmt: skip
-
-        def pair_costs(flat: np.ndarray, d_of: np.ndarray = d_of,
-                       l_of: np.ndarray = l_of) -> np.ndarray:  # fmt: skip
-            res = problem.residuals(flat, np.repeat(d_of, _PROFILE_POP),
-                                    np.repeat(l_of, _PROFILE_POP))  # fmt: skip
-            return np.sum(res**2, axis=1).reshape(len(d_of), _PROFILE_POP)
-
-        searched = _batched_cma(pair_costs, start, lo, hi, sigma=0.1, population=_PROFILE_POP,
-                                seeds=[seed + k for k in range(len(pairs))],
-                                generations=generations,
-                                best=[(float(c), start) for c in costs0])  # fmt: skip
-        found.update(zip(pairs, searched, strict=True))
-        best = min(found, key=lambda p: found[p][0])
-        on_edge = [
-            abs(best[0] - centre[0]) == wd and 0 < best[0] < _MAX_DELAY_TICKS,
-            abs(best[1] - centre[1]) == wl and 0 < best[1] < _MAX_DELAY_TICKS,
-        ]
-        if not any(on_edge):
-            break
-        centre = best
-    return found
-
-
-def _batched_cma(
-    evaluate: Callable[[np.ndarray], np.ndarray], x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-    *, sigma: float, population: int, seeds: Sequence[int], generations: int,
-    best: list[tuple[float, np.ndarray]],
-) -> list[tuple[float, np.ndarray]]:  # fmt: skip
-    """Several CMA-ES over ``log(theta)`` from ``x``, one per seed, all of a generation's
-    candidates evaluated in one call: ``evaluate`` takes them stacked (optimiser by optimiser,
-    ``population`` each) and returns their costs shaped (optimisers, population). ``best``
-    holds each optimiser's best (cost, theta) so far and is returned updated."""
-    from cmaes import CMA
-
-    bounds = np.column_stack([np.log(lo), np.log(hi)])
-    mean = np.clip(np.log(x), bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
-    opts = [CMA(mean=mean, sigma=sigma, bounds=bounds, seed=s, population_size=population)
-            for s in seeds]  # fmt: skip
-    best = list(best)
-    for _ in range(generations):
-        cands = np.array([[o.ask() for _ in range(population)] for o in opts])
-        costs = evaluate(np.exp(cands.reshape(-1, x.size)))
-        for i, o in enumerate(opts):
-            o.tell(list(zip(cands[i], costs[i], strict=True)))
-            k = int(np.argmin(costs[i]))
-            if costs[i, k] < best[i][0]:
-                best[i] = (float(costs[i, k]), np.exp(cands[i, k]))
-    return best
-
-
-def _global_search(
-    problem: _Problem,
-    x0: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    *,
-    seed: int,
-    generations: int,
-    log: Callable[[str], None],
-) -> tuple[np.ndarray, int, int]:
-    """CMA-ES over ``log(theta)`` and the goal and loop delays (ticks)."""
-    n = x0.size
-    best = (math.inf, np.concatenate([np.log(x0), [2.0, 2.0]]))
-    for k, (d0, l0) in enumerate(_DELAY_STARTS):
-        mean = np.concatenate([np.log(x0), [d0, l0]])
-        cost, v = _cma(problem, mean, lo, hi, seed=seed + k, generations=generations)
-        log(f"  run {k + 1}/{len(_DELAY_STARTS)} (from delays {d0:.0f}, {l0:.0f} ms): cost "
-            f"{cost:.4g}")  # fmt: skip
-        if cost < best[0]:
-            best = (cost, v)
-    v = best[1]
-    return np.exp(v[:n]), round(v[n]), round(v[n + 1])
-
-
-#: Starting delays (goal, loop; ticks) of the global search's restarts.
-_DELAY_STARTS = ((1.0, 1.0), (1.0, 5.0), (5.0, 1.0), (5.0, 5.0))
-
-
-def _cma(
-    problem: _Problem, mean: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, seed: int,
-    generations: int, sigma: float = 0.3, fixed_delays: tuple[int, int] | None = None,
-) -> tuple[float, np.ndarray]:  # fmt: skip
-    """CMA-ES over ``log(theta)`` and the two delays (ticks; held at ``fixed_delays`` if
-    given); the best (cost, vector) seen."""
-    from cmaes import CMA
-
-    n = lo.size
-    if fixed_delays is None:
-        delay_bounds = [[0.0, _MAX_DELAY_TICKS], [0.0, _MAX_DELAY_TICKS]]
-    else:
-        delay_bounds = [[d - 0.4, d + 0.4] for d in fixed_delays]
-    bounds = np.vstack([np.column_stack([np.log(lo), np.log(hi)]), delay_bounds])
-    mean = np.clip(mean, bounds[:, 0] + 1e-9, bounds[:, 1] - 1e-9)
-    opt = CMA(mean=mean, sigma=sigma, bounds=bounds, seed=seed, population_size=16)
-    best = (math.inf, mean)
-    for _ in range(generations):
-        cands = np.array([opt.ask() for _ in range(opt.population_size)])
-        costs = np.empty(len(cands))
-        # one batch per (delay, loop) pair present in the generation
-        keys = np.round(cands[:, n:]).astype(int)
-        for key in {tuple(k) for k in keys.tolist()}:
-            rows = np.flatnonzero((keys == key).all(axis=1))
-            res = problem.residuals(np.exp(cands[rows, :n]), key[0], key[1])
-            costs[rows] = np.sum(res**2, axis=1)
-        opt.tell(list(zip(cands, costs, strict=False)))
-        k = int(np.argmin(costs))
-        if costs[k] < best[0]:
-            best = (float(costs[k]), cands[k])
-        if opt.should_stop():
-            break
-    return best
 
 
 def _prior_value(model: BusServoModel, name: str) -> float:
