@@ -72,6 +72,9 @@ _MAX_RECORD_BYTES = 50_000_000
 #: likelihood-ratio test on these costs would rule out delays the data cannot.
 _LATER_TICKS = 2
 _ALTERNATIVE_COST = 1.25
+#: The walk searches a neighbouring pair again from the best fit unless the profile's fit there
+#: costs more than this many times the best's.
+_WALK_WITHIN = 2.0
 
 
 @dataclass(frozen=True)
@@ -623,6 +626,8 @@ def identify_bus_servo(
             pair = (delay + dd, loop + dl)
             if pair in walked or not all(0 <= v <= search.MAX_DELAY_TICKS for v in pair):
                 continue
+            if profile.get(pair, (0.0,))[0] > _WALK_WITHIN * cost:
+                continue  # far behind in the profile: a search from the best fit does not win
             if search_from(pair, x) < cost * (1 - 1e-6):
                 moved = True
                 break

@@ -102,10 +102,10 @@ def test_a_perturbed_sts3215_is_recovered(perturbed_sts3215):
     "fit does not model (each reading up to 0.5 ms older than its stamp) and the backlash "
     "gives the cost steps; the standard errors now hold the jackknife's CMA-ES refits and the"
     " spread of the fits at the delay pairs the cost cannot tell apart, which covers it on "
-    "these records before the file round trip (every parameter within 2.3 standard errors; kd"
-    " 6.5 % off at 3.0 % stated), but not after it: kp 0.73 % off at 0.15 % stated (4.7 "
-    "standard errors): the file's rounding moves the fit, and nothing in these records shows "
-    "by how much",
+    "these records before the file round trip, but not after it: the fit lands at goal delay 4 "
+    "ms (the truth's 3), where no other pair is within the alternatives' threshold, and "
+    "omega0 is 0.7 % off at 0.11 % stated (6.3 standard errors; ki 1.4 % at 0.24 %): the "
+    "file's rounding moves the fit, and nothing in these records shows by how much",
 )
 def test_the_stated_standard_errors_cover_the_truth(perturbed_sts3215):
     """Every parameter within 3.5 of its stated standard errors of the truth."""
