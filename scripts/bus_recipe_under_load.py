@@ -131,6 +131,8 @@ def main() -> int:
         for k in range(args.reruns):
             r = one_run(family, args.out / f"{family}-{k}", args.busy)
             runs.append(r)
+            args.out.mkdir(parents=True, exist_ok=True)  # written after every run: kept if cut
+            (args.out / "summary.json").write_text(json.dumps(runs, indent=1, default=str))
             steps = ", ".join(f"{s['command'].split('.')[-1]} {s['seconds']:.0f} s"
                               for s in r["steps"])  # fmt: skip
             if "failed" in r:
@@ -141,8 +143,6 @@ def main() -> int:
                   f"{r['ms_truth']:.2f} (corners {r['ms_truth_corners']:.2f}), GM "
                   f"{r['gm_truth_db']:.1f} dB, deploy fit {r['deploy_fit_pct']:.1f} % ({steps})",
                   flush=True)  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "summary.json").write_text(json.dumps(runs, indent=1, default=str))
     return 0 if all("failed" not in r for r in runs) else 1
 
 

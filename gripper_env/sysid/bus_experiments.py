@@ -38,12 +38,8 @@ from gripper_env.evaluation.bus_servo import loop_margins, tracking_goal
 from gripper_env.hardware.bus.link import BusCommError
 from gripper_env.model.bus_servo import BusServoModel, RegisterSet
 from gripper_env.sim.bus_servo import DT, simulate_bus
-from gripper_env.sysid.bus_servo import (
-    SLOW_FACTOR,
-    SLOW_FLOOR_S,
-    SLOW_RECORD_FACTOR,
-    BusRecord,
-)
+from gripper_env.sysid.bus_record import SLOW_RECORD_FACTOR, BusRecord
+from gripper_env.sysid.bus_servo import SLOW_FACTOR, SLOW_FLOOR_S
 
 if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
@@ -170,7 +166,7 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
     * **Dropped readings**: more than :data:`MAX_DROPPED` of the readings got no reply (the
       recorder's counts, in the record).
     * **Slow readings**: the median interval more than
-      :data:`~gripper_env.sysid.bus_servo.SLOW_RECORD_FACTOR` times the period asked (a busy
+      :data:`~gripper_env.sysid.bus_record.SLOW_RECORD_FACTOR` times the period asked (a busy
       host), which identification refuses outright.
     """
     problems = []
