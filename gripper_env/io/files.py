@@ -318,7 +318,7 @@ PROVENANCE_FORMAT = "gripper-provenance"
 #: Libraries whose versions a sidecar records when the run loaded them.
 _LIBRARIES = (
     "numpy", "scipy", "numba", "matplotlib", "gymnasium", "stable_baselines3", "torch",
-    "optuna", "control", "pydantic",
+    "optuna", "control", "pydantic", "rl_zoo3", "mujoco",
 )  # fmt: skip
 
 

@@ -111,3 +111,51 @@ def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
               str(REFERENCE), timeout=300)  # fmt: skip
     assert ev.returncode == 2
     assert message in ev.stderr and len(ev.stderr.strip().splitlines()) == 1
+
+
+def test_a_bare_zip_needs_its_interface_and_then_scores_as_its_run(rows, zoo_run, tmp_path):
+    """The run's weights alone: refused in one line (how its actions act is not in the zip);
+    given the interface it was trained with, they score what the rl-zoo3 run scored."""
+    out, printed = rows
+    assert "note: scoring rl-zoo3's final model (gripper_env-GripperGrasp-v0.zip)" in (
+        printed["zoo-ppo"])  # fmt: skip
+    bare = tmp_path / "bare.zip"
+    bare.write_bytes((zoo_run / "gripper_env-GripperGrasp-v0.zip").read_bytes())
+    stats = zoo_run / "gripper_env-GripperGrasp-v0" / "vecnormalize.pkl"  # the recipe normalises
+    (tmp_path / "vecnormalize.pkl").write_bytes(stats.read_bytes())
+    args = ["tuners.rl", "evaluate", str(bare), "--task", "grasp", "--episodes", "6",
+            "--reference", str(REFERENCE), "--out", str(tmp_path / "rows")]  # fmt: skip
+    refused = _run(*args)
+    assert refused.returncode == 2
+    assert len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+    assert "a bare stable-baselines3 zip does not say how its actions act" in refused.stderr
+    assert "--interface KEY=VALUE" in refused.stderr
+    scored = _run(*args, "--interface", "residual=reference", "--interface",
+                  "residual_deg=40", "--name", "bare")  # fmt: skip
+    assert scored.returncode == 0, scored.stderr[-2000:]
+    bare_row = json.loads((tmp_path / "rows" / "grasp" / "bare.json").read_text())
+    zoo_row = json.loads((out / "grasp" / "zoo-ppo.json").read_text())
+    assert bare_row["score"] == pytest.approx(zoo_row["score"], abs=1e-9)
+    # the run has no best_model.zip (trained with --eval-freq -1): asked for it, one line
+    best = _run("tuners.rl", "evaluate", str(zoo_run), "--task", "grasp", "--model", "best",
+                "--reference", str(REFERENCE), "--out", str(tmp_path / "rows"))  # fmt: skip
+    assert best.returncode == 2 and "has no best_model.zip" in best.stderr
+
+
+def test_a_callable_for_one_observation_scores_as_the_batch_one(rows, tmp_path):
+    out, _ = rows
+    module = tmp_path / "one_obs.py"
+    module.write_text(
+        "from tuners.rl.baselines import squeeze_past_contact\n\n\n"
+        "def one(obs):\n"
+        "    assert obs.ndim == 1, 'written for one observation'\n"
+        "    return squeeze_past_contact(obs[None])[0]\n"
+    )
+    ev = _run("tuners.rl", "evaluate", f"{module}:one", "--task", "grasp", "--episodes", "6",
+              "--name", "one", "--out", str(tmp_path / "rows"), "--reference",
+              str(REFERENCE))  # fmt: skip
+    assert ev.returncode == 0, ev.stderr[-2000:]
+    assert "takes one observation: called once per observation" in ev.stdout
+    one = json.loads((tmp_path / "rows" / "grasp" / "one.json").read_text())
+    batch = json.loads((out / "grasp" / "squeeze.json").read_text())
+    assert one["score"] == pytest.approx(batch["score"], abs=1e-9)

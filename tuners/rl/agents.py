@@ -23,8 +23,11 @@ runs a committed agent on test4 (``python -m tuners.rl play`` does this and prin
 
 :func:`load_any` loads any agent the benchmark scores (``python -m tuners.rl evaluate AGENT``):
 a stable-baselines3 zip, an rl-zoo3 log folder (one run, or an experiment folder of several),
-this project's agent folder, or ``module:callable`` (a function ``obs (B, n) -> actions (B,
-m)``, or an object with a stable-baselines3 ``predict``).
+this project's agent folder, or ``module:callable`` (a function of a batch, ``obs (B, n) ->
+actions (B, m)``, or of one observation, ``obs (n,) -> action (m,)``: :func:`batch_policy` tells
+them apart; or an object with a stable-baselines3 ``predict``). A bare zip carries no action
+interface (how its actions act: residual or absolute, the PID it corrects); it reads one from
+``<zip>.interface.json`` beside it, or takes it from ``--interface``.
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ __all__ = [
     "Agent",
     "LoadedAgent",
     "agent_kwargs",
+    "batch_policy",
     "load_agent",
     "load_any",
     "one_torch_thread",
@@ -327,12 +331,19 @@ def _zip_agent(path: Path, algo: str | None, normalizer: Path | None = None) -> 
     model = cls.load(path, device="cpu")
     norm = _normalizer(normalizer if normalizer is not None else path.parent / "vecnormalize.pkl")
     agent = Agent(model, norm, "", {})
-    return LoadedAgent(
-        agent,
-        str(path),
-        "sb3-zip",
-        facts={"algo": cls.__name__.lower(), "normalized": norm is not None},
-    )
+    facts = {"algo": cls.__name__.lower(), "normalized": norm is not None}
+    loaded = LoadedAgent(agent, str(path), "sb3-zip", facts=facts)
+    recorded = path.with_suffix(".interface.json")  # how its actions act, if its trainer said
+    if recorded.is_file():
+        import json
+
+        try:
+            loaded.env_kwargs = dict(json.loads(recorded.read_text()))
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{recorded}: not a JSON object of environment arguments ({exc})"
+                             ) from None  # fmt: skip
+        loaded.facts["interface_file"] = recorded.name
+    return loaded
 
 
 def _zoo_runs(folder: Path) -> list[Path]:
@@ -353,7 +364,10 @@ def _zoo_runs(folder: Path) -> list[Path]:
     return sorted(runs, key=order)
 
 
-def _zoo_agent(run: Path, algo: str | None) -> LoadedAgent:
+def _zoo_agent(run: Path, algo: str | None, model: str = "final") -> LoadedAgent:
+    """One rl-zoo3 run: its final model (``<env>.zip``), or with ``model="best"`` the
+    ``best_model.zip`` rl-zoo3's evaluation callback kept (chosen on rl-zoo3's own evaluation
+    environment, not on the task's seeds)."""
     import yaml
 
     model_zip = next(
@@ -363,8 +377,12 @@ def _zoo_agent(run: Path, algo: str | None) -> LoadedAgent:
     args = dict(yaml.load((saved / "args.yml").read_text(), Loader=yaml.UnsafeLoader))
     config = dict(yaml.load((saved / "config.yml").read_text(), Loader=yaml.UnsafeLoader)) if (
         saved / "config.yml").is_file() else {}  # fmt: skip
-    best = run / "best_model.zip"
-    chosen = best if best.is_file() else model_zip
+    chosen = model_zip
+    if model == "best":
+        chosen = run / "best_model.zip"
+        if not chosen.is_file():
+            raise ValueError(f"--model best: {run} has no best_model.zip (rl-zoo3 writes it "
+                             "with --eval-freq > 0); the final model is --model final")  # fmt: skip
     loaded = _zip_agent(chosen, algo or args.get("algo"), saved / "vecnormalize.pkl")
     env_kwargs = dict(config.get("env_kwargs") or {})
     env_kwargs.update(dict(args.get("env_kwargs") or {}))
@@ -373,6 +391,47 @@ def _zoo_agent(run: Path, algo: str | None) -> LoadedAgent:
     loaded.env_kwargs = env_kwargs
     loaded.facts.update(seed=args.get("seed"), model=chosen.name, algo=args.get("algo"))
     return loaded
+
+
+def batch_policy(policy: Any, observation_space: Any, name: str) -> tuple[Any, str]:
+    """``policy`` as a batch policy ``obs (B, n) -> actions (B, m)``, and which it was written
+    for (``"batch"`` or ``"one observation"``).
+
+    Probed on two different observations of ``observation_space``: a policy that returns one
+    action per row of the batch is a batch policy; one that fails on the batch or returns
+    something else, but returns one action for one observation, is called row by row.
+
+    Raises
+    ------
+    ValueError
+        It takes neither (one line, with what it returned or raised).
+    """
+    rng = np.random.default_rng(0)
+    low = np.nan_to_num(np.asarray(observation_space.low, dtype=float), neginf=-1.0)
+    high = np.nan_to_num(np.asarray(observation_space.high, dtype=float), posinf=1.0)
+    probe = rng.uniform(np.maximum(low, -1.0), np.minimum(high, 1.0), (2, *low.shape))
+    try:
+        out = np.asarray(policy(probe), dtype=float)
+        if out.ndim >= 1 and out.shape[0] == 2:
+            return policy, "batch"
+        said = f"returned shape {out.shape} for a batch of 2"
+    except Exception as exc:  # any failure: try one observation
+        said = f"raised {type(exc).__name__}: {exc}"
+    try:
+        one = np.asarray(policy(probe[0]), dtype=float)
+    except Exception as exc:
+        raise ValueError(f"AGENT {name}: neither a batch policy (obs (B, n) -> actions (B, m): "
+                         f"it {said}) nor one for one observation (it raised "
+                         f"{type(exc).__name__}: {exc})") from None  # fmt: skip
+    if one.ndim > 1:
+        raise ValueError(f"AGENT {name}: one observation gave actions of shape {one.shape}; "
+                         "expected one action (m,)")  # fmt: skip
+
+    def rows(obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs)
+        return np.stack([np.atleast_1d(np.asarray(policy(o), dtype=float)) for o in obs])
+
+    return rows, "one observation"
 
 
 def _callable_agent(spec: str) -> LoadedAgent:
@@ -404,7 +463,7 @@ def _callable_agent(spec: str) -> LoadedAgent:
     return LoadedAgent(policy, spec, "callable", facts={"callable": spec})
 
 
-def load_any(spec: str, algo: str | None = None) -> list[LoadedAgent]:
+def load_any(spec: str, algo: str | None = None, model: str = "final") -> list[LoadedAgent]:
     """The agent(s) ``spec`` names (module docstring); several for an rl-zoo3 experiment folder
     of several runs (one per training seed).
 
@@ -421,7 +480,7 @@ def load_any(spec: str, algo: str | None = None) -> list[LoadedAgent]:
                                 dict(agent.env_kwargs), dict(agent.facts))]  # fmt: skip
         runs = _zoo_runs(path)
         if runs:
-            return [_zoo_agent(run, algo) for run in runs]
+            return [_zoo_agent(run, algo, model) for run in runs]
         raise ValueError(f"AGENT {spec}: a folder with neither agent.json (this project's agent) "
                          "nor an rl-zoo3 run (<env>.zip beside <env>/args.yml)")  # fmt: skip
     if path.suffix == ".zip":

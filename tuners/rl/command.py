@@ -177,7 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
         "the measured margin and the admission verdict; write a JSON row "
         "(python -m tuners.rl.leaderboard ranks a folder of them). AGENT: a stable-baselines3 "
         ".zip, an rl-zoo3 log folder (one run, or an experiment folder of several), this "
-        "project's agent folder (agent.json), or module:callable (obs (B, n) -> actions).",
+        "project's agent folder (agent.json), or module:callable: a function of a batch (obs "
+        "(B, n) -> actions (B, m)) or of one observation (obs (n,) -> action (m,)), told apart "
+        "by a probe.",
     )
     ev.add_argument("agent", help="the agent (see above)")
     ev.add_argument("--task", required=True, help="a task of configs/rl_zoo/tasks.yaml")
@@ -185,6 +187,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--algo",
         default=None,
         help="a bare zip's stable-baselines3 algorithm (default: read from it)",
+    )
+    ev.add_argument(
+        "--interface",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="the agent's action interface, as it was trained: one of the task's interface "
+        "arguments per flag (VALUE in YAML: residual=true, pid_gains=[1.0,2.0,0.0]), or "
+        "'task' for the task's own; required for a bare zip (it records none), over what an "
+        "agent folder or rl-zoo3 run records otherwise",
+    )
+    ev.add_argument(
+        "--model",
+        choices=("final", "best"),
+        default="final",
+        help="an rl-zoo3 run's final model (default) or the best_model.zip its evaluation "
+        "callback kept (chosen on rl-zoo3's evaluation environment, not the task's)",
     )
     ev.add_argument("--name", default=None, help="the row's label (default: from AGENT)")
     ev.add_argument("--out", type=Path, default=None,
@@ -512,6 +531,28 @@ def _controller(args: argparse.Namespace, inputs: cli.Inputs, plants: list[str])
 # ---- a saved agent ---------------------------------------------------------------------------
 
 
+def _interface_option(values: list[str] | None) -> dict[str, Any] | None:
+    """``--interface KEY=VALUE ...`` (VALUE in YAML) as environment arguments; ``task``: none
+    beyond the task's own."""
+    import yaml
+
+    if values is None:
+        return None
+    out: dict[str, Any] = {}
+    for value in values:
+        if value == "task":
+            continue
+        key, sep, text = value.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValueError(f"--interface {value!r}: expected KEY=VALUE or task")
+        try:
+            out[key] = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"--interface {value!r}: VALUE is not YAML ({exc})".splitlines()[0]
+                             ) from None  # fmt: skip
+    return out
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from gripper_env.io.files import collect_provenance, write_result_json
     from tuners.rl.envs import require_rl
@@ -521,6 +562,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     row = evaluate_agent(
         args.agent, args.task, reference=args.reference, algo=args.algo, name=args.name,
         episodes=args.episodes, margins=not args.no_margins,
+        interface=_interface_option(args.interface), model=args.model,
         log=(lambda m: None) if args.json else print,
     )  # fmt: skip
     path = row_path(row, args.out)

@@ -68,6 +68,18 @@ def _check_spaces(t: Task, agent: LoadedAgent, iface: dict[str, Any]) -> None:
         )
 
 
+def _batch_callable(t: Task, agent: LoadedAgent, iface: dict[str, Any]) -> tuple[Any, str]:
+    """A callable agent as a batch policy, probed on the task's observation space."""
+    import gymnasium as gym
+
+    from tuners.rl.agents import batch_policy
+
+    env = gym.make(t.env_id, **t.kwargs_with(iface))
+    space = env.observation_space
+    env.close()
+    return batch_policy(agent.policy, space, agent.name)
+
+
 def _subset(t: Task, anchors: dict[str, Any], episodes: int | None) -> tuple[Task, dict]:
     short = t.first(episodes)
     return short, {k: list(v[: short.episodes]) for k, v in anchors.items()}
@@ -82,6 +94,8 @@ def evaluate_agent(
     name: str | None = None,
     episodes: int | None = None,
     margins: bool = True,
+    interface: dict[str, Any] | None = None,
+    model: str = "final",
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Score the agent(s) ``spec`` on ``task_name``; the row (module docstring).
@@ -103,6 +117,13 @@ def evaluate_agent(
         use the whole set).
     margins : bool
         Measure the controller's margins (the ``margin`` verdict needs them).
+    interface : dict, optional
+        The agent's action interface (the task's ``interface`` arguments it was trained with;
+        ``{}``: the task's own), over what the agent records. A bare zip records none and is
+        refused without it (the same weights score -421.9 or 0.3 on the servo task as their
+        actions are read as absolute or residual).
+    model : str
+        An rl-zoo3 run's ``final`` model, or the ``best`` one its evaluation callback kept.
     """
     from tuners.rl.agents import one_torch_thread
     from tuners.rl.judge import judge_policy
@@ -119,11 +140,28 @@ def evaluate_agent(
         raise ValueError(f"{reference}: task {task_name}'s anchors hold {len(anchors['trivial'])} "
                          f"episodes, the task {t.episodes}; regenerate them")  # fmt: skip
     t, anchors = _subset(t, anchors, episodes)
-    agents = load_any(spec, algo)
+    agents = load_any(spec, algo, model)
     runs = []
     for k, agent in enumerate(agents):
+        if interface is not None:
+            agent.env_kwargs = {**agent.env_kwargs, **interface}
+        elif agent.kind == "sb3-zip" and "interface_file" not in agent.facts and t.interface:
+            raise ValueError(
+                f"AGENT {agent.name}: a bare stable-baselines3 zip does not say how its actions "
+                f"act on task {t.name} ({', '.join(t.interface)}): pass --interface KEY=VALUE "
+                "as it was trained (--interface task: the task's own), or write them as JSON to "
+                f"{Path(agent.name).with_suffix('.interface.json').name} beside it"
+            )
         iface, notes = _interface(t, agent)
         _check_spaces(t, agent, iface)
+        if agent.kind == "callable":
+            agent.policy, written = _batch_callable(t, agent, iface)
+            per_row = ": called once per observation" if written != "batch" else ""
+            notes.append(f"{agent.name} takes {written}{per_row}")
+        if agent.kind == "rl-zoo3":
+            notes.append(f"scoring rl-zoo3's {model} model ({agent.facts.get('model')})"
+                         + ("; --model best scores best_model.zip, which rl-zoo3 chose on its "
+                            "own evaluation environment" if model == "final" else ""))  # fmt: skip
         for note in notes:
             log(f"note: {note}")
         log(f"run {k + 1}/{len(agents)}: {agent.name} on {t.name} ({t.episodes} episodes)")

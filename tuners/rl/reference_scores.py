@@ -52,6 +52,7 @@ import numpy as np
 
 from gripper_env.io.files import (
     collect_provenance,
+    run_facts,
     save_figure,
     write_atomic,
     write_json,
@@ -768,6 +769,7 @@ def _main(argv: list[str] | None = None) -> int:
                          engine_spec=args.engine, train_only=True)  # fmt: skip
         print(f"kept the agents under {args.cache / 'reference'}")
         return 0
+    _publishable(args.out)
     with collect_provenance(args.out, "reference_scores", command=args.command):
         table = reference_scores(names, cache=args.cache, seeds=args.seeds,
                                  timesteps=args.timesteps, engine_spec=args.engine,
@@ -781,6 +783,24 @@ def _main(argv: list[str] | None = None) -> int:
             profiles_figure(table, args.out / FIGURE)
     print(f"wrote {args.out / 'reference_scores.md'}")
     return 0
+
+
+def _publishable(out: Path) -> None:
+    """Refuse to write the committed reference scores from a tree with uncommitted changes (the
+    provenance would name a commit that did not make them), and load the learning libraries so
+    that the provenance records their versions (the seeds train in worker processes)."""
+    import importlib.util
+
+    import stable_baselines3  # noqa: F401
+    import torch  # noqa: F401
+
+    if importlib.util.find_spec("rl_zoo3") is not None:
+        import rl_zoo3  # noqa: F401
+    committed = Path(__file__).resolve().parents[2] / "results"
+    if out.resolve() == committed and run_facts()["git_dirty"]:
+        raise ValueError(f"--out {out}: the committed results are written from a clean tree "
+                         "(git status shows changes to tracked files): commit them first, or "
+                         "write elsewhere (--out runs/rl/scores)")  # fmt: skip
 
 
 def load_reference(path: str | Path = "results/reference_scores.json") -> dict[str, Any]:
