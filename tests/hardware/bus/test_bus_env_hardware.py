@@ -196,7 +196,7 @@ def test_a_lost_reply_is_sent_again_and_a_dead_link_ends_in_a_clear_error(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the retry may miss a deadline
         env.step(action_for(225.0))
-    assert link.retried == retried + 1
+    assert link.retried >= retried + 1  # a loaded host may also ask again for a late reply
     sts_bus.drop_replies(1 + link.retries)  # every attempt lost
     with pytest.raises(BusTimeoutError, match=r"servo 1 on .*no reply") as excinfo:
         env.step(action_for(220.0))
