@@ -234,10 +234,11 @@ def bare_servo_grasp(inputs: cli.Inputs) -> tuple[float, str]:
                          randomize=s.randomize)  # fmt: skip
     held, reason = [], ""
     for b in range(len(run.seeds)):
-        one = summarize_grasp(run.t_s, run.force_n[b], run.touching[b], sc,
-                              stall_force=run.stall_force_n,
-                              overload_at_s=[run.overload_at_s[b]], gripper="", controller="",
-                              valid=run.stable[b : b + 1], peak_heat=[run.peak_heat[b]])  # fmt: skip
+        one = summarize_grasp(
+            run.t_s, run.force_n[b], run.touching[b], sc, stall_force=run.stall_force_n,
+            overload_at_s=[run.overload_at_s[b]], gripper="", controller="",
+            valid=run.stable[b : b + 1], peak_heat=[run.peak_heat[b]],
+        )  # fmt: skip
         held.append(one.held)
         if not one.held and not reason:
             why = ("diverged" if not run.stable[b] else
