@@ -79,19 +79,24 @@ def planned_rows(bench: BenchmarkSettings, quick: bool, out: Path) -> list[tuple
 
 def _tune(
     tuner: Tuner, inputs: cli.Inputs, budget: Budget, seed: int, done: dict[str, Tuned],
-    log: Callable[..., None],
+    log: Callable[..., None], no_result: dict[str, str] | None = None, key: str = "",
 ) -> Tuned | None:  # fmt: skip
-    """One tuner's result (``None``, logged, if it could not produce one)."""
+    """One tuner's result (``None``, logged, if it could not produce one; the reason then goes
+    in ``no_result`` under ``key``, for the headline's "Not admitted")."""
     if hasattr(tuner, "bind"):
         try:
             tuner.bind(done)
         except ValueError as exc:
             log(f"  {tuner.name}: skipped ({exc})")
+            if no_result is not None and key:
+                no_result[key] = f"skipped ({exc})"
             return None
     try:
         tuned = tuner.tune(inputs, budget, seed)
     except ValueError as exc:  # e.g. no setting of a rule meets the admission rule
         log(f"  {tuner.name}: no result ({exc})")
+        if no_result is not None and key:
+            no_result[key] = str(exc)
         return None
     if tuned.tuning.get("infeasible"):  # one line naming the binding constraint
         log(f"  {tuned.tuning['infeasible']}")
@@ -146,12 +151,16 @@ def run_benchmark(
                                  "references": _references(inputs, bench, quick, log),
                                  "rows": {}, "curves": {}}  # fmt: skip
     evaluations: dict[str, dict[str, Any]] = {}  # "<row> @ <tuned on>" -> plant -> row
+    no_result: dict[str, str] = {}  # the same keys: why a candidate has no gains
     for plant in feasible:
         inputs = _inputs(plant, ev)
         done: dict[str, Tuned] = {}
         for tuner in (t for t in tuners if not t.plants):
             log(f"  {plant:6s} {tuner.name}: tuning{' (quick budget)' if quick else ''}...")
-            tuned = _tune(tuner, inputs, budget, bench.seed, done, log)
+            key = tuner.name if tuner.kind == "manual" else f"{tuner.name} @ {plant}"
+            ranked = tuner.kind != "reference" and plant in robust_plants
+            tuned = _tune(tuner, inputs, budget, bench.seed, done, log,
+                          no_result if ranked else None, key)  # fmt: skip
             if tuned is None:
                 continue
             done[tuner.name] = tuned
@@ -161,7 +170,6 @@ def run_benchmark(
                 data["plants"][plant]["curves"][tuner.name] = tuned.tuning["history"]
             _log_row(log, plant, tuner.name, row)
             # the same gains everywhere (the paper's): one candidate, not one per plant
-            key = tuner.name if tuner.kind == "manual" else f"{tuner.name} @ {plant}"
             if tuned.gains is not None and plant in robust_plants and key not in evaluations:
                 evaluations[key] = {plant: row}
                 for other in robust_plants:
@@ -179,11 +187,12 @@ def run_benchmark(
     for tuner in (t for t in tuners if t.plants):
         log(f"  {'+'.join(robust_plants)} {tuner.name}: tuning...")
         inputs = _inputs(robust_plants[0], ev)
-        tuned = _tune(tuner, inputs, budget, bench.seed, robust_done, log)
+        key = f"{tuner.name} @ {'+'.join(robust_plants)}"
+        tuned = _tune(tuner, inputs, budget, bench.seed, robust_done, log,
+                      no_result if tuner.kind != "reference" else None, key)  # fmt: skip
         if tuned is None:
             continue
         robust_done[tuner.name] = tuned
-        key = f"{tuner.name} @ {'+'.join(robust_plants)}"
         evaluations[key] = {}
         for plant in robust_plants:
             row = _row(_inputs(plant, ev), tuner, tuned, robust_plants, bench,
@@ -191,6 +200,7 @@ def run_benchmark(
             evaluations[key][plant] = row
             _log_row(log, plant, tuner.name, row)
     data["evaluations"] = evaluations
+    data["no_result"] = no_result
     data["stress"] = _stress(bench, ev, _inputs, evaluations, quick, feasible, log)
     data["stops_moved"] = _stops_moved(bench, ev, _inputs, evaluations, robust_plants, quick,
                                        feasible, log)  # fmt: skip
