@@ -18,8 +18,9 @@ evaluated on each. :mod:`tuners.benchmark.leaderboard` judges and ranks what thi
 
 from __future__ import annotations
 
+import copy
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ from tuners.interface import Budget, Tuned, Tuner
 from tuners.registry import make_tuner
 from tuners.settings import EvaluationSettings
 
-__all__ = ["planned_rows", "run_benchmark"]
+__all__ = ["planned_rows", "rerunnable", "run_benchmark"]
 
 
 def _loaded(bench: BenchmarkSettings, objective: Objective) -> Callable[..., cli.Inputs]:
@@ -67,6 +68,26 @@ def _tuners(bench: BenchmarkSettings, quick: bool, out: Path) -> list[Tuner]:
             continue
         tuners.append(tuner)
     return tuners
+
+
+def rerunnable(bench: BenchmarkSettings, names: Collection[str], where: str = "--rerun") -> None:
+    """Check that ``names`` are rows of ``bench`` that can run again on their own: not a row
+    that builds on another (an RL controller binds its base PID) nor one another row builds on.
+
+    Raises
+    ------
+    ValueError
+        A name that is not a row, or one that cannot run alone (the message names it).
+    """
+    tuners = {t.name: t for t in (make_tuner(dict(e)) for e in bench.tuners)}
+    needed = {n for t in tuners.values() for n in t.__dict__.get("requires", ())}
+    for name in names:
+        if name not in tuners:
+            raise ValueError(f"{where}: {name!r} is not a row of the benchmark; its rows: "
+                             f"{', '.join(tuners)}")  # fmt: skip
+        if hasattr(tuners[name], "bind") or name in needed:
+            raise ValueError(f"{where}: {name!r} builds on another row or another builds on "
+                             "it: rerun the whole benchmark")  # fmt: skip
 
 
 def planned_rows(bench: BenchmarkSettings, quick: bool, out: Path) -> list[tuple[str, str]]:
@@ -125,20 +146,41 @@ def run_benchmark(
     objective: Objective,
     force: bool = False,
     engine: str | None = None,
+    rerun: Collection[str] | None = None,
+    stored: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run every row on every plant; write the gains files and return the benchmark's data
     (``force``: over results from larger budgets; ``engine``: where the RL rows' training seeds
-    run, :mod:`tuners.engine`)."""
+    run, :mod:`tuners.engine`).
+
+    With ``rerun`` (row names, :func:`rerunnable`) and ``stored`` (a full run's
+    ``benchmark.json``), only those rows run again: tuned, evaluated, run on the stress seeds
+    and judged with the stops moved (tuned again there if the settings say so); the bare
+    servo's reference rows are scored again (seconds); every other row, reference and figure's
+    data is the stored run's."""
     obj = objective
     _inputs = _loaded(bench, obj)
     plants = bench.quick.plants if quick else bench.plants
     robust_plants = [p for p in bench.robust_plants if p in plants or not quick]
     budget = Budget(quick=quick, engine=engine)
     tuners = _tuners(bench, quick, out)
+    if rerun is not None:
+        tuners = [t for t in tuners if t.name in rerun]
     data: dict[str, Any] = {"plants": {}, "robust_plants": robust_plants, "quick": quick}
     feasible = []
     for plant in plants:
         inputs = _inputs(plant, ev)
+        if stored is not None:  # the stored plant, without the rows that run again
+            pdata = copy.deepcopy(stored["plants"][plant])
+            data["plants"][plant] = pdata
+            if pdata.get("feasible"):
+                feasible.append(plant)
+                for group in ("rows", "curves"):
+                    pdata[group] = {k: v for k, v in (pdata.get(group) or {}).items()
+                                    if k not in (rerun or ())}  # fmt: skip
+                pdata["references"]["command=reference"] = R.command_reference_row(
+                    inputs, bench.grip_scenario)  # fmt: skip
+            continue
         reach = reachability(inputs.plant, inputs.reference, inputs.disturbance)
         if not reach.feasible:
             data["plants"][plant] = {"feasible": False, "reason": reach.reason(),
@@ -203,11 +245,41 @@ def run_benchmark(
     data["no_result"] = no_result
     data["stress"] = _stress(bench, ev, _inputs, evaluations, quick, feasible, log)
     data["stops_moved"] = _stops_moved(bench, ev, _inputs, evaluations, robust_plants, quick,
-                                       feasible, log)  # fmt: skip
+                                       feasible, log, only=rerun)  # fmt: skip
+    if stored is not None:
+        regrasp = any(not t.plants for t in tuners)  # the grasp section has per-plant rows
+        if regrasp:
+            data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
+        return _merged(stored, data, set(rerun or ()), regrasp)
     data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
     data["pareto_fronts"] = {p: _pareto_front(_inputs(p, ev), bench, quick)
                              for p in feasible}  # fmt: skip
     return data
+
+
+def _merged(
+    stored: dict[str, Any], new: dict[str, Any], names: set[str], regrasp: bool
+) -> dict[str, Any]:
+    """The stored run's data with the rows ``names`` replaced by ``new``'s (``new["plants"]``
+    already holds the stored plants with the new rows)."""
+
+    def kept(group: dict[str, Any] | None) -> dict[str, Any]:
+        return {k: v for k, v in (group or {}).items() if k.split(" @ ")[0] not in names}
+
+    out = {k: copy.deepcopy(v) for k, v in stored.items()
+           if k not in ("meta", "budget_episodes", "leaderboard")}  # fmt: skip
+    out["plants"] = new["plants"]
+    out["evaluations"] = {**kept(stored.get("evaluations")), **new["evaluations"]}
+    out["no_result"] = {**kept(stored.get("no_result")), **new["no_result"]}
+    if out.get("stress") and new.get("stress"):
+        out["stress"]["rows"] = {**kept(out["stress"]["rows"]), **new["stress"]["rows"]}
+    if out.get("stops_moved") and new.get("stops_moved"):
+        for group in ("rows", "retuned"):
+            out["stops_moved"][group] = {**kept(out["stops_moved"].get(group)),
+                                         **(new["stops_moved"].get(group) or {})}  # fmt: skip
+    if regrasp:
+        out["grasp"] = new["grasp"]
+    return out
 
 
 def _stress(
@@ -232,17 +304,17 @@ def _stress(
 def _stops_moved(
     bench: BenchmarkSettings, ev: EvaluationSettings, inputs_of: Callable[..., cli.Inputs],
     evaluations: dict[str, dict[str, Any]], plants: list[str], quick: bool,
-    feasible: list[str], log: Callable[..., None],
+    feasible: list[str], log: Callable[..., None], only: Collection[str] | None = None,
 ) -> dict[str, Any] | None:  # fmt: skip
     """The verdict with the stops moved out (:func:`tuners.benchmark.sensitivity.stops_moved`);
-    not in a quick run (no robust rows)."""
+    not in a quick run (no robust rows). ``only``: tune again only these rows."""
     from tuners.benchmark.sensitivity import stops_moved
 
     sm = bench.stops_moved
     if quick or not sm.shift_deg or not all(p in feasible for p in plants):
         return None
     retune = [make_tuner(dict(e)) for e in bench.tuners]
-    retune = [t for t in retune if t.name in sm.retune]
+    retune = [t for t in retune if t.name in sm.retune and (only is None or t.name in only)]
     return stops_moved(evaluations, lambda p: inputs_of(p, ev), plants, sm.shift_deg, retune,
                        bench.seed, log)  # fmt: skip
 
