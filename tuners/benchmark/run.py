@@ -247,36 +247,61 @@ def run_benchmark(
     data["stops_moved"] = _stops_moved(bench, ev, _inputs, evaluations, robust_plants, quick,
                                        feasible, log, only=rerun)  # fmt: skip
     if stored is not None:
+        order = [make_tuner(dict(e)).name for e in bench.tuners]
+        for plant in feasible:  # the rows in the settings' order, as a full run lists them
+            pdata = data["plants"][plant]
+            for group in ("rows", "curves"):
+                pdata[group] = dict(sorted(pdata[group].items(), key=lambda kv: _place(kv[0],
+                                    order)))  # fmt: skip
         regrasp = any(not t.plants for t in tuners)  # the grasp section has per-plant rows
         if regrasp:
             data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
-        return _merged(stored, data, set(rerun or ()), regrasp)
+        return _merged(stored, data, set(rerun or ()), regrasp, order, feasible)
     data["grasp"] = _grasp(feasible, data, bench, ev, _inputs, log)
     data["pareto_fronts"] = {p: _pareto_front(_inputs(p, ev), bench, quick)
                              for p in feasible}  # fmt: skip
     return data
 
 
+def _place(name: str, order: list[str]) -> int:
+    """A row's place in the settings' order (one not there: last)."""
+    return order.index(name) if name in order else len(order)
+
+
 def _merged(
-    stored: dict[str, Any], new: dict[str, Any], names: set[str], regrasp: bool
-) -> dict[str, Any]:
+    stored: dict[str, Any], new: dict[str, Any], names: set[str], regrasp: bool,
+    order: list[str] | None = None, plants: list[str] | None = None,
+) -> dict[str, Any]:  # fmt: skip
     """The stored run's data with the rows ``names`` replaced by ``new``'s (``new["plants"]``
-    already holds the stored plants with the new rows)."""
+    already holds the stored plants with the new rows). Candidates are listed as a full run
+    lists them: per-plant ones plant by plant, then the robust ones, each in the settings'
+    ``order`` of rows (``plants``: the plants' order)."""
+    order, plants = order or [], plants or []
 
     def kept(group: dict[str, Any] | None) -> dict[str, Any]:
         return {k: v for k, v in (group or {}).items() if k.split(" @ ")[0] not in names}
 
+    def listed(group: dict[str, Any]) -> dict[str, Any]:
+        def key(k: str) -> tuple[int, int, int]:
+            name, _, on = k.partition(" @ ")
+            robust = "+" in on
+            where = plants.index(on) if on in plants else 0
+            return (int(robust), 0 if robust else where, _place(name, order))
+
+        return dict(sorted(group.items(), key=lambda kv: key(kv[0])))
+
     out = {k: copy.deepcopy(v) for k, v in stored.items()
            if k not in ("meta", "budget_episodes", "leaderboard")}  # fmt: skip
     out["plants"] = new["plants"]
-    out["evaluations"] = {**kept(stored.get("evaluations")), **new["evaluations"]}
-    out["no_result"] = {**kept(stored.get("no_result")), **new["no_result"]}
+    out["evaluations"] = listed({**kept(stored.get("evaluations")), **new["evaluations"]})
+    out["no_result"] = listed({**kept(stored.get("no_result")), **new["no_result"]})
     if out.get("stress") and new.get("stress"):
-        out["stress"]["rows"] = {**kept(out["stress"]["rows"]), **new["stress"]["rows"]}
+        out["stress"]["rows"] = listed({**kept(out["stress"]["rows"]), **new["stress"]["rows"]})
     if out.get("stops_moved") and new.get("stops_moved"):
         for group in ("rows", "retuned"):
-            out["stops_moved"][group] = {**kept(out["stops_moved"].get(group)),
-                                         **(new["stops_moved"].get(group) or {})}  # fmt: skip
+            before = kept(out["stops_moved"].get(group))
+            after = new["stops_moved"].get(group) or {}
+            out["stops_moved"][group] = listed({**before, **after})
     if regrasp:
         out["grasp"] = new["grasp"]
     return out

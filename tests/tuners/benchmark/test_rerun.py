@@ -71,3 +71,13 @@ def test_the_stored_run_keeps_every_row_but_those_run_again():
     assert out["stops_moved"]["retuned"] == {}  # b was retuned before; not this time
     assert stored["evaluations"]["b @ p1"] == "old b"  # the stored run is left as it was
     assert _merged(stored, new, {"b"}, regrasp=True)["grasp"] == "new grasp"
+
+
+def test_the_merged_candidates_are_listed_as_a_full_run_lists_them():
+    """Per-plant candidates plant by plant, then the robust ones, each in the settings' order
+    of rows: a rerun leaves the report's lists where a full run puts them."""
+    stored = {"plants": {}, "evaluations": {"m": 0, "b @ p1": 0, "a @ p2": 0, "a @ p1+p2": 0}}
+    new = {"plants": {}, "evaluations": {"a @ p1": 1, "b @ p1+p2": 1}, "no_result": {}}
+    out = _merged(stored, new, {"a"}, False, order=["m", "a", "b"], plants=["p1", "p2"])
+    assert list(out["evaluations"]) == ["m", "a @ p1", "b @ p1", "b @ p1+p2"]
+    assert out["evaluations"]["a @ p1"] == 1 and "a @ p2" not in out["evaluations"]
