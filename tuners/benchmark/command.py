@@ -6,6 +6,10 @@ computed from and every row's per-seed costs: :func:`tuners.benchmark.leaderboar
 the row's too: kept as it is when a rerun reproduces every file), ``<out>/figures/`` and every
 row's gains file and response plot under ``<out>/<plant>/`` (the response plots are not
 committed: each is redrawn from its gains file in a second).
+
+``--rerun ROW[,ROW...]`` runs only those rows again (and scores the bare servo again, seconds)
+over a full run's ``<out>/benchmark.json``, keeping every other row's stored per-seed results:
+minutes where the whole benchmark takes about an hour. The report names both commands.
 """
 
 from __future__ import annotations
@@ -64,7 +68,35 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace results in OUT even if they came from a larger budget",
     )
     parser.add_argument("--engine", type=engine_spec, default=None, help=ENGINE_HELP)
+    parser.add_argument("--rerun", default=None, metavar="ROW[,ROW...]",
+                        help="run only these rows again (e.g. classical-simc-robust) over the "
+                             "full run stored in OUT/benchmark.json, keep every other row as "
+                             "stored, and write the report again")  # fmt: skip
     return parser
+
+
+def stored_run(out: Path) -> dict[str, Any]:
+    """A full run's ``benchmark.json`` in ``out``, for ``--rerun``.
+
+    Raises
+    ------
+    ValueError
+        No such file, not JSON, or a ``--quick`` run's (the message names the file).
+    """
+    path = out / "benchmark.json"
+    try:
+        content = json.loads(path.read_text())
+    except OSError:
+        raise ValueError(f"--rerun: no benchmark.json in {out}: run the whole benchmark "
+                         "first") from None  # fmt: skip
+    except ValueError as exc:
+        raise ValueError(f"--rerun: {path} is not JSON ({exc})") from None
+    meta = content.get("meta") if isinstance(content, dict) else None
+    if not isinstance(meta, dict) or "plants" not in content:
+        raise ValueError(f"--rerun: {path} is not a benchmark's result")
+    if (meta.get("config") or {}).get("quick", True):
+        raise ValueError(f"--rerun: {path} is a --quick run's: rerun rows over a full run")
+    return content
 
 
 def output_folder(args: argparse.Namespace) -> Path:
@@ -124,18 +156,43 @@ def _main(argv: list[str] | None = None) -> int:
     objective = load_objective(args.objective)
     from tuners.benchmark.run import planned_rows, run_benchmark
 
+    rerun, stored = None, None
+    if args.rerun is not None:
+        from tuners.benchmark.run import rerunnable
+
+        if args.quick:
+            raise ValueError("--rerun reruns rows of a full run: not with --quick")
+        rerun = [n.strip() for n in args.rerun.split(",") if n.strip()]
+        if not rerun:
+            raise ValueError("--rerun: name at least one row")
+        rerunnable(bench, rerun)
+        stored = stored_run(args.out)
+        if set(stored["plants"]) != set(bench.plants):
+            raise ValueError(f"--rerun: {args.out / 'benchmark.json'} has plants "
+                             f"{list(stored['plants'])}, the settings {bench.plants}")  # fmt: skip
     if args.quick and not args.force:  # a smoke run never replaces a full one: checked first
         _quick_conflicts(args.out, planned_rows(bench, True, args.out))
     log = (lambda *a: print(*a, file=sys.stderr, flush=True)) if args.json else (
         lambda *a: print(*a, flush=True))  # fmt: skip
     log(f"benchmark{' --quick' if args.quick else ''}: writing to {args.out}; each row is "
         "logged as it is done")  # fmt: skip
+    extra: dict[str, Any] = {"seed": bench.seed}
+    if stored is not None:  # the rows kept come from the stored run: its provenance, in short
+        try:
+            before = json.loads((args.out / "benchmark.provenance.json").read_text())
+        except (OSError, ValueError):
+            before = {}
+        extra["rows_kept_from"] = {"command": stored["meta"]["command"],
+                                   **{k: before.get(k) for k in ("git_commit", "date",
+                                                                 "wall_time_s")}}  # fmt: skip
+        extra["rerun_rows"] = rerun
     with collect_provenance(args.out, "benchmark", command=args.command, started=start,
-                            seed=bench.seed):  # fmt: skip
+                            **extra):  # fmt: skip
         data = run_benchmark(bench, ev, args.out, quick=args.quick, log=log,
                              command=args.command, objective=objective,
-                             force=args.force, engine=args.engine)  # fmt: skip
-        _report(args, bench, ev, objective, data)
+                             force=args.force, engine=args.engine, rerun=rerun,
+                             stored=stored)  # fmt: skip
+        _report(args, bench, ev, objective, data, stored, rerun)
     if args.json:
         print(json.dumps(json.loads((args.out / "benchmark.json").read_text()), indent=2))
     else:
@@ -145,8 +202,12 @@ def _main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data: Any) -> None:
-    """benchmark.json, benchmark.md and the figures."""
+def _report(
+    args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data: Any,
+    stored: dict[str, Any] | None = None, rerun: list[str] | None = None,
+) -> None:  # fmt: skip
+    """benchmark.json, benchmark.md and the figures (after ``--rerun``: the stored run's
+    command, and this one's in ``reruns``)."""
     from gripper_env.evaluation.admission import nearest_stops_deg
     from gripper_env.model.disturbances import load_disturbance
     from tuners.benchmark import leaderboard
@@ -163,6 +224,10 @@ def _report(args: argparse.Namespace, bench: Any, ev: Any, objective: Any, data:
         "objective": objective.model_dump(),
         "config": {"benchmark": bench.model_dump(), "quick": args.quick},
     }
+    if stored is not None:
+        before = stored["meta"]
+        meta["command"] = before["command"]
+        meta["reruns"] = [*before.get("reruns", []), {"command": args.command, "rows": rerun}]
     data["leaderboard"] = leaderboard.rank(data)
     leaderboard.figures(data, args.out)
     budget = sum(r["episodes"] for p in data["plants"].values() for r in (p.get("rows") or {})

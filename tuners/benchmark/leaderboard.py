@@ -48,6 +48,10 @@ __all__ = [
 
 ALPHA = 0.05
 RANKED_KINDS = ("manual", "baseline", "search", "controller")
+#: The bare servo's key: the reference row ``command=reference`` of every plant (the servo
+#: commanded the reference, its own position loop only), a headline row like the others.
+BARE = "command=reference"
+BARE_LABEL = "bare servo (command = reference, no host loop)"
 
 
 def _f(x: Any, digits: int = 3) -> str:
@@ -110,7 +114,9 @@ def why_not_deployable(row: dict[str, Any]) -> str | None:
 
 def family_of(name: str) -> str:
     """The family of a row by its name: ``manual``, ``textbook``, ``optuna``, ``rl-tune``,
-    ``rl-controller`` (``other`` for a row from elsewhere)."""
+    ``rl-controller``, ``bare servo`` (``other`` for a row from elsewhere)."""
+    if name == BARE:
+        return "bare servo"
     for prefix, family in (("manual-", "manual"), ("classical-", "textbook"),
                            ("optuna", "optuna"), ("rl-tune", "rl-tune"),
                            ("rl-controller", "rl-controller")):  # fmt: skip
@@ -209,7 +215,8 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
     first = rows[0]
     name = key.split(" @ ")[0]
     # the tuning record is kept with the plant it was tuned on (stored()): any row's
-    knob = next((r["tuning"].get("knob") for r in per.values() if r.get("tuning")), None)
+    tuning = next((r["tuning"] for r in per.values() if r.get("tuning")), {})
+    knob = tuning.get("knob")
     shares = [_to_limit(data["plants"][p], per[p]["metrics"]["actual"]["mean"]["iae"])
               for p in plants]  # fmt: skip
     return {
@@ -217,10 +224,11 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
         "family": family_of(name),
         "rule": rule_of(name),
         "knob": None if not knob else {"name": knob["name"], "value": knob["value"],
-                                       "meaning": knob.get("meaning", "")},
+                                       "meaning": knob.get("meaning", ""),
+                                       "design_model": tuning.get("design_model")},
         "tuned_on": first["tuned_on"],
         "kind": first["kind"],
-        "sign": first.get("sign", 1),
+        "sign": None if key == BARE else first.get("sign", 1),
         "cost": float(np.mean([_cost(r) for r in rows])),
         "iae": float(np.mean([r["metrics"]["actual"]["mean"]["iae"] for r in rows])),
         "to_limit": None if None in shares else float(np.mean([float(x or 0.0) for x in shares])),
@@ -231,18 +239,50 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
         "closest_to_stop_deg": _worst([_clearance(r) for r in rows], min),
         "worst_ms": _worst([r["robustness"].get("ms") for r in rows], max),
         "worst_gm_db": _worst([r["robustness"].get("gain_margin_db") for r in rows], min),
-        "worst_measured_gm_db": _worst(
-            [(r.get("measured_margins") or {}).get("gain_margin_db") for r in rows], min),
+        # no margin measured (the bare servo: no loop to probe) is none, not an infinite one
+        "worst_measured_gm_db": None if all(r.get("measured_margins") is None for r in rows)
+        else _worst([(r.get("measured_margins") or {}).get("gain_margin_db") for r in rows], min),
         "episodes": int(first["episodes"]),
         "P": first["P"], "I": first["I"], "D": first["D"],
     }  # fmt: skip
 
 
+def _bare_servo(data: dict[str, Any], plants: list[str]) -> dict[str, Any] | None:
+    """The bare servo's row on every plant (its reference rows), or ``None``."""
+    per = {}
+    for p in plants:
+        ref = ((data["plants"].get(p) or {}).get("references") or {}).get(BARE)
+        if ref is None:
+            return None
+        per[p] = ref
+    return per
+
+
+def tie_ranks(order: list[str], vs_best: dict[str, dict[str, Any]]) -> tuple[list[str], dict]:
+    """The headline's ranks: ``order`` (by cost, the best first) and each row's Holm-corrected
+    test against the best (``vs_best``: ``verdict`` ``n.s.``, ``better`` or ``worse``). The
+    rows whose difference to the best is not significant share rank 1 (``"1 (tie)"``, the best
+    too); the others follow by cost. Returns the rows in rank order and each row's rank."""
+    if not order:
+        return [], {}
+    tied = [order[0], *(k for k in order[1:] if vs_best[k]["verdict"] == "n.s.")]
+    rest = [k for k in order if k not in tied]
+    word = "1 (tie)" if len(tied) > 1 else "1"
+    ranks = {k: word for k in tied}
+    ranks.update({k: str(len(tied) + i + 1) for i, k in enumerate(rest)})
+    return tied + rest, ranks
+
+
 def _headline(data: dict[str, Any]) -> dict[str, Any]:
     plants = [p for p in data["robust_plants"] if data["plants"].get(p, {}).get("feasible")]
     admitted, refused = [], {}
-    for key, per in data.get("evaluations", {}).items():
-        if next(iter(per.values()))["kind"] not in RANKED_KINDS:
+    candidates: dict[str, dict[str, Any]] = {}
+    bare = _bare_servo(data, plants)
+    if bare is not None:
+        candidates[BARE] = bare
+    candidates.update(data.get("evaluations", {}))
+    for key, per in candidates.items():
+        if key != BARE and next(iter(per.values()))["kind"] not in RANKED_KINDS:
             continue  # a reference row: shown in its plant's table, never ranked
         if set(per) != set(plants):
             refused[key] = "not evaluated on every identification"
@@ -257,7 +297,9 @@ def _headline(data: dict[str, Any]) -> dict[str, Any]:
             refused[key] = reason
             continue
         admitted.append(key)
-    entries = {key: _entry(key, data["evaluations"][key], data, plants) for key in admitted}
+    for key, why in (data.get("no_result") or {}).items():
+        refused[key] = f"no result: {why}"
+    entries = {key: _entry(key, candidates[key], data, plants) for key in admitted}
     order = sorted(entries, key=lambda k: entries[k]["cost"])
     # the headline: the best admitted gain set of each family, every textbook rule on its own
     picks: dict[tuple[str, ...], str] = {}
@@ -268,17 +310,35 @@ def _headline(data: dict[str, Any]) -> dict[str, Any]:
     head = sorted(picks.values(), key=lambda k: entries[k]["cost"])
     baselines = [k for k in order if entries[k]["kind"] == "baseline"]
     best = baselines[0] if baselines else None
+    top = head[0] if head else None
+    bare_costs = (None if bare is None or set(bare) != set(plants)
+                  else [c for p in plants for c in bare[p]["per_seed_cost"]])  # fmt: skip
     family: dict[str, dict[str, Any]] = {}
+    vs_bare: dict[str, dict[str, Any]] = {}
+    vs_top: dict[str, dict[str, Any]] = {}
     for k in order:
+        e = entries[k]
         if best is not None and k != best:
-            entries[k]["vs_best_baseline"] = _test(entries[k]["per_seed_cost"],
-                                                   entries[best]["per_seed_cost"])  # fmt: skip
+            e["vs_best_baseline"] = _test(e["per_seed_cost"], entries[best]["per_seed_cost"])
             if k in head:
-                family[k] = entries[k]["vs_best_baseline"]
-    _holm(family)  # the headline's rows against the best textbook row: one family of tests
-    return {"plants": plants, "order": order, "head": head, "entries": entries,
-            "best_baseline": best, "holm_family": list(family),
-            "not_admitted": refused}  # fmt: skip
+                family[k] = e["vs_best_baseline"]
+        if bare_costs is not None and k != BARE:
+            e["vs_bare_servo"] = _test(e["per_seed_cost"], bare_costs)
+            if k in head:
+                vs_bare[k] = e["vs_bare_servo"]
+        if top is not None and k != top:
+            e["vs_best"] = _test(e["per_seed_cost"], entries[top]["per_seed_cost"])
+            if k in head:
+                vs_top[k] = e["vs_best"]
+    # each column one family of tests over the headline's rows, Holm-corrected
+    _holm(family)
+    _holm(vs_bare)
+    _holm(vs_top)
+    head, ranks = tie_ranks(head, vs_top)
+    return {"plants": plants, "order": order, "head": head, "ranks": ranks, "entries": entries,
+            "best_baseline": best, "best": top, "bare_servo": BARE if bare is not None else None,
+            "holm_family": list(family), "holm_family_bare_servo": list(vs_bare),
+            "holm_family_best": list(vs_top), "not_admitted": refused}  # fmt: skip
 
 
 def _worst(values: list[Any], pick: Any) -> float | None:
@@ -298,11 +358,15 @@ def rank(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _name(key: str) -> str:
+    if key == BARE:
+        return BARE_LABEL
     row, _, on = key.partition(" @ ")
     return f"{row} (tuned on {on})" if on else row
 
 
-def _sign(sign: int) -> str:
+def _sign(sign: int | None) -> str:
+    if sign is None:  # no host loop, no error
+        return "-"
     return "e = r - y" if sign >= 0 else "e = y - r"
 
 
@@ -310,13 +374,15 @@ def _knob(e: dict[str, Any]) -> str:
     k = e.get("knob")
     if not k:
         return "-"
-    return f"{k['meaning'] or k['name']} = {_f(k['value'])}"
+    model = f", designed on {k['design_model']}" if k.get("design_model") else ""
+    return f"{k['meaning'] or k['name']} = {_f(k['value'])}{model}"
 
 
-def _vs(e: dict[str, Any], key: str, best: str | None) -> str:
+def _vs(e: dict[str, Any], key: str, best: str | None, test: str = "vs_best_baseline",
+        itself: str = "best textbook") -> str:  # fmt: skip
     if key == best:
-        return "best textbook"
-    t = e.get("vs_best_baseline")
+        return itself
+    t = e.get(test)
     if not t:
         return "-"
     p = t.get("p_holm", t["p_value"])
@@ -342,18 +408,23 @@ def render_head(data: dict[str, Any]) -> str:
     lines = [
         f"| rank | family | gain set | error sign | P | I | D | knob | cost (mean over {plants}) "
         "| IAE deg·s | to limit | step OS % | worst Ms (hold) | worst GM dB (hold) | "
-        "limit-cycle onset dB | closest to a stop deg | vs best textbook (cost, Holm p) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "limit-cycle onset dB | closest to a stop deg | vs bare servo (cost, Holm p) | "
+        "vs best textbook (cost, Holm p) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    ranks = h.get("ranks") or {}
     for i, key in enumerate(h.get("head", h["order"])):
         e = h["entries"][key]
         lines.append(
-            f"| {i + 1} | {e.get('family', '-')} | {_name(key)} | {_sign(e.get('sign', 1))} | "
+            f"| {ranks.get(key, i + 1)} | {e.get('family', '-')} | {_name(key)} | "
+            f"{_sign(e.get('sign'))} | "
             f"{_f(e['P'], 4)} | {_f(e['I'], 4)} | {_f(e['D'], 3)} | {_knob(e)} | "
             f"{_f(e['cost'], 4)} | {_f(e['iae'], 4)} | {_pct(e.get('to_limit'))} | "
             f"{_f(e.get('worst_step_overshoot_pct'))} | {_linear(e, 'worst_ms')} | "
             f"{_linear(e, 'worst_gm_db')} | {_f(e['worst_measured_gm_db'])} | "
-            f"{_f(e.get('closest_to_stop_deg'))} | {_vs(e, key, h['best_baseline'])} |"
+            f"{_f(e.get('closest_to_stop_deg'))} | "
+            f"{_vs(e, key, h.get('bare_servo'), 'vs_bare_servo', 'itself')} | "
+            f"{_vs(e, key, h['best_baseline'])} |"
         )
     return "\n".join(lines)
 
@@ -436,6 +507,22 @@ def _plant_table(
         lines += ["", "Not ranked:"]
         lines += [f"* `{n}`: {why}" for n, why in info["not_ranked"].items()]
     return lines
+
+
+def _head_notes() -> str:
+    """The headline's columns that need words: the rank, the two tests and to limit."""
+    return (
+        "**rank**: every row is tested against the row of least mean cost, paired over the "
+        "(plant, held-out seed) runs (two-sided Wilcoxon signed-rank test, Holm-corrected over "
+        f"the table); the rows whose difference is not significant (p >= {ALPHA:g}) share rank "
+        '1, marked "1 (tie)", and the others follow by cost. **vs bare servo** and **vs best '
+        "textbook**: a row's mean cost difference to that row over the same runs, paired, and its "
+        "Holm-corrected p (each column one family of tests); better or worse only where p < "
+        f"{ALPHA:g}, n.s. otherwise. **to limit**: the share of the gap from the bare servo's "
+        "IAE (0 %) to the limit's (100 %: the least IAE any command sequence reaches, a linear "
+        "program on the ideal model) that a row closes, mean over the plants; a negative value is "
+        "an IAE larger than the bare servo's: tracking worse than no host loop at all."
+    )
 
 
 def _band_words(meta: dict[str, Any] | None) -> str:
@@ -529,8 +616,9 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
     lines = [
         "# Benchmark: PID tuners and learned controllers for the hobby-servo gripper",
         "",
-        f"Generated by `{meta['command']}`. Profile `{meta['profile']}` (grip step 92 -> 21 "
-        f"deg at 1 s, un-grip at 10 s, 20 s), actual-gripper preset `{meta['disturbance']}` "
+        f"Generated by `{meta['command']}`{_reruns(meta)}. Profile `{meta['profile']}` (grip "
+        "step 92 -> 21 deg at 1 s, un-grip at 10 s, 20 s), actual-gripper preset "
+        f"`{meta['disturbance']}` "
         f"(stops beyond 21 and 92 deg, so overshoot is visible), {meta['n_seeds']} held-out "
         "seeds. Provenance (commit, date, version, machine, wall times): "
         "`benchmark.provenance.json`.",
@@ -540,10 +628,14 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
         _rule_words(meta) + f" Admitted only if it meets the rule on every identification "
         f"({', '.join(h['plants'])}); test1 is left out: it cannot follow the step profile "
         "within the servo's range (below). One row per family (each textbook rule with its knob "
-        "set under the rule), the best admitted of it; tested against the best textbook row, "
-        "paired over the held-out seeds of every plant, Holm-corrected over the table. An RL "
-        "controller's P, I, D are the PID its policy corrects (the base); it has no linear Ms "
-        "or GM (-), its measured limit-cycle onset is judged instead. " + _band_words(meta),
+        "set under the rule and its design model chosen, the best admitted of it), and the "
+        "**bare servo** (command = reference: the servo's own position loop, no host loop), "
+        "scored and judged like every row (its loop is open: Ms 1, no gain margin to miss). An "
+        "RL controller's P, I, D are the PID its policy corrects (the base); it has no linear Ms "
+        "or GM (-), its measured limit-cycle onset is judged instead. "
+        + _head_notes()
+        + " "
+        + _band_words(meta),
         "",
         render_head(data),
         "",
@@ -583,8 +675,10 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
         "frictionless with the servo's hold, swings on its own (`tuners/probe.py`). For a PID it "
         "is the linear gain margin (section above); for a learned controller, the only margin "
         "it has, and not a gain margin: its loop is not linear.",
-        "* **to limit**: the share of the gap from command = reference's IAE to the limit's "
-        "(the least IAE any command sequence reaches) a row closes, mean over the plants.",
+        "* **to limit**: the share of the gap from command = reference's IAE (the bare servo, "
+        "0 %) to the limit's (the least IAE any command sequence reaches, 100 %) a row closes, "
+        "mean over the plants; negative: a larger IAE than the bare servo's, tracking worse than "
+        "no host loop.",
         "* `*-fixed`: a textbook rule at its fixed setting (e.g. SIMC's tau_c = theta), shown "
         "for reference.",
         "",
@@ -596,6 +690,15 @@ def render_markdown(data: dict[str, Any], meta: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _reruns(meta: dict[str, Any]) -> str:
+    """The rows run again since (``--rerun``), with their commands, in words."""
+    parts = [f"`{r['command']}` ({', '.join(r['rows'])})" for r in meta.get("reruns") or []]
+    if not parts:
+        return ""
+    return (", then these rows run again over its stored per-seed results, every other row "
+            "kept as stored: " + "; ".join(parts))  # fmt: skip
 
 
 def _admitted_table(data: dict[str, Any]) -> list[str]:
@@ -678,7 +781,7 @@ def _moved_section(data: dict[str, Any]) -> list[str]:
     h = data["leaderboard"]["headline"]
     plants = h["plants"]
     moved = _moved_verdict(sm, plants)
-    before = set(h["order"])
+    before = set(h["order"]) - {BARE}  # the bare servo is not judged again there
     after = {k for g, k in moved["entries"] if g == "rows"}
     gained = sorted(after - before)
     lost = sorted(before - after)
@@ -711,26 +814,68 @@ def _moved_section(data: dict[str, Any]) -> list[str]:
     return lines
 
 
+_WORDS = {
+    "better": "beats {what} significantly",
+    "worse": "is significantly worse than {what}",
+    "n.s.": "does not differ significantly from {what}",
+}
+
+
+def _said(t: dict[str, Any], what: str) -> str:
+    """A test in words: the verdict, the cost difference and the Holm p."""
+    return (_WORDS[t["verdict"]].format(what=what)
+            + f" (cost {t['mean_cost_difference']:+.3g}, Holm p = "
+            f"{t.get('p_holm', t['p_value']):.2g})")  # fmt: skip
+
+
 def _verdict_words(data: dict[str, Any]) -> list[str]:
-    """What a reader should take away, in words, computed from the numbers: the headline's
-    winner and its test against the best textbook row; the searched and learned families'
-    standing; per plant, the searches against the best textbook design."""
+    """What a reader should take away, in words, computed from the tests (never "best" for a
+    row that ties): the rank-1 rows; each family against the bare servo and against the
+    lowest-cost textbook row; per plant, the searches against the lowest-cost textbook design."""
     lb = data["leaderboard"]
     h = lb["headline"]
     out = []
     head = h.get("head", [])
+    ranks = h.get("ranks") or {}
     best = h["best_baseline"]
-    if head:
-        top = h["entries"][head[0]]
-        out.append(f"* **Best deployable gain set for the gripper:** `{_name(head[0])}` "
-                   f"(cost {top['cost']:.4g}, IAE {top['iae']:.4g} deg·s"
-                   + (f", {100 * top['to_limit']:.0f} % of the way to the limit"
-                      if top.get("to_limit") is not None else "") + ").")  # fmt: skip
+    top = h.get("best", head[0] if head else None)
+    if top is not None:
+        e = h["entries"][top]
+        figures = (f"cost {e['cost']:.4g}, IAE {e['iae']:.4g} deg·s"
+                   + (f", {100 * e['to_limit']:.0f} % of the way to the limit"
+                      if e.get("to_limit") is not None else ""))  # fmt: skip
+        tied = [k for k in head if k != top and ranks.get(k) == ranks.get(top)]
+        if tied:
+            others = "; ".join(
+                f"`{_name(k)}` (cost {h['entries'][k]['cost']:.4g}, "
+                f"{h['entries'][k]['vs_best']['mean_cost_difference']:+.3g}, Holm p = "
+                f"{h['entries'][k]['vs_best'].get('p_holm', 1.0):.2g})"
+                for k in tied
+            )
+            out.append(f"* **No single best gain set for the gripper:** `{_name(top)}` has the "
+                       f"least mean cost ({figures}), but {len(tied)} row(s) do not differ from "
+                       f"it significantly and share rank 1: {others}.")  # fmt: skip
+        else:
+            out.append(f"* **Best deployable gain set for the gripper:** `{_name(top)}` "
+                       f"({figures}), significantly better than every other row of the "
+                       "headline.")  # fmt: skip
+    bare = h.get("bare_servo")
+    if bare is not None:
+        if bare in h["entries"]:
+            e = h["entries"][bare]
+            out.append(f"* **The bare servo** (command = reference, no host loop) is admitted: "
+                       f"cost {e['cost']:.4g}, IAE {e['iae']:.4g} deg·s, rank "
+                       f"{ranks.get(bare, '-')}.")  # fmt: skip
+        else:
+            why = h["not_admitted"].get(bare, "")
+            out.append(f"* **The bare servo** (command = reference, no host loop) is not "
+                       f"admitted: {why}.")  # fmt: skip
     if best is not None:
         b = h["entries"][best]
-        out.append(f"* **Best textbook design:** `{_name(best)}` ({_knob(b)}; cost "
+        out.append(f"* **Textbook design of least cost:** `{_name(best)}` ({_knob(b)}; cost "
                    f"{b['cost']:.4g}).")  # fmt: skip
     for family, label in (
+        ("textbook", "The textbook design"),
         ("optuna", "Optuna"),
         ("rl-tune", "The RL PID tuner"),
         ("rl-controller", "The RL controller"),
@@ -738,19 +883,21 @@ def _verdict_words(data: dict[str, Any]) -> list[str]:
     ):
         keys = [k for k in head if h["entries"][k]["family"] == family]
         if not keys:
-            out.append(f"* {label}: no admitted row.")
+            if family != "textbook":
+                out.append(f"* {label}: no admitted row.")
             continue
-        e = h["entries"][keys[0]]
-        t = e.get("vs_best_baseline")
-        if t is None:
+        key = best if family == "textbook" and best in keys else min(
+            keys, key=lambda k: h["entries"][k]["cost"])  # fmt: skip
+        e = h["entries"][key]
+        parts = []
+        if e.get("vs_bare_servo") is not None:
+            parts.append(_said(e["vs_bare_servo"], "the bare servo"))
+        if e.get("vs_best_baseline") is not None:
+            parts.append(_said(e["vs_best_baseline"], "the textbook design of least cost"))
+        if not parts:
             continue
-        word = {"better": "beats the best textbook design significantly",
-                "worse": "is significantly worse than the best textbook design",
-                "n.s.": "does not differ significantly from the best textbook design"}[
-            t["verdict"]]  # fmt: skip
-        out.append(f"* {label} (`{_name(keys[0])}`, cost {e['cost']:.4g}) {word}")
-        out[-1] += (f" (cost {t['mean_cost_difference']:+.3g}, Holm p = "
-                    f"{t.get('p_holm', t['p_value']):.2g}).")  # fmt: skip
+        out.append(f"* {label} (`{_name(key)}`, cost {e['cost']:.4g}) " + "; it ".join(parts)
+                   + ".")  # fmt: skip
     for plant, info in lb["per_plant"].items():
         base = info["best_baseline"]
         for name in ("optuna", "rl-tune", "rl-controller"):
@@ -759,13 +906,11 @@ def _verdict_words(data: dict[str, Any]) -> list[str]:
             t = info["tests"][name].get(base)
             if t is None:
                 continue
-            word = {"better": f"beats the best textbook design `{base}` significantly",
-                    "worse": f"is significantly worse than the best textbook design `{base}`",
-                    "n.s.": f"does not beat the best textbook design `{base}` significantly"}[
-                t["verdict"]]  # fmt: skip
-            out.append(f"* {plant}, tuned for it alone: `{name}` {word} (cost "
-                       f"{t['mean_cost_difference']:+.3g}, Holm p = "
-                       f"{t.get('p_holm', t['p_value']):.2g}).")  # fmt: skip
+            out.append(
+                f"* {plant}, tuned for it alone: `{name}` "
+                + _said(t, f"the textbook design of least cost `{base}`")
+                + "."
+            )
     return ["In words (computed from the tables):", "", *out] if out else []
 
 

@@ -25,6 +25,7 @@ from tuners.interface import Tuned
 from tuners.probe import measure_margins, pid_runner
 
 __all__ = [
+    "bare_servo_grasp",
     "command_reference_row",
     "grip_summary",
     "limit_row",
@@ -219,8 +220,38 @@ def run_admission(inputs: cli.Inputs, metrics: Any) -> dict[str, Any]:
     return Admission.build(inputs.objective.constraints.limits(), checks=checks).row(0)
 
 
+def bare_servo_grasp(inputs: cli.Inputs) -> tuple[float, str]:
+    """The grasp scenario (:class:`gripper_env.evaluation.grasp.GraspScenario`) for the bare
+    servo (no host loop: the servo commanded the close angle) over the held-out seeds, as the
+    admission rule takes it for a PID: the fraction of runs that lost the object, and what
+    failed first (``overload``, ``force`` or ``diverged``, `` on <plant>``; ``""`` if every
+    run held)."""
+    from gripper_env.evaluation.grasp import GraspScenario, simulate_grasp, summarize_grasp
+
+    s = inputs.settings
+    sc = GraspScenario()
+    run = simulate_grasp(inputs.plant, inputs.disturbance, None, sc, seeds=s.seeds.seeds(),
+                         randomize=s.randomize)  # fmt: skip
+    held, reason = [], ""
+    for b in range(len(run.seeds)):
+        one = summarize_grasp(
+            run.t_s, run.force_n[b], run.touching[b], sc, stall_force=run.stall_force_n,
+            overload_at_s=[run.overload_at_s[b]], gripper="", controller="",
+            valid=run.stable[b : b + 1], peak_heat=[run.peak_heat[b]],
+        )  # fmt: skip
+        held.append(one.held)
+        if not one.held and not reason:
+            why = ("diverged" if not run.stable[b] else
+                   "overload" if run.overload_at_s[b] is not None else "force")  # fmt: skip
+            reason = f"{why} on {inputs.plant.name}"
+    return 1.0 - float(np.mean(held)), reason
+
+
 def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any]:
-    """``command = reference``: the servo's own position loop, no feedback from the host."""
+    """``command = reference``: the servo's own position loop, no feedback from the host (the
+    bare servo). Judged by the admission rule like every row: its runs (settled, no stall,
+    inside the stops), the grasp scenario (when the objective asks for it) and, for a loop
+    that is open, an Ms of 1 and no gain margin to miss."""
     s = inputs.settings
     seeds = s.seeds.seeds()
     traj = simulate(inputs.plant, inputs.reference, disturbance=inputs.disturbance, seeds=seeds,
@@ -231,6 +262,11 @@ def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any
     ideal_m, ideal_c = score_trajectory(ideal_traj, inputs.objective, inputs.ideal)
     grip = simulate(inputs.plant, inputs.reference, disturbance=grip_preset, seeds=seeds,
                     randomize=s.randomize)  # fmt: skip
+    admission = run_admission(inputs, metrics)
+    if inputs.objective.constraints.grasp:
+        from gripper_env.evaluation.admission import with_grasp
+
+        admission = with_grasp(admission, *bare_servo_grasp(inputs))
     return {
         "kind": "reference",
         "tuned_on": [],
@@ -240,7 +276,7 @@ def command_reference_row(inputs: cli.Inputs, grip_preset: str) -> dict[str, Any
                        "gain_margin_db": None, "phase_margin_deg": None,
                        "note": "open loop: the sensitivity is 1 at every frequency"},
         "measured_margins": None,
-        "admission": run_admission(inputs, metrics),
+        "admission": admission,
         "metrics": {"ideal": with_cost(ideal_m, ideal_c)[0], "actual": summarize_runs(runs)},
         "per_seed_cost": [r["cost"] for r in runs],
         "per_seed_iae": [r["iae"] for r in runs],
