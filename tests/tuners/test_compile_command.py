@@ -30,3 +30,18 @@ def test_bad_jobs_or_shares_are_refused(argv, capsys):
         main(argv)
     assert caught.value.code == 2
     assert argv[0] in capsys.readouterr().err
+
+
+def test_the_compile_says_what_comes_before_it_starts_and_each_unit_as_it_is_done(monkeypatch):
+    """The test run prints these lines before pytest's header (tests/conftest.py): the first
+    names every unit before any runs, then one line per unit as soon as it is done."""
+    import tuners.compile as compile_module
+
+    lines: list[str] = []
+    units = {name: (lambda name=name: lines.append(f"ran {name}")) for name in ("a", "b", "c")}
+    monkeypatch.setattr(compile_module, "_units", lambda: units)
+    compile_module.warm_up(lines.append)
+    assert lines[0].startswith("  3 kernel units to compile or load: a, b, c")
+    assert [line.split(":")[0].strip() for line in lines[1:]] == [
+        "ran a", "[1/3] a", "ran b", "[2/3] b", "ran c", "[3/3] c",
+    ]  # fmt: skip
