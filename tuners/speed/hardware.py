@@ -1,7 +1,8 @@
 """Speed of the host <-> board link over the virtual device's pseudo-terminal.
 
-``python -m tuners.speed.hardware [--duration 60] [--speeds 1,max]`` writes
-``results/hardware_speed.md`` and ``results/hardware_speed.json``:
+``python -m tuners.speed.hardware [--duration 60] [--speeds 1,max] [--out DIR]`` writes
+``hardware_speed.md`` and ``hardware_speed.json`` into ``DIR`` (default ``runs/``; the committed
+ones with ``--out results``):
 
 * round-trip latency HEARTBEAT -> STATUS over the pty (median, p99), board at real time;
 * achievable host-in-the-loop rate: synchronous round trips per second (each one a SETPOINT
@@ -116,7 +117,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tuners.speed.hardware")
     parser.add_argument("--duration", type=float, default=60.0, help="closed-loop run (s)")
     parser.add_argument("--speeds", default="max,1", help="comma-separated speeds (1, max...)")
-    parser.add_argument("--out", default="results", help="output folder (default: results)")
+    parser.add_argument(
+        "--out",
+        default="runs",
+        help="output folder (default: runs; the committed figures: --out results)",
+    )
     args = parser.parse_args(argv)
     speeds = [parse_speed(s) for s in args.speeds.split(",")]
     started = time.perf_counter()

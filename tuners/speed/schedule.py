@@ -11,7 +11,8 @@ vector step. The repeats of both sides are interleaved; figures are medians, and
 spread is over the repeats' own ratios. Everything is measured twice: on the machine as it is,
 and with one busy process beside it (a single-threaded busy loop this script starts and stops):
 the shared machine's case that dynamic scheduling is for, a thread that runs slower than the
-other. Writes ``results/schedule_speed.md``.
+other. Writes ``schedule_speed.md`` into ``--out`` (default ``runs/``; the committed page with
+``--out results``).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.kernel import _ADVANCE, advance_row
 from gripper_env.sim.schedule import fetch_add, n_workers, rows_per_chunk
 
-RESULTS = Path(__file__).resolve().parents[2] / "results"
+RUNS = Path("runs")  # of the working directory, as every command (committed: --out results)
 GAINS = (1.0, 9.0, -0.001, 100.0)  # the paper's tuned gains on TF test2
 OPTIONS = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
 
@@ -172,7 +173,12 @@ With one busy process beside it (one of the two threads gets about half a core):
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=21, help="interleaved repeats per case")
-    parser.add_argument("--out", type=Path, default=RESULTS, help="folder for the results page")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=RUNS,
+        help="folder for the results page (default: runs; committed: --out results)",
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     idle = measure(args.repeats)
