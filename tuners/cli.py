@@ -32,7 +32,7 @@ from gripper_env.io.files import (
     write_group,
     write_result_json,
 )
-from tuners.conventions import check_config_names, command_parser
+from tuners.conventions import check_config_names, command_parser, split_list
 
 # The library is imported where it is used: a command's --help, --version and a usage error or
 # an unknown name answer before the simulation core, python-control and matplotlib load.
@@ -280,7 +280,7 @@ def plants_arg(value: str | None) -> list[str]:
 
     if value is None:
         return []
-    plants = [p.strip() for p in value.split(",") if p.strip()]
+    plants = split_list(value, "--plants")
     if len(plants) < 2:
         raise ValueError(f"--plants needs at least two plants separated by commas, got {value!r}")
     for p in plants:

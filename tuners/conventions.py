@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 __all__ = [
+    "MAX_LIST_ITEMS",
     "HelpFormatter",
     "Parser",
     "add_version",
@@ -38,7 +39,29 @@ __all__ = [
     "conform",
     "invoked_as",
     "program_name",
+    "split_list",
 ]
+
+#: The most names a comma-separated list option may hold (``--plants``): every evaluation runs
+#: each plant, so a list's length multiplies a run's cost (the robust task takes three).
+MAX_LIST_ITEMS = 16
+
+
+def split_list(value: str, option: str, cap: int = MAX_LIST_ITEMS) -> list[str]:
+    """The names of the comma-separated list ``value`` of option ``option``, refused, before
+    any is looked at, when it holds more than ``cap``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the option, how many were given and the cap.
+    """
+    if value.count(",") >= cap:
+        raise ValueError(
+            f"{option}: {value.count(',') + 1} names, more than the {cap} a list may hold"
+        )
+    return [v.strip() for v in value.split(",") if v.strip()]
+
 
 #: The name the umbrella command ran a command under (``gripper optuna``), if it did.
 _INVOKED_AS: list[str] = []
@@ -182,9 +205,8 @@ def check_config_names(args: argparse.Namespace, options: Iterable[str] = ()) ->
     for dest in options:
         value = getattr(args, dest, None)
         if isinstance(value, str):
-            for name in (v.strip() for v in value.split(",")):
-                if name:
-                    check(dest, "plants", name)
+            for name in split_list(value, f"--{dest.replace('_', '-')}"):
+                check(dest, "plants", name)
     profile = getattr(args, "profile", None)
     if isinstance(profile, str | os.PathLike):
         _check_profile(os.fspath(profile))

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.config import MAX_DATA_BYTES
+from gripper_env.io.config import MAX_DATA_BYTES, ConfigError, read_bounded
 
 __all__ = [
     "MAX_NAME_CHARS",
@@ -557,7 +557,11 @@ def result_json_text(obj: Any, indent: int = 2) -> str:
 
 
 def read_format_json(
-    path: str | os.PathLike[str], fmt: str, what: str, error: type[Exception] = ValueError
+    path: str | os.PathLike[str],
+    fmt: str,
+    what: str,
+    error: type[Exception] = ValueError,
+    option: str | None = None,
 ) -> dict[str, Any]:
     """Read a JSON object that declares ``"format": fmt`` (a gains file, a calibration).
 
@@ -573,17 +577,17 @@ def read_format_json(
         Raised, with a one-line message that names the file, when the file cannot be read, is
         larger than :data:`gripper_env.io.config.MAX_DATA_BYTES`, is not JSON, or is not of that
         format.
+    option : str, optional
+        The command-line option that named the file, first in a refusal of its kind or size.
     """
     p = Path(path)
     try:
         if p.is_dir():
             raise error(f"{p}: is a folder; give a {what}")
-        if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:
-            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
-        with p.open("rb") as f:  # a device or a pipe has no size: read at most the limit
-            raw = f.read(MAX_DATA_BYTES + 1)
-        if len(raw) > MAX_DATA_BYTES:
-            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
+        try:  # a pipe or a device refused unopened, a large file before a byte is read
+            raw = read_bounded(p, MAX_DATA_BYTES, what, option)
+        except ConfigError as exc:
+            raise error(str(exc)) from None
         content = json.loads(raw.decode("utf-8"))
     except OSError as exc:
         raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None

@@ -48,6 +48,7 @@ from gripper_env.sysid.tfest import TFEstimate, tfest
 from gripper_env.sysid.zoh import zoh_response
 
 if TYPE_CHECKING:
+    from gripper_env.hardware.host.calibration import Calibration
     from gripper_env.hardware.host.experiment import Recording
 
 __all__ = [
@@ -224,8 +225,8 @@ class DeviceRecorder:
     ----------
     port : str
         Serial port (or the virtual board's pty).
-    calibration : path, optional
-        Calibration file (default: the rig's default calibration path).
+    calibration : path or Calibration, optional
+        Calibration file (default: the rig's default calibration path), or one already read.
     boot_wait_s, timeout_s : float
         Seconds to let the board boot after opening the port, and to wait for an answer.
     progress : callable, optional
@@ -242,7 +243,7 @@ class DeviceRecorder:
     """
 
     port: str
-    calibration: str | os.PathLike[str] | None = None
+    calibration: str | os.PathLike[str] | Calibration | None = None
     boot_wait_s: float = 2.0
     timeout_s: float = 0.5
     progress: Callable[[str], None] | None = None
@@ -297,15 +298,18 @@ class DeviceRecorder:
 
     def _run(self, reference: Reference, path: Path) -> Recording:
         """One run of the profile."""
-        from gripper_env.hardware.host.calibration import load_calibration
+        from gripper_env.hardware.host.calibration import Calibration, load_calibration
         from gripper_env.hardware.host.device import GripperDevice
         from gripper_env.hardware.host.experiment import CsvLog, run_profile
         from gripper_env.hardware.protocol import Mode
 
+        calibration = self.calibration
+        if not isinstance(calibration, Calibration):
+            calibration = load_calibration(calibration)
         log = CsvLog(path, LOG_COLUMNS, _log_rows)
         with GripperDevice(
             self.port,
-            calibration=load_calibration(self.calibration),
+            calibration=calibration,
             boot_wait_s=self.boot_wait_s,
             timeout_s=self.timeout_s,
         ) as device:

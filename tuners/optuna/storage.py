@@ -35,10 +35,16 @@ from typing import Any
 import optuna
 from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
 
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import ConfigError, check_input
 from tuners.settings import OptunaSettings
 
-__all__ = ["FileLock", "JournalFile", "StudyStorage", "open_storage", "redact"]
+__all__ = ["MAX_STORAGE_BYTES", "FileLock", "JournalFile", "StudyStorage", "open_storage", "redact"]
+
+#: The largest one-machine storage (journal file or SQLite database) a study opens (bytes): a
+#: study of the default 3 seeds x 2000 trials holds a few MiB of either (about 1 KiB a trial).
+#: Optuna replays a journal whole when it opens it, so a larger one would cost minutes before
+#: the first trial; a device (``/dev/zero``) or a named pipe is refused from its stat alone.
+MAX_STORAGE_BYTES = 256 << 20
 
 
 def redact(url: str) -> str:
@@ -319,6 +325,7 @@ def _open_journal(path_text: str) -> StudyStorage:
     path = Path(path_text)
     if path.is_dir():
         raise ConfigError(f"--storage {path_text!r} is a folder; give a journal file path")
+    check_input(path, MAX_STORAGE_BYTES, "journal storage", "--storage", missing_ok=True)
     try:
         lock = FileLock(Path(f"{path}.flock"))
         with lock:
@@ -347,6 +354,8 @@ def _open_sqlite(url: str) -> StudyStorage:
     if not file.parent.is_dir():
         folder = str(file.parent)
         raise ConfigError(f"cannot open storage {url!r}: folder {folder!r} does not exist")
+    for part in (file, Path(f"{file}-wal"), Path(f"{file}-journal")):  # what SQLite reads
+        check_input(part, MAX_STORAGE_BYTES, "SQLite storage", "--storage", missing_ok=True)
     lock = FileLock(Path(f"{file}.flock"))
     with lock:  # workers started together would race to create the tables
         storage = _rdb(url, None)

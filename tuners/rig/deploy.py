@@ -183,6 +183,7 @@ def prediction(
 
 
 def _run(args: argparse.Namespace) -> int:
+    from gripper_env.hardware.host.calibration import load_calibration
     from gripper_env.model.gains_file import GainsFileError, load_gains_file
 
     loaded = load_gains_file(args.gains)
@@ -191,9 +192,9 @@ def _run(args: argparse.Namespace) -> int:
     safe_name(tuner or "gains", "tuner")
     if plant:
         safe_name(plant, "plant name")
+    calibration = load_calibration(args.calibration, "--calibration")  # before the gate's work
     from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.evaluation.objective import load_objective
-    from gripper_env.hardware.host.calibration import load_calibration
     from gripper_env.hardware.host.device import GripperDevice
     from gripper_env.hardware.host.experiment import CsvLog, run_profile
     from gripper_env.hardware.protocol import Mode
@@ -220,7 +221,6 @@ def _run(args: argparse.Namespace) -> int:
         name = f"deploy_{safe_name(plant, 'plant name')}_{safe_name(tuner or 'gains', 'tuner')}"
         out_dir = path_in(DEFAULT_OUT / "hardware", f"{name}_{reference.name}", what="profile")
     check_output_folder(out_dir, "--output-dir")  # before the board moves
-    calibration = load_calibration(args.calibration)
     out_dir.mkdir(parents=True, exist_ok=True)
     # the log's columns: a Trajectory's CSV columns
     log = CsvLog(out_dir / "response.csv", Trajectory.CSV_COLUMNS, deploy_rows)

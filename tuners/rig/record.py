@@ -85,11 +85,14 @@ def _run(args: argparse.Namespace) -> int:
     default = path_in(DEFAULT_OUT / "hardware", f"record_{reference.name}.csv", what="profile")
     output = Path(args.output) if args.output else default
     check_output_file(output, "--output", ".csv")  # before the board moves
+    from gripper_env.hardware.host.calibration import load_calibration
+
+    calibration = load_calibration(args.calibration, "--calibration")  # before the port opens
     print(f"recording {reference.name} ({reference.duration_s:g} s of device time) on "
           f"{args.port}...", file=sys.stderr, flush=True)  # fmt: skip
     from gripper_env.sysid.experiments import DeviceRecorder  # after parsing: --help is light
 
-    recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout,
+    recorder = DeviceRecorder(args.port, calibration, args.boot_wait, args.timeout,
                               fraction=every_s(10.0, reference.duration_s),
                               attempts=args.attempts,
                               warn=lambda m: print(m, file=sys.stderr, flush=True))  # fmt: skip

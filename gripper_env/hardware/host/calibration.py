@@ -155,8 +155,11 @@ def save_calibration(cal: Calibration, path: str | os.PathLike[str] | None = Non
     return write_json(p, cal.to_dict())
 
 
-def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
-    """Read a calibration file (default :func:`default_calibration_path`).
+def load_calibration(
+    path: str | os.PathLike[str] | None = None, option: str | None = None
+) -> Calibration:
+    """Read a calibration file (default :func:`default_calibration_path`; ``option``, the
+    command-line option that named it, for the refusals).
 
     Raises
     ------
@@ -168,7 +171,7 @@ def load_calibration(path: str | os.PathLike[str] | None = None) -> Calibration:
         raise CalibrationError(
             f"no calibration file at {p}: run 'python -m tuners.rig.calibrate --port PORT' first"
         )
-    content = read_format_json(p, FORMAT, "calibration file", CalibrationError)
+    content = read_format_json(p, FORMAT, "calibration file", CalibrationError, option)
     if content.get("format_version") != FORMAT_VERSION:
         raise CalibrationError(
             f"{p}: calibration format version {content.get('format_version')!r} is not "
