@@ -584,6 +584,8 @@ def read_format_json(
     try:
         if p.is_dir():
             raise error(f"{p}: is a folder; give a {what}")
+        if not p.exists():
+            raise error(f"cannot read {what} {p}: No such file or directory")
         try:  # a pipe or a device refused unopened, a large file before a byte is read
             raw = read_bounded(p, MAX_DATA_BYTES, what, option)
         except ConfigError as exc:

@@ -183,7 +183,8 @@ def prediction(
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gripper_env.hardware.host.calibration import load_calibration
+    from gripper_env.hardware.host.calibration import default_calibration_path, load_calibration
+    from gripper_env.io.config import MAX_DATA_BYTES, check_input
     from gripper_env.model.gains_file import GainsFileError, load_gains_file
 
     loaded = load_gains_file(args.gains)
@@ -192,7 +193,12 @@ def _run(args: argparse.Namespace) -> int:
     safe_name(tuner or "gains", "tuner")
     if plant:
         safe_name(plant, "plant name")
-    calibration = load_calibration(args.calibration, "--calibration")  # before the gate's work
+    # a pipe, a device or an oversized file as the calibration: refused before the gate's work
+    # (a missing one after it: the gate's verdict on the gains stands without a rig)
+    check_input(
+        Path(args.calibration).expanduser() if args.calibration else default_calibration_path(),
+        MAX_DATA_BYTES, "calibration file", "--calibration", missing_ok=True,
+    )  # fmt: skip
     from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.evaluation.objective import load_objective
     from gripper_env.hardware.host.device import GripperDevice
@@ -221,6 +227,7 @@ def _run(args: argparse.Namespace) -> int:
         name = f"deploy_{safe_name(plant, 'plant name')}_{safe_name(tuner or 'gains', 'tuner')}"
         out_dir = path_in(DEFAULT_OUT / "hardware", f"{name}_{reference.name}", what="profile")
     check_output_folder(out_dir, "--output-dir")  # before the board moves
+    calibration = load_calibration(args.calibration, "--calibration")
     out_dir.mkdir(parents=True, exist_ok=True)
     # the log's columns: a Trajectory's CSV columns
     log = CsvLog(out_dir / "response.csv", Trajectory.CSV_COLUMNS, deploy_rows)
