@@ -339,6 +339,42 @@ def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp
 
 
 @pytest.mark.slow
+def test_a_result_its_plot_and_its_provenance_are_written_together(small_disk, tmp_path):
+    """Issue 45: on an 80 KiB disk the gains file (18 KB) and its plot (59 KB) fit and their
+    provenance sidecar did not, and the two were left without it; now none of the three is
+    written, and the one line names the file that did not fit."""
+    disk = small_disk(80)
+    proc = _run_command("tuners.manual", "--plant", "test2", "--gains", "paper-tuned",
+                        "--out", disk, cwd=tmp_path)  # fmt: skip
+    _one_line_no_space(proc)
+    assert str(disk) in proc.stderr
+    assert [p for p in disk.rglob("*") if p.is_file()] == []
+
+
+@pytest.mark.slow
+def test_a_full_disk_under_sqlite_is_one_line_naming_the_storage(small_disk, filled, tmp_path):
+    """Issue 45: SQLite's "database or disk is full" reached the user as 69 lines of three
+    chained tracebacks (Optuna's StorageInternalError), naming neither the disk nor the file.
+    Now one line names the storage and the disk's free space, and the trials finished before
+    stay in the database, readable by Optuna."""
+    import optuna
+
+    disk = small_disk(1024)
+    filled(disk, leave_bytes=360 * 1024)
+    url = f"sqlite:///{disk}/study.db"
+    proc = _run_command("tuners.optuna", "--plant", "test2", "--trials", "2000",
+                        "--search-seeds", "1", "--out", disk, "--storage", url, "--no-progress",
+                        cwd=tmp_path)  # fmt: skip
+    lines = [x for x in proc.stderr.strip().splitlines() if not x.startswith("compiling the")]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert len(lines) == 1 and f"--storage {url}: " in lines[0], proc.stderr[-3000:]
+    assert "disk is full" in lines[0] and f"{disk}: " in lines[0]
+    (summary,) = optuna.get_all_study_summaries(url)
+    assert summary.n_trials >= 1
+    assert not (disk / "test2" / "optuna.json").exists()
+
+
+@pytest.mark.slow
 def test_a_full_disk_keeps_the_optuna_journal_readable(small_disk, filled, tmp_path):
     """The studies' journal on a disk that fills during the search: one line, exit 2, and the
     journal stays readable by Optuna itself, every record whole; with room again, the same

@@ -420,7 +420,9 @@ def write_result(
     )
     # one sidecar for the run (<tuner>.provenance.json), or the enclosing run's (the benchmark's)
     command = (content.get("provenance") or {}).get("command")
-    with collect_provenance(folder, tuner, command=command), write_group():  # both or neither
+    # the JSON, the plot and the sidecar all or none (the sidecar is written as the run ends,
+    # inside the group)
+    with write_group(), collect_provenance(folder, tuner, command=command):
         plot_response(inputs, ev, title, folder / f"{tuner}.png")
         path = write_result_json(folder / f"{tuner}.json", content)
     return path
@@ -560,3 +562,10 @@ def run(main: Callable[[list[str] | None], int], argv: list[str] | None = None) 
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Exception as exc:  # a study's storage that failed under it (a full disk, SQLite)
+        storage = sys.modules.get("tuners.optuna.storage")
+        line = storage.failure_line(exc) if storage is not None else None
+        if line is None:
+            raise
+        print(f"error: {line}", file=sys.stderr)
+        return EXIT_BAD_INPUT

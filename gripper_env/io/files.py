@@ -169,6 +169,9 @@ def _stage(p: Path, data: bytes) -> str:
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), _mode_for(p))
             f.write(data)
+    except OSError as exc:  # a full disk: named by the file it was for, not the temporary one
+        Path(tmp).unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(p)) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -227,6 +230,10 @@ def write_together(files: Mapping[str | os.PathLike[str], str | bytes]) -> list[
     except BaseException:
         _discard(staged)
         raise
+    run = _RUN.get()
+    if run is not None:  # compared with what the destinations hold before they change
+        for _, p, data in staged:
+            run.wrote(p, data)
     if group is not None:  # renamed when the group's block ends
         group.extend(staged)
     else:
@@ -240,10 +247,7 @@ def _discard(staged: list[tuple[str, Path, bytes]]) -> None:
 
 
 def _commit(staged: list[tuple[str, Path, bytes]]) -> None:
-    run = _RUN.get()
-    for i, (tmp, p, data) in enumerate(staged):
-        if run is not None:
-            run.wrote(p, data)
+    for i, (tmp, p, _data) in enumerate(staged):
         try:
             os.replace(tmp, p)
         except BaseException:
@@ -493,6 +497,10 @@ def collect_provenance(
     A rerun whose files are byte for byte those on disk keeps the sidecar that is there (those
     files are the earlier run's results, reproduced; the sidecar is only touched), so that
     rerunning a command that reproduces its numbers leaves ``git diff`` empty.
+
+    Inside a :func:`write_group` (``with write_group(), collect_provenance(...)``) the sidecar
+    is one of the group's files: the results and their provenance appear together or not at
+    all (a full disk left a result and its plot without their sidecar).
     """
     outer = _RUN.get()
     if outer is not None and not own:

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from tuners import cli
 
 __all__ = ["leaderboard", "load_rows", "main"]
@@ -162,7 +162,7 @@ def _main(argv: list[str] | None = None) -> int:
         from tuners.rl.reference_scores import load_reference
 
         reference = load_reference(args.reference)
-    with collect_provenance(args.out.parent, args.out.stem, command=args.command):
+    with write_group(), collect_provenance(args.out.parent, args.out.stem, command=args.command):
         write_atomic(args.out, leaderboard(rows, reference, str(args.rows)))
     print(f"wrote {args.out} ({len(rows)} rows, {len({r['task'] for r in rows})} tasks)")
     return 0

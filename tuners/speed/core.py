@@ -35,7 +35,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model import pid
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
@@ -207,7 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     if "envs" in figures:
         text += "\n" + envs_speed.markdown(figures["envs"])
     # the machine's platform and library versions, commit and date: speed.provenance.json
-    with collect_provenance(args.out, "speed", command=figures["command"], started=started):
+    with (
+        write_group(),
+        collect_provenance(args.out, "speed", command=figures["command"], started=started),
+    ):
         write_atomic(args.out / "speed.json", json.dumps(figures, indent=2) + "\n")
         write_atomic(args.out / "speed.md", text)
     print(text)

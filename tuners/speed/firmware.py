@@ -57,7 +57,7 @@ from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import Reference, load_reference
 
@@ -588,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = report(result)
     command = " ".join(["python -m tuners.speed.firmware", *(sys.argv[1:] if argv is None
                                                              else argv)])  # fmt: skip
-    with collect_provenance(out, "firmware_speed", command=command, started=started):
+    with write_group(), collect_provenance(out, "firmware_speed", command=command, started=started):
         write_atomic(out / "firmware_speed.json",
                      json.dumps(result, indent=2, default=float) + "\n")  # fmt: skip
         write_atomic(out / "firmware_speed.md", text)

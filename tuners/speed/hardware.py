@@ -35,7 +35,7 @@ from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.twin.firmware import Firmware
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import step_profile
 from tuners.rig.virtual import parse_speed
@@ -163,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     command = " ".join(["python -m tuners.speed.hardware", *(sys.argv[1:] if argv is None
                                                              else argv)])  # fmt: skip
-    with collect_provenance(out, "hardware_speed", command=command, started=started):
+    with write_group(), collect_provenance(out, "hardware_speed", command=command, started=started):
         write_atomic(out / "hardware_speed.json", json.dumps(result, indent=2) + "\n")
         write_atomic(out / "hardware_speed.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

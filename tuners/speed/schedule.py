@@ -30,7 +30,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
 from gripper_env.model.plants import load_plant
@@ -187,7 +187,10 @@ def main(argv: list[str] | None = None) -> int:
         ["python -m tuners.speed.schedule", *(argv if argv is not None else sys.argv[1:])]
     )
     text = markdown(idle, busy, args.repeats, command)
-    with collect_provenance(args.out, "schedule_speed", command=command, started=started):
+    with (
+        write_group(),
+        collect_provenance(args.out, "schedule_speed", command=command, started=started),
+    ):
         write_atomic(args.out / "schedule_speed.md", text)
     print(text)
     return 0

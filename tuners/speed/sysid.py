@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.sim import simulate
 from gripper_env.sysid import identify_actual, tfest
 from gripper_env.sysid.zoh import zoh_response
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         "`tfest` runs BLAS on one thread (threadpoolctl): its solves are small.\n"
     )
     out = Path(args.out)
-    with collect_provenance(out.parent, out.stem, command=command, started=started):
+    with write_group(), collect_provenance(out.parent, out.stem, command=command, started=started):
         write_atomic(out, text)
     print(text)
 
