@@ -182,6 +182,36 @@ def prediction(
     return predicted, float(fit_percent(measured.y[0], predicted.y[0]))
 
 
+def settling_band(
+    measured: Trajectory, calibration: Any, objective: Any, disturbance: str
+) -> dict[str, Any]:
+    """The settling band's floor (deg) for a record of the rig, and how it is made up: the
+    objective's floor on the prediction's preset (the friction band the jaw may rest anywhere
+    in), plus what the reading itself leaves (:func:`~gripper_env.evaluation.metrics.
+    reading_band_deg`: one ADC count of the calibration, and three times the reading's noise).
+    The metrics take ``max(2 % of the move, floor)``; the measured and the predicted response
+    are judged in the same band."""
+    from gripper_env.evaluation.metrics import reading_band_deg
+    from gripper_env.model.disturbances import load_disturbance
+
+    resolution = 71.0 / abs(calibration.adc_at_92_deg - calibration.adc_at_21_deg)  # deg/count
+    reading, noise = reading_band_deg(measured.y[0], resolution)
+    friction = float(objective.settling_band_deg(load_disturbance(disturbance)))
+    floor = friction + reading
+    text = (
+        f"+/-{floor:.2f} deg at least: the {disturbance} preset's friction band {friction:.2f} deg "
+        f"+ the reading's {resolution:.2f}-deg ADC step + 3 x its {noise:.2f}-deg noise; "
+        "2 % of a move where wider"
+    )
+    return {
+        "floor_deg": floor,
+        "friction_band_deg": friction,
+        "adc_step_deg": resolution,
+        "reading_noise_sd_deg": noise,
+        "text": text,
+    }
+
+
 def _run(args: argparse.Namespace) -> int:
     from gripper_env.hardware.host.calibration import default_calibration_path, load_calibration
     from gripper_env.io.config import MAX_DATA_BYTES, check_input
@@ -238,6 +268,7 @@ def _run(args: argparse.Namespace) -> int:
         rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
     predicted, fit = prediction(model, measured, gains, options, args.disturbance)
+    band = settling_band(measured, calibration, load_objective(args.objective), args.disturbance)
     content = {
         "plant": plant,
         "tuner": tuner,
@@ -247,8 +278,9 @@ def _run(args: argparse.Namespace) -> int:
         "disturbance": args.disturbance,
         "stability": report.as_dict(),
         "fit_pct": fit,
-        "measured": compute_metrics(measured).as_dict(),
-        "predicted": compute_metrics(predicted).as_dict(),
+        "settling_band": band,
+        "measured": compute_metrics(measured, settling_band_deg=band["floor_deg"]).as_dict(),
+        "predicted": compute_metrics(predicted, settling_band_deg=band["floor_deg"]).as_dict(),
         "link": {
             "samples": len(rec.samples),
             "missing_samples": measured.missing_samples,
@@ -273,7 +305,8 @@ def _run(args: argparse.Namespace) -> int:
     print(
         f"deployed {tuner or args.gains} on {args.port}: fit {fit:.1f} % to the prediction, "
         f"grip overshoot {m['grip']['overshoot_pct']:.1f} %, settling "
-        f"{m['grip']['settling_time_s']:.3g} s, {rec.frames_lost} frames lost -> {out_dir}"
+        f"{m['grip']['settling_time_s']:.3g} s (within {band['text']}), {rec.frames_lost} "
+        f"frames lost -> {out_dir}"
     )
     return 0
 
