@@ -34,7 +34,7 @@ from gripper_env.io.files import path_in, safe_name, save_figure, write_json
 from gripper_env.model.references import PROFILES
 from tuners.cli import DEFAULT_OUT, check_output_folder
 from tuners.conventions import command_parser
-from tuners.rig.cli import add_device_arguments, run_cli
+from tuners.rig.cli import add_device_arguments, given_calibration, run_cli
 
 if TYPE_CHECKING:  # the library is imported where it is used: --help answers before it loads
     from gripper_env.evaluation.objective import Constraints
@@ -213,7 +213,7 @@ def settling_band(
 
 
 def _run(args: argparse.Namespace) -> int:
-    from gripper_env.hardware.host.calibration import default_calibration_path, load_calibration
+    from gripper_env.hardware.host.calibration import board_calibration, load_calibration
     from gripper_env.io.config import MAX_DATA_BYTES, check_input
     from gripper_env.model.gains_file import GainsFileError, load_gains_file
 
@@ -225,10 +225,9 @@ def _run(args: argparse.Namespace) -> int:
         safe_name(plant, "plant name")
     # a pipe, a device or an oversized file as the calibration: refused before the gate's work
     # (a missing one after it: the gate's verdict on the gains stands without a rig)
-    check_input(
-        Path(args.calibration).expanduser() if args.calibration else default_calibration_path(),
-        MAX_DATA_BYTES, "calibration file", "--calibration", missing_ok=True,
-    )  # fmt: skip
+    cal_path, cal_option = given_calibration(args)
+    if cal_path is not None:
+        check_input(cal_path, MAX_DATA_BYTES, "calibration file", cal_option, missing_ok=True)
     from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.evaluation.objective import load_objective
     from gripper_env.hardware.host.device import GripperDevice
@@ -257,14 +256,16 @@ def _run(args: argparse.Namespace) -> int:
         name = f"deploy_{safe_name(plant, 'plant name')}_{safe_name(tuner or 'gains', 'tuner')}"
         out_dir = path_in(DEFAULT_OUT / "hardware", f"{name}_{reference.name}", what="profile")
     check_output_folder(out_dir, "--output-dir")  # before the board moves
-    calibration = load_calibration(args.calibration, "--calibration")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    given = None if cal_path is None else load_calibration(cal_path, cal_option)
     # the log's columns: a Trajectory's CSV columns
     log = CsvLog(out_dir / "response.csv", Trajectory.CSV_COLUMNS, deploy_rows)
-    with GripperDevice(
-        args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
-    ) as device:
-        device.configure(gains, options)
+    with GripperDevice(args.port, boot_wait_s=args.boot_wait, timeout_s=args.timeout) as device:
+        device_id = device.info.device_id if device.info else None
+        # the board's own calibration, or the given one if it is this board's: refused before
+        # the first CONFIGURE and before anything is written
+        calibration = board_calibration(device_id, args.port, given, f"{cal_option} {cal_path}")
+        out_dir.mkdir(parents=True, exist_ok=True)
+        device.configure(gains, options, calibration=calibration)
         rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
     predicted, fit = prediction(model, measured, gains, options, args.disturbance)
