@@ -5,6 +5,7 @@ import subprocess
 import sys
 import time
 import uuid
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -469,3 +470,90 @@ def test_a_trial_being_scored_keeps_its_heartbeat(fresh_postgres_database, small
         states = {t.number: t.state for t in study.get_trials(deepcopy=False)}
     assert states[scored.number] == TrialState.RUNNING
     assert states[alone.number] == TrialState.FAIL
+
+
+class _Bar:
+    """A tqdm stand-in that records what a bar was told."""
+
+    made: ClassVar[list] = []
+
+    def __init__(self, total, initial=0, **_):
+        self.total, self.n, self.closed = total, initial, False
+        _Bar.made.append(self)
+
+    def update(self, k):
+        self.n += k
+
+    def refresh(self):
+        pass
+
+    def close(self):
+        self.closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def test_one_bar_per_search_seed_counts_to_its_whole_budget(small_optuna_config, monkeypatch):
+    """Issue 45: a search's bar reached 100 % at 800 (the TPE phase), then a second bar for the
+    same seed restarted at 800/2000 (the CMA-ES phase). Now one bar counts to the budget."""
+    import optuna
+
+    import tuners.optuna.study as study_module
+    from tuners.optuna.study import run_search
+    from tuners.search_space import search_space
+    from tuners.settings import OptunaSettings, load_settings
+    from tuners.tasks import make_scorer
+
+    monkeypatch.setattr(study_module, "tqdm", _Bar)
+    _Bar.made = []
+    inputs = cli.load_inputs("test2")
+    settings = load_settings(OptunaSettings, small_optuna_config)
+    assert 0 < settings.local_fraction < 1  # two phases
+    scorer = make_scorer(inputs, settings)
+    space = search_space(scorer.task.plants, inputs.disturbance, settings)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    run_search(study, scorer, space, settings, 20, 100.0, sampler_name="tpe", seed=0)
+    assert [(b.total, b.n, b.closed) for b in _Bar.made] == [(20, 20, True)]
+    assert len(study.trials) == 20
+
+
+def test_the_budget_and_an_estimate_come_before_the_search(tmp_path, small_optuna_config):
+    from tuners.optuna.command import budget_line
+    from tuners.optuna.storage import open_storage
+    from tuners.tasks import make_scorer
+
+    argv = ["--plant", "test2", "--out", str(tmp_path), "--config", str(small_optuna_config),
+            "--trials", "30", "--search-seeds", "2"]  # fmt: skip
+    args = cli.parse(optuna_tuner.build_parser(), argv)
+    inputs = cli.resolve(args)
+    plan = optuna_tuner._plan(args, inputs, [])
+    storage = open_storage(plan.url, plan.settings)
+    scorer = make_scorer(inputs, plan.settings)
+    line = budget_line(plan, storage, scorer, 100.0)
+    assert line.startswith("budget: 2 search seeds x 30 trials = 60 trials of 2 episodes each; ")
+    assert " on this machine (the scoring timed here at " in line and "about " in line
+    assert scorer.episodes == 0  # the timing is no part of the run's budget
+    import optuna
+
+    study = optuna.create_study(storage=storage.optuna, study_name=f"{plan.base_name}-s0")
+    for _ in range(12):
+        study.enqueue_trial({})
+        study.tell(study.ask(), 1.0)
+    assert "(12 already in the storage)" in budget_line(plan, storage, scorer, 100.0)
+
+
+def test_help_states_what_the_defaults_cost():
+    """--help names the shipped budget (read here from the shipped config) and its time."""
+    import yaml
+
+    from gripper_env.io.config import CONFIG_DIR
+
+    shipped = yaml.safe_load((CONFIG_DIR / "tuners" / "optuna.yaml").read_text())
+    text = " ".join(optuna_tuner.build_parser().format_help().split())
+    n, k = shipped["trials"], shipped["search_seeds"]
+    assert f"'trials', {n} in the shipped one: with its {k} search seeds {n * k} trials" in text
+    assert "minutes" in text and "--trials 200 takes a tenth" in text
