@@ -116,7 +116,7 @@ def _file(what: str) -> str:
 
 
 def _source(path: object, option: str | None) -> str:
-    return f"{option} {os.fspath(path)}" if option else f"{os.fspath(path)}"  # type: ignore[arg-type]
+    return f"{option} {path}" if option else f"{path}"
 
 
 def check_input(

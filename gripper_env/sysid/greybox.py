@@ -107,7 +107,9 @@ def coefficient_identified(value: float, lo: float, hi: float) -> bool:
 
 
 def coefficients_text(
-    names: Sequence[str], values: Sequence[float], intervals: Mapping[str, tuple[float, float]]
+    names: Sequence[str],
+    values: Sequence[float] | np.ndarray,
+    intervals: Mapping[str, tuple[float, float]],
 ) -> str:
     """``b1 20.7 [20.1, 21.3], a1 10.7 not identified, ...``: each coefficient with its 95 %
     interval, or "not identified" where the data cannot pin it

@@ -123,8 +123,7 @@ def check_image(image: str | os.PathLike[str], option: str = "--image") -> None:
         raise EmulatorUnavailable(f"{option} {image}: cannot read: {exc.strerror or exc}") from None
     if len(head) < 20 or head[:4] != b"\x7fELF":
         raise EmulatorUnavailable(f"{option} {image}: not an ELF file (the firmware build's .elf)")
-    order = "little" if head[5] == 1 else "big"
-    machine = int.from_bytes(head[18:20], order)
+    machine = int.from_bytes(head[18:20], "little" if head[5] == 1 else "big")
     if machine != _EM_AVR:
         raise EmulatorUnavailable(
             f"{option} {image}: an ELF for machine {machine}, not for the AVR (83) of the Mega 2560"
