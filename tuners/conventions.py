@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 __all__ = [
+    "MAX_ARGUMENT_VALUES",
     "MAX_LIST_ITEMS",
     "HelpFormatter",
     "Parser",
@@ -107,12 +108,33 @@ def add_version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action="version", version=_version())
 
 
+#: The most values an option or argument that takes a list (``nargs`` ``+`` or ``*``: record
+#: files, register settings, servo IDs) may be given; comma-separated names: :data:`MAX_LIST_ITEMS`.
+MAX_ARGUMENT_VALUES = 256
+
+
 class Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line: ``prog: error: what (see prog
-    --help)`` and exit status 2, like every other refusal of bad input."""
+    --help)`` and exit status 2, like every other refusal of bad input; a list argument with
+    more than :data:`MAX_ARGUMENT_VALUES` values is refused before the command uses it."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Any = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(parsed, action.dest, None)
+            if action.nargs in ("+", "*") and isinstance(value, list):
+                if len(value) > MAX_ARGUMENT_VALUES:
+                    name = action.option_strings[0] if action.option_strings else action.dest
+                    self.error(
+                        f"{name}: {len(value)} values, more than the {MAX_ARGUMENT_VALUES} a "
+                        "list may hold"
+                    )
+        return parsed, extras
 
 
 class HelpFormatter(argparse.HelpFormatter):

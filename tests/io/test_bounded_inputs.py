@@ -110,3 +110,21 @@ def test_list_options_are_capped_before_any_name_is_looked_up():
     ):
         split_list(names, "--plants")
     assert split_list(",".join(["a"] * MAX_LIST_ITEMS), "--plants") == ["a"] * MAX_LIST_ITEMS
+
+
+def test_list_arguments_are_capped_by_every_commands_parser(capsys):
+    from tuners.conventions import MAX_ARGUMENT_VALUES, command_parser
+
+    parser = command_parser("tuners.x", "a list-taking command")
+    parser.add_argument("records", nargs="+")
+    parser.add_argument("--ids", type=int, nargs="*", default=[])
+    args = parser.parse_args(["a", "b", "--ids", *map(str, range(MAX_ARGUMENT_VALUES))])
+    assert args.records == ["a", "b"] and len(args.ids) == MAX_ARGUMENT_VALUES
+    for argv, name in ((["r"] * (MAX_ARGUMENT_VALUES + 1), "records"),
+                       (["r", "--ids", *["1"] * 2001], "--ids")):  # fmt: skip
+        with pytest.raises(SystemExit) as caught:
+            parser.parse_args(argv)
+        assert caught.value.code == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1
+        assert f"{name}: " in err and f"more than the {MAX_ARGUMENT_VALUES} a list may" in err
