@@ -93,7 +93,11 @@ def build_parser():
         default=None,
         help="tuner settings (ranges, seeds, batch size); default configs/tuners/optuna.yaml",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress bar, and no budget line with its estimate before the search",
+    )
     return parser
 
 
@@ -366,7 +370,9 @@ def _main(argv: list[str] | None = None) -> int:
     storage = open_storage(plan.url, plan.settings)
     scorer = make_scorer(inputs, plan.settings, plants)
     space = search_space(scorer.task.plants, inputs.disturbance, plan.settings)
-    print(budget_line(plan, storage, scorer, inputs.settings.pid.N), file=sys.stderr, flush=True)
+    if not args.no_progress:  # what it will cost, before it starts
+        line = budget_line(plan, storage, scorer, inputs.settings.pid.N)
+        print(line, file=sys.stderr, flush=True)
     # 2. search: one study per search seed
     results, names = _search(args, inputs, plan, storage, scorer, space)
     chosen = best_of(results)
