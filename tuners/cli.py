@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import MAX_DATA_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import (
     collect_provenance,
     path_in,
@@ -393,7 +393,7 @@ def guard_overwrite(path: Path, budget: int, force: bool, key: str = "budget_epi
     if force or not path.is_file():
         return
     try:
-        old = json.loads(path.read_text()).get(key)
+        old = json.loads(read_bounded(path, MAX_DATA_BYTES, "result file")).get(key)
     except (OSError, ValueError, AttributeError):
         return  # not a result of ours: the writer's own checks decide
     if isinstance(old, int | float) and old > budget:

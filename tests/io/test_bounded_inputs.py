@@ -128,3 +128,18 @@ def test_list_arguments_are_capped_by_every_commands_parser(capsys):
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1
         assert f"{name}: " in err and f"more than the {MAX_ARGUMENT_VALUES} a list may" in err
+
+
+def test_a_pipe_in_an_output_folder_is_skipped_not_waited_on(tmp_path, fifo):
+    """Files a command reads back from its own --out (a quick benchmark's check for a full
+    run's results, the RL leaderboard's rows) go through the same check: a named pipe there
+    is passed over (it blocked the command for ever)."""
+    from tuners.benchmark.command import _quick_conflicts
+    from tuners.rl.leaderboard import load_rows
+
+    os.replace(fifo, tmp_path / "benchmark.json")
+    _quick_conflicts(tmp_path, [])  # nothing of a full run: no refusal, no wait
+    rows = tmp_path / "rows"
+    rows.mkdir()
+    os.mkfifo(rows / "row.json")
+    assert load_rows(rows) == []

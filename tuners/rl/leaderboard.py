@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from tuners import cli
 
@@ -42,8 +43,8 @@ def load_rows(folder: str | Path) -> list[dict[str, Any]]:
     rows = []
     for path in sorted(root.rglob("*.json")):
         try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError):
+            data = json.loads(read_bounded(path, MAX_DATA_BYTES, "row file"))
+        except (OSError, ValueError):  # a pipe, too large, not JSON: not a row
             continue
         if isinstance(data, dict) and data.get("format") == ROW_FORMAT:
             data["_path"] = str(path)
