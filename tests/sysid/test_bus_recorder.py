@@ -69,8 +69,12 @@ def test_readings_are_stamped_at_the_middle_and_slow_ones_kept_with_their_round_
     during = [was_slow for goals, was_slow in servo.log if goals >= 2]
     reads, slow = len(during), sum(during)
     assert slow >= 3 and recorder.slow == slow
-    assert rec.t_s.size == reads and rec.stats == {"readings": reads, "lost": 0, "slow": slow,
-                                                "sample_us": 2000}
+    assert rec.t_s.size == reads and rec.stats == {
+        "readings": reads,
+        "lost": 0,
+        "slow": slow,
+        "sample_us": 2000,
+    }
     # every reading keeps its round trip: the slow ones 9 ms, the others 0.4 ms
     assert np.sum(rec.rtt_s > 0.005) == slow
     assert np.allclose(rec.rtt_s[rec.rtt_s < 0.005], 0.0004, atol=1e-5)
