@@ -522,7 +522,7 @@ def test_one_bar_per_search_seed_counts_to_its_whole_budget(small_optuna_config,
 
 
 def test_the_budget_and_an_estimate_come_before_the_search(tmp_path, small_optuna_config):
-    from tuners.optuna.command import budget_line
+    from tuners.optuna.command import budget_line, estimate_line
     from tuners.optuna.storage import open_storage
     from tuners.tasks import make_scorer
 
@@ -533,9 +533,11 @@ def test_the_budget_and_an_estimate_come_before_the_search(tmp_path, small_optun
     plan = optuna_tuner._plan(args, inputs, [])
     storage = open_storage(plan.url, plan.settings)
     scorer = make_scorer(inputs, plan.settings)
-    line = budget_line(plan, storage, scorer, 100.0)
-    assert line.startswith("budget: 2 search seeds x 30 trials = 60 trials of 2 episodes each; ")
-    assert " on this machine (the scoring timed here at " in line and "about " in line
+    line, left = budget_line(plan, storage, scorer)
+    assert line.startswith("budget: 2 search seeds x 30 trials = 60 trials of 2 episodes each;")
+    assert left == 60
+    estimate = estimate_line(plan, scorer, left, 100.0)
+    assert estimate.startswith("estimate: about ") and " on this machine (the scoring" in estimate
     assert scorer.episodes == 0  # the timing is no part of the run's budget
     import optuna
 
@@ -543,7 +545,8 @@ def test_the_budget_and_an_estimate_come_before_the_search(tmp_path, small_optun
     for _ in range(12):
         study.enqueue_trial({})
         study.tell(study.ask(), 1.0)
-    assert "(12 already in the storage)" in budget_line(plan, storage, scorer, 100.0)
+    line, left = budget_line(plan, storage, scorer)
+    assert "(12 already in the storage)" in line and left == 48
 
 
 def test_help_states_what_the_defaults_cost():

@@ -161,11 +161,9 @@ def _plan(args: Any, inputs: cli.Inputs, plants: list[str]) -> _Plan:
 SEARCH_OVER_SCORING = 2.0
 
 
-def budget_line(plan: _Plan, storage: StudyStorage, scorer: GainScorer, default_n: float) -> str:
-    """What the run will do and about how long it takes, before it starts: the trials (those
-    already in resumed studies left out), their episodes, and an estimate from a batch of the
-    scoring timed here (the first batch also loads or compiles the kernels, untimed)."""
-    import numpy as np
+def budget_line(plan: _Plan, storage: StudyStorage, scorer: GainScorer) -> tuple[str, int]:
+    """What the run will do, before anything is computed: the trials (those already in resumed
+    studies left out) and their episodes; the line and the trials left to run."""
     import optuna
 
     names = [plan.base_name] if plan.n_seeds == 1 else [
@@ -177,7 +175,22 @@ def budget_line(plan: _Plan, storage: StudyStorage, scorer: GainScorer, default_
         held = {}
     left = sum(max(0, plan.n_trials - held.get(name, 0)) for name in names)
     total = plan.n_seeds * plan.n_trials
-    per_trial = scorer.task.runs_per_gain_set
+    text = (
+        f"budget: {plan.n_seeds} search seed{'s' if plan.n_seeds > 1 else ''} x "
+        f"{plan.n_trials:,} trials = {total:,} trials of {scorer.task.runs_per_gain_set} "
+        "episodes each"
+    )
+    if left < total:
+        text += f" ({total - left:,} already in the storage)"
+    return text + "; --trials and --search-seeds set it", left
+
+
+def estimate_line(plan: _Plan, scorer: GainScorer, left: int, default_n: float) -> str:
+    """About how long ``left`` trials take here: a batch of the scoring timed three times (after
+    one that loads, or on a fresh clone compiles, the kernels), times
+    :data:`SEARCH_OVER_SCORING` for the sampler and the storage."""
+    import numpy as np
+
     gains = np.tile([1.0, 9.0, -0.001, default_n], (plan.settings.batch_size, 1))
     before = scorer.episodes
     scorer.score(gains)  # loads (or compiles) the kernels
@@ -188,17 +201,10 @@ def budget_line(plan: _Plan, storage: StudyStorage, scorer: GainScorer, default_
         times.append(time.perf_counter() - started)
     scorer.episodes = before  # the timing is no part of the run's budget
     per_trial_s = float(np.median(times)) / len(gains) * SEARCH_OVER_SCORING
-    text = (
-        f"budget: {plan.n_seeds} search seed{'s' if plan.n_seeds > 1 else ''} x "
-        f"{plan.n_trials:,} trials = {total:,} trials"
-    )
-    text += f" of {per_trial} episodes each"
-    if left < total:
-        text += f" ({total - left:,} already in the storage)"
     return (
-        f"{text}; about {_duration(left * per_trial_s)} on this machine (the scoring timed "
-        f"here at {1e3 * per_trial_s / SEARCH_OVER_SCORING:.0f} ms a trial, the sampler about "
-        "as much again); --trials and --search-seeds set it"
+        f"estimate: about {_duration(left * per_trial_s)} on this machine (the scoring timed "
+        f"here at {1e3 * per_trial_s / SEARCH_OVER_SCORING:.0f} ms a trial, the sampler and "
+        "the storage about as much again)"
     )
 
 
@@ -370,9 +376,11 @@ def _main(argv: list[str] | None = None) -> int:
     storage = open_storage(plan.url, plan.settings)
     scorer = make_scorer(inputs, plan.settings, plants)
     space = search_space(scorer.task.plants, inputs.disturbance, plan.settings)
-    if not args.no_progress:  # what it will cost, before it starts
-        line = budget_line(plan, storage, scorer, inputs.settings.pid.N)
+    if not args.no_progress:  # what it will cost, before it starts (and before a compile)
+        line, left = budget_line(plan, storage, scorer)
         print(line, file=sys.stderr, flush=True)
+        print(estimate_line(plan, scorer, left, inputs.settings.pid.N), file=sys.stderr,
+              flush=True)  # fmt: skip
     # 2. search: one study per search seed
     results, names = _search(args, inputs, plan, storage, scorer, space)
     chosen = best_of(results)
