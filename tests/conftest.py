@@ -12,6 +12,7 @@ import dynamixel_sdk
 import matplotlib
 import pytest
 import scservo_sdk
+from hypothesis import HealthCheck, settings
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -24,6 +25,13 @@ sys.dont_write_bytecode = False
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 from gripper_env.paper import PLANTS as PAPER_PLANTS  # noqa: E402  (after the bytecode setting)
+
+# Hypothesis's two clocks, off for every property test: a deadline per example and the "input
+# generation is slow" health check measure the host's load, not the property (a loaded 2-core
+# machine failed tests/hardware/test_hw_protocol.py on generation time alone). Each test still
+# runs its max_examples and asserts the same property on every example.
+settings.register_profile("load-proof", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("load-proof")
 
 
 @pytest.fixture(params=sorted(PAPER_PLANTS))
@@ -52,6 +60,16 @@ def _sdk_reply_window(monkeypatch):
     """
     for sdk in (dynamixel_sdk, scservo_sdk):
         monkeypatch.setattr(sdk.port_handler, "LATENCY_TIMER", _TEST_LATENCY_TIMER_MS)
+
+
+@pytest.fixture
+def reply_ms():
+    """The reply window (ms) a test's :class:`~gripper_env.hardware.bus.BusLink` gives a
+    virtual servo: the SDKs' own window under :func:`_sdk_reply_window`, ``2 x LATENCY_TIMER +
+    2`` (502 ms), where the link's default is a real servo's 50 ms. A virtual XL330 whose thread
+    a loaded host left unscheduled answered after the 50 ms window and a test that counts retries
+    failed; a lost reply still costs a retry, only a later one."""
+    return 2.0 * _TEST_LATENCY_TIMER_MS + 2.0
 
 
 @pytest.fixture
@@ -128,7 +146,11 @@ def pytest_configure(config):
     """Before parallel workers start (``-n N``, the default: pyproject's addopts), compile
     every simulation kernel once into numba's on-disk cache (``python -m tuners.compile``), so
     that the workers load them instead of compiling the same kernels side by side (minutes each
-    on 2 cores). A warm cache makes this a few seconds; a serial run (``-n 0``) skips it."""
+    on 2 cores). A warm cache makes this a few seconds; a serial run (``-n 0``) skips it.
+
+    This runs before pytest prints its header, so it says what it does before it starts and
+    prints each kernel unit as it is done (a fresh clone's compile took 35 minutes on a loaded
+    2-core machine, which a silent terminal makes look like a hang)."""
     if hasattr(config, "workerinput") or config.option.collectonly:
         return
     workers = getattr(config.option, "numprocesses", None)
@@ -136,14 +158,39 @@ def pytest_configure(config):
         return
     started = time.perf_counter()
     jobs = min(os.cpu_count() or 1, 4)
-    result = subprocess.run(
-        [sys.executable, "-m", "tuners.compile", "--quiet", "--jobs", str(jobs)],
-        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, check=False,
+    say = _say(config)
+    say("compiling the simulation kernels into numba's cache before the test workers start "
+        f"(python -m tuners.compile --jobs {jobs}): seconds with a warm cache, minutes on a "
+        "fresh clone")  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-u", "-m", "tuners.compile", "--jobs", str(jobs)],
+        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
-    if result.returncode != 0:
-        raise pytest.UsageError(f"python -m tuners.compile failed:\n{result.stderr[-3000:]}")
+    tail: list[str] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        tail = [*tail, line][-60:]
+        say(line.rstrip("\n"))
+    if proc.wait() != 0:
+        raise pytest.UsageError("python -m tuners.compile failed:\n" + "".join(tail)[-3000:])
     took = time.perf_counter() - started
     config.stash[_WARMED] = took
+
+
+def _say(config):
+    """A function that prints one line on the terminal now, past pytest's output capture (the
+    compile runs before the terminal reporter writes anything)."""
+    capman = config.pluginmanager.get_plugin("capturemanager")
+
+    def say(line: str) -> None:
+        if capman is None:
+            print(line, flush=True)
+            return
+        with capman.global_and_fixture_disabled():
+            print(line, flush=True)
+
+    return say
 
 
 _WARMED = pytest.StashKey[float]()

@@ -97,10 +97,35 @@ CASES = [
          ("--plant", "te\x01st", "--gains", "paper-tuned"), ("--plant",)),
     # every input that sizes memory or work is capped before it is read
     Case("a log that never ends (/dev/zero)", "tuners.sysid",
-         ("tf", "/dev/zero"), ("/dev/zero", "MiB")),
+         ("tf", "/dev/zero"), ("/dev/zero", "character device")),
     Case("a gains file that never ends", "tuners.rig.deploy",
          ("--gains", "/dev/zero", "--port", "/no/such/port", "--boot-wait", "0"),
-         ("/dev/zero", "MiB")),
+         ("/dev/zero", "character device")),
+    # issue 45: devices and named pipes refused from their stat, before they are opened (a FIFO
+    # blocks its reader until a writer comes); storages, calibrations, logs, agents, lists
+    Case("--storage /dev/zero", "tuners.optuna",
+         ("--plant", "test2", "--storage", "/dev/zero"), ("--storage", "/dev/zero", "device")),
+    Case("a FIFO as --storage", "tuners.optuna",
+         ("--plant", "test2", "--storage", "{fifo}"), ("--storage", "fifo", "named pipe")),
+    Case("a FIFO as --storage sqlite", "tuners.optuna",
+         ("--plant", "test2", "--storage", "sqlite:///{fifo}"),
+         ("--storage", "fifo", "named pipe")),
+    Case("a 300 MiB journal as --storage", "tuners.optuna",
+         ("--plant", "test2", "--storage", "{big_journal}"),
+         ("--storage", "big.journal", "300 MiB", "256 MiB")),
+    Case("greybox /dev/zero", "tuners.sysid", ("greybox", "/dev/zero"), ("/dev/zero", "device")),
+    Case("a FIFO as a log", "tuners.sysid", ("greybox", "{fifo}"), ("fifo", "named pipe")),
+    Case("--calibration /dev/zero", "tuners.rig.deploy",
+         ("--gains", "{good_gains}", "--calibration", "/dev/zero", "--port", "/no/such/port",
+          "--boot-wait", "0"), ("--calibration", "/dev/zero", "device")),
+    Case("a FIFO as --calibration", "tuners.rig.record",
+         ("--calibration", "{fifo}", "--port", "/no/such/port", "--boot-wait", "0",
+          "--output", "{out_csv}"), ("--calibration", "fifo", "named pipe")),
+    Case("rl play /dev/zero", "tuners.rl", ("play", "/dev/zero"), ("/dev/zero",)),
+    Case("an agent whose model is a FIFO", "tuners.rl", ("play", "{fifo_agent}"),
+         ("fifo_agent",)),
+    Case("--plants with 2001 names", "tuners.classical",
+         ("--plant", "test2", "--plants", ",".join(["test2"] * 2001)), ("--plants", "2001", "16")),
     Case("--gains /dev/zero", "tuners.manual",
          ("--plant", "test2", "--gains", "/dev/zero"), ("--gains", "/dev/zero")),
     Case("--seeds 0-1000000000", "tuners.rl",
@@ -174,6 +199,17 @@ def _files(folder):
              "tuner": "manual", "P": 1e308, "I": 1.0, "D": 0.0, "N": 100.0}  # fmt: skip
     write("gains_1e308", "gains_1e308.json", json.dumps(gains))
     write("deep_json", "deep.json", "[" * 100_000 + "]" * 100_000)
+    paths["fifo"] = folder / "fifo"
+    os.mkfifo(paths["fifo"])
+    with write("big_journal", "big.journal", "").open("r+b") as f:
+        f.truncate(300 << 20)  # sparse
+    good = {**gains, "P": 1.0, "I": 9.0, "D": -0.001}
+    write("good_gains", "good_gains.json", json.dumps(good))
+    paths["out_csv"] = folder / "runs" / "record.csv"
+    paths["fifo_agent"] = agent = folder / "fifo_agent"
+    agent.mkdir()
+    (agent / "agent.json").write_text(json.dumps({"format": "gripper-agent"}))
+    os.mkfifo(agent / "model.zip")
     return paths
 
 
@@ -300,6 +336,42 @@ def test_a_full_disk_leaves_a_result_whole_or_not_at_all(small_disk, filled, tmp
     _one_line_no_space(proc)
     assert sorted(p.name for p in disk.rglob("*") if p.is_file()) == ["filler"]
     assert list(tmp_path.iterdir()) == [disk]  # nothing beside --out (no runs/ in the cwd)
+
+
+@pytest.mark.slow
+def test_a_result_its_plot_and_its_provenance_are_written_together(small_disk, tmp_path):
+    """Issue 45: on an 80 KiB disk the gains file (18 KB) and its plot (59 KB) fit and their
+    provenance sidecar did not, and the two were left without it; now none of the three is
+    written, and the one line names the file that did not fit."""
+    disk = small_disk(80)
+    proc = _run_command("tuners.manual", "--plant", "test2", "--gains", "paper-tuned",
+                        "--out", disk, cwd=tmp_path)  # fmt: skip
+    _one_line_no_space(proc)
+    assert str(disk) in proc.stderr
+    assert [p for p in disk.rglob("*") if p.is_file()] == []
+
+
+@pytest.mark.slow
+def test_a_full_disk_under_sqlite_is_one_line_naming_the_storage(small_disk, filled, tmp_path):
+    """Issue 45: SQLite's "database or disk is full" reached the user as 69 lines of three
+    chained tracebacks (Optuna's StorageInternalError), naming neither the disk nor the file.
+    Now one line names the storage and the disk's free space, and the trials finished before
+    stay in the database, readable by Optuna."""
+    import optuna
+
+    disk = small_disk(1024)
+    filled(disk, leave_bytes=360 * 1024)
+    url = f"sqlite:///{disk}/study.db"
+    proc = _run_command("tuners.optuna", "--plant", "test2", "--trials", "2000",
+                        "--search-seeds", "1", "--out", disk, "--storage", url, "--no-progress",
+                        cwd=tmp_path)  # fmt: skip
+    lines = [x for x in proc.stderr.strip().splitlines() if not x.startswith("compiling the")]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert len(lines) == 1 and f"--storage {url}: " in lines[0], proc.stderr[-3000:]
+    assert "disk is full" in lines[0] and f"{disk}: " in lines[0]
+    (summary,) = optuna.get_all_study_summaries(url)
+    assert summary.n_trials >= 1
+    assert not (disk / "test2" / "optuna.json").exists()
 
 
 @pytest.mark.slow

@@ -298,7 +298,9 @@ def walk(tmp_path_factory):
         PATH=f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}",
         VIRTUAL_ENV=str(venv),
         MPLBACKEND="Agg",
-        GRIPPER_CALIBRATION=str(tmp / "calibration.json"),  # not the user's ~/.config
+        # each board's calibration in the walk's own folder, not the user's ~/.config (two
+        # boards are calibrated in turn: one file each, as on a user's machine)
+        GRIPPER_CALIBRATION_DIR=str(tmp / "calibrations"),
         HOME=str(tmp / "home"),
         PYTHONDONTWRITEBYTECODE="1",
     )

@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import MAX_DATA_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import (
     collect_provenance,
     path_in,
@@ -32,7 +32,7 @@ from gripper_env.io.files import (
     write_group,
     write_result_json,
 )
-from tuners.conventions import check_config_names, command_parser
+from tuners.conventions import check_config_names, command_parser, split_list
 
 # The library is imported where it is used: a command's --help, --version and a usage error or
 # an unknown name answer before the simulation core, python-control and matplotlib load.
@@ -280,7 +280,7 @@ def plants_arg(value: str | None) -> list[str]:
 
     if value is None:
         return []
-    plants = [p.strip() for p in value.split(",") if p.strip()]
+    plants = split_list(value, "--plants")
     if len(plants) < 2:
         raise ValueError(f"--plants needs at least two plants separated by commas, got {value!r}")
     for p in plants:
@@ -393,7 +393,7 @@ def guard_overwrite(path: Path, budget: int, force: bool, key: str = "budget_epi
     if force or not path.is_file():
         return
     try:
-        old = json.loads(path.read_text()).get(key)
+        old = json.loads(read_bounded(path, MAX_DATA_BYTES, "result file")).get(key)
     except (OSError, ValueError, AttributeError):
         return  # not a result of ours: the writer's own checks decide
     if isinstance(old, int | float) and old > budget:
@@ -420,7 +420,9 @@ def write_result(
     )
     # one sidecar for the run (<tuner>.provenance.json), or the enclosing run's (the benchmark's)
     command = (content.get("provenance") or {}).get("command")
-    with collect_provenance(folder, tuner, command=command), write_group():  # both or neither
+    # the JSON, the plot and the sidecar all or none (the sidecar is written as the run ends,
+    # inside the group)
+    with write_group(), collect_provenance(folder, tuner, command=command):
         plot_response(inputs, ev, title, folder / f"{tuner}.png")
         path = write_result_json(folder / f"{tuner}.json", content)
     return path
@@ -560,3 +562,10 @@ def run(main: Callable[[list[str] | None], int], argv: list[str] | None = None) 
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Exception as exc:  # a study's storage that failed under it (a full disk, SQLite)
+        storage = sys.modules.get("tuners.optuna.storage")
+        line = storage.failure_line(exc) if storage is not None else None
+        if line is None:
+            raise
+        print(f"error: {line}", file=sys.stderr)
+        return EXIT_BAD_INPUT

@@ -143,12 +143,16 @@ def warm_up(
     """
     units = _units()
     times = {}
-    for name in share(list(units), *shard):
+    mine = share(list(units), *shard)
+    where = f" (share {shard[0] + 1} of {shard[1]})" if shard[1] > 1 else ""
+    if log is not None:
+        log(f"  {len(mine)} kernel units to compile or load{where}: {', '.join(mine)}")
+    for i, name in enumerate(mine, 1):
         start = time.perf_counter()
         units[name]()
         times[name] = time.perf_counter() - start
         if log is not None:
-            log(f"  {name}: {times[name]:.1f} s")
+            log(f"  [{i}/{len(mine)}{where}] {name}: {times[name]:.1f} s")
     return times
 
 
@@ -196,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     start = time.perf_counter()
-    log = None if args.quiet else (lambda line: print(line, flush=True))
+    log = None if args.quiet else _write_line
     if args.jobs == 1:
         warm_up(log, shard)
     else:
@@ -208,9 +212,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"tuners.compile: error: share {failed[0]}/{args.jobs} failed (its error is "
                   "above)", file=sys.stderr)  # fmt: skip
             return 1
-    if not args.quiet:
+    if not args.quiet and shard[1] == 1:  # the shares' parent says it once
         print(f"kernels ready in {time.perf_counter() - start:.1f} s")
     return 0
+
+
+def _write_line(line: str) -> None:
+    """One line in one write, so that the shares' lines on one pipe never interleave."""
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
 
 
 if __name__ == "__main__":

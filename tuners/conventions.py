@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 __all__ = [
+    "MAX_ARGUMENT_VALUES",
+    "MAX_LIST_ITEMS",
     "HelpFormatter",
     "Parser",
     "add_version",
@@ -38,7 +40,29 @@ __all__ = [
     "conform",
     "invoked_as",
     "program_name",
+    "split_list",
 ]
+
+#: The most names a comma-separated list option may hold (``--plants``): every evaluation runs
+#: each plant, so a list's length multiplies a run's cost (the robust task takes three).
+MAX_LIST_ITEMS = 16
+
+
+def split_list(value: str, option: str, cap: int = MAX_LIST_ITEMS) -> list[str]:
+    """The names of the comma-separated list ``value`` of option ``option``, refused, before
+    any is looked at, when it holds more than ``cap``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the option, how many were given and the cap.
+    """
+    if value.count(",") >= cap:
+        raise ValueError(
+            f"{option}: {value.count(',') + 1} names, more than the {cap} a list may hold"
+        )
+    return [v.strip() for v in value.split(",") if v.strip()]
+
 
 #: The name the umbrella command ran a command under (``gripper optuna``), if it did.
 _INVOKED_AS: list[str] = []
@@ -84,12 +108,33 @@ def add_version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action="version", version=_version())
 
 
+#: The most values an option or argument that takes a list (``nargs`` ``+`` or ``*``: record
+#: files, register settings, servo IDs) may be given; comma-separated names: :data:`MAX_LIST_ITEMS`.
+MAX_ARGUMENT_VALUES = 256
+
+
 class Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line: ``prog: error: what (see prog
-    --help)`` and exit status 2, like every other refusal of bad input."""
+    --help)`` and exit status 2, like every other refusal of bad input; a list argument with
+    more than :data:`MAX_ARGUMENT_VALUES` values is refused before the command uses it."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Any = None, namespace: Any = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(parsed, action.dest, None)
+            if action.nargs in ("+", "*") and isinstance(value, list):
+                if len(value) > MAX_ARGUMENT_VALUES:
+                    name = action.option_strings[0] if action.option_strings else action.dest
+                    self.error(
+                        f"{name}: {len(value)} values, more than the {MAX_ARGUMENT_VALUES} a "
+                        "list may hold"
+                    )
+        return parsed, extras
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -182,9 +227,8 @@ def check_config_names(args: argparse.Namespace, options: Iterable[str] = ()) ->
     for dest in options:
         value = getattr(args, dest, None)
         if isinstance(value, str):
-            for name in (v.strip() for v in value.split(",")):
-                if name:
-                    check(dest, "plants", name)
+            for name in split_list(value, f"--{dest.replace('_', '-')}"):
+                check(dest, "plants", name)
     profile = getattr(args, "profile", None)
     if isinstance(profile, str | os.PathLike):
         _check_profile(os.fspath(profile))

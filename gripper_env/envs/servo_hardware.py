@@ -24,7 +24,11 @@ from gripper_env.envs.episode import draw_episode
 from gripper_env.envs.link_settings import check_link_arguments, check_port
 from gripper_env.envs.settings import check_reward_weights, parse_settings
 from gripper_env.envs.spaces import OBS_BOUND, RATE_TIME_S, check_actions
-from gripper_env.hardware.host.calibration import Calibration, load_calibration
+from gripper_env.hardware.host.calibration import (
+    Calibration,
+    board_calibration,
+    load_calibration,
+)
 from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.errors import DeviceError, DeviceFault, DeviceTimeout
 from gripper_env.hardware.host.experiment import settle_jaw
@@ -154,7 +158,7 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         env = gym.make(
             "gripper_env:gripper_env/GripperServoHardware-v0",
             port=vd.path,              # required: "/dev/ttyACM0", a pty, or a pyserial URL
-            calibration=Calibration(*vd.rig.true_calibration),  # default: the calibration file
+            calibration=Calibration(*vd.rig.true_calibration),  # default: the board's own
             boot_wait_s=0.0,           # 2 s for a real Mega (opening the port resets it)
             reference="step",          # profile name, CSV path, or "random"
             control_period_s=0.020,    # agent step (s), a whole number of 1 ms ticks
@@ -215,13 +219,18 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
             telemetry_batch,
             warn_every,
         )
+        # a calibration given (or $GRIPPER_CALIBRATION) is read now and checked against the
+        # board when it is opened; without one, the board's own is found by its device id then
+        given: Calibration | None = None
         if isinstance(calibration, Calibration):
-            self.calibration = calibration
-        else:
+            given = calibration
+        elif calibration is not None or os.environ.get("GRIPPER_CALIBRATION"):
             try:
-                self.calibration = load_calibration(calibration)
+                given = load_calibration(calibration)
             except ValueError as exc:
                 raise ConfigError(f"{_NAME}: argument 'calibration': {exc}") from None
+        self._given_calibration = given
+        self.calibration = given
         self.port = port_path
         self.render_mode = None
         self.boot_wait_s = float(boot_wait_s)
@@ -310,6 +319,10 @@ class GripperServoHardwareEnv(gym.Env[np.ndarray, np.ndarray]):
         elif self._stale:
             dev.handshake()
         if self._stale:
+            device_id = dev.info.device_id if dev.info else None
+            self.calibration = board_calibration(
+                device_id, self.port, self._given_calibration, f"{_NAME}: argument 'calibration'"
+            )
             dev.configure(
                 calibration=self.calibration,
                 jaw_deg=self.settings.jaw_range_deg,

@@ -67,6 +67,7 @@ __all__ = [
     "compute_metrics",
     "first_rise_overshoot",
     "fit_percent",
+    "reading_band_deg",
     "sample_sd",
     "step_metrics",
     "sustained_swing",
@@ -109,6 +110,39 @@ REST_SPEED_PER_S = 0.02
 #: A run whose response still swings more than this (deg, peak to peak) at the end of a segment
 #: is classified as diverged (see the module docstring).
 OSCILLATION_LIMIT_DEG = 8.0
+
+
+def reading_band_deg(y: np.ndarray, resolution_deg: float) -> tuple[float, float]:
+    """What a measured angle's own resolution and noise leave of a settling band (deg).
+
+    A reading quantized to ``resolution_deg`` (an ADC count) and noisy flickers around a jaw at
+    rest: a settling band narrower than that flicker reads "never settles" for a jaw that has
+    (the rig printed "settling 8.98 s" where its plot showed the jaw settled within 0.5 s).
+    The noise is estimated from the sample-to-sample steps of the reading no larger than four
+    counts (the jaw at rest or nearly so; a move's steps are left out): ``sigma = rms(step) /
+    sqrt(2)``, the noise of one sample if the steps were noise alone (an upper estimate).
+
+    Parameters
+    ----------
+    y : ndarray
+        The measured angle of one run (deg), NaN where a sample is missing.
+    resolution_deg : float
+        One step of the reading (deg per ADC count).
+
+    Returns
+    -------
+    band_deg : float
+        ``resolution_deg + 3 sigma``: how far a reading of a jaw at rest may stray.
+    noise_sd_deg : float
+        ``sigma``.
+    """
+    if not (math.isfinite(resolution_deg) and resolution_deg >= 0):
+        raise ValueError(f"resolution_deg must be a number >= 0, got {resolution_deg!r}")
+    steps = np.diff(np.asarray(y, dtype=float).ravel())
+    steps = steps[np.isfinite(steps)]
+    small = steps[np.abs(steps) <= 4.0 * resolution_deg + 1e-12]
+    sigma = float(np.sqrt(np.mean(small**2) / 2.0)) if small.size else 0.0
+    return resolution_deg + 3.0 * sigma, sigma
 
 
 def sample_sd(x: np.ndarray, axis: int = -1) -> np.ndarray:

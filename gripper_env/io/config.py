@@ -21,6 +21,7 @@ anything is built from it (data files: :data:`MAX_DATA_BYTES`, :func:`read_bound
 from __future__ import annotations
 
 import os
+import stat
 from importlib.resources import files
 from importlib.resources.abc import Traversable
 from pathlib import Path
@@ -39,6 +40,7 @@ __all__ = [
     "USER_CONFIG_DIR",
     "ConfigError",
     "available",
+    "check_input",
     "config_file",
     "find_config",
     "load_yaml",
@@ -95,27 +97,149 @@ def _size(n_bytes: float) -> str:
     return f"{n_bytes / 2**20:.3g} MiB" if n_bytes >= 2**20 else f"{n_bytes / 2**10:.3g} KiB"
 
 
-def read_bounded(path: Path | Traversable, limit_bytes: int, what: str) -> bytes:
-    """The bytes of ``path``, refused before reading if it holds more than ``limit_bytes``.
+#: What a path that is not a regular file is, for the refusals (:func:`check_input`).
+_KINDS = (
+    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISFIFO, "a named pipe (FIFO)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _kind(mode: int) -> str:
+    return next((text for test, text in _KINDS if test(mode)), "not a regular file")
+
+
+def _file(what: str) -> str:
+    return what if what.endswith("file") else f"{what} file"
+
+
+def _source(path: object, option: str | None) -> str:
+    return f"{option} {path}" if option else f"{path}"
+
+
+def check_input(
+    path: str | os.PathLike[str],
+    limit_bytes: int,
+    what: str,
+    option: str | None = None,
+    *,
+    folder: bool = False,
+    missing_ok: bool = False,
+) -> os.stat_result | None:
+    """Refuse an input before a byte of it is read: the one check every reader of a user's file
+    goes through (:func:`read_bounded` for what it reads itself; Optuna's storages, agent
+    folders and logs through this).
+
+    A named pipe, a device (``/dev/zero``), a socket or a folder where a file is expected (a
+    file where a folder is, with ``folder=True``) is refused from its ``stat`` alone, without
+    opening it (opening a FIFO blocks until a writer comes; a device never ends); a file larger
+    than ``limit_bytes`` (for a folder: the files in it, one level deep, together) from its size.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    limit_bytes : int
+        The most the input may hold (bytes).
+    what : str
+        What the input is, for the message (``"journal storage"``).
+    option : str, optional
+        The command-line option that named it (``"--storage"``), first in the message.
+    folder : bool
+        The input is a folder (an agent's).
+    missing_ok : bool
+        A path that does not exist yet is accepted (``None``): a storage to create.
+
+    Returns
+    -------
+    os.stat_result or None
+        The input's status; ``None`` for a missing one with ``missing_ok``.
 
     Raises
     ------
     ConfigError
-        The file is larger than ``limit_bytes`` (the message names the file, its size and the
-        limit), or cannot be read.
+        One line naming the option, the path and what is wrong (the cap, for a size).
     """
+    source = _source(path, option)
     try:
-        size = path.stat().st_size if isinstance(path, Path) else None
-        if size is not None and size > limit_bytes:
+        st = os.stat(path)
+    except FileNotFoundError:
+        if missing_ok:
+            return None
+        raise ConfigError(f"{source}: no such {'folder' if folder else 'file'}") from None
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    if folder:
+        if not stat.S_ISDIR(st.st_mode):
+            raise ConfigError(f"{source}: {_kind(st.st_mode)}, not the folder of a {what}")
+        total = 0
+        try:
+            with os.scandir(path) as entries:
+                for n, entry in enumerate(entries):
+                    if n >= _MAX_FOLDER_ENTRIES:
+                        raise ConfigError(
+                            f"{source}: more than {_MAX_FOLDER_ENTRIES:,} entries, more than "
+                            f"a {what} holds"
+                        )
+                    if entry.is_file(follow_symlinks=True):
+                        total += entry.stat().st_size
+        except OSError as exc:
+            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+        if total > limit_bytes:
             raise ConfigError(
-                f"{path}: {_size(size)}, more than the {_size(limit_bytes)} a {what} may hold"
+                f"{source}: {_size(total)}, more than the {_size(limit_bytes)} a {what} may hold"
             )
-        with path.open("rb") as f:
+        return st
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{source}: {_kind(st.st_mode)}, not a {_file(what)}")
+    if st.st_size > limit_bytes:
+        raise ConfigError(
+            f"{source}: {_size(st.st_size)}, more than the {_size(limit_bytes)} a {what} may hold"
+        )
+    return st
+
+
+#: Entries a folder input may list (an agent's folder holds a handful).
+_MAX_FOLDER_ENTRIES = 10_000
+
+
+def read_bounded(
+    path: Path | Traversable, limit_bytes: int, what: str, option: str | None = None
+) -> bytes:
+    """The bytes of ``path``, refused before reading if it is not a regular file or holds more
+    than ``limit_bytes`` (:func:`check_input`).
+
+    Raises
+    ------
+    ConfigError
+        The file is larger than ``limit_bytes`` (the message names the option, the file, its
+        size and the limit), is a pipe, a device or a folder, or cannot be read.
+    """
+    if not isinstance(path, Path):  # a packaged file: no stat, read at most the limit
+        try:
+            with path.open("rb") as f:
+                data = f.read(limit_bytes + 1)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        if len(data) > limit_bytes:
+            raise ConfigError(f"{path}: more than the {_size(limit_bytes)} a {what} may hold")
+        return data
+    check_input(path, limit_bytes, what, option)
+    source = _source(path, option)
+    try:
+        # O_NONBLOCK: a path swapped for a FIFO since the check opens at once instead of
+        # waiting for a writer; fstat then refuses it.
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise ConfigError(f"{source}: {_kind(st.st_mode)}, not a {_file(what)}")
             data = f.read(limit_bytes + 1)
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if len(data) > limit_bytes:  # a file that grew, or a packaged one
-        raise ConfigError(f"{path}: more than the {_size(limit_bytes)} a {what} may hold")
+        raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > limit_bytes:  # a file that grew since
+        raise ConfigError(f"{source}: more than the {_size(limit_bytes)} a {what} may hold")
     return data
 
 

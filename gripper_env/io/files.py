@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.config import MAX_DATA_BYTES
+from gripper_env.io.config import MAX_DATA_BYTES, ConfigError, read_bounded
 
 __all__ = [
     "MAX_NAME_CHARS",
@@ -169,6 +169,9 @@ def _stage(p: Path, data: bytes) -> str:
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), _mode_for(p))
             f.write(data)
+    except OSError as exc:  # a full disk: named by the file it was for, not the temporary one
+        Path(tmp).unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(p)) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -227,6 +230,10 @@ def write_together(files: Mapping[str | os.PathLike[str], str | bytes]) -> list[
     except BaseException:
         _discard(staged)
         raise
+    run = _RUN.get()
+    if run is not None:  # compared with what the destinations hold before they change
+        for _, p, data in staged:
+            run.wrote(p, data)
     if group is not None:  # renamed when the group's block ends
         group.extend(staged)
     else:
@@ -240,10 +247,7 @@ def _discard(staged: list[tuple[str, Path, bytes]]) -> None:
 
 
 def _commit(staged: list[tuple[str, Path, bytes]]) -> None:
-    run = _RUN.get()
-    for i, (tmp, p, data) in enumerate(staged):
-        if run is not None:
-            run.wrote(p, data)
+    for i, (tmp, p, _data) in enumerate(staged):
         try:
             os.replace(tmp, p)
         except BaseException:
@@ -493,6 +497,10 @@ def collect_provenance(
     A rerun whose files are byte for byte those on disk keeps the sidecar that is there (those
     files are the earlier run's results, reproduced; the sidecar is only touched), so that
     rerunning a command that reproduces its numbers leaves ``git diff`` empty.
+
+    Inside a :func:`write_group` (``with write_group(), collect_provenance(...)``) the sidecar
+    is one of the group's files: the results and their provenance appear together or not at
+    all (a full disk left a result and its plot without their sidecar).
     """
     outer = _RUN.get()
     if outer is not None and not own:
@@ -557,7 +565,11 @@ def result_json_text(obj: Any, indent: int = 2) -> str:
 
 
 def read_format_json(
-    path: str | os.PathLike[str], fmt: str, what: str, error: type[Exception] = ValueError
+    path: str | os.PathLike[str],
+    fmt: str,
+    what: str,
+    error: type[Exception] = ValueError,
+    option: str | None = None,
 ) -> dict[str, Any]:
     """Read a JSON object that declares ``"format": fmt`` (a gains file, a calibration).
 
@@ -573,17 +585,19 @@ def read_format_json(
         Raised, with a one-line message that names the file, when the file cannot be read, is
         larger than :data:`gripper_env.io.config.MAX_DATA_BYTES`, is not JSON, or is not of that
         format.
+    option : str, optional
+        The command-line option that named the file, first in a refusal of its kind or size.
     """
     p = Path(path)
     try:
         if p.is_dir():
             raise error(f"{p}: is a folder; give a {what}")
-        if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:
-            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
-        with p.open("rb") as f:  # a device or a pipe has no size: read at most the limit
-            raw = f.read(MAX_DATA_BYTES + 1)
-        if len(raw) > MAX_DATA_BYTES:
-            raise error(f"{p}: larger than the {MAX_DATA_BYTES >> 20} MiB a {what} may hold")
+        if not p.exists():
+            raise error(f"cannot read {what} {p}: No such file or directory")
+        try:  # a pipe or a device refused unopened, a large file before a byte is read
+            raw = read_bounded(p, MAX_DATA_BYTES, what, option)
+        except ConfigError as exc:
+            raise error(str(exc)) from None
         content = json.loads(raw.decode("utf-8"))
     except OSError as exc:
         raise error(f"cannot read {what} {p}: {exc.strerror or exc}") from None

@@ -48,6 +48,7 @@ from gripper_env.sysid.tfest import TFEstimate, tfest
 from gripper_env.sysid.zoh import zoh_response
 
 if TYPE_CHECKING:
+    from gripper_env.hardware.host.calibration import Calibration
     from gripper_env.hardware.host.experiment import Recording
 
 __all__ = [
@@ -224,8 +225,10 @@ class DeviceRecorder:
     ----------
     port : str
         Serial port (or the virtual board's pty).
-    calibration : path, optional
-        Calibration file (default: the rig's default calibration path).
+    calibration : path or Calibration, optional
+        Calibration file, or one already read: refused if it is another board's. Default: the
+        board's own, found by its device id after the handshake
+        (:func:`gripper_env.hardware.host.calibration.board_calibration`).
     boot_wait_s, timeout_s : float
         Seconds to let the board boot after opening the port, and to wait for an answer.
     progress : callable, optional
@@ -239,16 +242,19 @@ class DeviceRecorder:
         ``LOG.attemptK.csv``; after the last, :class:`RecordingGaps`.
     warn : callable, optional
         Called with a line when a run is recorded again (default: ``progress``).
+    calibration_source : str, optional
+        What named the calibration, for a refusal (``"--calibration cal.json"``).
     """
 
     port: str
-    calibration: str | os.PathLike[str] | None = None
+    calibration: str | os.PathLike[str] | Calibration | None = None
     boot_wait_s: float = 2.0
     timeout_s: float = 0.5
     progress: Callable[[str], None] | None = None
     fraction: Callable[[float], None] | None = None
     attempts: int = 3
     warn: Callable[[str], None] | None = None
+    calibration_source: str | None = None
 
     def __post_init__(self) -> None:
         if self.attempts < 1:
@@ -297,19 +303,27 @@ class DeviceRecorder:
 
     def _run(self, reference: Reference, path: Path) -> Recording:
         """One run of the profile."""
-        from gripper_env.hardware.host.calibration import load_calibration
+        from gripper_env.hardware.host.calibration import (
+            Calibration,
+            board_calibration,
+            load_calibration,
+        )
         from gripper_env.hardware.host.device import GripperDevice
         from gripper_env.hardware.host.experiment import CsvLog, run_profile
         from gripper_env.hardware.protocol import Mode
 
+        given = self.calibration
+        source = self.calibration_source or f"calibration {given}"
+        if given is not None and not isinstance(given, Calibration):
+            given = load_calibration(given)
         log = CsvLog(path, LOG_COLUMNS, _log_rows)
         with GripperDevice(
-            self.port,
-            calibration=load_calibration(self.calibration),
-            boot_wait_s=self.boot_wait_s,
-            timeout_s=self.timeout_s,
+            self.port, boot_wait_s=self.boot_wait_s, timeout_s=self.timeout_s
         ) as device:
-            device.configure()
+            device_id = device.info.device_id if device.info else None
+            # the board's own calibration, or the given one if it is this board's: before the
+            # first CONFIGURE, so a refusal leaves the board as it was
+            device.configure(calibration=board_calibration(device_id, self.port, given, source))
             rec = run_profile(device, reference, Mode.OPEN_LOOP, log=log, progress=self.fraction)
         if self.progress is not None:
             self.progress(

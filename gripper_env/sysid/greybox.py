@@ -38,7 +38,7 @@ import dataclasses
 import math
 import time
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -85,12 +85,47 @@ __all__ = [
     "MAX_FRICTION_DEG",
     "ActualEstimate",
     "FrictionEstimate",
+    "coefficient_identified",
+    "coefficients_text",
     "identify_actual",
     "response_on",
 ]
 
 #: A delay interval this wide (s), or half the estimate if more, still says what the delay is.
 DELAY_INFORMATIVE_S = 0.005
+
+
+def coefficient_identified(value: float, lo: float, hi: float) -> bool:
+    """Whether the data pin a coefficient: its 95 % interval is finite, keeps the estimate's
+    sign (excludes zero) and is no wider than the estimate's magnitude (+/-50 %). An interval
+    such as ``a1 10.7 [-0.000666, 10.82]`` (the slow pair the paper's tests 2-4 nearly cancel)
+    says the data allow anything from nothing to the estimate."""
+    if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(value)):
+        return False
+    same_sign = (lo > 0 and hi > 0) or (lo < 0 and hi < 0)
+    return same_sign and hi - lo <= abs(value)
+
+
+def coefficients_text(
+    names: Sequence[str],
+    values: Sequence[float] | np.ndarray,
+    intervals: Mapping[str, tuple[float, float]],
+) -> str:
+    """``b1 20.7 [20.1, 21.3], a1 10.7 not identified, ...``: each coefficient with its 95 %
+    interval, or "not identified" where the data cannot pin it
+    (:func:`coefficient_identified`; the interval stays in the JSON)."""
+    parts = []
+    for k, v in zip(names, values, strict=True):
+        if k not in intervals:
+            continue
+        lo, hi = intervals[k]
+        if coefficient_identified(float(v), float(lo), float(hi)):
+            parts.append(f"{k} {v:.4g} [{lo:.4g}, {hi:.4g}]")
+        else:
+            parts.append(f"{k} {v:.4g} not identified")
+    return ", ".join(parts)
+
+
 #: Refresh phases, spread over the servo's frame, where the friction is searched globally.
 SPREAD = 4
 #: Noise variances added to the friction's threshold for the timings consistent with the data:
@@ -183,6 +218,16 @@ class ActualEstimate:
         delay_ok = hi - lo <= max(0.5 * self.delay_s, DELAY_INFORMATIVE_S)
         return {**self.friction.identified(), "delay_s": bool(delay_ok)}
 
+    def coefficients_identified(self) -> dict[str, bool]:
+        """Whether the data pin each of the servo's coefficients (:func:`coefficient_identified`
+        of its 95 % interval)."""
+        dyn = self.dynamics
+        return {
+            k: coefficient_identified(float(v), *map(float, self.dynamics_intervals[k]))
+            for k, v in zip(dyn.param_names, dyn.params, strict=True)
+            if k in self.dynamics_intervals
+        }
+
     def plant(self, name: str = "identified") -> Plant:
         """The servo's transfer function as a plant (absolute angles, physics step ``dt_s``)."""
         est = self.dynamics
@@ -258,6 +303,7 @@ class ActualEstimate:
             "delay_std_s": self.delay_std_s,
             "delay_range_s": list(self.delay_range_s),
             "identified": self.identified(),
+            "coefficients_identified": self.coefficients_identified(),
             "refresh_phase_steps": self.refresh_phase_steps,
             "offset_deg": self.offset_deg,
             "fit_pct": self.fit_pct,

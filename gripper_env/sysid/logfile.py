@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gripper_env.io.config import MAX_DATA_BYTES
+from gripper_env.io.config import MAX_DATA_BYTES, ConfigError, read_bounded
 
 __all__ = ["LOG_COLUMNS", "read_columns", "read_log"]
 
@@ -69,19 +69,14 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
     """
     p = Path(path)
     try:
-        if p.is_file() and p.stat().st_size > MAX_DATA_BYTES:  # before reading a byte
-            raise ValueError(
-                f"{p}: {p.stat().st_size / 2**20:.3g} MiB, more than the "
-                f"{MAX_DATA_BYTES >> 20} MiB a log may hold (minutes at 1 kHz are enough to "
-                "identify the gripper: cut the log)"
-            )
-        with p.open("rb") as fb:  # a pipe or a device (/dev/zero) has no size: read at most
-            raw = fb.read(MAX_DATA_BYTES + 1)  # the limit, then refuse
-        if len(raw) > MAX_DATA_BYTES:
-            raise ValueError(
-                f"{p}: more than the {MAX_DATA_BYTES >> 20} MiB a log may hold (minutes at "
-                "1 kHz are enough to identify the gripper: cut the log)"
-            )
+        try:  # a pipe or a device (/dev/zero) is refused before it is opened, a large file
+            raw = read_bounded(p, MAX_DATA_BYTES, "log")  # before a byte is read
+        except ConfigError as exc:
+            if "more than" in str(exc):
+                raise ValueError(
+                    f"{exc} (minutes at 1 kHz are enough to identify the gripper: cut the log)"
+                ) from None
+            raise ValueError(str(exc)) from None
         text = raw.decode("utf-8-sig")
         del raw
         rows = list(csv.reader(io.StringIO(text, newline="")))

@@ -223,11 +223,9 @@ def _actual_section(run: IdentificationRun, truth: Disturbance | None, true_plan
         shown = "" if true is None else _num(true, 4)
         lines.append(f"| {name} | {_num(value, 4)} | {rng} | {shown} | {err} |")
     dyn = a.dynamics
-    coef = ", ".join(
-        f"{k} {v:.4g} [{a.dynamics_intervals[k][0]:.4g}, {a.dynamics_intervals[k][1]:.4g}]"
-        for k, v in zip(dyn.param_names, dyn.params, strict=True)
-        if k in a.dynamics_intervals
-    )
+    from gripper_env.sysid.greybox import coefficients_text
+
+    coef = coefficients_text(dyn.param_names, dyn.params, a.dynamics_intervals)
     lines += [
         "",
         f"Servo dynamics: {dyn.paper_form()} (poles {_poles(dyn.poles)} rad/s; coefficients "

@@ -111,3 +111,21 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     traj_log = write_log(tmp_path / "x.csv", np.arange(300) * DT_S, desired_deg=u, actual_deg=u)
     status, _, err = run(["greybox", str(traj_log), "--base", "nope"], capsys)
     assert status == 2 and "nope" in err and len(err.strip().splitlines()) == 1
+
+
+def test_an_interval_the_data_cannot_pin_prints_not_identified():
+    """Issue 45, item 7: greybox printed ``a1 10.7 [-0.0006659, 10.82]`` for a coefficient of
+    the nearly cancelling slow pair; an interval that spans zero, or is wider than the estimate,
+    or is not finite now reads "not identified" (its numbers stay in the JSON)."""
+    from gripper_env.sysid.greybox import coefficient_identified, coefficients_text
+
+    intervals = {"a1": (-0.0006659, 10.82), "a0": (0.0671, 0.0702), "b1": (20.1, 21.3),
+                 "b0": (0.001, float("inf"))}  # fmt: skip
+    text = coefficients_text(["a1", "a0", "b1", "b0"], [10.7, 0.0686, 20.7, 0.0029], intervals)
+    assert text == (
+        "a1 10.7 not identified, a0 0.0686 [0.0671, 0.0702], b1 20.7 [20.1, 21.3], "
+        "b0 0.0029 not identified"
+    )
+    assert not coefficient_identified(-2.0, -5.0, 0.5)  # spans zero
+    assert not coefficient_identified(1.0, 0.2, 1.3)  # wider than the estimate
+    assert coefficient_identified(-1.0, -1.4, -0.5)

@@ -30,3 +30,46 @@ def test_bad_jobs_or_shares_are_refused(argv, capsys):
         main(argv)
     assert caught.value.code == 2
     assert argv[0] in capsys.readouterr().err
+
+
+def test_the_compile_says_what_comes_before_it_starts_and_each_unit_as_it_is_done(monkeypatch):
+    """The test run prints these lines before pytest's header (tests/conftest.py): the first
+    names every unit before any runs, then one line per unit as soon as it is done."""
+    import tuners.compile as compile_module
+
+    lines: list[str] = []
+    units = {name: (lambda name=name: lines.append(f"ran {name}")) for name in ("a", "b", "c")}
+    monkeypatch.setattr(compile_module, "_units", lambda: units)
+    compile_module.warm_up(lines.append)
+    assert lines[0].startswith("  3 kernel units to compile or load: a, b, c")
+    assert [line.split(":")[0].strip() for line in lines[1:]] == [
+        "ran a", "[1/3] a", "ran b", "[2/3] b", "ran c", "[3/3] c",
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_parallel_test_run_prints_the_compile_before_pytests_header(tmp_path):
+    """Issue 45: ``python -m pytest`` sat silent for 35 minutes on a fresh clone, compiling the
+    kernels before pytest's header with the message after it. Run as a user runs it (xdist
+    workers), the compile's lines come first, then the header."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(root))
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-n", "1", "-p", "no:cacheprovider",
+         "--basetemp", str(tmp_path / "inner"), "tests/tuners/test_compile_command.py",
+         "-k", "shares_cover"],
+        cwd=root, env=env, capture_output=True, text=True, timeout=1800, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    lines = proc.stdout.splitlines()
+    first = next(i for i, x in enumerate(lines) if x.startswith("compiling the simulation"))
+    ready = next(i for i, x in enumerate(lines) if x.startswith("kernels ready in "))
+    units = [x for x in lines[first:ready] if x.startswith("  [")]
+    assert units and first < ready
+    header = next(i for i, x in enumerate(lines) if "simulation kernels compiled or loaded" in x)
+    assert ready < header

@@ -5,6 +5,7 @@ import subprocess
 import sys
 import time
 import uuid
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -469,3 +470,110 @@ def test_a_trial_being_scored_keeps_its_heartbeat(fresh_postgres_database, small
         states = {t.number: t.state for t in study.get_trials(deepcopy=False)}
     assert states[scored.number] == TrialState.RUNNING
     assert states[alone.number] == TrialState.FAIL
+
+
+class _Bar:
+    """A tqdm stand-in that records what a bar was told."""
+
+    made: ClassVar[list] = []
+
+    def __init__(self, total, initial=0, **_):
+        self.total, self.n, self.closed = total, initial, False
+        _Bar.made.append(self)
+
+    def update(self, k):
+        self.n += k
+
+    def refresh(self):
+        pass
+
+    def close(self):
+        self.closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def test_one_bar_per_search_seed_counts_to_its_whole_budget(small_optuna_config, monkeypatch):
+    """Issue 45: a search's bar reached 100 % at 800 (the TPE phase), then a second bar for the
+    same seed restarted at 800/2000 (the CMA-ES phase). Now one bar counts to the budget."""
+    import optuna
+
+    import tuners.optuna.study as study_module
+    from tuners.optuna.study import run_search
+    from tuners.search_space import search_space
+    from tuners.settings import OptunaSettings, load_settings
+    from tuners.tasks import make_scorer
+
+    monkeypatch.setattr(study_module, "tqdm", _Bar)
+    _Bar.made = []
+    inputs = cli.load_inputs("test2")
+    settings = load_settings(OptunaSettings, small_optuna_config)
+    assert 0 < settings.local_fraction < 1  # two phases
+    scorer = make_scorer(inputs, settings)
+    space = search_space(scorer.task.plants, inputs.disturbance, settings)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    run_search(study, scorer, space, settings, 20, 100.0, sampler_name="tpe", seed=0)
+    assert [(b.total, b.n, b.closed) for b in _Bar.made] == [(20, 20, True)]
+    assert len(study.trials) == 20
+
+
+def test_the_budget_and_an_estimate_come_before_the_search(tmp_path, small_optuna_config):
+    from tuners.optuna.command import budget_line, estimate_line
+    from tuners.optuna.storage import open_storage
+    from tuners.tasks import make_scorer
+
+    argv = ["--plant", "test2", "--out", str(tmp_path), "--config", str(small_optuna_config),
+            "--trials", "30", "--search-seeds", "2"]  # fmt: skip
+    args = cli.parse(optuna_tuner.build_parser(), argv)
+    inputs = cli.resolve(args)
+    plan = optuna_tuner._plan(args, inputs, [])
+    storage = open_storage(plan.url, plan.settings)
+    scorer = make_scorer(inputs, plan.settings)
+    line, left = budget_line(plan, storage, scorer)
+    assert line.startswith("budget: 2 search seeds x 30 trials = 60 trials of 2 episodes each;")
+    assert left == 60
+    estimate = estimate_line(plan, scorer, left, 100.0)
+    assert estimate.startswith("estimate: about ") and " on this machine (the scoring" in estimate
+    assert scorer.episodes == 0  # the timing is no part of the run's budget
+    import optuna
+
+    study = optuna.create_study(storage=storage.optuna, study_name=f"{plan.base_name}-s0")
+    for _ in range(12):
+        study.enqueue_trial({})
+        study.tell(study.ask(), 1.0)
+    line, left = budget_line(plan, storage, scorer)
+    assert "(12 already in the storage)" in line and left == 48
+
+
+def test_help_states_what_the_defaults_cost():
+    """--help names the shipped budget (read here from the shipped config) and its time."""
+    import yaml
+
+    from gripper_env.io.config import CONFIG_DIR
+
+    shipped = yaml.safe_load((CONFIG_DIR / "tuners" / "optuna.yaml").read_text())
+    text = " ".join(optuna_tuner.build_parser().format_help().split())
+    n, k = shipped["trials"], shipped["search_seeds"]
+    assert f"'trials', {n} in the shipped one: with its {k} search seeds {n * k} trials" in text
+    assert "minutes" in text and "--trials 200 takes a tenth" in text
+
+
+def test_sqlites_write_ahead_log_is_checkpointed_often(tmp_path):
+    """Issue 45: with SQLite's default checkpoint (1000 pages) the write-ahead log alone filled
+    2 MiB after 24 trials on a full disk, the database at 4 KiB; every connection now copies it
+    into the database every 128 pages (512 KiB) and cuts it back to 1 MiB."""
+    from sqlalchemy import text
+
+    from tuners.optuna.storage import open_storage
+    from tuners.settings import OptunaSettings
+
+    storage = open_storage(f"sqlite:///{tmp_path}/s.db", OptunaSettings.model_construct())
+    with storage.optuna.engine.connect() as connection:
+        names = ("journal_mode", "wal_autocheckpoint", "journal_size_limit")
+        pragma = {name: connection.execute(text(f"PRAGMA {name}")).scalar() for name in names}
+    assert pragma == {"journal_mode": "wal", "wal_autocheckpoint": 128,
+                      "journal_size_limit": 1 << 20}  # fmt: skip

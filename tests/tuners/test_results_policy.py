@@ -87,6 +87,37 @@ def test_adopt_records_copied_files_and_check_then_finds_them(tmp_path, monkeypa
     assert "not under results/" in capsys.readouterr().err
 
 
+class _Parsed(Exception):
+    """Stops a command right after it parsed its arguments (the namespace in ``args[0]``)."""
+
+
+@pytest.mark.parametrize(
+    "module",
+    ["tuners.speed.core", "tuners.speed.schedule", "tuners.speed.firmware",
+     "tuners.speed.hardware", "tuners.speed.sysid"],
+)  # fmt: skip
+def test_speed_commands_write_to_runs_unless_told(module, monkeypatch):
+    """Issue 45: the speed commands wrote results/ beside the source by default (from a wheel,
+    the environment's lib/); the committed figures now take ``--out results`` as every other
+    command's (tuners.results passes it)."""
+    import argparse
+    import importlib
+
+    real = argparse.ArgumentParser.parse_args
+
+    def parse_then_stop(self, args=None, namespace=None):
+        raise _Parsed(real(self, args, namespace))
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_then_stop)
+    main = importlib.import_module(module).main
+    with pytest.raises(_Parsed) as parsed:
+        main([])
+    out = Path(parsed.value.args[0].out)
+    assert not out.is_absolute() and out.parts[0] == "runs"
+    committed = [c for c in results.COMMANDS if module in c.argv]
+    assert committed and all("--out" in c.argv for c in committed)
+
+
 @pytest.mark.parametrize("module", ["tuners.optuna", "tuners.classical", "tuners.manual"])
 def test_help_says_where_runs_go(module):
     proc = subprocess.run([sys.executable, "-m", module, "--help"], cwd=REPO,

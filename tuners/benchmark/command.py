@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
 from tuners import cli
 from tuners.conventions import command_parser
@@ -114,8 +115,8 @@ def _quick_conflicts(out: Path, names: list[tuple[str, str]]) -> None:
     full = []
     for path in paths:
         try:
-            content = json.loads(path.read_text())
-        except (OSError, ValueError):
+            content = json.loads(read_bounded(path, MAX_DATA_BYTES, "result file"))
+        except (OSError, ValueError):  # missing, a pipe, too large, not JSON: not a full run's
             continue
         if not isinstance(content, dict):
             continue

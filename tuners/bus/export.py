@@ -35,7 +35,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gripper_env.io.files import collect_provenance, save_figure, write_atomic, write_json
+from gripper_env.io.files import (
+    collect_provenance,
+    save_figure,
+    write_atomic,
+    write_group,
+    write_json,
+)
 from tuners.cli import check_output_folder
 from tuners.conventions import conform
 
@@ -262,7 +268,7 @@ def _verify(args: argparse.Namespace) -> int:
     stem = args.out / f"{args.verify}_mujoco"
     command = " ".join(["python -m tuners.bus.export", *sys.argv[1:]])
     result = verify_family(args.verify, seed=args.seed, generations=args.generations, log=say)
-    with collect_provenance(args.out, stem.name, command=command, started=started):
+    with write_group(), collect_provenance(args.out, stem.name, command=command, started=started):
         doc: dict[str, Any] = result.as_dict()
         write_json(stem.with_suffix(".json"), doc)
         text = format_verification(result)

@@ -35,10 +35,24 @@ from typing import Any
 import optuna
 from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
 
-from gripper_env.io.config import ConfigError
+from gripper_env.io.config import ConfigError, check_input
 from tuners.settings import OptunaSettings
 
-__all__ = ["FileLock", "JournalFile", "StudyStorage", "open_storage", "redact"]
+__all__ = [
+    "MAX_STORAGE_BYTES",
+    "FileLock",
+    "JournalFile",
+    "StudyStorage",
+    "failure_line",
+    "open_storage",
+    "redact",
+]
+
+#: The largest one-machine storage (journal file or SQLite database) a study opens (bytes): a
+#: study of the default 3 seeds x 2000 trials holds a few MiB of either (about 1 KiB a trial).
+#: Optuna replays a journal whole when it opens it, so a larger one would cost minutes before
+#: the first trial; a device (``/dev/zero``) or a named pipe is refused from its stat alone.
+MAX_STORAGE_BYTES = 256 << 20
 
 
 def redact(url: str) -> str:
@@ -272,14 +286,62 @@ class StudyStorage:
         return self._lock if self._lock is not None else contextlib.nullcontext()
 
 
+#: SQLite's write-ahead log is copied into the database every this many pages (4 KiB each), and
+#: cut back to :data:`_WAL_LIMIT_BYTES` after: SQLite's default (1000 pages) let the log alone
+#: fill 2 MiB after 24 trials on a full disk, with the database itself at 4 KiB.
+_WAL_CHECKPOINT_PAGES = 128
+_WAL_LIMIT_BYTES = 1 << 20
+
+
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     """WAL journal, fsync at checkpoints only: a killed process still loses no committed trial
-    (only an OS crash could lose the last few), and 200 trials do not wait on 1000 fsyncs."""
+    (only an OS crash could lose the last few), and 200 trials do not wait on 1000 fsyncs; the
+    log checkpointed often enough that it cannot outgrow its study."""
     if type(dbapi_connection).__module__.startswith("sqlite3"):
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")
         cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.execute(f"PRAGMA wal_autocheckpoint={_WAL_CHECKPOINT_PAGES}")
+        cursor.execute(f"PRAGMA journal_size_limit={_WAL_LIMIT_BYTES}")
         cursor.close()
+
+
+#: The storages this process opened, latest last (:func:`failure_line` names them).
+_OPENED: list[StudyStorage] = []
+
+
+def failure_line(exc: BaseException) -> str | None:
+    """One line for a storage that failed under a study (a full disk under SQLite: Optuna's
+    ``StorageInternalError`` from SQLAlchemy's from sqlite3's, 69 lines of three chained
+    tracebacks), naming the storage, the file and its disk's free space; ``None`` when ``exc``
+    did not come from a storage."""
+    chain: list[BaseException] = []
+    e: BaseException | None = exc
+    while e is not None and len(chain) < 16:
+        chain.append(e)
+        e = e.__cause__ or e.__context__
+    modules = {type(c).__module__.split(".")[0] for c in chain}
+    if not modules & {"optuna", "sqlalchemy", "sqlite3", "psycopg", "psycopg2"} or not _OPENED:
+        return None
+    if not any(isinstance(c, optuna.exceptions.StorageInternalError) for c in chain) and not (
+        modules & {"sqlalchemy", "sqlite3"}
+    ):
+        return None
+    root = chain[-1]
+    what = " ".join(
+        (str(getattr(root, "orig", None) or root).strip() or type(root).__name__).split()
+    )
+    what = what.removeprefix("(sqlite3.OperationalError) ")
+    storage = _OPENED[-1]
+    line = f"--storage {storage.name}: {what}"
+    if storage.file is not None:
+        try:
+            st = os.statvfs(storage.file.parent)
+            free = st.f_bavail * st.f_frsize
+            line += f" ({storage.file.parent}: {free / 2**10:.0f} KiB free)"
+        except OSError:
+            pass
+    return line
 
 
 def _driver_url(url: str) -> str:
@@ -309,16 +371,20 @@ def open_storage(url: str, settings: OptunaSettings) -> StudyStorage:
         The path or URL cannot be opened, parsed or reached.
     """
     if "://" not in url:
-        return _open_journal(url)
-    if url.startswith("sqlite"):
-        return _open_sqlite(url)
-    return _open_server(url, settings)
+        opened = _open_journal(url)
+    elif url.startswith("sqlite"):
+        opened = _open_sqlite(url)
+    else:
+        opened = _open_server(url, settings)
+    _OPENED.append(opened)
+    return opened
 
 
 def _open_journal(path_text: str) -> StudyStorage:
     path = Path(path_text)
     if path.is_dir():
         raise ConfigError(f"--storage {path_text!r} is a folder; give a journal file path")
+    check_input(path, MAX_STORAGE_BYTES, "journal storage", "--storage", missing_ok=True)
     try:
         lock = FileLock(Path(f"{path}.flock"))
         with lock:
@@ -347,6 +413,8 @@ def _open_sqlite(url: str) -> StudyStorage:
     if not file.parent.is_dir():
         folder = str(file.parent)
         raise ConfigError(f"cannot open storage {url!r}: folder {folder!r} does not exist")
+    for part in (file, Path(f"{file}-wal"), Path(f"{file}-journal")):  # what SQLite reads
+        check_input(part, MAX_STORAGE_BYTES, "SQLite storage", "--storage", missing_ok=True)
     lock = FileLock(Path(f"{file}.flock"))
     with lock:  # workers started together would race to create the tables
         storage = _rdb(url, None)

@@ -200,6 +200,7 @@ def run_study(
     terms: Sequence[str] = (),
     worker: Worker | None = None,
     warm_start: Sequence[Any] = (),
+    bar: Any = None,
 ) -> StudyResult:
     """Ask, score, tell in batches until the study holds ``n_trials`` finished trials.
 
@@ -229,6 +230,9 @@ def run_study(
     warm_start : sequence of PIDGains
         Gain sets enqueued as the first trials of a study that has none yet (a resumed or
         shared study already has them); they count toward ``n_trials``.
+    bar : tqdm, optional
+        The progress bar to advance (left open): a search's phases share one bar that counts
+        to the study's whole budget (:func:`run_search`). Default: a bar of this call's own.
 
     A batch asks only for what the study still lacks, counting the trials other workers have
     in flight, so several workers finish exactly ``n_trials`` (on a one-machine storage, where
@@ -249,15 +253,12 @@ def run_study(
     done = sum(t.state == TrialState.COMPLETE for t in trials)
     run_here = 0
     interrupted = False
-    bar = tqdm(
-        total=n_trials,
-        initial=min(done, n_trials),
-        desc=study.study_name,
-        unit="trial",
-        file=sys.stderr,
-        disable=not progress,
-        dynamic_ncols=True,
-    )
+    own_bar = bar is None
+    if bar is None:
+        bar = _bar(study, n_trials, done, progress)
+    else:
+        bar.n = min(done, bar.total)
+        bar.refresh()
     pending: list[tuple[optuna.Trial | None, optuna.Trial]] = []
     try:
         while True:
@@ -311,8 +312,21 @@ def run_study(
             except Exception:
                 pass
     finally:
-        bar.close()
+        if own_bar:
+            bar.close()
     return _result(study, space, settings, default_n, run_here, interrupted, scorer, terms)
+
+
+def _bar(study: optuna.Study, total: int, done: int, progress: bool) -> Any:
+    return tqdm(
+        total=total,
+        initial=min(done, total),
+        desc=study.study_name,
+        unit="trial",
+        file=sys.stderr,
+        disable=not progress,
+        dynamic_ncols=True,
+    )
 
 
 def run_search(
@@ -342,14 +356,41 @@ def run_search(
     three seeds, 2000 at 19.5), while CMA-ES adapts its covariance along it (TPE 800 then
     CMA-ES 1200: 17.5-18.1 over three seeds).
     """
-    from tuners.optuna.sampler import make_sampler
-
     local = sampler_name == "tpe" and not terms and settings.local_fraction > 0.0
     n_global = n_trials - round(settings.local_fraction * n_trials) if local else n_trials
+    # one bar for the study, counting to its whole budget through both phases (it restarted
+    # at "800/2000" for the second phase after reaching 100 % at 800)
+    done = sum(t.state == TrialState.COMPLETE for t in study.get_trials(deepcopy=False))
+    with _bar(study, n_trials, done, progress) as bar:
+        return _phases(study, scorer, space, settings, n_trials, n_global, default_n,
+                       sampler_name, seed, progress, terms, worker, warm_start, local,
+                       bar)  # fmt: skip
+
+
+def _phases(
+    study: optuna.Study,
+    scorer: GainScorer,
+    space: SearchSpace,
+    settings: OptunaSettings,
+    n_trials: int,
+    n_global: int,
+    default_n: float,
+    sampler_name: str,
+    seed: int,
+    progress: bool,
+    terms: Sequence[str],
+    worker: Worker | None,
+    warm_start: Sequence[Any],
+    local: bool,
+    bar: Any,
+) -> StudyResult:
+    """:func:`run_search`'s phases on one progress bar."""
+    from tuners.optuna.sampler import make_sampler
+
     first = run_study(
         study, scorer, space, settings, max(n_global, 1), default_n,
         sampler=make_sampler(sampler_name, seed, settings, bool(terms)), progress=progress,
-        terms=terms, worker=worker, warm_start=warm_start,
+        terms=terms, worker=worker, warm_start=warm_start, bar=bar,
     )  # fmt: skip
     if not local or first.interrupted or n_global >= n_trials:
         return first
@@ -359,7 +400,7 @@ def run_search(
         second = run_study(
             study, scorer, space, settings, n_trials, default_n,
             sampler=make_sampler(sampler_name, seed, settings, False), progress=progress,
-            worker=worker,
+            worker=worker, bar=bar,
         )  # fmt: skip
         second.n_run_here += first.n_run_here
         return second
@@ -368,7 +409,7 @@ def run_search(
         cma = optuna.samplers.CmaEsSampler(source_trials=source, seed=seed, n_startup_trials=0,
                                            warn_independent_sampling=False)  # fmt: skip
     second = run_study(study, scorer, space, settings, n_trials, default_n, sampler=cma,
-                       progress=progress, worker=worker)  # fmt: skip
+                       progress=progress, worker=worker, bar=bar)  # fmt: skip
     second.n_run_here += first.n_run_here
     return second
 

@@ -30,7 +30,7 @@ import numpy as np
 from gripper_env import paper
 from gripper_env.evaluation.metrics import Metrics, compute_metrics, fit_percent, sample_sd
 from gripper_env.evaluation.stability import stability_report
-from gripper_env.io.files import collect_provenance, save_figure, write_atomic
+from gripper_env.io.files import collect_provenance, save_figure, write_atomic, write_group
 from gripper_env.model.disturbances import describe, load_disturbance
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.plants import load_plant
@@ -465,7 +465,8 @@ def reproduce(
         "```",
         "",
     ]
-    with collect_provenance(out, "paper_reproduction", command=command):
+    # the page, its figures and the sidecar all or none (a full disk)
+    with write_group(), collect_provenance(out, "paper_reproduction", command=command):
         say("the four plants (Table 1, Figure 7)...")
         _plants_section(lines, fig_dir, seeds)
         say(f"Table 2: the SDs over {n_seeds} seeds of the actual gripper (Figure 9)...")

@@ -4,11 +4,13 @@
 
 Recipe: open the board, drive the jaw open loop to 92 deg, then to 21 deg (closed), then back
 to 92 deg, let it settle at each end (``--settle``) and average the ADC readings over
-``--average`` seconds. The counts at 21 and 92 deg, the date and the port are written to the
-calibration file (default ``$GRIPPER_CALIBRATION`` or ``~/.config/gripper_env/calibration.json``),
-which ``tuners.rig.record``, ``tuners.rig.deploy`` and the hardware environment read. The jaw must
-be
-free to reach both ends (nothing between the jaws).
+``--average`` seconds. The counts at 21 and 92 deg, the date, the port and the board's device
+id are written to the board's own calibration file (default
+``~/.config/gripper_env/calibrations/<device id>.json``, one per board: a virtual board's never
+replaces a real one's; ``--output`` or ``$GRIPPER_CALIBRATION`` name another file, refused if
+it holds another board's calibration), which ``tuners.rig.record``, ``tuners.rig.deploy`` and
+the hardware environment read. The jaw must be free to reach both ends (nothing between the
+jaws).
 """
 
 from __future__ import annotations
@@ -22,7 +24,11 @@ import numpy as np
 
 from gripper_env.hardware.host.calibration import (
     Calibration,
-    default_calibration_path,
+    CalibrationError,
+    calibration_path_for,
+    calibrations_dir,
+    check_device,
+    load_calibration,
     save_calibration,
 )
 from gripper_env.hardware.protocol import Mode
@@ -69,7 +75,9 @@ def _parser() -> argparse.ArgumentParser:
         "--output",
         default=None,
         metavar="FILE",
-        help=f"calibration file to write (default: {default_calibration_path()})",
+        help="calibration file to write, refused if it holds another board's (default: "
+        f"$GRIPPER_CALIBRATION, else the board's own in {calibrations_dir()}, named by its "
+        "device id)",
     )
     parser.add_argument(
         "--settle",
@@ -92,8 +100,19 @@ def _run(args: argparse.Namespace) -> int:
     if args.average <= 0.01:
         raise ValueError("--average must be more than 0.01 s")
     from gripper_env.hardware.host.device import GripperDevice
+    from tuners.rig.cli import given_calibration
 
+    args.calibration = args.output
+    named, option = given_calibration(args)
     with GripperDevice(args.port, boot_wait_s=args.boot_wait, timeout_s=args.timeout) as device:
+        device_id = device.info.device_id if device.info else None
+        path = named if named is not None else calibration_path_for(device_id, args.port)
+        if named is not None and named.exists():  # before the jaw moves
+            try:
+                check_device(load_calibration(named, option), device_id, args.port,
+                             f"{option.replace('--calibration', '--output')} {named}")  # fmt: skip
+            except CalibrationError as exc:
+                raise CalibrationError(f"{exc}; not replaced (give another --output)") from None
         device.set_setpoint(92.0)
         device.set_mode(Mode.OPEN_LOOP)
         device.wait_telemetry(args.settle)  # start from the open end
@@ -109,7 +128,7 @@ def _run(args: argparse.Namespace) -> int:
         samples=[n_lo, n_hi],
         noise_counts=[round(lo_std, 3), round(hi_std, 3)],
     )
-    path = save_calibration(cal, args.output)
+    path = save_calibration(cal, path)
     print(
         f"calibration: {lo:.2f} counts at 21 deg, {hi:.2f} counts at 92 deg "
         f"({abs(cal.deg_per_count):.3f} deg per count) -> {path}"

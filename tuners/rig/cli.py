@@ -11,10 +11,12 @@ notes an error carries (where a failed run's partial log is) follow on their own
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
-from gripper_env.hardware.host.calibration import CalibrationError, default_calibration_path
+from gripper_env.hardware.host.calibration import CalibrationError, calibrations_dir
 from gripper_env.hardware.host.errors import DeviceError
 from gripper_env.hardware.host.serial_port import list_ports
 from gripper_env.io.config import ConfigError
@@ -63,9 +65,21 @@ def add_device_arguments(parser: argparse.ArgumentParser, calibration: bool = Tr
             "--calibration",
             default=None,
             metavar="FILE",
-            help="calibration file from 'python -m tuners.rig.calibrate' (default: "
-            f"$GRIPPER_CALIBRATION or {default_calibration_path()})",
+            help="calibration file from 'python -m tuners.rig.calibrate', refused if it is "
+            "another board's (default: $GRIPPER_CALIBRATION, else the board's own, found by its "
+            f"device id in {calibrations_dir()})",
         )
+
+
+def given_calibration(args: argparse.Namespace) -> tuple[Path | None, str]:
+    """The calibration file the user named, and what named it: ``--calibration``, else
+    ``$GRIPPER_CALIBRATION``; ``(None, "")`` for the board's own (found after the handshake)."""
+    if getattr(args, "calibration", None):
+        return Path(args.calibration).expanduser(), "--calibration"
+    env = os.environ.get("GRIPPER_CALIBRATION")
+    if env:
+        return Path(env).expanduser(), "$GRIPPER_CALIBRATION"
+    return None, ""
 
 
 def run_cli(

@@ -34,7 +34,7 @@ from gripper_env.io.files import path_in, safe_name, save_figure, write_json
 from gripper_env.model.references import PROFILES
 from tuners.cli import DEFAULT_OUT, check_output_folder
 from tuners.conventions import command_parser
-from tuners.rig.cli import add_device_arguments, run_cli
+from tuners.rig.cli import add_device_arguments, given_calibration, run_cli
 
 if TYPE_CHECKING:  # the library is imported where it is used: --help answers before it loads
     from gripper_env.evaluation.objective import Constraints
@@ -182,7 +182,39 @@ def prediction(
     return predicted, float(fit_percent(measured.y[0], predicted.y[0]))
 
 
+def settling_band(
+    measured: Trajectory, calibration: Any, objective: Any, disturbance: str
+) -> dict[str, Any]:
+    """The settling band's floor (deg) for a record of the rig, and how it is made up: the
+    objective's floor on the prediction's preset (the friction band the jaw may rest anywhere
+    in), plus what the reading itself leaves (:func:`~gripper_env.evaluation.metrics.
+    reading_band_deg`: one ADC count of the calibration, and three times the reading's noise).
+    The metrics take ``max(2 % of the move, floor)``; the measured and the predicted response
+    are judged in the same band."""
+    from gripper_env.evaluation.metrics import reading_band_deg
+    from gripper_env.model.disturbances import load_disturbance
+
+    resolution = 71.0 / abs(calibration.adc_at_92_deg - calibration.adc_at_21_deg)  # deg/count
+    reading, noise = reading_band_deg(measured.y[0], resolution)
+    friction = float(objective.settling_band_deg(load_disturbance(disturbance)))
+    floor = friction + reading
+    text = (
+        f"+/-{floor:.2f} deg at least: the {disturbance} preset's friction band {friction:.2f} deg "
+        f"+ the reading's {resolution:.2f}-deg ADC step + 3 x its {noise:.2f}-deg noise; "
+        "2 % of a move where wider"
+    )
+    return {
+        "floor_deg": floor,
+        "friction_band_deg": friction,
+        "adc_step_deg": resolution,
+        "reading_noise_sd_deg": noise,
+        "text": text,
+    }
+
+
 def _run(args: argparse.Namespace) -> int:
+    from gripper_env.hardware.host.calibration import board_calibration, load_calibration
+    from gripper_env.io.config import MAX_DATA_BYTES, check_input
     from gripper_env.model.gains_file import GainsFileError, load_gains_file
 
     loaded = load_gains_file(args.gains)
@@ -191,9 +223,13 @@ def _run(args: argparse.Namespace) -> int:
     safe_name(tuner or "gains", "tuner")
     if plant:
         safe_name(plant, "plant name")
+    # a pipe, a device or an oversized file as the calibration: refused before the gate's work
+    # (a missing one after it: the gate's verdict on the gains stands without a rig)
+    cal_path, cal_option = given_calibration(args)
+    if cal_path is not None:
+        check_input(cal_path, MAX_DATA_BYTES, "calibration file", cal_option, missing_ok=True)
     from gripper_env.evaluation.metrics import compute_metrics
     from gripper_env.evaluation.objective import load_objective
-    from gripper_env.hardware.host.calibration import load_calibration
     from gripper_env.hardware.host.device import GripperDevice
     from gripper_env.hardware.host.experiment import CsvLog, run_profile
     from gripper_env.hardware.protocol import Mode
@@ -220,17 +256,20 @@ def _run(args: argparse.Namespace) -> int:
         name = f"deploy_{safe_name(plant, 'plant name')}_{safe_name(tuner or 'gains', 'tuner')}"
         out_dir = path_in(DEFAULT_OUT / "hardware", f"{name}_{reference.name}", what="profile")
     check_output_folder(out_dir, "--output-dir")  # before the board moves
-    calibration = load_calibration(args.calibration)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    given = None if cal_path is None else load_calibration(cal_path, cal_option)
     # the log's columns: a Trajectory's CSV columns
     log = CsvLog(out_dir / "response.csv", Trajectory.CSV_COLUMNS, deploy_rows)
-    with GripperDevice(
-        args.port, calibration=calibration, boot_wait_s=args.boot_wait, timeout_s=args.timeout
-    ) as device:
-        device.configure(gains, options)
+    with GripperDevice(args.port, boot_wait_s=args.boot_wait, timeout_s=args.timeout) as device:
+        device_id = device.info.device_id if device.info else None
+        # the board's own calibration, or the given one if it is this board's: refused before
+        # the first CONFIGURE and before anything is written
+        calibration = board_calibration(device_id, args.port, given, f"{cal_option} {cal_path}")
+        out_dir.mkdir(parents=True, exist_ok=True)
+        device.configure(gains, options, calibration=calibration)
         rec = run_profile(device, reference, Mode.CLOSED_LOOP, log=log)
     measured = rec.trajectory()
     predicted, fit = prediction(model, measured, gains, options, args.disturbance)
+    band = settling_band(measured, calibration, load_objective(args.objective), args.disturbance)
     content = {
         "plant": plant,
         "tuner": tuner,
@@ -240,8 +279,9 @@ def _run(args: argparse.Namespace) -> int:
         "disturbance": args.disturbance,
         "stability": report.as_dict(),
         "fit_pct": fit,
-        "measured": compute_metrics(measured).as_dict(),
-        "predicted": compute_metrics(predicted).as_dict(),
+        "settling_band": band,
+        "measured": compute_metrics(measured, settling_band_deg=band["floor_deg"]).as_dict(),
+        "predicted": compute_metrics(predicted, settling_band_deg=band["floor_deg"]).as_dict(),
         "link": {
             "samples": len(rec.samples),
             "missing_samples": measured.missing_samples,
@@ -266,7 +306,8 @@ def _run(args: argparse.Namespace) -> int:
     print(
         f"deployed {tuner or args.gains} on {args.port}: fit {fit:.1f} % to the prediction, "
         f"grip overshoot {m['grip']['overshoot_pct']:.1f} %, settling "
-        f"{m['grip']['settling_time_s']:.3g} s, {rec.frames_lost} frames lost -> {out_dir}"
+        f"{m['grip']['settling_time_s']:.3g} s (within {band['text']}), {rec.frames_lost} "
+        f"frames lost -> {out_dir}"
     )
     return 0
 

@@ -28,7 +28,7 @@ from gripper_env.io.files import path_in
 from gripper_env.model.references import PROFILES, load_reference
 from tuners.cli import DEFAULT_OUT, check_output_file
 from tuners.conventions import command_parser
-from tuners.rig.cli import add_device_arguments, run_cli
+from tuners.rig.cli import add_device_arguments, given_calibration, run_cli
 
 __all__ = ["main"]
 
@@ -85,11 +85,18 @@ def _run(args: argparse.Namespace) -> int:
     default = path_in(DEFAULT_OUT / "hardware", f"record_{reference.name}.csv", what="profile")
     output = Path(args.output) if args.output else default
     check_output_file(output, "--output", ".csv")  # before the board moves
+    from gripper_env.hardware.host.calibration import load_calibration
+
+    # a file given is read before the port opens (and checked against the board after the
+    # handshake); without one, the board's own calibration is found by its device id
+    path, option = given_calibration(args)
+    calibration = None if path is None else load_calibration(path, option)
     print(f"recording {reference.name} ({reference.duration_s:g} s of device time) on "
           f"{args.port}...", file=sys.stderr, flush=True)  # fmt: skip
     from gripper_env.sysid.experiments import DeviceRecorder  # after parsing: --help is light
 
-    recorder = DeviceRecorder(args.port, args.calibration, args.boot_wait, args.timeout,
+    recorder = DeviceRecorder(args.port, calibration, args.boot_wait, args.timeout,
+                              calibration_source=f"{option} {path}",
                               fraction=every_s(10.0, reference.duration_s),
                               attempts=args.attempts,
                               warn=lambda m: print(m, file=sys.stderr, flush=True))  # fmt: skip

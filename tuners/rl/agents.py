@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.io.config import MAX_CONFIG_BYTES, check_input, read_bounded
 from gripper_env.io.files import write_atomic, write_json
 from gripper_env.model.pid import PIDGains
 
@@ -62,6 +63,10 @@ __all__ = [
 ]
 
 AGENT_FORMAT = "gripper-agent"
+
+#: The most an agent (its folder's files, a model zip, a normalizer) may hold (bytes): the
+#: committed agents take 156 KiB; SB3's MLP policies of a few layers take a few MiB at most.
+MAX_AGENT_BYTES = 256 << 20
 
 
 class Agent:
@@ -223,7 +228,8 @@ def load_agent(folder: str | os.PathLike[str]) -> Agent:
     meta_path = folder / "agent.json"
     if not meta_path.is_file() or not (folder / "model.zip").is_file():
         raise ValueError(f"no agent in {folder}: it needs agent.json and model.zip")
-    meta = json.loads(meta_path.read_text())
+    check_input(folder, MAX_AGENT_BYTES, "agent", folder=True)
+    meta = json.loads(read_bounded(meta_path, MAX_CONFIG_BYTES, "agent description"))
     if meta.get("format") != AGENT_FORMAT:
         raise ValueError(f"{meta_path}: not a {AGENT_FORMAT} file")
     from tuners.rl.envs import require_rl
@@ -320,6 +326,7 @@ def _sb3_class(algo: str | None, zip_path: Path) -> Any:
 def _normalizer(path: Path | None) -> Any:
     if path is None or not path.is_file():
         return None
+    check_input(path, MAX_AGENT_BYTES, "observation normalizer")
     with open(path, "rb") as f:
         norm = pickle.load(f)
     norm.training = False
@@ -327,6 +334,7 @@ def _normalizer(path: Path | None) -> Any:
 
 
 def _zip_agent(path: Path, algo: str | None, normalizer: Path | None = None) -> LoadedAgent:
+    check_input(path, MAX_AGENT_BYTES, "stable-baselines3 model", "AGENT")
     cls = _sb3_class(algo, path)
     model = cls.load(path, device="cpu")
     norm = _normalizer(normalizer if normalizer is not None else path.parent / "vecnormalize.pkl")
@@ -374,8 +382,10 @@ def _zoo_agent(run: Path, algo: str | None, model: str = "final") -> LoadedAgent
         z for z in sorted(run.glob("*.zip")) if (z.with_suffix("") / "args.yml").is_file()
     )
     saved = model_zip.with_suffix("")
-    args = dict(yaml.load((saved / "args.yml").read_text(), Loader=yaml.UnsafeLoader))
-    config = dict(yaml.load((saved / "config.yml").read_text(), Loader=yaml.UnsafeLoader)) if (
+    args = dict(yaml.load(read_bounded(saved / "args.yml", MAX_CONFIG_BYTES, "rl-zoo3 args"),
+                          Loader=yaml.UnsafeLoader))  # fmt: skip
+    config = dict(yaml.load(read_bounded(saved / "config.yml", MAX_CONFIG_BYTES, "rl-zoo3 config"),
+                            Loader=yaml.UnsafeLoader)) if (
         saved / "config.yml").is_file() else {}  # fmt: skip
     chosen = model_zip
     if model == "best":
@@ -474,6 +484,7 @@ def load_any(spec: str, algo: str | None = None, model: str = "final") -> list[L
     """
     path = Path(spec)
     if path.is_dir():
+        check_input(path, MAX_AGENT_BYTES, "agent", "AGENT", folder=True)
         if (path / "agent.json").is_file():
             agent = load_agent(path)
             return [LoadedAgent(agent, str(path), "agent-folder", agent.env_id,
@@ -483,9 +494,8 @@ def load_any(spec: str, algo: str | None = None, model: str = "final") -> list[L
             return [_zoo_agent(run, algo, model) for run in runs]
         raise ValueError(f"AGENT {spec}: a folder with neither agent.json (this project's agent) "
                          "nor an rl-zoo3 run (<env>.zip beside <env>/args.yml)")  # fmt: skip
-    if path.suffix == ".zip":
-        if not path.is_file():
-            raise ValueError(f"AGENT {spec}: no such file")
+    if path.suffix == ".zip":  # a pipe or a device refused unopened, a large one by its size
+        check_input(path, MAX_AGENT_BYTES, "stable-baselines3 model", "AGENT")
         return [_zip_agent(path, algo)]
     if ":" in spec and not path.exists():
         return [_callable_agent(spec)]

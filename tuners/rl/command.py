@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
 from gripper_env.io.files import write_result_json
 from tuners import cli
 from tuners.conventions import conform
@@ -341,7 +342,8 @@ def _curve(run: dict[str, Any]) -> tuple[list[float], list[float]]:
 def _optuna_best(out: Path, plant: str, plants: list[str]) -> float | None:
     path = out / plant / ("optuna-robust.json" if plants else "optuna.json")
     try:
-        return float(json.loads(path.read_text())["tuning"]["best_value_tuning"])
+        doc = json.loads(read_bounded(path, MAX_DATA_BYTES, "gains file"))
+        return float(doc["tuning"]["best_value_tuning"])
     except (OSError, KeyError, ValueError, TypeError):
         return None
 

@@ -19,7 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from tuners import cli
 
 __all__ = ["leaderboard", "load_rows", "main"]
@@ -42,8 +43,8 @@ def load_rows(folder: str | Path) -> list[dict[str, Any]]:
     rows = []
     for path in sorted(root.rglob("*.json")):
         try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError):
+            data = json.loads(read_bounded(path, MAX_DATA_BYTES, "row file"))
+        except (OSError, ValueError):  # a pipe, too large, not JSON: not a row
             continue
         if isinstance(data, dict) and data.get("format") == ROW_FORMAT:
             data["_path"] = str(path)
@@ -162,7 +163,7 @@ def _main(argv: list[str] | None = None) -> int:
         from tuners.rl.reference_scores import load_reference
 
         reference = load_reference(args.reference)
-    with collect_provenance(args.out.parent, args.out.stem, command=args.command):
+    with write_group(), collect_provenance(args.out.parent, args.out.stem, command=args.command):
         write_atomic(args.out, leaderboard(rows, reference, str(args.rows)))
     print(f"wrote {args.out} ({len(rows)} rows, {len({r['task'] for r in rows})} tasks)")
     return 0

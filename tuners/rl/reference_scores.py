@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from gripper_env.io.config import MAX_DATA_BYTES, read_bounded
 from gripper_env.io.files import (
     collect_provenance,
     run_facts,
@@ -816,7 +817,7 @@ def load_reference(path: str | Path = "results/reference_scores.json") -> dict[s
     if not p.is_file():
         raise ValueError(f"{p}: no reference scores; run 'python -m tuners.rl.reference_scores "
                          "--out results' first (or give --reference)")  # fmt: skip
-    data = json.loads(p.read_text())
+    data = json.loads(read_bounded(p, MAX_DATA_BYTES, "reference scores file"))
     if data.get("format") != "gripper-rl-reference-scores" or data.get("version") != 2:
         raise ValueError(f"{p}: not the RL benchmark's reference scores (version 2); "
                          "regenerate them with python -m tuners.rl.reference_scores")  # fmt: skip

@@ -46,7 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from gripper_env.evaluation.admission import Admission
 from gripper_env.evaluation.objective import Objective
 from gripper_env.evaluation.scoring import GainScorer
-from gripper_env.io.config import CONFIG_DIR, load_yaml, validate
+from gripper_env.io.config import CONFIG_DIR, MAX_DATA_BYTES, load_yaml, read_bounded, validate
 from gripper_env.io.files import write_result_json
 from gripper_env.model.disturbances import Disturbance
 from gripper_env.model.pid import PIDGains
@@ -478,7 +478,7 @@ def _reusable_run(
 ) -> TuneRun | None:  # fmt: skip
     """The run at ``path`` if it was made with these settings, budget, environment and rule."""
     try:
-        old = json.loads(path.read_text())
+        old = json.loads(read_bounded(path, MAX_DATA_BYTES, "result file"))
     except (OSError, ValueError):
         return None
     budget = s.episodes if episodes is None else int(episodes)

@@ -14,7 +14,8 @@
   1024 (the N sweep), the cost of an ``rgb_array`` frame, and ``GripperPIDTune-v0`` episodes per
   second;
 
-and writes ``results/speed.md``, ``results/speed.json`` and ``results/speed.provenance.json``
+and writes ``speed.md``, ``speed.json`` and ``speed.provenance.json`` into ``--out`` (default
+``runs/``; the committed ones with ``--out results``)
 (the machine's platform, Python and library versions, commit, date). The machine is shared and
 noisy: figures are medians and the ratios are measured in the same run.
 """
@@ -34,7 +35,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model import pid
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
@@ -43,7 +44,9 @@ from gripper_env.model.references import load_reference
 from gripper_env.sim import BatchSimulator, kernel, sensor, servo
 from tuners.speed import envs as envs_speed
 
-RESULTS = Path(__file__).resolve().parents[2] / "results"
+#: Where a run writes without ``--out``: runs/ of the working directory, as every command
+#: (the committed figures are regenerated with ``--out results``: ``python -m tuners.results``).
+RUNS = Path("runs")
 GAINS = (1.0, 9.0, -0.001, 100.0)  # the paper's tuned gains on TF test2
 OPTIONS = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
 
@@ -161,7 +164,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--slow-repeats", type=int, default=3, help="repeats of the python-control/Python loops"
     )
-    parser.add_argument("--out", type=Path, default=RESULTS, help="folder for speed.md/json")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=RUNS,
+        help="folder for speed.md/json (default: runs; the committed figures: --out results)",
+    )
     parser.add_argument(
         "--envs-repeats", type=int, default=9, help="repeats of the environments' timings"
     )
@@ -199,7 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     if "envs" in figures:
         text += "\n" + envs_speed.markdown(figures["envs"])
     # the machine's platform and library versions, commit and date: speed.provenance.json
-    with collect_provenance(args.out, "speed", command=figures["command"], started=started):
+    with (
+        write_group(),
+        collect_provenance(args.out, "speed", command=figures["command"], started=started),
+    ):
         write_atomic(args.out / "speed.json", json.dumps(figures, indent=2) + "\n")
         write_atomic(args.out / "speed.md", text)
     print(text)

@@ -47,7 +47,7 @@ import numpy as np
 
 import gripper_env  # noqa: F401  (registers the ids)
 from gripper_env.envs import kernels
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.sim.compile import compile_kernel
 
 SERVO = "gripper_env/GripperServo-v0"
@@ -731,8 +731,12 @@ def main(argv: list[str] | None = None) -> dict:
     )
     text = loaded_markdown(fig)
     if args.out is not None:
-        with collect_provenance(args.out, "envs_speed_loaded", command=fig["command"],
-                                started=started):  # fmt: skip
+        with (
+            write_group(),
+            collect_provenance(
+                args.out, "envs_speed_loaded", command=fig["command"], started=started
+            ),
+        ):
             write_atomic(args.out / "envs_speed_loaded.json", json.dumps(fig, indent=2) + "\n")
             write_atomic(args.out / "envs_speed_loaded.md", text + "\n")
     print(text)

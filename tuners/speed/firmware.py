@@ -1,7 +1,8 @@
 """The compiled Mega 2560 firmware's timing, measured on the emulated CPU (simavr, 16 MHz).
 
-``python -m tuners.speed.firmware [--duration 60] [--image ELF]`` writes
-``results/firmware_speed.md`` and ``results/firmware_speed.json``. Every figure but the last is
+``python -m tuners.speed.firmware [--duration 60] [--image ELF] [--out DIR]`` writes
+``firmware_speed.md`` and ``firmware_speed.json`` into ``DIR`` (default ``runs/``; the committed
+ones with ``--out results``). Every figure but the last is
 in emulated cycles or microseconds, counted by the firmware-in-the-loop harness
 (``firmware/emulator``), so it is the same on any machine:
 
@@ -56,7 +57,7 @@ from gripper_env.hardware.host.device import GripperDevice
 from gripper_env.hardware.host.experiment import run_profile
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import Reference, load_reference
 
@@ -538,7 +539,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m tuners.speed.firmware",
         description="Measure the compiled firmware on the emulated Mega 2560 (simavr) and write "
-        "results/firmware_speed.md and .json.",
+        "firmware_speed.md and .json into --out (default: runs).",
     )
     parser.add_argument(
         "--duration", type=float, default=60.0, help="closed-loop run, emulated s (default: 60)"
@@ -550,7 +551,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="fuzzed host frames sent to the image (default: 100000; 0: none)",
     )
     parser.add_argument("--image", default=None, help="firmware image (default: build it)")
-    parser.add_argument("--out", default="results", help="output directory (default: results)")
+    parser.add_argument(
+        "--out",
+        default="runs",
+        help="output directory (default: runs; the committed figures: --out results)",
+    )
     args = parser.parse_args(argv)
     if not args.duration > 0:
         parser.error(f"--duration must be > 0, got {args.duration}")
@@ -583,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = report(result)
     command = " ".join(["python -m tuners.speed.firmware", *(sys.argv[1:] if argv is None
                                                              else argv)])  # fmt: skip
-    with collect_provenance(out, "firmware_speed", command=command, started=started):
+    with write_group(), collect_provenance(out, "firmware_speed", command=command, started=started):
         write_atomic(out / "firmware_speed.json",
                      json.dumps(result, indent=2, default=float) + "\n")  # fmt: skip
         write_atomic(out / "firmware_speed.md", text)

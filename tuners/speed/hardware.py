@@ -1,7 +1,8 @@
 """Speed of the host <-> board link over the virtual device's pseudo-terminal.
 
-``python -m tuners.speed.hardware [--duration 60] [--speeds 1,max]`` writes
-``results/hardware_speed.md`` and ``results/hardware_speed.json``:
+``python -m tuners.speed.hardware [--duration 60] [--speeds 1,max] [--out DIR]`` writes
+``hardware_speed.md`` and ``hardware_speed.json`` into ``DIR`` (default ``runs/``; the committed
+ones with ``--out results``):
 
 * round-trip latency HEARTBEAT -> STATUS over the pty (median, p99), board at real time;
 * achievable host-in-the-loop rate: synchronous round trips per second (each one a SETPOINT
@@ -34,7 +35,7 @@ from gripper_env.hardware.protocol import Mode
 from gripper_env.hardware.twin.firmware import Firmware
 from gripper_env.hardware.twin.rig import VirtualRig
 from gripper_env.hardware.virtual import VirtualDevice
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.pid import PIDGains, PIDOptions
 from gripper_env.model.references import step_profile
 from tuners.rig.virtual import parse_speed
@@ -116,7 +117,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tuners.speed.hardware")
     parser.add_argument("--duration", type=float, default=60.0, help="closed-loop run (s)")
     parser.add_argument("--speeds", default="max,1", help="comma-separated speeds (1, max...)")
-    parser.add_argument("--out", default="results", help="output folder (default: results)")
+    parser.add_argument(
+        "--out",
+        default="runs",
+        help="output folder (default: runs; the committed figures: --out results)",
+    )
     args = parser.parse_args(argv)
     speeds = [parse_speed(s) for s in args.speeds.split(",")]
     started = time.perf_counter()
@@ -158,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     command = " ".join(["python -m tuners.speed.hardware", *(sys.argv[1:] if argv is None
                                                              else argv)])  # fmt: skip
-    with collect_provenance(out, "hardware_speed", command=command, started=started):
+    with write_group(), collect_provenance(out, "hardware_speed", command=command, started=started):
         write_atomic(out / "hardware_speed.json", json.dumps(result, indent=2) + "\n")
         write_atomic(out / "hardware_speed.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

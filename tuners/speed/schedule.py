@@ -11,7 +11,8 @@ vector step. The repeats of both sides are interleaved; figures are medians, and
 spread is over the repeats' own ratios. Everything is measured twice: on the machine as it is,
 and with one busy process beside it (a single-threaded busy loop this script starts and stops):
 the shared machine's case that dynamic scheduling is for, a thread that runs slower than the
-other. Writes ``results/schedule_speed.md``.
+other. Writes ``schedule_speed.md`` into ``--out`` (default ``runs/``; the committed page with
+``--out results``).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.model.disturbances import load_disturbance
 from gripper_env.model.pid import PIDOptions
 from gripper_env.model.plants import load_plant
@@ -39,7 +40,7 @@ from gripper_env.sim.compile import compile_kernel
 from gripper_env.sim.kernel import _ADVANCE, advance_row
 from gripper_env.sim.schedule import fetch_add, n_workers, rows_per_chunk
 
-RESULTS = Path(__file__).resolve().parents[2] / "results"
+RUNS = Path("runs")  # of the working directory, as every command (committed: --out results)
 GAINS = (1.0, 9.0, -0.001, 100.0)  # the paper's tuned gains on TF test2
 OPTIONS = PIDOptions(output_limits=(0.0, 180.0), anti_windup="clamping")
 
@@ -172,7 +173,12 @@ With one busy process beside it (one of the two threads gets about half a core):
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=21, help="interleaved repeats per case")
-    parser.add_argument("--out", type=Path, default=RESULTS, help="folder for the results page")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=RUNS,
+        help="folder for the results page (default: runs; committed: --out results)",
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     idle = measure(args.repeats)
@@ -181,7 +187,10 @@ def main(argv: list[str] | None = None) -> int:
         ["python -m tuners.speed.schedule", *(argv if argv is not None else sys.argv[1:])]
     )
     text = markdown(idle, busy, args.repeats, command)
-    with collect_provenance(args.out, "schedule_speed", command=command, started=started):
+    with (
+        write_group(),
+        collect_provenance(args.out, "schedule_speed", command=command, started=started),
+    ):
         write_atomic(args.out / "schedule_speed.md", text)
     print(text)
     return 0

@@ -1,7 +1,7 @@
 """Time identification: ``tfest`` with delay estimation, and the grey-box fit of a Table-1 record.
 
 Usage: ``python -m tuners.speed.sysid [--repeats 5] [--greybox-repeats 3]
-[--out results/sysid_speed.md]``.
+[--out runs/sysid_speed.md]`` (the default; the committed page: ``--out results/sysid_speed.md``).
 
 1. ``tfest`` on 60 s of 1 ms data (60 000 samples), order 2/1, the input delay estimated
    (target: <= 1 s). The record: the (20 s + 200)/(s^2 + 22 s + 200) plant behind a 15 ms input
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from gripper_env.io.files import collect_provenance, write_atomic
+from gripper_env.io.files import collect_provenance, write_atomic, write_group
 from gripper_env.sim import simulate
 from gripper_env.sysid import identify_actual, tfest
 from gripper_env.sysid.zoh import zoh_response
@@ -77,7 +77,12 @@ def _runs(times: list[float]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="results/sysid_speed.md", help="markdown file to write")
+    parser.add_argument(
+        "--out",
+        default="runs/sysid_speed.md",
+        help="markdown file to write (default: runs/sysid_speed.md; committed: --out "
+        "results/sysid_speed.md)",
+    )
     parser.add_argument("--repeats", type=int, default=5, help="timed tfest runs (default 5)")
     parser.add_argument("--greybox-repeats", type=int, default=3,
                         help="timed grey-box fits (default 3)")  # fmt: skip
@@ -127,7 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         "`tfest` runs BLAS on one thread (threadpoolctl): its solves are small.\n"
     )
     out = Path(args.out)
-    with collect_provenance(out.parent, out.stem, command=command, started=started):
+    with write_group(), collect_provenance(out.parent, out.stem, command=command, started=started):
         write_atomic(out, text)
     print(text)
 

@@ -73,7 +73,12 @@ MAX_RECORDS = 10_000
 
 def run(args: argparse.Namespace) -> int:
     """Run the ``coverage`` command; returns the exit status."""
-    from gripper_env.io.files import collect_provenance, write_atomic, write_result_json
+    from gripper_env.io.files import (
+        collect_provenance,
+        write_atomic,
+        write_group,
+        write_result_json,
+    )
 
     say = (lambda _m: None) if args.quiet else (lambda m: print(f"  {m}", file=sys.stderr))
     try:
@@ -111,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
             command = " ".join([command, *[e for e in extra if e]])
         text = render_coverage_report(command, sweep, tf, gb, sweep_settings, tf_settings)
         # run times (the whole run's, each part's, each grey-box record's) go to the sidecar
-        with collect_provenance(args.out, "identification_coverage", command=command,
+        with write_group(), collect_provenance(args.out, "identification_coverage", command=command,
                                 started=started):  # fmt: skip
             md = write_atomic(args.out / "identification_coverage.md", text)
             js = write_result_json(args.out / "identification_coverage.json",

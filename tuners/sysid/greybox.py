@@ -119,11 +119,9 @@ def text_report(est: ActualEstimate) -> str:
     """The identified actual gripper as a person reads it."""
     f, s, d = est.friction, est.sensor, est.dynamics
     ok = est.identified()
-    coef = ", ".join(
-        f"{k} {v:.4g} [{est.dynamics_intervals[k][0]:.4g}, {est.dynamics_intervals[k][1]:.4g}]"
-        for k, v in zip(d.param_names, d.params, strict=True)
-        if k in est.dynamics_intervals
-    )
+    from gripper_env.sysid.greybox import coefficients_text
+
+    coef = coefficients_text(d.param_names, d.params, est.dynamics_intervals)
     lo, hi = est.delay_range_s
     lines = [
         f"servo:    G(s) = {d.paper_form()}",

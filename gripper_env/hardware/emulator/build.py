@@ -95,6 +95,41 @@ def build_harness(out_dir: str | os.PathLike[str] | None = None) -> Path:
     return Path(_run_script(cmd, "emulator harness build").strip().splitlines()[-1])
 
 
+#: The largest firmware image accepted (bytes): an ELF of the Mega 2560's 256 KiB of flash with
+#: its debug sections takes a few hundred KiB.
+MAX_IMAGE_BYTES = 16 << 20
+#: ELF's machine number of Atmel AVR (``e_machine``).
+_EM_AVR = 83
+
+
+def check_image(image: str | os.PathLike[str], option: str = "--image") -> None:
+    """Refuse, in one line naming ``option``, an image that is not an AVR ELF file (a folder,
+    a pipe, a device, another file): simavr loaded a folder as an empty program and its CPU
+    crashed after 131072 cycles, with a thread's traceback.
+
+    Raises
+    ------
+    EmulatorUnavailable
+    """
+    from gripper_env.io.config import ConfigError, check_input
+
+    try:
+        check_input(image, MAX_IMAGE_BYTES, "firmware image", option)
+        with open(image, "rb") as f:
+            head = f.read(20)
+    except ConfigError as exc:
+        raise EmulatorUnavailable(str(exc)) from None
+    except OSError as exc:
+        raise EmulatorUnavailable(f"{option} {image}: cannot read: {exc.strerror or exc}") from None
+    if len(head) < 20 or head[:4] != b"\x7fELF":
+        raise EmulatorUnavailable(f"{option} {image}: not an ELF file (the firmware build's .elf)")
+    machine = int.from_bytes(head[18:20], "little" if head[5] == 1 else "big")
+    if machine != _EM_AVR:
+        raise EmulatorUnavailable(
+            f"{option} {image}: an ELF for machine {machine}, not for the AVR (83) of the Mega 2560"
+        )
+
+
 def ensure_built(
     image: str | os.PathLike[str] | None = None, rebuild: bool = False
 ) -> tuple[Path, Path]:
@@ -116,6 +151,8 @@ def ensure_built(
     harness = Path(os.environ.get("GRIPPER_EMULATOR_LIB") or DEFAULT_HARNESS)
     if image is not None and not Path(image).exists():
         raise EmulatorUnavailable(f"no firmware image at {image}")
+    if image is not None:
+        check_image(image)
     need_image = image is None and (rebuild or not DEFAULT_IMAGE.exists())
     need_harness = rebuild or not harness.exists()
     if (need_image or need_harness) and not FIRMWARE_DIR.is_dir():

@@ -36,8 +36,11 @@ class DeafToGains(ControlTable):
 
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330", "xl430"])
-def test_read_write_by_name_and_role(family):
-    with VirtualBus(family, ids=(1, 2)) as bus, BusLink(bus.path, family, ids=(1, 2)) as link:
+def test_read_write_by_name_and_role(family, reply_ms):
+    with (
+        VirtualBus(family, ids=(1, 2)) as bus,
+        BusLink(bus.path, family, ids=(1, 2), timeout_ms=reply_ms) as link,
+    ):
         assert link.ping_all() == {1: bus.spec.model_number, 2: bus.spec.model_number}
         link.write(1, "p_gain", 20)  # a role ...
         assert bus.table(1).get_role("p_gain") == 20
@@ -57,8 +60,8 @@ def test_read_write_by_name_and_role(family):
         assert link.read(1, "acceleration") == 5
 
 
-def test_sts_values_are_immune_to_the_sdks_global_byte_order():
-    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215") as link:
+def test_sts_values_are_immune_to_the_sdks_global_byte_order(reply_ms):
+    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215", timeout_ms=reply_ms) as link:
         scservo_sdk.SCS_SETEND(1)  # someone else made a big-endian (SCS) packet handler
         try:
             link.write(1, "goal_position", 1000)
@@ -73,9 +76,12 @@ def test_sts_values_are_immune_to_the_sdks_global_byte_order():
 
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
-def test_a_write_that_does_not_stick_fails_verification(family):
+def test_a_write_that_does_not_stick_fails_verification(family, reply_ms):
     table = DeafToGains(family, servo_id=1)
-    with VirtualBus(family, ids=[table]) as bus, BusLink(bus.path, family) as link:
+    with (
+        VirtualBus(family, ids=[table]) as bus,
+        BusLink(bus.path, family, timeout_ms=reply_ms) as link,
+    ):
         gain = bus.spec.roles["p_gain"]
         default = bus.spec.field(gain).default
         with pytest.raises(BusVerifyError) as caught:
@@ -109,15 +115,18 @@ def test_a_missing_servo_names_port_servo_and_register(family, sdk_text):
             link.ping(2)
 
 
-def test_model_mismatch_on_a_shared_protocol():
+def test_model_mismatch_on_a_shared_protocol(reply_ms):
     with VirtualBus("xl330", ids=[ControlTable("xl430", 1)]) as bus:
-        with BusLink(bus.path, "xl330") as link, pytest.raises(BusModelError) as caught:
+        with (
+            BusLink(bus.path, "xl330", timeout_ms=reply_ms) as link,
+            pytest.raises(BusModelError) as caught,
+        ):
             link.ping_all()
         assert "model number 1060, not the xl330's 1200" in str(caught.value)
 
 
-def test_values_out_of_range_are_refused_before_sending():
-    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215") as link:
+def test_values_out_of_range_are_refused_before_sending(reply_ms):
+    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215", timeout_ms=reply_ms) as link:
         before = bus.packets_received
         with pytest.raises(ValueError, match=r"p_coefficient must be in \[0, 254\], got 300"):
             link.write(1, "p_gain", 300)
@@ -131,8 +140,11 @@ def test_values_out_of_range_are_refused_before_sending():
         assert bus.table(1).get("p_coefficient") == 32
 
 
-def test_servo_refusals_and_hardware_alerts():
-    with VirtualBus("xl330") as bus, BusLink(bus.path, "xl330", raise_on_alert=True) as link:
+def test_servo_refusals_and_hardware_alerts(reply_ms):
+    with (
+        VirtualBus("xl330") as bus,
+        BusLink(bus.path, "xl330", raise_on_alert=True, timeout_ms=reply_ms) as link,
+    ):
         link.torque(1, True)
         with pytest.raises(BusServoError) as caught:
             link.write(1, "id", 4)
@@ -158,8 +170,11 @@ def test_servo_refusals_and_hardware_alerts():
         link.torque(1, True)
 
 
-def test_sts_alerts_name_the_status_bits():
-    with VirtualBus("sts3215") as bus, BusLink(bus.path, "sts3215", raise_on_alert=True) as link:
+def test_sts_alerts_name_the_status_bits(reply_ms):
+    with (
+        VirtualBus("sts3215") as bus,
+        BusLink(bus.path, "sts3215", raise_on_alert=True, timeout_ms=reply_ms) as link,
+    ):
         bus.table(1).set_role("error_status", 0x24)
         with pytest.raises(BusAlertError) as caught:
             link.read(1, "goal_position")
@@ -171,8 +186,11 @@ def test_sts_alerts_name_the_status_bits():
             link.reboot(1)
 
 
-def test_corrupt_replies():
-    with VirtualBus("xl430") as bus, BusLink(bus.path, "xl430", retries=0) as link:
+def test_corrupt_replies(reply_ms):
+    with (
+        VirtualBus("xl430") as bus,
+        BusLink(bus.path, "xl430", retries=0, timeout_ms=reply_ms) as link,
+    ):
         bus.corrupt_replies(1)
         with pytest.raises(BusCorruptError) as caught:
             link.read(1, "present_position")
@@ -185,13 +203,14 @@ def test_corrupt_replies():
 
 
 @pytest.mark.parametrize("family", ["sts3215", "xl330"])
-def test_a_lost_or_garbled_reply_is_sent_again_and_counted(family):
-    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+def test_a_lost_or_garbled_reply_is_sent_again_and_counted(family, reply_ms):
+    with VirtualBus(family) as bus, BusLink(bus.path, family, timeout_ms=reply_ms) as link:
         bus.drop_replies(1)
         link.write(1, "p_gain", 20)  # the write is sent again (idempotent), then read back
         assert bus.table(1).get_role("p_gain") == 20 and link.retried == 1
         bus.corrupt_replies(1)
         assert link.read(1, "p_gain") == 20 and link.retried == 2
+        link.retries = 1  # two windows (0.5 s and 0.8 s) are enough to show it
         bus.drop_replies(link.retries + 1)  # every attempt lost: an error, counted
         with pytest.raises(BusTimeoutError, match="no reply reading"):
             link.read(1, "p_gain")
@@ -234,16 +253,16 @@ def test_opening_the_port():
     ("family", "factory", "other"),
     [("sts3215", 1_000_000, 115_200), ("xl330", 57_600, 1_000_000), ("xl430", 57_600, 1_000_000)],
 )
-def test_the_link_opens_at_the_factory_rate_unless_told(family, factory, other):
+def test_the_link_opens_at_the_factory_rate_unless_told(family, factory, other, reply_ms):
     """A servo fresh from its box answers a link opened with the defaults (the rates are the
     vendors': STS3215 1 Mbaud, XL330 / XL430 57600, as BusGripper's ``FACTORY_BAUD``); one set
     to another rate (as LeRobot sets its buses to 1 Mbaud) needs that rate given."""
     assert FACTORY_BAUD[family] == factory
-    with VirtualBus(family) as bus, BusLink(bus.path, family) as link:
+    with VirtualBus(family) as bus, BusLink(bus.path, family, timeout_ms=reply_ms) as link:
         assert link.baudrate == factory
         assert link.ping(1) == bus.spec.model_number
     with VirtualBus(family, baudrate=other) as bus:
         with BusLink(bus.path, family) as link, pytest.raises(BusTimeoutError):
             link.ping(1)  # its bytes are noise at the factory rate
-        with BusLink(bus.path, family, baudrate=other) as link:
+        with BusLink(bus.path, family, baudrate=other, timeout_ms=reply_ms) as link:
             assert link.ping(1) == bus.spec.model_number

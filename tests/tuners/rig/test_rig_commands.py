@@ -84,6 +84,9 @@ def test_deploy_runs_stable_gains_and_compares_with_the_prediction(
     link = report["link"]
     assert report["measured"]["stable"] and 0 <= link["frames_lost"] <= 0.1 * link["samples"]
     assert (tmp_path / "out" / "response.png").stat().st_size > 1000
+    band = report["settling_band"]  # the band the settling time was judged in, and its parts
+    assert band["floor_deg"] >= band["adc_step_deg"] + band["friction_band_deg"]
+    assert f"within +/-{band['floor_deg']:.2f} deg" in result.stdout
     header = (tmp_path / "out" / "response.csv").read_text().splitlines()[0]
     assert header == "t_s,reference_deg,command_deg,position_deg"
 
