@@ -25,3 +25,7 @@ fi
 $PIP install --quiet -e ".[all]"
 .venv/bin/python -c "import torch; assert not torch.version.cuda, 'a CUDA build of torch was installed'" \
     && echo "setup: .venv ready (torch $(.venv/bin/python -c 'import torch; print(torch.__version__)'))"
+# The simulation kernels (numba), compiled once into numba's on-disk cache so that the first tune
+# and the first test run load them in seconds (minutes on 2 cores; a warm cache only loads them).
+echo "setup: compiling the simulation kernels (minutes on 2 cores, once; later runs load them)"
+env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -m tuners.compile --jobs 2

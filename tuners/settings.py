@@ -189,6 +189,8 @@ class OptunaSettings(BaseModel):
     model_config = _STRICT
 
     trials: int = Field(200, ge=1, le=MAX_TRIALS)
+    first_trials: int = Field(800, ge=1, le=MAX_TRIALS)
+    first_search_seeds: int = Field(3, ge=1, le=MAX_SEARCH_SEEDS)
     batch_size: int = Field(16, ge=1, le=1024)
     tuning_seeds: SeedRange = SeedRange()
     search_seeds: int = Field(3, ge=1, le=MAX_SEARCH_SEEDS)

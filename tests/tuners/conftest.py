@@ -19,7 +19,7 @@ def small_optuna_config(tmp_path):
     data = yaml.safe_load((CONFIG_DIR / "tuners" / "optuna.yaml").read_text())
     data.update(
         batch_size=4, n_startup_trials=4, heartbeat_interval_s=1, heartbeat_grace_s=3,
-        search_seeds=1,
+        search_seeds=1, first_search_seeds=1,
     )  # fmt: skip
     data["tuning_seeds"] = {"start": 0, "count": 2}
     path = tmp_path / "optuna-small.yaml"

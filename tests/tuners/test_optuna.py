@@ -557,9 +557,34 @@ def test_help_states_what_the_defaults_cost():
 
     shipped = yaml.safe_load((CONFIG_DIR / "tuners" / "optuna.yaml").read_text())
     text = " ".join(optuna_tuner.build_parser().format_help().split())
-    n, k = shipped["trials"], shipped["search_seeds"]
-    assert f"'trials', {n} in the shipped one: with its {k} search seeds {n * k} trials" in text
-    assert "minutes" in text and "--trials 200 takes a tenth" in text
+    n, k = shipped["first_trials"], shipped["first_search_seeds"]
+    assert f"'first_trials', {n} in the shipped one: with its {k} search seeds {n * k} trials" in (
+        text)  # fmt: skip
+    full, seeds = shipped["trials"], shipped["search_seeds"]
+    assert f"--full takes the config's 'trials', {full} x {seeds} seeds" in text
+    assert "minutes" in text and "of CPU" in text
+
+
+def test_the_first_tune_runs_the_first_budget_and_full_the_configs(tmp_path, small_optuna_config):
+    """Without --trials the command runs the config's first tune; --full its full budget; an
+    explicit --trials or --search-seeds wins over either."""
+    import yaml
+
+    from tuners import cli as tuner_cli
+
+    data = yaml.safe_load(small_optuna_config.read_text())
+    data.update(trials=12, search_seeds=2, first_trials=8, first_search_seeds=1)
+    config = tmp_path / "budget.yaml"
+    config.write_text(yaml.safe_dump(data))
+    plans = {}
+    cases = {"first": [], "full": ["--full"], "given": ["--full", "--trials", "5"]}
+    for label, extra in cases.items():
+        argv = ["--plant", "test2", "--config", str(config), "--out", str(tmp_path / label)]
+        args = tuner_cli.parse(optuna_tuner.build_parser(), [*argv, *extra])
+        inputs = tuner_cli.resolve(args)
+        plan = optuna_tuner._plan(args, inputs, [])
+        plans[label] = (plan.n_trials, plan.n_seeds)
+    assert plans == {"first": (8, 1), "full": (12, 2), "given": (5, 2)}
 
 
 def test_sqlites_write_ahead_log_is_checkpointed_often(tmp_path):
