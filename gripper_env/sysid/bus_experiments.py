@@ -49,6 +49,7 @@ if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
 
 __all__ = [
+    "CURRENT_RECORD_SETTINGS",
     "PROBE_DEG",
     "RECORD_SETTINGS",
     "STEADY_LOAD_LIMIT",
@@ -71,6 +72,13 @@ RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
     "sts3215": ((16, 0, 32), (32, 0, 32), (64, 0, 32), (32, 0, 0), (32, 4, 32)),
     "xl330": ((200, 0, 0), (400, 0, 0), (800, 0, 0), (800, 0, 800), (400, 200, 0)),
     "xl430": ((320, 0, 2000), (640, 0, 2000), (1280, 0, 2000), (640, 0, 0), (640, 200, 2000)),
+}
+#: The same in current-based position control (Dynamixel mode 5, the Koch gripper's): the loop
+#: drives a current, with no back-EMF damping, so every setting needs D to be stable (P 400, I
+#: 0, D 0, the factory's, is unstable on the model in this mode); D varies against P so that
+#: its scale is seen.
+CURRENT_RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "xl330": ((200, 0, 1000), (400, 0, 2000), (800, 0, 4000), (400, 0, 1000), (400, 200, 2000)),
 }
 
 #: Steps of the plan (deg from the open position) and how long each is held (s).
@@ -209,10 +217,17 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
 def settings_registers(
     model: BusServoModel, settings: Sequence[tuple[int, int, int]] | None = None
 ) -> list[RegisterSet]:
-    """The register sets of ``settings`` (default :data:`RECORD_SETTINGS` of the family): the
-    factory registers with P, I, D replaced."""
-    chosen = RECORD_SETTINGS[model.family] if settings is None else settings
-    return [model.factory.model_copy(update={"p": p, "i": i, "d": d}) for p, i, d in chosen]
+    """The register sets of ``settings`` (default :data:`RECORD_SETTINGS` of the family, or
+    :data:`CURRENT_RECORD_SETTINGS` in current-based position control): the factory registers
+    with P, I, D replaced (in current-based position control with the goal current of full
+    torque, :meth:`~gripper_env.model.bus_servo.BusServoModel.full_goal_current`, which a
+    recording lowers to what the servo holds)."""
+    table = CURRENT_RECORD_SETTINGS if model.current_mode else RECORD_SETTINGS
+    chosen = table[model.family] if settings is None else settings
+    base = model.factory
+    if model.current_mode:
+        base = base.model_copy(update={"goal_current": model.full_goal_current()})
+    return [base.model_copy(update={"p": p, "i": i, "d": d}) for p, i, d in chosen]
 
 
 def check_settings(model: BusServoModel, registers: Sequence[RegisterSet]) -> None:
@@ -374,7 +389,8 @@ class BusRecorder:
         g = self.gripper
         if reach_deg is None:
             m = g.model
-            band = m.physics.static / (m.scale.kp * max(registers.p, 1)) * m.deg_per_tick
+            kp = m.scale.kp * m.output_gain  # in current-based position control, a current
+            band = m.physics.static / (kp * max(registers.p, 1)) * m.deg_per_tick
             reach_deg = max(PROBE_DEG, 3.0 * band)
         g.write_registers(registers)
         g.torque(True)  # holds where it is, within the goal range

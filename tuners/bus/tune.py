@@ -163,6 +163,12 @@ def tune_registers(
     """
     space = search_space(model, goal_current)
     base = model.baselines()["factory"]
+    cal = model.calibration
+    if model.current_mode and cal is not None and cal.servo is not None:
+        # the PWM limit is not searched in current-based position control: the factory's,
+        # within the servo's own PWM_Limit
+        top = cal.servo.max_torque_limit
+        base = base.model_copy(update={"torque_limit": min(base.torque_limit, top)})
     if goal_current is not None:
         base = base.model_copy(update={"goal_current": int(goal_current)})
     keys = list(space)
@@ -543,6 +549,16 @@ def protection_notes(model: BusServoModel, best: BusScore) -> list[str]:
     pr = model.protection
     read = ", ".join(f"{k} {v}" for k, v in cal.servo.protection.items())
     notes = [f"the hold is judged under servo {cal.servo_id}'s own protection registers ({read})"]
+    if model.current_mode:
+        regs = best.registers
+        climit = cal.servo.protection.get("current_limit")
+        within = "" if climit is None else f", within its Current_Limit {climit}"
+        notes.append(
+            f"current-based position control (operating mode {cal.servo.operating_mode}): goal "
+            f"current {regs.goal_current} ({model.current_fraction(regs):.0%} of the stall "
+            f"current{within}) holds {best.hold.holding_force_n:.1f} N"
+        )
+        return notes
     limit = model.limit_fraction(best.registers)
     top = search_space(model).get("torque_limit", (0, 0))[1] / model.scale.duty_full
     if 0.0 < pr.overload_duty < top and limit <= pr.overload_duty:
