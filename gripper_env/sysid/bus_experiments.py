@@ -76,9 +76,10 @@ RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
 #: The same in current-based position control (Dynamixel mode 5, the Koch gripper's): the loop
 #: drives a current, with no back-EMF damping, so every setting needs D to be stable (P 400, I
 #: 0, D 0, the factory's, is unstable on the model in this mode); D varies against P so that
-#: its scale is seen.
+#: its scale is seen. The low P's wide dead band (8 deg at P 200: the current's gain makes it
+#: 1.7 times the position control's) pins the static friction against the gain scale.
 CURRENT_RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
-    "xl330": ((200, 0, 1000), (400, 0, 2000), (800, 0, 4000), (400, 0, 1000), (400, 200, 2000)),
+    "xl330": ((200, 0, 1500), (400, 0, 2000), (800, 0, 4000), (400, 0, 1200), (400, 200, 2000)),
 }
 
 #: Steps of the plan (deg from the open position) and how long each is held (s).
@@ -169,12 +170,17 @@ CLIP_FLOOR_DEG = 3.0
 CLIP_MIN_STEP_DEG = 8.0
 
 
-def check_record(record: BusRecord, name: str = "the record") -> list[str]:
+def check_record(
+    record: BusRecord, name: str = "the record", model: BusServoModel | None = None
+) -> list[str]:
     """What makes ``record`` unfit to identify from, in words (empty: nothing).
 
     * **Clipped steps**: a step of the goal (held at least 0.3 s) whose end the jaw does not
-      come within :data:`CLIP_FRACTION` of it (at least :data:`CLIP_FLOOR_DEG`): a position
-      limit narrower than the plan, a stop, or an object in the jaws held it.
+      come within :data:`CLIP_FRACTION` of it (at least :data:`CLIP_FLOOR_DEG`, or the loop's
+      dead band at the record's P on ``model`` if that is wider: in current-based position
+      control, with no back-EMF damping, a low P's jaw overshoots and sticks anywhere within
+      it, 8 deg at P 200 on the XL330's model): a position limit narrower than the plan, a
+      stop, or an object in the jaws held it.
     * **Dropped readings**: more than :data:`MAX_DROPPED` of the readings got no reply (the
       recorder's counts, in the record).
     * **Slow readings**: the median interval more than
@@ -182,6 +188,11 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
       host), which identification refuses outright.
     """
     problems = []
+    floor = CLIP_FLOOR_DEG
+    if model is not None:
+        kp = model.scale.kp * model.output_gain
+        band = model.physics.static / (kp * max(record.registers.p, 1)) * model.deg_per_tick
+        floor = max(floor, band)
     times, goals = record.goal_times_s, record.goal_values_deg
     ends = np.r_[times[1:], record.t_s[-1]]
     for k in range(1, times.size):
@@ -192,7 +203,7 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
         if not np.any(tail):
             continue
         final = float(np.median(record.position_deg[tail]))
-        if abs(final - goals[k]) > max(CLIP_FRACTION * abs(jump), CLIP_FLOOR_DEG):
+        if abs(final - goals[k]) > max(CLIP_FRACTION * abs(jump), floor):
             problems.append(
                 f"{name}: the step to {goals[k]:.1f} deg at {times[k]:.2f} s ended at "
                 f"{final:.1f} deg: clipped (a position limit, a stop or an object held the jaw)"

@@ -162,7 +162,7 @@ def _run(args: argparse.Namespace) -> int:
             rec = recorder.record(regs, plan)
             path = out / f"record_p{regs.p}_i{regs.i}_d{regs.d}.csv"
             write_bus_record(path, rec)
-            problems += check_record(rec, str(path))
+            problems += check_record(rec, str(path), model)
             dt = (rec.t_s[-1] - rec.t_s[0]) / max(rec.t_s.size - 1, 1)
             print(
                 f"[{k}/{len(capped)}] {rec.registers.label()}: {rec.t_s.size} readings "

@@ -217,6 +217,12 @@ def tune_registers(
             evaluate(None, n)
             done += n
         feasible = [t for t in study.trials if t.user_attrs.get("constraint", 1.0) <= 0.0]
+        if not feasible:  # a narrow feasible region: walk from the least violation into it
+            closest = min(study.trials, key=lambda t: t.user_attrs.get("constraint", math.inf))
+            seen_repair = {tuple(_register(t, k) for k in keys) for t in study.trials}
+            _repair({k: _register(closest, k) for k in keys}, evaluate, space, seen_repair,
+                    polish)  # fmt: skip
+            feasible = [t for t in study.trials if t.user_attrs.get("constraint", 1.0) <= 0.0]
         if not feasible:
             raise RuntimeError(
                 f"no feasible registers in {n_global} trials on {model.name}: every candidate "
@@ -313,6 +319,39 @@ def _polish(
             last = None
             step = {k: max(v // 2, 1) for k, v in step.items()}
     return x, fx, used, False
+
+
+def _repair(
+    x: dict[str, int],
+    evaluate: Callable[[list[dict[str, int]] | None, int], list[BusScore]],
+    space: dict[str, tuple[int, int]],
+    seen: set[tuple[int, ...]],
+    budget: int,
+) -> bool:
+    """Integer pattern search on the constraints' violation (:func:`constraint_value`) from
+    ``x``, until a judged set is feasible (True) or ``budget`` sets are judged, or no
+    one-register step lowers the violation (False). A feasible region too narrow for the
+    global stage to land in (current-based position control on a slow loop: a few registers
+    wide in P, I and D) is reached this way; the local stage then starts from it."""
+    keys = list(space)
+    step = {k: max((hi - lo) // 16, 1) for k, (lo, hi) in space.items()}
+    fx, used = math.inf, 0
+    while used < budget:
+        moves = _pattern_moves(x, step, space, seen)[: budget - used]
+        scores = evaluate(moves, len(moves)) if moves else []
+        used += len(moves)
+        seen.update(tuple(m[k] for k in keys) for m in moves)
+        if any(s.feasible for s in scores):
+            return True
+        judged = [(constraint_value(s), m) for s, m in zip(scores, moves, strict=True)]
+        better = [c for c in judged if c[0] < fx]
+        if better:
+            fx, x = min(better, key=lambda c: c[0])
+        elif all(v <= 1 for v in step.values()):
+            return False
+        else:
+            step = {k: max(v // 2, 1) for k, v in step.items()}
+    return False
 
 
 def _pattern_moves(
