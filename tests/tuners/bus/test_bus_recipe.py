@@ -78,9 +78,13 @@ def test_deploy_refuses_an_unstable_set_before_touching_the_servo(tmp_path, caps
 
 
 def test_record_refuses_an_unstable_setting_before_touching_the_servo(tmp_path, capsys):
+    # the settings are judged in the loop the jaw calibration found the servo in: read first
+    jaw = tmp_path / "jaw.json"
+    cal = JawCalibration(family="sts3215", closed_ticks=1707, open_ticks=2958)
+    jaw.write_text(json.dumps({"calibration": cal.model_dump()}))
     with VirtualBus("sts3215") as bus:
         code = record.main(["--port", bus.path, "--settings", "254,0,0", "32,0,32",
-                            "--out", str(tmp_path)])  # fmt: skip
+                            "--jaw", str(jaw), "--out", str(tmp_path)])  # fmt: skip
         assert code == 2
         assert bus.packets_received == 0
     assert "refusing to record P=254" in capsys.readouterr().err
