@@ -21,7 +21,10 @@ Three ways to give the positions:
   means it (the calibration then says so, and every later command with it).
 
 Positions beyond the servo's own position limits are brought inside them (the servo never gets
-a goal outside). Nothing of the servo's calibration is ever written.
+a goal outside). Nothing of the servo's calibration is ever written. The servo runs position
+control, or on an XL330 current-based position control (operating mode 5, the Koch gripper's as
+LeRobot's ``koch_follower`` configures it): the mode is recorded, and record, identify, tune and
+deploy run that loop. Another mode (extended position, velocity...) is refused.
 
 Examples
 --------

@@ -13,11 +13,14 @@ calibration and limits, and left as it was found.
    position): a servo on a shared bus is never guessed (an SO-101's ID 1 is the shoulder, with
    the gripper's model number). From then on the link refuses instructions to any other ID;
 2. **reads the servo's calibration** (homing offset, min/max position limits, operating mode,
-   drive mode, maximum torque limit) and refuses (:class:`BusCalibrationError`) a servo that
-   is not in position control or whose registers differ from the jaw calibration's (it was
-   recalibrated since, or it is another servo);
+   drive mode, maximum torque limit) and refuses (:class:`BusCalibrationError`) a servo whose
+   registers differ from the jaw calibration's (it was recalibrated since, or it is another
+   servo) or whose operating mode runs another loop than the model's. A family's model takes
+   the servo's loop: position control, or an XL330's current-based position control (mode 5,
+   the Koch gripper's), whose goal current the session writes within the servo's
+   ``Current_Limit``;
 3. **takes a snapshot** of every register the session may write (torque enable, the STS's lock,
-   P, I, D, dead zones, torque limit, acceleration, velocity, goal position).
+   P, I, D, dead zones, torque limit, acceleration, velocity, goal current, goal position).
 
 Every goal is clamped to the calibration's goal range (the jaw's closed-to-open range inside
 the servo's own position limits) and checked finite. Registers are written with the torque off
@@ -395,8 +398,8 @@ class BusGripper:
     BusModelError
         The servo is another model than the family's.
     BusCalibrationError
-        The servo's calibration differs from the jaw calibration's, or its operating mode is
-        not position control.
+        The servo's calibration differs from the jaw calibration's, or its operating mode runs
+        another loop than the model's (or one no model describes).
     BusError
         The port cannot be opened, or a transaction failed.
     """
