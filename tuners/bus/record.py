@@ -20,7 +20,10 @@ position, then a creep of one tick every 20 ms (see :mod:`gripper_env.sysid.bus_
 The position is read every ``--sample-ms`` and each record (with the jaw calibration) is written
 to ``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. At the end, on an error, on Ctrl-C
 or SIGTERM, every register written is restored and read back, the torque as it was found
-(unless ``--keep-torque``). Keep the jaws empty.
+(unless ``--keep-torque``). Keep the jaws empty. On an XL330 that the calibration found in
+current-based position control (operating mode 5, the Koch gripper's), the default settings are
+:data:`gripper_env.sysid.bus_experiments.CURRENT_RECORD_SETTINGS` (D in each) and every record
+runs at the goal current the servo holds, within its ``Current_Limit``.
 
 Examples
 --------
