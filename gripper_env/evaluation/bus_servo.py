@@ -426,10 +426,12 @@ def corner_models(
     the free loop sees ``kp``, ``kd`` and ``tau_m`` only through ``kp w0 / tau_m`` and ``kd w0 /
     tau_m``, the acceleration per unit of error that the records' motion pins; ``kp`` and
     ``tau_m`` are each loose along the direction that keeps it (only the clamped large steps
-    tell them apart). The corners then vary the gains by their own uncertainty and leave
-    ``tau_m`` as it is: compounding the two counted that one direction twice (on the Koch
-    gripper's records, ``kp w0 / tau_m`` came within 2.5 % of the truth at ``kp`` 6.1 % and
-    ``tau_m`` 11 % stated, and no register set met ``Ms`` 1.6 on the compounded corners).
+    tell them apart). There the corners vary the gains by their uncertainty and leave
+    ``tau_m`` as fitted. Compounding the two counted one direction twice (on the Koch gripper's
+    records, ``kp w0 / tau_m`` came within 2.5 % of the truth at ``kp`` 6.1 % and ``tau_m`` 11 %
+    stated, and no register set met ``Ms`` 1.6 on the compounded corners). On an object
+    ``tau_m`` also sets the loop against the object's spring, but that spring is the grasp
+    scenario's assumption, not a fitted value, and its own uncertainty is larger.
     """
     given = rel_std or {}
     rel = {k: max(float(given.get(k, 0.0)), REL_STD_FLOOR) for k in ("kp", "kd", "tau_m_s")}
@@ -442,9 +444,8 @@ def corner_models(
                     "kd": model.scale.kd * max(1 + sk * k * rel["kd"], 0.05),
                 }
             )
-            physics = model.physics.model_copy(
-                update={"tau_m_s": model.physics.tau_m_s * max(1 + st * k * rel["tau_m_s"], 0.05)}
-            )
+            tau = max(1 + st * k * rel["tau_m_s"], 0.05)
+            physics = model.physics.model_copy(update={"tau_m_s": model.physics.tau_m_s * tau})
             out.append(model.model_copy(update={"scale": scale, "physics": physics}))
     if delay_ticks:
         later = model.physics.loop_delay_s + delay_ticks * DT
