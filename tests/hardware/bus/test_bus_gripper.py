@@ -185,6 +185,12 @@ def test_current_based_position_mode_runs_its_model_and_the_torque_limit_kept_un
         assert jaw.restored is not None and jaw.restored.ok
         assert bytes(table.memory)[:64] == before[:64]  # EEPROM: mode 5 and the limit kept
         assert table.get("goal_current") == 800 and table.get("position_p_gain") == 400
+        with pytest.raises(RuntimeError, match="cut short"):  # an error: restored the same
+            with BusGripper(bus.path, model, 6, calibration=_jaw("xl330")) as jaw:
+                jaw.write_registers(regs)
+                raise RuntimeError("cut short")
+        assert "goal current" in jaw.restored.written and jaw.restored.ok
+        assert table.get("goal_current") == 800 and table.get("operating_mode") == 5
         identified = model.calibrated(_jaw("xl330").with_servo(jaw.servo_registers, 6))
         position = identified.with_updates(operating_mode="position")
         with pytest.raises(BusCalibrationError, match=r"operating mode 5 \(current-based "
