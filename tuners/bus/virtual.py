@@ -74,7 +74,7 @@ def _parser() -> argparse.ArgumentParser:
         help="the gripper's registers as LeRobot's SO or Koch follower configures them "
         "(STS3215: P 16, I 0, D 32, Acceleration 254, Max_Torque_Limit 500, Protection_Current "
         "250, Overload_Torque 25; XL330: Return_Delay_Time 0, Operating_Mode 5, current-based "
-        "position), kept in its flash as LeRobot's writes are",
+        "position), kept in its flash as LeRobot's writes are, every servo at LeRobot's 1 Mbaud",
     )
     parser.add_argument(
         "--object",
@@ -111,12 +111,12 @@ def _check_link(path: str | None) -> str | None:
 #: off, under Lock 0: saved to flash).
 #: The Koch follower's gripper (an XL330, LeRobot's ``koch_follower.configure``): Return_Delay_Time
 #: 0 and current-based position control (Operating_Mode 5), its Goal_Current as powered on (the
-#: Current_Limit).
+#: Current_Limit), at LeRobot's 1 Mbaud (its ``setup_motors`` writes Baud_Rate 3).
 LEROBOT_GRIPPER = {
     "sts3215": {"p_coefficient": 16, "i_coefficient": 0, "d_coefficient": 32, "acceleration": 254,
                 "max_torque_limit": 500, "torque_limit": 500, "protection_current": 250,
                 "overload_torque": 25},
-    "xl330": {"return_delay_time": 0, "operating_mode": 5},
+    "xl330": {"return_delay_time": 0, "operating_mode": 5, "baud_rate": 3},
 }  # fmt: skip
 
 
@@ -167,7 +167,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # before the physics (which compiles its kernels)
         unit = ServoUnit(model, object_deg=args.object)
         ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
-        bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
+        # a LeRobot bus runs at LeRobot's 1 Mbaud, every servo on it (the STS3215's factory rate)
+        baud = 1_000_000 if args.lerobot else None
+        bus = VirtualBus(model.family, ids=ids, physics={args.id: unit}, baudrate=baud)
     except (ConfigError, ValueError, OSError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     stop = threading.Event()

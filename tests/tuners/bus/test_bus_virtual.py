@@ -36,6 +36,7 @@ def test_lerobots_koch_gripper_is_in_mode_5_after_a_power_cycle():
     with VirtualBus("xl330", ids=[table]) as bus:
         bus.power_cycle(6)
         assert (table.get("operating_mode"), table.get("return_delay_time")) == (5, 0)
+        assert table.get("baud_rate") == table.spec.baud_index(1_000_000)  # LeRobot's rate
         assert table.get("goal_current") == table.get("current_limit") == 1750
     with pytest.raises(ValueError, match="--lerobot: LeRobot's followers have an STS3215"):
         _gripper_table("xl430", 6, None, lerobot=True)
