@@ -35,7 +35,14 @@ from pathlib import Path
 import optuna
 from tqdm.auto import tqdm
 
-from gripper_env.evaluation.bus_servo import D_KICK_MAX, GM_MIN_DB, MS_MAX, BusScore, judge
+from gripper_env.evaluation.bus_servo import (
+    D_KICK_MAX,
+    DELAY_TICKS,
+    GM_MIN_DB,
+    MS_MAX,
+    BusScore,
+    judge,
+)
 from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import (
@@ -224,9 +231,19 @@ def tune_registers(
                     polish)  # fmt: skip
             feasible = [t for t in study.trials if t.user_attrs.get("constraint", 1.0) <= 0.0]
         if not feasible:
+            late = sorted({round(a.physics.loop_delay_s * 1e3) for a in alternatives})
+            advice = "try more --trials, or check the model"
+            if model.current_mode or late:
+                # a current-driven loop has no back-EMF damping: a late delay costs it most
+                delays = sorted({round(model.physics.loop_delay_s * 1e3) + DELAY_TICKS, *late})
+                advice = (
+                    f"its margins must hold at loop delays up to {max(delays)} ms, which the "
+                    "records left open or the fit put late: record again on a quieter host, or "
+                    "try more --trials"
+                )
             raise RuntimeError(
                 f"no feasible registers in {n_global} trials on {model.name}: every candidate "
-                "broke the margins or the hold (try more --trials, or check the model)"
+                f"broke the margins or the hold ({advice})"
             )
         seen: set[tuple[int, ...]] = {tuple(_register(t, k) for k in keys) for t in study.trials}
         results = []

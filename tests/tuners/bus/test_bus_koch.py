@@ -4,6 +4,9 @@ and 2, XL330s at 3-6, the gripper at 6) calibrated and configured by LeRobot's o
 extended position mode 4 on the joints, current-based position mode 5 on the gripper, P 1500
 I 0 D 600 on the elbow), then the bus recipe on the gripper: ``calibrate --lerobot`` with the
 calibration file LeRobot saved, ``record``, ``identify``, ``tune`` and ``deploy`` in mode 5.
+A recording on a loaded host can leave the loop's delay open, late enough that no register set
+holds a current-driven loop's margins; ``tune`` then says to record again, which the test does
+(at most three recordings).
 
 The truth it is held to is the servos' own state and the virtual gripper's true model: every
 register of the gripper reads as LeRobot left it, RAM and flash (a power cycle brings back the
@@ -50,6 +53,8 @@ XL430_IDS = (1, 2)
 XL330_IDS = (3, 4, 5, 6)
 #: The settings the recipe records in mode 5 (P,I,D; D varies against P).
 SETTINGS = ["200,0,1500", "400,0,2000", "800,0,4000"]
+#: Recordings the test makes before it gives up on a tunable model (a loaded host's).
+ATTEMPTS = 3
 
 # LeRobot's session, run by LeRobot's interpreter: argv = port, calibration folder, phase,
 # the gripper's stops (shaft ticks). "setup": KochFollower.calibrate() without its prompts
@@ -126,15 +131,14 @@ def _writable_ram(table: ControlTable) -> dict[str, int]:
 
 
 def test_the_koch_gripper_in_mode_5_through_lerobots_bus_calibrate_record_identify_tune_deploy(
-    tmp_path,
+    tmp_path, capsys
 ):
     truth = perturbed_truth("xl330")
     stops = tuple(round(a / truth.deg_per_tick) for a in truth.jaw.limits_deg)
     tables = [ControlTable("xl430", i) for i in XL430_IDS]
     tables += [ControlTable("xl330", i) for i in XL330_IDS]
     unit = ServoUnit(truth, object_deg=truth.jaw.object_deg)
-    out = tmp_path / "koch"
-    jaw = out / "jaw.json"
+    jaw = tmp_path / "jaw.json"
     with VirtualBus("xl330", ids=tables, physics={GRIPPER: unit}, baudrate=1_000_000) as bus:
         port = bus.path
         setup = _lerobot(bus, tmp_path / "lerobot", "setup", stops)
@@ -158,13 +162,29 @@ def test_the_koch_gripper_in_mode_5_through_lerobots_bus_calibrate_record_identi
         cal = read_jaw_file(jaw)
         assert cal.servo is not None and cal.servo.operating_mode == 5
         assert cal.servo.protection["current_limit"] == 1750
-        assert record.main([*common, "--model", "xl330", "--jaw", str(jaw), "--out", str(out),
-                            "--settings", *SETTINGS]) == 0  # fmt: skip
-        records = sorted(out.glob("record_*.csv"))
-        assert len(records) == 3
-        assert identify.main([*map(str, records), "--model", "xl330", "--name", "koch",
-                              "--generations", "20", "--no-plot", "--quiet"]) == 0  # fmt: skip
-        model_file = out / "koch_model.json"
+        # record, identify and tune; on a loaded host a recording can leave the loop's delay
+        # open (the fit's alternatives reach 6-8 ms, where a current-driven loop cannot hold
+        # its margins and the hold): tune then says so and to record again, which the owner
+        # does, up to three times here, the servo as found after each
+        for attempt in range(1, ATTEMPTS + 1):
+            out = tmp_path / f"koch{attempt}"
+            model_file = out / "koch_model.json"
+            assert record.main([*common, "--model", "xl330", "--jaw", str(jaw), "--out",
+                                str(out), "--settings", *SETTINGS]) == 0  # fmt: skip
+            records = sorted(out.glob("record_*.csv"))
+            assert len(records) == 3
+            assert identify.main([*map(str, records), "--model", "xl330", "--name", "koch",
+                                  "--generations", "20", "--no-plot", "--quiet"]) == 0  # fmt: skip
+            capsys.readouterr()
+            code = tune.main(["--model", str(model_file), "--trials", "100", "--out", str(out),
+                              "--no-plot", "--no-progress"])  # fmt: skip
+            assert _writable_ram(gripper) == found_ram  # nothing left written by a try
+            if code == 0:
+                break
+            err = capsys.readouterr().err
+            assert code == 1 and "no feasible registers" in err and "record again" in err, err
+        else:
+            pytest.fail(f"{ATTEMPTS} recordings in a row left no tunable model")
         model = load_bus_servo(str(model_file))
         est = json.loads(model_file.read_text())
         # the fit is of the mode-5 loop (the current clamp at the goal current recorded), and
@@ -175,8 +195,6 @@ def test_the_koch_gripper_in_mode_5_through_lerobots_bus_calibrate_record_identi
         v, ph = est["values"], truth.physics
         gain = v["kp"] * v["omega0_deg_s"] / v["tau_m_s"]
         assert gain == pytest.approx(truth.scale.kp * ph.omega0_deg_s / ph.tau_m_s, rel=0.2)
-        assert tune.main(["--model", str(model_file), "--trials", "100", "--out", str(out),
-                          "--no-plot", "--no-progress"]) == 0  # fmt: skip
         tuned = json.loads((out / "koch_registers.json").read_text())
         assert deploy.main(["--registers", str(out / "koch_registers.json"), *common,
                             "--hold", "2", "--no-plot"]) == 0  # fmt: skip
@@ -205,6 +223,6 @@ def test_the_koch_gripper_in_mode_5_through_lerobots_bus_calibrate_record_identi
     assert 0 < regs.goal_current <= 1750 and regs.torque_limit <= 885
     on_truth = loop_margins(truth.with_updates(operating_mode="current_position"), regs)
     assert on_truth.stable and on_truth.ms <= 1.7 and on_truth.gm_db >= 6.0, on_truth
-    report = json.loads((out / "deploy_koch" / "report.json").read_text())
+    report = json.loads((model_file.parent / "deploy_koch" / "report.json").read_text())
     assert report["read_back"] == tuned["registers"] and report["fit_pct"] > 90
     assert report["hold"]["tripped"] is False

@@ -114,3 +114,15 @@ def test_a_narrow_feasible_region_is_reached_from_the_least_violation():
     assert not [t for t in study.trials[:60] if t.user_attrs["constraint"] <= 0.0]
     assert best.feasible and best.robust_margins.ms <= MS_MAX
     assert judge(model, [best.registers])[0].feasible  # judged again, alone
+
+
+def test_a_mode_5_fit_with_a_late_loop_delay_says_to_record_again():
+    """At a 6 ms loop delay (a loaded host's records put it there; the truth's is 3) no set
+    holds a current-driven loop's margins and the hold: the error names the delays the margins
+    were asked to hold at and says to record again."""
+    shipped = load_bus_servo("xl330")
+    model = shipped.with_updates(operating_mode="current_position",
+                                 physics=shipped.physics.model_copy(
+                                     update={"loop_delay_s": 0.006}))  # fmt: skip
+    with pytest.raises(RuntimeError, match=r"loop delays up to 7 ms.*record again"):
+        tune_registers(model, trials=40, polish=60, progress=False)
