@@ -43,11 +43,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded, validate
 
 __all__ = [
+    "CURRENT_POSITION_MODES",
     "DEG_PER_TICK",
     "GRIPPER_MOTOR",
     "MIN_SPAN_DEG",
     "OBJECT_FRACTION",
     "OPEN_FRACTION",
+    "POSITION_MODES",
     "JawCalibration",
     "LeRobotMotor",
     "ServoRegisters",
@@ -70,6 +72,15 @@ OBJECT_FRACTION = 35.0 / 110.0
 MIN_SPAN_DEG = 5.0
 #: The gripper's motor name in LeRobot's calibration files (SO-100/SO-101, Koch, LeKiwi).
 GRIPPER_MOTOR = "gripper"
+#: The ``Operating_Mode`` values of position control, whose loop's output is a PWM duty
+#: (:attr:`~gripper_env.model.bus_servo.BusServoModel.operating_mode` ``"position"``): STS 0,
+#: Dynamixel 3.
+POSITION_MODES: dict[str, tuple[int, ...]] = {"sts3215": (0,), "xl330": (3,), "xl430": (3,)}
+#: Current-based position control, whose loop's output is a current limited by ``Goal
+#: Current`` (``"current_position"``): Dynamixel mode 5, the Koch gripper's (LeRobot's
+#: ``koch_follower`` sets it). The XL330 only: the XL430 has no current sensing (its modes are
+#: 1, 3, 4 and 16).
+CURRENT_POSITION_MODES: dict[str, tuple[int, ...]] = {"xl330": (5,)}
 
 
 class ServoRegisters(BaseModel):
@@ -119,6 +130,17 @@ class ServoRegisters(BaseModel):
     def limited(self) -> bool:
         """The position limits apply (not both 0, an STS's multi-turn setting)."""
         return not (self.min_position == 0 and self.max_position == 0)
+
+    def loop_mode(self, family: str) -> str | None:
+        """The loop ``operating_mode`` runs on a servo of ``family``, as a model names it:
+        ``"position"`` (:data:`POSITION_MODES`), ``"current_position"``
+        (:data:`CURRENT_POSITION_MODES`), or None (a mode no model describes: velocity,
+        extended position, PWM...)."""
+        if self.operating_mode in POSITION_MODES.get(family, ()):
+            return "position"
+        if self.operating_mode in CURRENT_POSITION_MODES.get(family, ()):
+            return "current_position"
+        return None
 
     def differences(self, other: ServoRegisters) -> list[str]:
         """``name: <self> here, <other> there`` for every calibration register that differs

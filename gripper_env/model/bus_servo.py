@@ -448,7 +448,12 @@ class BusServoModel(BaseModel):
         positions, the open position and the object at their fractions
         (:meth:`~gripper_env.model.bus_calibration.JawCalibration.jaw_angles`), and the
         protection the servo's own registers set when the calibration read them
-        (:func:`protection_from_registers`); ``None`` returns the model unchanged.
+        (:func:`protection_from_registers`); ``None`` returns the model unchanged. A family's
+        model in position control (without a calibration of its own) takes the loop of the
+        operating mode the calibration found
+        (:meth:`~gripper_env.model.bus_calibration.ServoRegisters.loop_mode`: current-based
+        position control on an XL330 in mode 5); any other model keeps its own, which a servo
+        in another mode does not run (``BusGripper`` refuses it).
 
         Raises
         ------
@@ -469,6 +474,12 @@ class BusServoModel(BaseModel):
         update: dict[str, Any] = {"jaw": jaw, "calibration": calibration}
         if calibration.servo is not None and calibration.servo.protection:
             update["protection"] = protection_from_registers(self, calibration.servo.protection)
+        mode = calibration.servo.loop_mode(self.family) if calibration.servo else None
+        if self.calibration is None and self.operating_mode == "position" and mode is not None:
+            # a family's model runs the loop the servo was found in (mode 5 on a Koch
+            # gripper); an identified model keeps the loop its records were taken in, and a
+            # model set to current-based position control keeps it
+            update["operating_mode"] = mode
         return self.with_updates(**update)
 
     @model_validator(mode="after")
@@ -486,6 +497,15 @@ class BusServoModel(BaseModel):
     def current_mode(self) -> bool:
         """The servo runs current-based position control."""
         return self.operating_mode == "current_position"
+
+    @property
+    def output_gain(self) -> float:
+        """Torque (fraction of stall) per unit of the loop's output (duty units): 1 in position
+        control; in current-based position control the output is register units of current
+        over ``duty_full``, so ``duty_full * current_unit_a / stall_current_a``."""
+        if not self.current_mode:
+            return 1.0
+        return self.scale.duty_full * self.scale.current_unit_a / self.physics.stall_current_a
 
     def current_fraction(self, regs: RegisterSet) -> float:
         """The goal current as a fraction of the stall current (current-based position mode)."""

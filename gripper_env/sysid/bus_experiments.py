@@ -45,6 +45,7 @@ if TYPE_CHECKING:
     from gripper_env.hardware.bus.gripper import BusGripper
 
 __all__ = [
+    "CURRENT_RECORD_SETTINGS",
     "PROBE_DEG",
     "RECORD_SETTINGS",
     "STEADY_LOAD_LIMIT",
@@ -67,6 +68,14 @@ RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
     "sts3215": ((16, 0, 32), (32, 0, 32), (64, 0, 32), (32, 0, 0), (32, 4, 32)),
     "xl330": ((200, 0, 0), (400, 0, 0), (800, 0, 0), (800, 0, 800), (400, 200, 0)),
     "xl430": ((320, 0, 2000), (640, 0, 2000), (1280, 0, 2000), (640, 0, 0), (640, 200, 2000)),
+}
+#: The same in current-based position control (Dynamixel mode 5, the Koch gripper's): the loop
+#: drives a current, with no back-EMF damping, so every setting needs D to be stable (P 400, I
+#: 0, D 0, the factory's, is unstable on the model in this mode); D varies against P so that
+#: its scale is seen. The low P's wide dead band (8 deg at P 200: the current's gain makes it
+#: 1.7 times the position control's) pins the static friction against the gain scale.
+CURRENT_RECORD_SETTINGS: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "xl330": ((200, 0, 1500), (400, 0, 2000), (800, 0, 4000), (400, 0, 1200), (400, 200, 2000)),
 }
 
 #: Steps of the plan (deg from the open position) and how long each is held (s).
@@ -157,12 +166,17 @@ CLIP_FLOOR_DEG = 3.0
 CLIP_MIN_STEP_DEG = 8.0
 
 
-def check_record(record: BusRecord, name: str = "the record") -> list[str]:
+def check_record(
+    record: BusRecord, name: str = "the record", model: BusServoModel | None = None
+) -> list[str]:
     """What makes ``record`` unfit to identify from, in words (empty: nothing).
 
     * **Clipped steps**: a step of the goal (held at least 0.3 s) whose end the jaw does not
-      come within :data:`CLIP_FRACTION` of it (at least :data:`CLIP_FLOOR_DEG`): a position
-      limit narrower than the plan, a stop, or an object in the jaws held it.
+      come within :data:`CLIP_FRACTION` of it (at least :data:`CLIP_FLOOR_DEG`, or the loop's
+      dead band at the record's P on ``model`` if that is wider: in current-based position
+      control, with no back-EMF damping, a low P's jaw overshoots and sticks anywhere within
+      it, 8 deg at P 200 on the XL330's model): a position limit narrower than the plan, a
+      stop, or an object in the jaws held it.
     * **Dropped readings**: more than :data:`MAX_DROPPED` of the readings got no reply (the
       recorder's counts, in the record).
     * **Slow readings**: the median interval more than
@@ -170,6 +184,11 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
       host), which identification refuses outright.
     """
     problems = []
+    floor = CLIP_FLOOR_DEG
+    if model is not None:
+        kp = model.scale.kp * model.output_gain
+        band = model.physics.static / (kp * max(record.registers.p, 1)) * model.deg_per_tick
+        floor = max(floor, band)
     times, goals = record.goal_times_s, record.goal_values_deg
     ends = np.r_[times[1:], record.t_s[-1]]
     for k in range(1, times.size):
@@ -180,7 +199,7 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
         if not np.any(tail):
             continue
         final = float(np.median(record.position_deg[tail]))
-        if abs(final - goals[k]) > max(CLIP_FRACTION * abs(jump), CLIP_FLOOR_DEG):
+        if abs(final - goals[k]) > max(CLIP_FRACTION * abs(jump), floor):
             problems.append(
                 f"{name}: the step to {goals[k]:.1f} deg at {times[k]:.2f} s ended at "
                 f"{final:.1f} deg: clipped (a position limit, a stop or an object held the jaw)"
@@ -205,10 +224,17 @@ def check_record(record: BusRecord, name: str = "the record") -> list[str]:
 def settings_registers(
     model: BusServoModel, settings: Sequence[tuple[int, int, int]] | None = None
 ) -> list[RegisterSet]:
-    """The register sets of ``settings`` (default :data:`RECORD_SETTINGS` of the family): the
-    factory registers with P, I, D replaced."""
-    chosen = RECORD_SETTINGS[model.family] if settings is None else settings
-    return [model.factory.model_copy(update={"p": p, "i": i, "d": d}) for p, i, d in chosen]
+    """The register sets of ``settings`` (default :data:`RECORD_SETTINGS` of the family, or
+    :data:`CURRENT_RECORD_SETTINGS` in current-based position control): the factory registers
+    with P, I, D replaced (in current-based position control with the goal current of full
+    torque, :meth:`~gripper_env.model.bus_servo.BusServoModel.full_goal_current`, which a
+    recording lowers to what the servo holds)."""
+    table = CURRENT_RECORD_SETTINGS if model.current_mode else RECORD_SETTINGS
+    chosen = table[model.family] if settings is None else settings
+    base = model.factory
+    if model.current_mode:
+        base = base.model_copy(update={"goal_current": model.full_goal_current()})
+    return [base.model_copy(update={"p": p, "i": i, "d": d}) for p, i, d in chosen]
 
 
 def check_settings(model: BusServoModel, registers: Sequence[RegisterSet]) -> None:
@@ -370,7 +396,8 @@ class BusRecorder:
         g = self.gripper
         if reach_deg is None:
             m = g.model
-            band = m.physics.static / (m.scale.kp * max(registers.p, 1)) * m.deg_per_tick
+            kp = m.scale.kp * m.output_gain  # in current-based position control, a current
+            band = m.physics.static / (kp * max(registers.p, 1)) * m.deg_per_tick
             reach_deg = max(PROBE_DEG, 3.0 * band)
         g.write_registers(registers)
         g.torque(True)  # holds where it is, within the goal range

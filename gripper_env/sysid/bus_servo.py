@@ -129,8 +129,10 @@ class BusEstimate:
         }
 
     def dead_band_deg(self, p: int) -> float:
-        """The friction dead band (deg) at proportional gain register ``p``."""
-        return self.values["static"] / (self.values["kp"] * max(p, 1)) * self.model.deg_per_tick
+        """The friction dead band (deg) at proportional gain register ``p`` (in the model's
+        operating mode: a current-based loop's output is scaled by its ``output_gain``)."""
+        kp = self.values["kp"] * self.model.output_gain
+        return self.values["static"] / (kp * max(p, 1)) * self.model.deg_per_tick
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready dict (the model under ``"model"``; ``tuners.bus.tune`` reads it)."""

@@ -9,7 +9,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from gripper_env.evaluation.bus_servo import hold_metrics, judge, loop_margins
+from gripper_env.evaluation.bus_servo import corner_models, hold_metrics, judge, loop_margins
 from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
 from gripper_env.sim.bus_servo import DT
 
@@ -98,6 +98,24 @@ def test_the_robust_margins_hold_with_a_tick_more_loop_delay():
     score = judge(model, [regs])[0]
     assert score.robust_margins.ms >= loop_margins(later, regs).ms - 1e-12
     assert score.robust_margins.gm_db <= loop_margins(later, regs).gm_db + 1e-12
+
+
+def test_in_current_based_position_mode_the_corners_are_in_the_loop_gain():
+    """Mode 5: the free loop sees kp and tau_m only through kp w0 / tau_m (no back-EMF term),
+    which the records' motion pins, so the corners vary the gains by their 2 sigma (the 10 %
+    floor) and keep tau_m as fitted, then a tick more delay; in position control kp and tau_m
+    vary apart (four corners)."""
+    model = load_bus_servo("xl330").with_updates(operating_mode="current_position")
+    corners = corner_models(model)
+    assert len(corners) == 4  # the model, two gain corners, a tick more loop delay
+    assert sorted(c.scale.kp / model.scale.kp for c in corners[1:3]) == pytest.approx([0.8, 1.2])
+    assert sorted(c.scale.kd / model.scale.kd for c in corners[1:3]) == pytest.approx([0.8, 1.2])
+    assert {c.physics.tau_m_s for c in corners} == {model.physics.tau_m_s}
+    assert corners[3].physics.loop_delay_s == pytest.approx(model.physics.loop_delay_s + DT)
+    shipped = load_bus_servo("xl330")
+    position = corner_models(shipped)[1:5]
+    assert {round(c.scale.kp / shipped.scale.kp, 9) for c in position} == {0.8, 1.2}
+    assert {round(c.physics.tau_m_s / shipped.physics.tau_m_s, 9) for c in position} == {0.8, 1.2}
 
 
 def test_the_robust_margins_hold_on_the_alternative_models():

@@ -181,6 +181,26 @@ def test_clipped_steps_and_lost_readings_make_a_record_unfit():
     assert "12 % of the readings got no reply" in problem
 
 
+def test_a_mode_5_dead_band_is_no_clip_and_a_stop_still_is():
+    """In current-based position control (the Koch gripper's mode 5) the jaw at P 200 stops
+    anywhere within the loop's dead band, 8 deg on the XL330's model: beyond the 3 deg floor
+    it was taken for a clip; judged against the model's dead band it is not, and a closed stop
+    15 deg below open still clips the 30 deg step."""
+    from gripper_env.sysid.bus_experiments import check_record
+
+    model = load_bus_servo("xl330").with_updates(operating_mode="current_position")
+    low_p = settings_registers(model)[0]
+    assert (low_p.p, low_p.d, low_p.goal_current) == (200, 1500, 1470)
+    rec = simulate_record(model, low_p)
+    assert check_record(rec) != []  # ends 4.6 deg from a goal: more than the 3 deg floor
+    assert check_record(rec, model=model) == []
+    hi = model.jaw.limits_deg[1]
+    narrow = model.with_updates(jaw=model.jaw.model_copy(
+        update={"limits_deg": (model.jaw.open_deg - 15.0, hi)}))  # fmt: skip
+    (problem,) = check_record(simulate_record(narrow, low_p), "r.csv", model=model)
+    assert "r.csv: the step to 210.0 deg" in problem and "clipped" in problem
+
+
 def test_the_95_percent_ranges_stay_positive(perturbed_sts3215):
     """The ranges are on the logarithm's scale: positive even for a parameter the records pin
     loosely, and equal to ``value * exp(+-1.96 std / value)``."""

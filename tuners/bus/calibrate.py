@@ -21,7 +21,10 @@ Three ways to give the positions:
   means it (the calibration then says so, and every later command with it).
 
 Positions beyond the servo's own position limits are brought inside them (the servo never gets
-a goal outside). Nothing of the servo's calibration is ever written.
+a goal outside). Nothing of the servo's calibration is ever written. The servo runs position
+control, or on an XL330 current-based position control (operating mode 5, the Koch gripper's as
+LeRobot's ``koch_follower`` configures it): the mode is recorded, and record, identify, tune and
+deploy run that loop. Another mode (extended position, velocity...) is refused.
 
 Examples
 --------
@@ -40,6 +43,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gripper_env.hardware.bus.gripper import (
+    CURRENT_POSITION_MODES,
     FACTORY_BAUD,
     MODEL_NAMES,
     POSITION_MODES,
@@ -261,11 +265,19 @@ def _run(args: argparse.Namespace) -> int:
         regs = read_servo_registers(link, args.id)
         name = MODEL_NAMES.get(regs.model_number, family)
         print(f"servo {args.id} on {args.port}: {name}, of {len(others)} answering", flush=True)
-        if regs.operating_mode not in POSITION_MODES[family]:
+        loop = regs.loop_mode(family)
+        if loop is None:
+            modes = [*POSITION_MODES[family], *CURRENT_POSITION_MODES.get(family, ())]
             raise BusCalibrationError(
                 f"servo {args.id} is in operating mode {regs.operating_mode}, not position "
-                f"control ({', '.join(map(str, POSITION_MODES[family]))}): not modelled"
+                f"control or current-based position control ({', '.join(map(str, modes))}): "
+                "not modelled (the mode is the owner's: nothing was changed)"
             )
+        if loop == "current_position":
+            print(f"servo {args.id} runs current-based position control (operating mode "
+                  f"{regs.operating_mode}, goal current limited by its Current_Limit "
+                  f"{regs.protection.get('current_limit', '?')}): recorded, and the later "
+                  "commands keep it", flush=True)  # fmt: skip
         torque_note = "nothing was written to the servo"
         if how == "hand":
             closed, opened, torque_note = _by_hand(link, args.id)

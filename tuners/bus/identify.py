@@ -136,7 +136,7 @@ def _run(args: argparse.Namespace) -> int:
             )
     prior = prior.calibrated(calibration)
     problems = [p for path, rec in zip(args.records, records, strict=True)
-                for p in check_record(rec, str(path))]  # fmt: skip
+                for p in check_record(rec, str(path), prior)]  # fmt: skip
     if problems and not args.force:
         return _refuse(problems, "these records are not fit to identify from: record again "
                        "(the jaws empty, a quieter host), or pass --force")  # fmt: skip

@@ -20,7 +20,10 @@ position, then a creep of one tick every 20 ms (see :mod:`gripper_env.sysid.bus_
 The position is read every ``--sample-ms`` and each record (with the jaw calibration) is written
 to ``OUT/record_p<P>_i<I>_d<D>.csv`` as soon as it is taken. At the end, on an error, on Ctrl-C
 or SIGTERM, every register written is restored and read back, the torque as it was found
-(unless ``--keep-torque``). Keep the jaws empty.
+(unless ``--keep-torque``). Keep the jaws empty. On an XL330 that the calibration found in
+current-based position control (operating mode 5, the Koch gripper's), the default settings are
+:data:`gripper_env.sysid.bus_experiments.CURRENT_RECORD_SETTINGS` (D in each) and every record
+runs at the goal current the servo holds, within its ``Current_Limit``.
 
 Examples
 --------
@@ -34,6 +37,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tuners.bus.cli import (
     EXIT_FAILURE,
@@ -45,6 +49,9 @@ from tuners.bus.cli import (
     run_cli,
 )
 from tuners.conventions import conform
+
+if TYPE_CHECKING:  # the library is imported after parsing: --help answers before it loads
+    from gripper_env.hardware.bus.gripper import BusGripper
 
 __all__ = ["main", "parse_setting"]
 
@@ -121,10 +128,12 @@ def _run(args: argparse.Namespace) -> int:
     from gripper_env.sysid.bus_servo import write_bus_record
 
     model = load_bus_servo(args.model)
+    calibration = load_jaw(args.jaw, model, args.id)
+    # the loop the servo was found in (calibrate recorded its operating mode): mode 5, current-
+    # based position control, records in that mode
+    model = model.calibrated(calibration)
     registers = settings_registers(model, args.settings)
     check_settings(model, registers)  # before anything is sent
-    calibration = load_jaw(args.jaw, model, args.id)
-    model = model.calibrated(calibration)
     plan = record_plan(model)
     check_plan(plan, calibration.goal_range_deg(), "record's plan (steps of 30, 10, 4 deg)")
     out = output_folder(args.out)
@@ -135,6 +144,12 @@ def _run(args: argparse.Namespace) -> int:
         if any(c != r for c, r in zip(capped, registers, strict=True)):
             print(f"note: torque limit held at {limit}, the servo's own (as found, within its "
                   "maximum)", flush=True)  # fmt: skip
+        if jaw.model.current_mode:
+            current = _goal_current(jaw)
+            capped = [r.model_copy(update={"goal_current": current}) for r in capped]
+            print(f"note: current-based position control (operating mode "
+                  f"{jaw.servo_registers.operating_mode}): recorded at goal current {current}, "
+                  "the servo's own (as found, within its Current_Limit)", flush=True)  # fmt: skip
         for regs in capped:
             jaw.register_values(regs)  # every setting checked before the first is written
         recorder = BusRecorder(jaw, sample_s=args.sample_ms / 1e3)
@@ -150,7 +165,7 @@ def _run(args: argparse.Namespace) -> int:
             rec = recorder.record(regs, plan)
             path = out / f"record_p{regs.p}_i{regs.i}_d{regs.d}.csv"
             write_bus_record(path, rec)
-            problems += check_record(rec, str(path))
+            problems += check_record(rec, str(path), model)
             dt = (rec.t_s[-1] - rec.t_s[0]) / max(rec.t_s.size - 1, 1)
             print(
                 f"[{k}/{len(capped)}] {rec.registers.label()}: {rec.t_s.size} readings "
@@ -175,6 +190,22 @@ def _run(args: argparse.Namespace) -> int:
     print(f"next: python -m tuners.bus.identify {out}/record_*.csv --model {args.model}"
           + (" --force" if problems else ""))  # fmt: skip
     return 0
+
+
+def _goal_current(jaw: BusGripper) -> int:
+    """The goal current a record in current-based position control runs at: the servo's as
+    found, within its ``Current_Limit`` (ValueError, nothing written, when it is 0: the servo
+    would hold no torque)."""
+    found = abs(jaw.found["goal_current"])
+    limit = jaw.servo_registers.protection.get("current_limit")
+    current = found if limit is None else min(found, limit)
+    if current <= 0:
+        raise ValueError(
+            f"servo {jaw.servo_id} runs current-based position control with goal current "
+            f"{found} (Current_Limit {limit}): it holds no torque, nothing to record (set its "
+            "Goal_Current, or its mode, as you use it)"
+        )
+    return current
 
 
 def main(argv: Sequence[str] | None = None) -> int:

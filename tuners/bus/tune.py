@@ -35,7 +35,14 @@ from pathlib import Path
 import optuna
 from tqdm.auto import tqdm
 
-from gripper_env.evaluation.bus_servo import D_KICK_MAX, GM_MIN_DB, MS_MAX, BusScore, judge
+from gripper_env.evaluation.bus_servo import (
+    D_KICK_MAX,
+    DELAY_TICKS,
+    GM_MIN_DB,
+    MS_MAX,
+    BusScore,
+    judge,
+)
 from gripper_env.io.config import MAX_CONFIG_BYTES, ConfigError, read_bounded
 from gripper_env.io.files import collect_provenance, write_atomic
 from gripper_env.model.bus_servo import (
@@ -163,6 +170,12 @@ def tune_registers(
     """
     space = search_space(model, goal_current)
     base = model.baselines()["factory"]
+    cal = model.calibration
+    if model.current_mode and cal is not None and cal.servo is not None:
+        # the PWM limit is not searched in current-based position control: the factory's,
+        # within the servo's own PWM_Limit
+        top = cal.servo.max_torque_limit
+        base = base.model_copy(update={"torque_limit": min(base.torque_limit, top)})
     if goal_current is not None:
         base = base.model_copy(update={"goal_current": int(goal_current)})
     keys = list(space)
@@ -211,10 +224,26 @@ def tune_registers(
             evaluate(None, n)
             done += n
         feasible = [t for t in study.trials if t.user_attrs.get("constraint", 1.0) <= 0.0]
+        if not feasible:  # a narrow feasible region: walk from the least violation into it
+            closest = min(study.trials, key=lambda t: t.user_attrs.get("constraint", math.inf))
+            seen_repair = {tuple(_register(t, k) for k in keys) for t in study.trials}
+            _repair({k: _register(closest, k) for k in keys}, evaluate, space, seen_repair,
+                    polish)  # fmt: skip
+            feasible = [t for t in study.trials if t.user_attrs.get("constraint", 1.0) <= 0.0]
         if not feasible:
+            late = sorted({round(a.physics.loop_delay_s * 1e3) for a in alternatives})
+            advice = "try more --trials, or check the model"
+            if model.current_mode or late:
+                # a current-driven loop has no back-EMF damping: a late delay costs it most
+                delays = sorted({round(model.physics.loop_delay_s * 1e3) + DELAY_TICKS, *late})
+                advice = (
+                    f"its margins must hold at loop delays up to {max(delays)} ms, which the "
+                    "records left open or the fit put late: record again on a quieter host, or "
+                    "try more --trials"
+                )
             raise RuntimeError(
                 f"no feasible registers in {n_global} trials on {model.name}: every candidate "
-                "broke the margins or the hold (try more --trials, or check the model)"
+                f"broke the margins or the hold ({advice})"
             )
         seen: set[tuple[int, ...]] = {tuple(_register(t, k) for k in keys) for t in study.trials}
         results = []
@@ -307,6 +336,39 @@ def _polish(
             last = None
             step = {k: max(v // 2, 1) for k, v in step.items()}
     return x, fx, used, False
+
+
+def _repair(
+    x: dict[str, int],
+    evaluate: Callable[[list[dict[str, int]] | None, int], list[BusScore]],
+    space: dict[str, tuple[int, int]],
+    seen: set[tuple[int, ...]],
+    budget: int,
+) -> bool:
+    """Integer pattern search on the constraints' violation (:func:`constraint_value`) from
+    ``x``, until a judged set is feasible (True) or ``budget`` sets are judged, or no
+    one-register step lowers the violation (False). A feasible region too narrow for the
+    global stage to land in (current-based position control on a slow loop: a few registers
+    wide in P, I and D) is reached this way; the local stage then starts from it."""
+    keys = list(space)
+    step = {k: max((hi - lo) // 16, 1) for k, (lo, hi) in space.items()}
+    fx, used = math.inf, 0
+    while used < budget:
+        moves = _pattern_moves(x, step, space, seen)[: budget - used]
+        scores = evaluate(moves, len(moves)) if moves else []
+        used += len(moves)
+        seen.update(tuple(m[k] for k in keys) for m in moves)
+        if any(s.feasible for s in scores):
+            return True
+        judged = [(constraint_value(s), m) for s, m in zip(scores, moves, strict=True)]
+        better = [c for c in judged if c[0] < fx]
+        if better:
+            fx, x = min(better, key=lambda c: c[0])
+        elif all(v <= 1 for v in step.values()):
+            return False
+        else:
+            step = {k: max(v // 2, 1) for k, v in step.items()}
+    return False
 
 
 def _pattern_moves(
@@ -543,6 +605,16 @@ def protection_notes(model: BusServoModel, best: BusScore) -> list[str]:
     pr = model.protection
     read = ", ".join(f"{k} {v}" for k, v in cal.servo.protection.items())
     notes = [f"the hold is judged under servo {cal.servo_id}'s own protection registers ({read})"]
+    if model.current_mode:
+        regs = best.registers
+        climit = cal.servo.protection.get("current_limit")
+        within = "" if climit is None else f", within its Current_Limit {climit}"
+        notes.append(
+            f"current-based position control (operating mode {cal.servo.operating_mode}): goal "
+            f"current {regs.goal_current} ({model.current_fraction(regs):.0%} of the stall "
+            f"current{within}) holds {best.hold.holding_force_n:.1f} N"
+        )
+        return notes
     limit = model.limit_fraction(best.registers)
     top = search_space(model).get("torque_limit", (0, 0))[1] / model.scale.duty_full
     if 0.0 < pr.overload_duty < top and limit <= pr.overload_duty:

@@ -8,8 +8,9 @@ to ``python -m tuners.bus.calibrate``, ``record`` and ``deploy`` (or to the vend
 family's (a servo whose parameters the identification must find). ``--others 1 2 3 4 5`` puts
 more servos of the family on the bus (the other joints of an arm; they only mirror their goal),
 and ``--limits MIN MAX`` writes the gripper's position limits as LeRobot's calibration does, and
-``--lerobot`` the registers LeRobot's configure leaves on the gripper (its overload protection at
-25 %): the bus an SO-101 owner has, with the gripper at ``--id 6``. Stops on Ctrl-C or SIGTERM.
+``--lerobot`` the registers LeRobot's configure leaves on the gripper (an SO-101's STS3215: its
+overload protection at 25 %; a Koch's XL330: current-based position mode 5): the bus an owner
+has, with the gripper at ``--id 6``. Stops on Ctrl-C or SIGTERM.
 
 Examples
 --------
@@ -70,9 +71,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--lerobot",
         action="store_true",
-        help="the gripper's registers as LeRobot's SO follower configures them (STS3215: P 16, "
-        "I 0, D 32, Acceleration 254, Max_Torque_Limit 500, Protection_Current 250, "
-        "Overload_Torque 25), kept in its flash as LeRobot's writes are",
+        help="the gripper's registers as LeRobot's SO or Koch follower configures them "
+        "(STS3215: P 16, I 0, D 32, Acceleration 254, Max_Torque_Limit 500, Protection_Current "
+        "250, Overload_Torque 25; XL330: Return_Delay_Time 0, Operating_Mode 5, current-based "
+        "position), kept in its flash as LeRobot's writes are, every servo at LeRobot's 1 Mbaud",
     )
     parser.add_argument(
         "--object",
@@ -107,11 +109,18 @@ def _check_link(path: str | None) -> str | None:
 #: every motor P 16, I 0, D 32 and Acceleration 254; the gripper's torque cut to 50 % and its
 #: overload protection at 25 % (LeRobot's ``so101_follower.configure``, written with the torque
 #: off, under Lock 0: saved to flash).
+#: The Koch follower's gripper (an XL330, LeRobot's ``koch_follower.configure``): Return_Delay_Time
+#: 0 and current-based position control (Operating_Mode 5), its Goal_Current as powered on (the
+#: Current_Limit), at LeRobot's 1 Mbaud (its ``setup_motors`` writes Baud_Rate 3).
 LEROBOT_GRIPPER = {
     "sts3215": {"p_coefficient": 16, "i_coefficient": 0, "d_coefficient": 32, "acceleration": 254,
                 "max_torque_limit": 500, "torque_limit": 500, "protection_current": 250,
                 "overload_torque": 25},
+    "xl330": {"return_delay_time": 0, "operating_mode": 5, "baud_rate": 3},
 }  # fmt: skip
+
+
+_LEROBOT_NOTE = {"sts3215": "Overload_Torque 25 %", "xl330": "Operating_Mode 5"}
 
 
 def _gripper_table(
@@ -123,7 +132,8 @@ def _gripper_table(
     if lerobot:
         if family not in LEROBOT_GRIPPER:
             raise ValueError(
-                f"--lerobot: LeRobot's SO follower is built on STS3215s, not the {family}"
+                f"--lerobot: LeRobot's followers have an STS3215 (SO-100/SO-101) or an XL330 "
+                f"(Koch) gripper, not the {family}"
             )
         for name, value in LEROBOT_GRIPPER[family].items():
             table.store(name, value)
@@ -157,7 +167,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # before the physics (which compiles its kernels)
         unit = ServoUnit(model, object_deg=args.object)
         ids = sorted([gripper, *args.others], key=lambda t: t if isinstance(t, int) else t.servo_id)
-        bus = VirtualBus(model.family, ids=ids, physics={args.id: unit})
+        # a LeRobot bus runs at LeRobot's 1 Mbaud, every servo on it (the STS3215's factory rate)
+        baud = 1_000_000 if args.lerobot else None
+        bus = VirtualBus(model.family, ids=ids, physics={args.id: unit}, baudrate=baud)
     except (ConfigError, ValueError, OSError) as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     stop = threading.Event()
@@ -181,7 +193,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(
                 f"virtual {model.family} ({model.name}), ID {args.id}{others}"
                 + (f", position limits {args.limits}" if args.limits else "")
-                + (", LeRobot's gripper registers (Overload_Torque 25 %)" if args.lerobot else "")
+                + (
+                    f", LeRobot's gripper registers ({_LEROBOT_NOTE[model.family]})"
+                    if args.lerobot
+                    else ""
+                )
                 + (f", object at {args.object:g} deg" if args.object is not None else "")
                 + (f", linked at {link}" if link else "")
                 + "; Ctrl-C to stop",

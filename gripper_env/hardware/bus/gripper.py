@@ -13,11 +13,14 @@ calibration and limits, and left as it was found.
    position): a servo on a shared bus is never guessed (an SO-101's ID 1 is the shoulder, with
    the gripper's model number). From then on the link refuses instructions to any other ID;
 2. **reads the servo's calibration** (homing offset, min/max position limits, operating mode,
-   drive mode, maximum torque limit) and refuses (:class:`BusCalibrationError`) a servo that
-   is not in position control or whose registers differ from the jaw calibration's (it was
-   recalibrated since, or it is another servo);
+   drive mode, maximum torque limit) and refuses (:class:`BusCalibrationError`) a servo whose
+   registers differ from the jaw calibration's (it was recalibrated since, or it is another
+   servo) or whose operating mode runs another loop than the model's. A family's model takes
+   the servo's loop: position control, or an XL330's current-based position control (mode 5,
+   the Koch gripper's), whose goal current the session writes within the servo's
+   ``Current_Limit``;
 3. **takes a snapshot** of every register the session may write (torque enable, the STS's lock,
-   P, I, D, dead zones, torque limit, acceleration, velocity, goal position).
+   P, I, D, dead zones, torque limit, acceleration, velocity, goal current, goal position).
 
 Every goal is clamped to the calibration's goal range (the jaw's closed-to-open range inside
 the servo's own position limits) and checked finite. Registers are written with the torque off
@@ -51,7 +54,12 @@ from gripper_env.hardware.bus.link import (
     BusTimeoutError,
     BusVerifyError,
 )
-from gripper_env.model.bus_calibration import JawCalibration, ServoRegisters
+from gripper_env.model.bus_calibration import (
+    CURRENT_POSITION_MODES,
+    POSITION_MODES,
+    JawCalibration,
+    ServoRegisters,
+)
 from gripper_env.model.bus_servo import (
     PROTECTION_REGISTERS,
     BusServoModel,
@@ -60,6 +68,7 @@ from gripper_env.model.bus_servo import (
 )
 
 __all__ = [
+    "CURRENT_POSITION_MODES",
     "FACTORY_BAUD",
     "MODEL_NAMES",
     "POSITION_MODES",
@@ -80,11 +89,6 @@ FACTORY_BAUD = {"sts3215": 1_000_000, "xl330": 57_600, "xl430": 57_600}
 #: The names of the model numbers a bus may answer with.
 MODEL_NAMES = {777: "STS3215", 1200: "XL330-M288", 1060: "XL430-W250"}
 
-#: The operating modes the loop's model describes: position control (STS 0, Dynamixel 3).
-POSITION_MODES = {"sts3215": (0,), "xl330": (3,), "xl430": (3,)}
-#: A Dynamixel in current-based position control (5, the Koch gripper's), which a model with
-#: ``operating_mode: current_position`` describes: its output limited by its goal current.
-CURRENT_POSITION_MODES = {"xl330": (5,), "xl430": (5,)}
 
 #: The table role of each :class:`RegisterSet` field (the dead zone is two registers on an STS,
 #: none on a Dynamixel).
@@ -394,8 +398,8 @@ class BusGripper:
     BusModelError
         The servo is another model than the family's.
     BusCalibrationError
-        The servo's calibration differs from the jaw calibration's, or its operating mode is
-        not position control.
+        The servo's calibration differs from the jaw calibration's, or its operating mode runs
+        another loop than the model's (or one no model describes).
     BusError
         The port cannot be opened, or a transaction failed.
     """
@@ -459,17 +463,6 @@ class BusGripper:
             raise BusCalibrationError(
                 f"the jaw calibration was taken on servo {cal.servo_id}, not {self.servo_id}"
             )
-        current = model.current_mode
-        modes = (CURRENT_POSITION_MODES if current else POSITION_MODES).get(cal.family, ())
-        if regs.operating_mode not in modes:
-            kind = "current-based position control" if current else "position control"
-            raise BusCalibrationError(
-                f"{where} is in operating mode {regs.operating_mode}, not {kind} "
-                f"({', '.join(map(str, modes)) or 'none on this family'}) as the model "
-                f"{model.name!r} describes: its loop is not the one modelled (the mode is "
-                "the owner's: nothing was changed; a current-based model is tuned with "
-                "python -m tuners.bus.tune --operating-mode current_position)"
-            )
         if cal.servo is not None:
             diff = cal.servo.differences(regs)
             if diff:
@@ -479,9 +472,27 @@ class BusGripper:
                     "the jaw again (python -m tuners.bus.calibrate)"
                 )
         try:
-            return cal.with_servo(regs, self.servo_id)
+            out = cal.with_servo(regs, self.servo_id)
         except ValueError as exc:
             raise BusCalibrationError(f"{where}: the jaw calibration does not fit: {exc}") from None
+        # the loop the servo runs must be the one modelled: a family's model takes the servo's
+        # (BusServoModel.calibrated), an identified one keeps the loop of its records
+        running = regs.loop_mode(cal.family)
+        modelled = model.calibrated(out).operating_mode
+        if running != modelled:
+            names = {"position": ("position control", POSITION_MODES),
+                     "current_position": ("current-based position control",
+                                          CURRENT_POSITION_MODES)}  # fmt: skip
+            kind, modes = names[modelled]
+            listed = ", ".join(map(str, modes.get(cal.family, ()))) or "none on this family"
+            what = "which no model describes" if running is None else names[running][0]
+            raise BusCalibrationError(
+                f"{where} is in operating mode {regs.operating_mode} ({what}), not {kind} "
+                f"({listed}) as the model {model.name!r} describes: its loop is not the one "
+                "modelled (the mode is the owner's: nothing was changed; identify from records "
+                "taken in the servo's own mode)"
+            )
+        return out
 
     # ---- lifecycle -------------------------------------------------------------------------------
 
@@ -648,6 +659,18 @@ class BusGripper:
         if regs.goal_current or self.model.current_mode:  # current-based position mode
             if not spec.has_role("goal_current"):
                 raise ValueError(f"the {spec.family} has no goal-current register")
+            if not self.model.current_mode:
+                raise ValueError(
+                    f"goal current {regs.goal_current} for servo {self.servo_id}, which runs "
+                    "position control: the registers were tuned for current-based position "
+                    "control (mode 5)"
+                )
+            if regs.goal_current <= 0:
+                raise ValueError(
+                    f"goal current 0 for servo {self.servo_id} in current-based position "
+                    "control: it would hold no torque (the registers were tuned for position "
+                    "control; tune in the servo's mode)"
+                )
             values["goal_current"] = regs.goal_current
         if all(spec.has_role(r) for r in _DEADBAND_ROLES):
             values.update(dict.fromkeys(_DEADBAND_ROLES, regs.deadband))
@@ -655,6 +678,12 @@ class BusGripper:
             raise ValueError(f"the {spec.family} has no dead-zone register (deadband must be 0)")
         for role, value in values.items():
             spec.role(role).check(value)
+        climit = self.servo_registers.protection.get("current_limit")
+        if climit is not None and values.get("goal_current", 0) > climit:
+            raise ValueError(
+                f"goal current {values['goal_current']} is above servo {self.servo_id}'s current "
+                f"limit {climit} (its own protection setting, Current_Limit: left as it is)"
+            )
         top = self.servo_registers.max_torque_limit
         if regs.torque_limit > top:
             raise ValueError(

@@ -164,10 +164,41 @@ def test_a_mirrored_jaw_and_a_calibration_that_is_not_the_servos():
         assert bytes(bus.table(6).memory) == before
 
 
-def test_current_based_position_mode_is_refused_and_the_torque_limit_kept_under_the_max():
+def test_current_based_position_mode_runs_its_model_and_the_torque_limit_kept_under_the_max():
+    """An XL330 in mode 5 (the Koch gripper as LeRobot configures it): the family's model runs
+    current-based position control, its goal current written within the servo's Current_Limit
+    and restored; a model identified in position control, or a mode no model describes
+    (extended position, 4), is refused with nothing written."""
     model = load_bus_servo("xl330")
-    with VirtualBus("xl330", ids=[_table("xl330", operating_mode=5)]) as bus:
-        with pytest.raises(BusCalibrationError, match="operating mode 5, not position control"):
+    table = _table("xl330", operating_mode=5, current_limit=900, goal_current=800)
+    with VirtualBus("xl330", ids=[table]) as bus:
+        before = bytes(table.memory)
+        with BusGripper(bus.path, model, 6, calibration=_jaw("xl330")) as jaw:
+            assert jaw.model.current_mode and jaw.found["goal_current"] == 800
+            regs = RegisterSet(p=400, d=2000, torque_limit=885, goal_current=600)
+            assert jaw.write_registers(regs) == regs
+            assert table.get("goal_current") == 600 and table.get("operating_mode") == 5
+            with pytest.raises(ValueError, match="goal current 1000 is above servo 6's current"):
+                jaw.write_registers(regs.model_copy(update={"goal_current": 1000}))
+            with pytest.raises(ValueError, match="goal current 0 for servo 6"):
+                jaw.write_registers(regs.model_copy(update={"goal_current": 0}))
+        assert jaw.restored is not None and jaw.restored.ok
+        assert bytes(table.memory)[:64] == before[:64]  # EEPROM: mode 5 and the limit kept
+        assert table.get("goal_current") == 800 and table.get("position_p_gain") == 400
+        with pytest.raises(RuntimeError, match="cut short"):  # an error: restored the same
+            with BusGripper(bus.path, model, 6, calibration=_jaw("xl330")) as jaw:
+                jaw.write_registers(regs)
+                raise RuntimeError("cut short")
+        assert "goal current" in jaw.restored.written and jaw.restored.ok
+        assert table.get("goal_current") == 800 and table.get("operating_mode") == 5
+        identified = model.calibrated(_jaw("xl330").with_servo(jaw.servo_registers, 6))
+        position = identified.with_updates(operating_mode="position")
+        with pytest.raises(BusCalibrationError, match=r"operating mode 5 \(current-based "
+                           r"position control\), not position control \(3\)"):  # fmt: skip
+            BusGripper(bus.path, position, 6)
+        assert bytes(table.memory)[:64] == before[:64]
+    with VirtualBus("xl330", ids=[_table("xl330", operating_mode=4)]) as bus:
+        with pytest.raises(BusCalibrationError, match=r"operating mode 4 \(which no model"):
             BusGripper(bus.path, model, 6, calibration=_jaw("xl330"))
     table = _table("sts3215")
     f = table.spec.role("max_torque_limit")

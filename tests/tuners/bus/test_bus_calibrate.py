@@ -150,6 +150,30 @@ def test_given_positions_are_checked_against_the_servos_limits(tmp_path, capsys)
         assert "nothing was written to the servo" in capsys.readouterr().out
 
 
+def test_a_koch_gripper_in_mode_5_is_recorded_and_another_mode_refused(tmp_path, capsys):
+    """An XL330 in current-based position mode 5 (LeRobot's koch_follower): calibrated, its
+    mode in the calibration, nothing written; extended position (4) is refused in one line,
+    exit 2, nothing written."""
+    out = tmp_path / "jaw.json"
+    args = ["--id", "6", "--model", "xl330", "--closed-ticks", str(CLOSED), "--open-ticks",
+            str(OPEN), "--out", str(out)]  # fmt: skip
+    present = slice(0, 132)  # up to Present_Position, which the hand moves
+    with _arm("xl330", HandPhysics(HOLDING), operating_mode=5) as bus:
+        before = bytes(bus.table(GRIPPER).memory[present])
+        assert calibrate.main(["--port", bus.path, *args]) == 0
+        assert bytes(bus.table(GRIPPER).memory[present]) == before
+    cal = read_jaw_file(out)
+    assert cal.servo is not None and cal.servo.operating_mode == 5
+    assert cal.servo.loop_mode("xl330") == "current_position"
+    assert "current-based position control (operating mode 5" in capsys.readouterr().out
+    with _arm("xl330", HandPhysics(HOLDING), operating_mode=4) as bus:
+        before = bytes(bus.table(GRIPPER).memory[present])
+        assert calibrate.main(["--port", bus.path, *args]) == 2
+        assert bytes(bus.table(GRIPPER).memory[present]) == before
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "servo 6 is in operating mode 4, not position control or current-based" in line
+
+
 def test_a_motor_that_is_not_the_gripper_is_refused_before_anything_is_sent(tmp_path, capsys):
     """LeRobot's file names every joint of the arm: only ``gripper`` is taken. Another motor is
     refused in one line, exit 2, before the port is opened (not a packet on the bus); with

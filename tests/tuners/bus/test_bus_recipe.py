@@ -13,6 +13,7 @@ import json
 import pytest
 from bus_recipe import SETTINGS, check_deployed, check_identified, check_tuned, perturbed_truth
 
+from gripper_env.hardware.bus.control_table import ControlTable
 from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.unit import ServoUnit
 from gripper_env.model.bus_calibration import JawCalibration
@@ -78,9 +79,31 @@ def test_deploy_refuses_an_unstable_set_before_touching_the_servo(tmp_path, caps
 
 
 def test_record_refuses_an_unstable_setting_before_touching_the_servo(tmp_path, capsys):
+    # the settings are judged in the loop the jaw calibration found the servo in: read first
+    jaw = tmp_path / "jaw.json"
+    cal = JawCalibration(family="sts3215", closed_ticks=1707, open_ticks=2958)
+    jaw.write_text(json.dumps({"calibration": cal.model_dump()}))
     with VirtualBus("sts3215") as bus:
         code = record.main(["--port", bus.path, "--settings", "254,0,0", "32,0,32",
-                            "--out", str(tmp_path)])  # fmt: skip
+                            "--jaw", str(jaw), "--out", str(tmp_path)])  # fmt: skip
         assert code == 2
         assert bus.packets_received == 0
     assert "refusing to record P=254" in capsys.readouterr().err
+
+
+def test_record_refuses_a_mode_5_servo_without_goal_current(tmp_path, capsys):
+    """Current-based position control with Goal_Current 0 holds no torque: record says so in
+    one line, exit 2, and writes nothing (the servo's goal current is the owner's)."""
+    table = ControlTable("xl330", 1)
+    table.store("operating_mode", 5)
+    table.set("goal_current", 0)
+    jaw = str(tmp_path / "jaw.json")
+    with VirtualBus("xl330", ids=[table]) as bus:
+        assert calibrate.main(["--port", bus.path, "--id", "1", "--model", "xl330", *JAW,
+                               "--out", jaw]) == 0  # fmt: skip
+        before = bytes(table.memory)
+        code = record.main(["--port", bus.path, "--id", "1", "--model", "xl330", "--jaw", jaw,
+                            "--out", str(tmp_path)])  # fmt: skip
+        assert code == 2 and bytes(table.memory) == before
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "goal current 0 (Current_Limit 1750): it holds no torque" in line, line

@@ -95,3 +95,34 @@ def test_the_koch_gripper_tunes_in_current_based_position_mode(tmp_path, capsys)
     assert "--operating-mode current_position" in capsys.readouterr().err
     assert main(["--model", "xl330", "--goal-current", "600"]) == 2
     assert "current-based position mode" in capsys.readouterr().err
+
+
+def test_a_narrow_feasible_region_is_reached_from_the_least_violation():
+    """A Koch gripper's fit in mode 5 with the loop delay at 3 ms (its margins judged at 4 ms
+    too, where a current-driven loop holds Ms 1.6 only at low gains, and the hold needs force):
+    the global stage lands no feasible set, the walk from the least violation reaches one."""
+    shipped = load_bus_servo("xl330")
+    ph, sc = shipped.physics, shipped.scale
+    model = shipped.with_updates(
+        operating_mode="current_position",
+        scale=sc.model_copy(update={"kp": 8.993e-06, "kd": 5.252e-05}),
+        physics=ph.model_copy(update={"tau_m_s": 0.01795, "omega0_deg_s": 583.5,
+                                      "coulomb": 0.0274, "static": 0.0274, "delay_s": 0.0,
+                                      "loop_delay_s": 0.003}),
+    )  # fmt: skip
+    best, study = tune_registers(model, trials=60, polish=150, progress=False)
+    assert not [t for t in study.trials[:60] if t.user_attrs["constraint"] <= 0.0]
+    assert best.feasible and best.robust_margins.ms <= MS_MAX
+    assert judge(model, [best.registers])[0].feasible  # judged again, alone
+
+
+def test_a_mode_5_fit_with_a_late_loop_delay_says_to_record_again():
+    """At a 6 ms loop delay (a loaded host's records put it there; the truth's is 3) no set
+    holds a current-driven loop's margins and the hold: the error names the delays the margins
+    were asked to hold at and says to record again."""
+    shipped = load_bus_servo("xl330")
+    model = shipped.with_updates(operating_mode="current_position",
+                                 physics=shipped.physics.model_copy(
+                                     update={"loop_delay_s": 0.006}))  # fmt: skip
+    with pytest.raises(RuntimeError, match=r"loop delays up to 7 ms.*record again"):
+        tune_registers(model, trials=40, polish=60, progress=False)

@@ -1,5 +1,5 @@
-"""``python -m tuners.bus.virtual --lerobot``: the gripper as LeRobot's SO follower leaves it,
-its registers in flash (they survive a power cycle), read by the vendor's SDK."""
+"""``python -m tuners.bus.virtual --lerobot``: the gripper as LeRobot's SO or Koch follower
+leaves it, its registers in flash (they survive a power cycle), read by the vendor's SDK."""
 
 from __future__ import annotations
 
@@ -28,6 +28,15 @@ def test_lerobots_gripper_registers_are_in_flash():
     assert int.from_bytes(powered["max_position_limit"], "little") == 2950
 
 
-def test_lerobot_is_an_sts3215_setting():
-    with pytest.raises(ValueError, match="--lerobot: LeRobot's SO follower is built on STS3215s"):
-        _gripper_table("xl330", 6, None, lerobot=True)
+def test_lerobots_koch_gripper_is_in_mode_5_after_a_power_cycle():
+    """The Koch follower's XL330 gripper: current-based position mode and Return_Delay_Time 0
+    in flash, its Goal_Current at power-on the Current_Limit (koch_follower.configure writes no
+    current); the XL430 is no LeRobot gripper."""
+    table = _gripper_table("xl330", 6, None, lerobot=True)
+    with VirtualBus("xl330", ids=[table]) as bus:
+        bus.power_cycle(6)
+        assert (table.get("operating_mode"), table.get("return_delay_time")) == (5, 0)
+        assert table.get("baud_rate") == table.spec.baud_index(1_000_000)  # LeRobot's rate
+        assert table.get("goal_current") == table.get("current_limit") == 1750
+    with pytest.raises(ValueError, match="--lerobot: LeRobot's followers have an STS3215"):
+        _gripper_table("xl430", 6, None, lerobot=True)
