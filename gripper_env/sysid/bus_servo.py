@@ -71,7 +71,7 @@ _LATER_TICKS = 2
 _ALTERNATIVE_COST = 1.25
 #: The walk searches a neighbouring pair again from the best fit unless the profile's fit there
 #: costs more than this many times the best's.
-_WALK_WITHIN = 2.0
+_WALK_WITHIN = 1.5
 
 
 @dataclass(frozen=True)
@@ -359,7 +359,7 @@ def identify_bus_servo(
     # alternatives (below).
     say("delay profile: a CMA-ES at every (goal, loop) delay pair around it")
     profile = search.delay_profile(problem, x, delay, loop, lo, hi, seed=seed,
-                                   generations=max(generations // 2, 15))  # fmt: skip
+                                   generations=max(generations * 3 // 8, 15))  # fmt: skip
     polished: set[tuple[int, int]] = set()
 
     def polish(pair: tuple[int, int]) -> None:
@@ -371,35 +371,40 @@ def identify_bus_servo(
     say(f"delay profile done: {len(profile)} pairs; polishing the best {search.PROFILE_POLISH}")
     for pair in sorted(profile, key=lambda p: profile[p][0])[: search.PROFILE_POLISH]:
         polish(pair)
-    # then walk from the best pair: each neighbouring pair searched again from the best fit (a
-    # short local CMA-ES and the polish), moving while one is better
+    # then walk from the best pair: its neighbouring pairs searched again from the best fit (a
+    # short local CMA-ES each, all in one batch per generation), those that come near polished,
+    # moving while one is better
     walked: set[tuple[int, int]] = set()
 
-    def search_from(pair: tuple[int, int], x_start: np.ndarray) -> float:
-        """A short local CMA-ES at ``pair`` from ``x_start``, then the polish; its cost."""
-        walked.add(pair)
-        polished.add(pair)
-        _c, theta = search.local_search(problem, x_start, pair, lo, hi, seed=seed,
-                                        generations=max(generations // 4, 10))  # fmt: skip
-        x_n, cost_n = solve(theta, *pair)
-        if cost_n < profile.get(pair, (math.inf,))[0]:
-            profile[pair] = (cost_n, x_n)
-        return cost_n
+    def search_from(pairs: list[tuple[int, int]], x_start: np.ndarray) -> None:
+        """Short local CMA-ES at ``pairs`` from ``x_start``; the polish where one comes within
+        the alternatives' reach of the best."""
+        walked.update(pairs)
+        found = search.local_searches(problem, x_start, pairs, lo, hi, seed=seed,
+                                      generations=max(generations // 8, 10))  # fmt: skip
+        least = min(v[0] for v in profile.values())
+        for pair, (c, theta) in zip(pairs, found, strict=True):
+            if c < profile.get(pair, (math.inf,))[0]:
+                profile[pair] = (c, theta)
+            if c <= _ALTERNATIVE_COST**2 * least:
+                polish(pair)
 
     say("walking to better neighbouring delay pairs")
-    moved = True
-    while moved:
-        moved = False
+    while True:
         (delay, loop), (cost, x) = min(profile.items(), key=lambda kv: kv[1][0])
-        for dd, dl in ((-1, 0), (1, 0), (0, -1), (0, 1), (-1, 1), (1, -1), (-1, -1), (1, 1)):
-            pair = (delay + dd, loop + dl)
-            if pair in walked or not all(0 <= v <= search.MAX_DELAY_TICKS for v in pair):
-                continue
-            if profile.get(pair, (0.0,))[0] > _WALK_WITHIN * cost:
-                continue  # far behind in the profile: a search from the best fit does not win
-            if search_from(pair, x) < cost * (1 - 1e-6):
-                moved = True
-                break
+        ring = [
+            pair
+            for pair in ((delay + dd, loop + dl) for dd in (-1, 0, 1) for dl in (-1, 0, 1))
+            if pair != (delay, loop) and pair not in walked
+            and all(0 <= v <= search.MAX_DELAY_TICKS for v in pair)
+            # far behind in the profile: a search from the best fit does not win
+            and profile.get(pair, (0.0,))[0] <= _WALK_WITHIN * cost
+        ]  # fmt: skip
+        if not ring:
+            break
+        search_from(ring, x)
+        if min(v[0] for v in profile.values()) >= cost * (1 - 1e-6):
+            break
     # The later loop delays the records cannot rule out: a fit short of the servo's delay makes
     # up the phase with the damping (``kd`` low, ``tau_m`` long), and registers tuned on it
     # overshoot their margins on the servo (the README recipe's STS3215: 2 ms against the
@@ -411,7 +416,7 @@ def identify_bus_servo(
         for ahead in range(1, _LATER_TICKS + 1):  # a later tick the profile's window left out
             if loop + ahead <= search.MAX_DELAY_TICKS and all(p[1] != loop + ahead
                                                                for p in profile):  # fmt: skip
-                search_from((delay, loop + ahead), x)
+                search_from([(delay, loop + ahead)], x)
         later = [
             min((p for p in profile if p[1] == loop + k), key=lambda p: profile[p][0])
             for k in range(1, _LATER_TICKS + 1)
