@@ -215,7 +215,7 @@ def _entry(key: str, per: dict[str, Any], data: dict[str, Any], plants: list[str
     first = rows[0]
     name = key.split(" @ ")[0]
     # the tuning record is kept with the plant it was tuned on (stored()): any row's
-    tuning = next((r["tuning"] for r in per.values() if r.get("tuning")), {})
+    tuning: dict[str, Any] = next((r["tuning"] for r in per.values() if r.get("tuning")), {})
     knob = tuning.get("knob")
     shares = [_to_limit(data["plants"][p], per[p]["metrics"]["actual"]["mean"]["iae"])
               for p in plants]  # fmt: skip
