@@ -12,27 +12,16 @@ configure step wrote. Skipped, with the reason, when that environment is absent.
 
 from __future__ import annotations
 
-import json
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+from lerobot_support import LEROBOT_MARKS, LEROBOT_PYTHON, run_lerobot
 
 from gripper_env.hardware.bus.server import VirtualBus
 from gripper_env.hardware.bus.unit import ServoUnit
 
-ROOT = Path(__file__).resolve().parents[3]
-LEROBOT_PYTHON = Path(os.environ.get("LEROBOT_PYTHON", ROOT / ".lerobot-venv" / "bin" / "python"))
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        not LEROBOT_PYTHON.exists(),
-        reason=f"no LeRobot environment at {LEROBOT_PYTHON}: build it with bash "
-        "scripts/lerobot-env.sh (.ci/run does)",
-    ),
-]
+pytestmark = LEROBOT_MARKS
 SERVO_ID = 6  # the gripper's ID on an SO-101 / Koch bus
 
 # A LeRobot user's session, run by LeRobot's interpreter: argv = port, family, goal (0-100).
@@ -89,15 +78,7 @@ print(json.dumps(out))
 
 
 def _run_client(bus: VirtualBus, family: str, goal: float) -> dict[str, object]:
-    proc = subprocess.run(
-        [str(LEROBOT_PYTHON), "-c", CLIENT, bus.path, family, str(goal)],
-        capture_output=True,
-        text=True,
-        timeout=240,
-        cwd="/",
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_lerobot(CLIENT, bus.path, family, str(goal), timeout=240)
 
 
 @pytest.mark.parametrize(

@@ -22,12 +22,11 @@ test serves. Skipped, with the reason, when that environment is absent.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 from pathlib import Path
 
 import pytest
 from bus_recipe import perturbed_truth
+from lerobot_support import LEROBOT_MARKS, run_lerobot
 
 from gripper_env.evaluation.bus_servo import loop_margins
 from gripper_env.hardware.bus.control_table import ControlTable
@@ -37,16 +36,7 @@ from gripper_env.model.bus_calibration import read_jaw_file
 from gripper_env.model.bus_servo import RegisterSet, load_bus_servo
 from tuners.bus import calibrate, deploy, identify, record, tune
 
-ROOT = Path(__file__).resolve().parents[3]
-LEROBOT_PYTHON = Path(os.environ.get("LEROBOT_PYTHON", ROOT / ".lerobot-venv" / "bin" / "python"))
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(
-        not LEROBOT_PYTHON.exists(),
-        reason=f"no LeRobot environment at {LEROBOT_PYTHON}: build it with bash "
-        "scripts/lerobot-env.sh (.ci/run does)",
-    ),
-]
+pytestmark = LEROBOT_MARKS
 GRIPPER = 6
 #: Koch v1.1's servos by ID (LeRobot's KochFollower): two XL430s, then four XL330s.
 XL430_IDS = (1, 2)
@@ -113,15 +103,7 @@ print(json.dumps(out))
 
 
 def _lerobot(bus: VirtualBus, folder: Path, phase: str, stops: tuple[int, int]) -> dict:
-    proc = subprocess.run(
-        [str(LEROBOT_PYTHON), "-c", CLIENT, bus.path, str(folder), phase, *map(str, stops)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd="/",
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    return run_lerobot(CLIENT, bus.path, str(folder), phase, *map(str, stops))
 
 
 def _writable_ram(table: ControlTable) -> dict[str, int]:
